@@ -1,0 +1,107 @@
+"""Ingest throughput: indoormap's reader against a plain line-by-line Python reader.
+
+    python benchmarks/ingest.py [FOLDER ...] [--repeat 3]
+
+Default input: ``../shared/ilc/site1/F1`` when present, else the simulated sample in
+``data/sample_site``. Every measurement runs in a fresh subprocess (so peak memory is its own),
+on the same files, in this one run; the table reports MB/s of trace text (after gunzip), the
+ratio to the plain reader, and peak resident memory. Best of ``--repeat`` runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_F1 = REPO.parent / "shared" / "ilc" / "site1" / "F1"
+
+CHILD = r"""
+import json, resource, sys, time, gzip
+sys.path.insert(0, {bench!r})
+paths = json.loads(sys.argv[1]); mode = sys.argv[2]; out = sys.argv[3]
+t = time.perf_counter()
+if mode == "plain":
+    from plain_reader import read_plain
+    for p in paths:
+        read_plain(p)
+elif mode == "reader":
+    from survey.trace_reader import iter_traces
+    for _ in iter_traces(paths):
+        pass
+elif mode == "ingest-1":
+    from survey.ingest import ingest
+    ingest(paths, out, workers=1)
+elif mode == "ingest-2":
+    from survey.ingest import ingest
+    ingest(paths, out, workers=2)
+dt = time.perf_counter() - t
+rss = max(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
+          resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)
+print(json.dumps({{"seconds": dt, "peak_rss_mb": rss / 1024}}))
+"""
+
+MODES = [
+    ("plain", "plain line-by-line Python reader (baseline)"),
+    ("reader", "indoormap reader, 1 process"),
+    ("ingest-1", "indoormap ingest to store, 1 process"),
+    ("ingest-2", "indoormap ingest to store, 2 workers"),
+]
+
+
+def text_bytes(paths: list[str]) -> int:
+    import gzip
+
+    total = 0
+    for p in paths:
+        opener = gzip.open if p.endswith(".gz") else open
+        with opener(p, "rb") as fh:
+            total += len(fh.read())
+    return total
+
+
+def run(mode: str, paths: list[str]) -> dict:
+    with tempfile.TemporaryDirectory() as tmp:
+        code = CHILD.format(bench=str(Path(__file__).parent))
+        proc = subprocess.run([sys.executable, "-c", code, json.dumps(paths), mode,
+                               str(Path(tmp) / "store")], capture_output=True, text=True,
+                              check=True, cwd=REPO)
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("folders", nargs="*")
+    ap.add_argument("--repeat", type=int, default=3)
+    args = ap.parse_args()
+    folders = [Path(f) for f in args.folders]
+    if not folders:
+        folders = [SHARED_F1] if SHARED_F1.exists() else [REPO / "data" / "sample_site"]
+    paths = sorted(str(p) for f in folders for p in f.rglob("*")
+                   if p.name.endswith((".txt", ".txt.gz")))
+    if not paths:
+        print("no trace files found; nothing to measure")
+        return 0
+    size = text_bytes(paths)
+    print(f"input: {len(paths)} traces, {size / 1e6:.1f} MB of text "
+          f"({sum(Path(p).stat().st_size for p in paths) / 1e6:.1f} MB on disk) from "
+          f"{', '.join(map(str, folders))}")
+    rows = []
+    base = None
+    for mode, label in MODES:
+        best = min((run(mode, paths) for _ in range(args.repeat)), key=lambda r: r["seconds"])
+        mbps = size / 1e6 / best["seconds"]
+        base = base or mbps
+        rows.append((label, best["seconds"], mbps, mbps / base, best["peak_rss_mb"]))
+    print(f"{'reader':<46} {'s':>7} {'MB/s':>8} {'x plain':>8} {'peak MB':>8}")
+    for label, s, mbps, ratio, rss in rows:
+        print(f"{label:<46} {s:7.2f} {mbps:8.1f} {ratio:8.2f} {rss:8.0f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

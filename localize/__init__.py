@@ -1,0 +1,1 @@
+"""indoormap localizer: particle filter on map bundles (in progress)."""

@@ -1,0 +1,1 @@
+"""indoormap mapping stage: floor plans, rasters, fingerprints, bundles (in progress)."""

@@ -1,0 +1,41 @@
+"""The ``indoormap`` command line: a thin layer over the Python API.
+
+Exit codes: 0 success, 1 data or validation failure, 2 usage error (click's own).
+"""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from . import __version__
+from .errors import IndoormapError
+
+
+class _Group(click.Group):
+    """Maps indoormap's own errors to a one-line message and exit code 1."""
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except IndoormapError as err:
+            click.echo(f"error: {err}", err=True)
+            sys.exit(1)
+
+
+@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="indoormap")
+def main() -> None:
+    """indoormap: survey data to versioned map bundles for smartphone indoor positioning."""
+
+
+def _register() -> None:
+    from .cli_ingest import ingest_command
+    from .sim.cli import simulate
+
+    main.add_command(ingest_command)
+    main.add_command(simulate)
+
+
+_register()

@@ -1,0 +1,51 @@
+"""Exception hierarchy of indoormap: one root, one subclass per domain.
+
+Every error a user can trigger with bad input is an :class:`IndoormapError`; anything else that
+escapes is a bug. Subclasses also inherit the closest builtin so that generic handlers work.
+"""
+
+from __future__ import annotations
+
+
+class IndoormapError(Exception):
+    """Root of every error indoormap raises on purpose."""
+
+
+class SurveyFormatError(IndoormapError, ValueError):
+    """A survey file (trace, walk-line CSV, walk plan) does not follow its format.
+
+    Attributes
+    ----------
+    path : str or None
+        File the problem was found in.
+    line : int or None
+        1-based line number, when the problem is on one line.
+    reason : str
+        Short machine-friendly reason (``"field_count"``, ``"non_numeric"``, ...).
+    """
+
+    def __init__(self, message: str, *, path: str | None = None, line: int | None = None,
+                 reason: str = "format") -> None:
+        where = path or "<input>"
+        if line is not None:
+            where = f"{where}:{line}"
+        super().__init__(f"{where}: {message}")
+        self.path = path
+        self.line = line
+        self.reason = reason
+
+
+class StoreError(IndoormapError):
+    """The survey store is missing, locked, or inconsistent."""
+
+
+class PublishError(IndoormapError, OSError):
+    """An output could not be published (target exists without overwrite, I/O failure)."""
+
+
+class SimulationError(IndoormapError, ValueError):
+    """Simulator parameters are inconsistent."""
+
+
+class ProcessingError(IndoormapError, ValueError):
+    """A walk cannot be processed (no steps, no waypoints, missing streams, ...)."""

@@ -1,0 +1,193 @@
+"""Ingest survey files (real-format traces and walk plans) into a :class:`SurveyStore`.
+
+Pure orchestration: find inputs, skip what the store already holds (same sha256), parse the
+rest in batches (optionally in worker processes, each writing its own part files), and commit
+the catalog once at the end. Returns an :class:`IngestSummary` that accounts for every line.
+"""
+
+from __future__ import annotations
+
+import os
+from collections import Counter
+from collections.abc import Callable, Iterable
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .errors import SurveyFormatError
+from .store import IngestOutcome, SurveyStore, catalog_row, file_sha256, write_parts
+from .trace_reader import BATCH_BYTES, ReadFailure, find_trace_files, iter_traces, \
+    trace_id_from_path
+from .walkline import identity_sha256, is_walk_plan, read_walk_plan
+
+
+@dataclass
+class IngestSummary:
+    """Totals of one ingest run."""
+
+    outcomes: list[IngestOutcome] = field(default_factory=list)
+    rows: dict[str, int] = field(default_factory=Counter)  # traces, samples, scans, ...
+    skipped: dict[str, int] = field(default_factory=Counter)  # undocumented types
+    bad: dict[str, int] = field(default_factory=Counter)  # bad lines by reason
+    dropped: dict[str, int] = field(default_factory=Counter)
+    messages: list[str] = field(default_factory=list)
+
+    @property
+    def failed(self) -> list[IngestOutcome]:
+        return [o for o in self.outcomes if o.status == "failed"]
+
+    def status_counts(self) -> dict[str, int]:
+        return dict(Counter(o.status for o in self.outcomes))
+
+    def add_row(self, row: dict, max_messages: int = 20) -> None:
+        import json
+
+        self.rows["traces"] += 1
+        for key in ("n_lines", "n_sensor_rows", "n_scans", "n_wifi_rows", "n_ble_rows",
+                    "n_waypoints"):
+            self.rows[key[2:]] += int(row[key])
+        for name, target in (("skipped_json", self.skipped), ("bad_json", self.bad),
+                             ("dropped_json", self.dropped)):
+            for k, v in json.loads(row[name]).items():
+                target[k] += v
+        room = max_messages - len(self.messages)
+        if room > 0:
+            self.messages.extend(json.loads(row["messages_json"])[:room])
+
+
+def find_inputs(paths: Iterable[str | os.PathLike]) -> tuple[list[Path], list[Path]]:
+    """Split inputs into trace files and walk plans (``*.geojson``), searching folders."""
+    traces, plans = [], []
+    for p in map(Path, paths):
+        if p.is_dir():
+            plans.extend(sorted(p.rglob("*.geojson")))
+            traces.extend(find_trace_files([p]))
+        elif is_walk_plan(p):
+            if not p.exists():
+                raise SurveyFormatError("no such file", path=str(p), reason="missing")
+            plans.append(p)
+        else:
+            traces.extend(find_trace_files([p]))
+    return sorted(set(traces)), sorted(set(plans))
+
+
+def _parse_and_write(root: str, paths: list[str], shas: list[str], sizes: list[int],
+                     strict: bool, batch_bytes: int) -> list[tuple[str, dict | None, str]]:
+    """Worker: parse traces, write their part files; returns (path, catalog row, error)."""
+    out = []
+    info = {p: (s, n) for p, s, n in zip(paths, shas, sizes)}
+    for item in iter_traces(paths, strict=strict, batch_bytes=batch_bytes):
+        if isinstance(item, ReadFailure):
+            out.append((item.path, None, str(item.error)))
+            continue
+        sha, size = info[item.report.path]
+        row = catalog_row(item, source_path=item.report.path, sha256=sha, size_bytes=size)
+        write_parts(Path(root), item, row)
+        out.append((item.report.path, row, ""))
+    return out
+
+
+def ingest(paths: Iterable[str | os.PathLike], store: str | os.PathLike | SurveyStore, *,
+           strict: bool = False, workers: int = 1, batch_bytes: int = BATCH_BYTES,
+           progress: Callable[[int, int], None] | None = None) -> IngestSummary:
+    """Ingest trace files, folders and walk plans into ``store`` (created if missing).
+
+    Parameters
+    ----------
+    paths : iterable of path-like
+        Files (``.txt``, ``.txt.gz``, walk plans ``.geojson``) and folders to search.
+    store : path-like or SurveyStore
+        The store folder.
+    strict : bool
+        Stop at the first bad line (raises :class:`SurveyFormatError`); nothing of this run is
+        committed then, and the store keeps its previous state.
+    workers : int
+        Worker processes parsing in parallel (1 = in this process).
+    progress : callable(done, total), optional
+        Called after each file.
+
+    Returns
+    -------
+    IngestSummary
+    """
+    store = store if isinstance(store, SurveyStore) else SurveyStore.create(store)
+    trace_files, plans = find_inputs(paths)
+    summary = IngestSummary()
+    total = len(trace_files) + len(plans)
+    done = 0
+
+    def tick(n: int = 1) -> None:
+        nonlocal done
+        done += n
+        if progress:
+            progress(done, total)
+
+    with store.writer() as w:
+        todo: list[tuple[str, str, int]] = []
+        for p in trace_files:
+            sha = file_sha256(p)
+            known = w.known(trace_id_from_path(p), sha)
+            if known:
+                known.path = str(p)
+                summary.outcomes.append(known)
+                tick()
+            else:
+                todo.append((str(p), sha, p.stat().st_size))
+        chunks = _chunks(todo, batch_bytes, max(1, workers))
+        results = []
+        if workers > 1 and len(chunks) > 1:
+            with ProcessPoolExecutor(max_workers=workers) as pool:
+                futures = [pool.submit(_parse_and_write, str(store.root), *zip(*c), strict,
+                                       batch_bytes) for c in chunks]
+                for fut in futures:
+                    res = fut.result()
+                    results.extend(res)
+                    tick(len(res))
+        else:
+            for c in chunks:
+                res = _parse_and_write(str(store.root), *map(list, zip(*c)), strict, batch_bytes)
+                results.extend(res)
+                tick(len(res))
+        for path, row, error in results:
+            if row is None:
+                summary.outcomes.append(IngestOutcome(path, trace_id_from_path(path), "failed",
+                                                      error))
+                continue
+            status = w.add_row(row)
+            summary.outcomes.append(IngestOutcome(path, row["trace_id"], status))
+            summary.add_row(row)
+        for plan in plans:
+            for trace, source, identity in read_walk_plan(plan, strict=strict):
+                sha = identity_sha256(identity)
+                known = w.known(trace.trace_id, sha)
+                if known:
+                    known.path = source
+                    summary.outcomes.append(known)
+                    continue
+                status = w.add(trace, source_path=source, sha256=sha, size_bytes=len(identity),
+                               source_format="walkline")
+                summary.outcomes.append(IngestOutcome(source, trace.trace_id, status))
+                summary.add_row(w.pending[trace.trace_id])
+            tick()
+    return summary
+
+
+def _chunks(todo: list[tuple[str, str, int]], batch_bytes: int, workers: int
+            ) -> list[list[tuple[str, str, int]]]:
+    """Split files into about ``2 * workers`` chunks (by compressed size) for the pool."""
+    if not todo:
+        return []
+    if workers == 1:
+        return [todo]
+    total = sum(t[2] for t in todo)
+    target = max(total / (2 * workers), 1)
+    chunks, cur, size = [], [], 0
+    for item in todo:
+        cur.append(item)
+        size += item[2]
+        if size >= target:
+            chunks.append(cur)
+            cur, size = [], 0
+    if cur:
+        chunks.append(cur)
+    return chunks

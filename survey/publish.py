@@ -1,0 +1,121 @@
+"""Crash-safe publication of files and directories.
+
+Every output indoormap writes goes through here: content is written into a temporary sibling,
+fsynced, moved into place with :func:`os.replace`, and the parent directory is fsynced. A crash at
+any point leaves either the old output or the new one, plus at most a ``.tmp-*`` sibling that the
+next publish to the same parent removes.
+
+Tests inject crashes with the ``INDOORMAP_CRASH_AT`` environment variable: when it names a crash
+point passed to :func:`crash_point`, the process exits immediately with ``os._exit(70)``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+from .errors import PublishError
+
+TMP_PREFIX = ".tmp-"
+
+
+def crash_point(name: str) -> None:
+    """Exit at once (no cleanup, like a power cut) if ``INDOORMAP_CRASH_AT == name``."""
+    if os.environ.get("INDOORMAP_CRASH_AT") == name:
+        os._exit(70)
+
+
+def fsync_dir(path: str | os.PathLike) -> None:
+    """fsync a directory so a rename inside it is durable (no-op where unsupported)."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _fsync_tree(root: Path) -> None:
+    for dirpath, _dirnames, filenames in os.walk(root):
+        for name in filenames:
+            with open(os.path.join(dirpath, name), "rb") as fh:
+                os.fsync(fh.fileno())
+        fsync_dir(dirpath)
+
+
+def remove_stale_temporaries(parent: str | os.PathLike) -> int:
+    """Remove ``.tmp-*`` leftovers of crashed publishes in ``parent``; returns how many."""
+    parent = Path(parent)
+    if not parent.is_dir():
+        return 0
+    n = 0
+    for p in parent.glob(TMP_PREFIX + "*"):
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p, ignore_errors=True)
+        else:
+            p.unlink(missing_ok=True)
+        n += 1
+    return n
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes, *, overwrite: bool = False) -> None:
+    """Write ``data`` to ``path`` atomically (temp file, fsync, rename, dir fsync)."""
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise PublishError(f"{path}: exists; pass overwrite=True (CLI: --overwrite) to replace it")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=TMP_PREFIX, dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    fsync_dir(path.parent)
+
+
+@contextlib.contextmanager
+def atomic_directory(target: str | os.PathLike, *, overwrite: bool = False,
+                     crash_prefix: str = "publish") -> Iterator[Path]:
+    """Build a directory in a temporary sibling and move it into place on success.
+
+    Yields the temporary directory to fill. On an exception the temporary directory is removed
+    and ``target`` is untouched. With ``overwrite`` an existing target is replaced: it is first
+    renamed aside, the new one renamed in, then the old one deleted, so that the target path
+    always holds a complete directory except for the instant between two renames.
+    """
+    target = Path(target)
+    if target.exists() and not overwrite:
+        raise PublishError(f"{target}: exists; pass overwrite=True (CLI: --overwrite) to replace it")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_temporaries(target.parent)
+    tmp = Path(tempfile.mkdtemp(prefix=TMP_PREFIX, dir=target.parent))
+    try:
+        yield tmp
+        crash_point(f"{crash_prefix}:before-fsync")
+        _fsync_tree(tmp)
+        crash_point(f"{crash_prefix}:before-rename")
+        if target.exists():
+            old = Path(tempfile.mkdtemp(prefix=TMP_PREFIX, dir=target.parent))
+            os.replace(target, old / "old")
+            os.replace(tmp, target)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, target)
+        fsync_dir(target.parent)
+        crash_point(f"{crash_prefix}:after-rename")
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise

@@ -1,0 +1,182 @@
+"""The trace format of survey walks and its in-memory form.
+
+A trace is tab-separated text, one record per line: Unix time (ms), a record type, then values
+(see ``docs/trace_format.md``). This module is the single description of the record layouts; the
+reader, the writer and the simulator all use it.
+
+In memory a parsed trace is a :class:`Trace`: a header and one pandas table per stream, each with
+the columns listed in the ``*_COLUMNS`` constants below, sorted by time.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+#: Sensor record types -> stream name used in the store. Calibrated streams carry x, y, z and an
+#: accuracy; uncalibrated ones carry x, y, z, the bias the phone estimated per axis, and accuracy.
+CALIBRATED_STREAMS: dict[str, str] = {
+    "TYPE_ACCELEROMETER": "accelerometer",
+    "TYPE_GYROSCOPE": "gyroscope",
+    "TYPE_MAGNETIC_FIELD": "magnetic_field",
+    "TYPE_ROTATION_VECTOR": "rotation_vector",
+}
+UNCALIBRATED_STREAMS: dict[str, str] = {
+    "TYPE_ACCELEROMETER_UNCALIBRATED": "accelerometer_uncalibrated",
+    "TYPE_GYROSCOPE_UNCALIBRATED": "gyroscope_uncalibrated",
+    "TYPE_MAGNETIC_FIELD_UNCALIBRATED": "magnetic_field_uncalibrated",
+}
+SENSOR_STREAMS: dict[str, str] = {**CALIBRATED_STREAMS, **UNCALIBRATED_STREAMS}
+STREAM_TO_RECORD: dict[str, str] = {v: k for k, v in SENSOR_STREAMS.items()}
+#: Stream names in a fixed order; the store keeps the stream as this category.
+STREAM_NAMES: tuple[str, ...] = tuple(SENSOR_STREAMS.values())
+
+#: Number of values after (timestamp, type) for every documented record type.
+VALUE_COUNTS: dict[str, int] = {
+    **{k: 4 for k in CALIBRATED_STREAMS},
+    **{k: 7 for k in UNCALIBRATED_STREAMS},
+    "TYPE_WIFI": 5,  # ssid, bssid, rssi dBm, frequency MHz, last-seen ms
+    "TYPE_BEACON": 8,  # uuid, major, minor, tx power dBm, rssi dBm, distance m, MAC, time ms
+    "TYPE_WAYPOINT": 2,  # x m, y m
+}
+DOCUMENTED_TYPES: frozenset[str] = frozenset(VALUE_COUNTS)
+
+SENSOR_COLUMNS = ("stream", "t_ms", "x", "y", "z", "bx", "by", "bz", "accuracy")
+WIFI_COLUMNS = ("scan_t_ms", "ssid", "bssid", "rssi_dbm", "freq_mhz", "last_seen_ms", "age_ms")
+BLE_COLUMNS = ("t_ms", "uuid", "major", "minor", "key", "tx_power_dbm", "rssi_dbm",
+               "distance_m", "mac", "last_seen_ms")
+WAYPOINT_COLUMNS = ("t_ms", "x_m", "y_m")
+
+SENSOR_DTYPES = {"t_ms": "int64", "x": "float32", "y": "float32", "z": "float32",
+                 "bx": "float32", "by": "float32", "bz": "float32", "accuracy": "int8"}
+WIFI_DTYPES = {"scan_t_ms": "int64", "rssi_dbm": "int16", "freq_mhz": "int32",
+               "last_seen_ms": "int64", "age_ms": "int64"}
+BLE_DTYPES = {"t_ms": "int64", "major": "int32", "minor": "int32", "tx_power_dbm": "int16",
+              "rssi_dbm": "int16", "distance_m": "float64", "last_seen_ms": "int64"}
+WAYPOINT_DTYPES = {"t_ms": "int64", "x_m": "float64", "y_m": "float64"}
+
+#: RSSI values outside this range (dBm) are malformed.
+RSSI_RANGE_DBM = (-127, 0)
+
+
+@dataclass(frozen=True)
+class SensorInfo:
+    """One ``#\ttype:N\tname:...`` header line: a sensor the phone declared."""
+
+    type_code: int
+    name: str = ""
+    vendor: str = ""
+    version: str = ""
+    resolution: float = float("nan")
+    power_ma: float = float("nan")
+    maximum_range: float = float("nan")
+
+
+@dataclass
+class TraceHeader:
+    """Metadata from the ``#`` lines of a trace. Missing items are ``None``."""
+
+    start_ms: int | None = None
+    end_ms: int | None = None
+    site_id: str | None = None
+    site_name: str | None = None
+    floor_id: str | None = None
+    floor_name: str | None = None
+    brand: str | None = None
+    model: str | None = None
+    android_version: str | None = None
+    api_level: str | None = None
+    app_version: str | None = None
+    sensors: list[SensorInfo] = field(default_factory=list)
+    extra: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass
+class ParseReport:
+    """What a parse kept, skipped and rejected; every line of the file is in exactly one count.
+
+    ``lines_total == header_lines + blank_lines + sum(records) + sum(skipped) + sum(bad)`` where
+    ``records`` counts parsed lines per documented type, ``skipped`` undocumented types
+    (per type) and ``bad`` malformed lines (per reason). ``dropped`` counts rows removed after
+    parsing by a stated rule (duplicate sensor timestamps, duplicate BSSIDs in a scan); they are
+    already included in ``records``. ``messages`` keeps the first few ``file:line: reason``.
+    """
+
+    path: str = "<input>"
+    lines_total: int = 0
+    header_lines: int = 0
+    blank_lines: int = 0
+    records: dict[str, int] = field(default_factory=dict)
+    skipped: dict[str, int] = field(default_factory=dict)
+    bad: dict[str, int] = field(default_factory=dict)
+    dropped: dict[str, int] = field(default_factory=dict)
+    messages: list[str] = field(default_factory=list)
+
+    @property
+    def bad_total(self) -> int:
+        return int(sum(self.bad.values()))
+
+    @property
+    def skipped_total(self) -> int:
+        return int(sum(self.skipped.values()))
+
+    def accounted_lines(self) -> int:
+        """Lines covered by the counts; equals ``lines_total`` for a consistent report."""
+        return (self.header_lines + self.blank_lines + sum(self.records.values())
+                + self.skipped_total + self.bad_total)
+
+
+@dataclass
+class Trace:
+    """A parsed survey walk: header plus one time-sorted table per stream.
+
+    Tables (columns and dtypes in the module constants):
+
+    - ``sensors``: long table of the seven sensor streams; ``stream`` names the stream,
+      ``x, y, z`` are the values (m/s^2, rad/s, uT, or rotation-vector components), ``bx, by, bz``
+      the phone's bias estimate for uncalibrated streams (NaN otherwise), ``accuracy`` Android's
+      accuracy flag. Sorted by (stream, t_ms).
+    - ``wifi``: one row per (scan, BSSID) with RSSI (dBm), frequency (MHz), last-seen time and
+      ``age_ms = scan_t_ms - last_seen_ms``. Sorted by (scan_t_ms, bssid).
+    - ``ble``: one row per beacon sighting, keyed ``uuid:major:minor``. Sorted by t_ms.
+    - ``waypoints``: ground-truth clicks (x east, y north, metres). Sorted by t_ms.
+    """
+
+    trace_id: str
+    header: TraceHeader
+    sensors: pd.DataFrame
+    wifi: pd.DataFrame
+    ble: pd.DataFrame
+    waypoints: pd.DataFrame
+    report: ParseReport = field(default_factory=ParseReport)
+
+    def stream(self, name: str) -> pd.DataFrame:
+        """Rows of one sensor stream (e.g. ``"magnetic_field"``), time-sorted."""
+        if name not in STREAM_NAMES:
+            raise KeyError(f"unknown sensor stream {name!r}; expected one of {STREAM_NAMES}")
+        return self.sensors[self.sensors["stream"] == name].reset_index(drop=True)
+
+
+def empty_table(columns: tuple[str, ...], dtypes: dict[str, str]) -> pd.DataFrame:
+    """An empty table with the given columns; string columns get pandas' ``str`` dtype."""
+    return pd.DataFrame({c: pd.Series([], dtype=dtypes.get(c, "str")) for c in columns})
+
+
+def stream_category(values) -> pd.Categorical:
+    """Stream names as a categorical with the fixed category order :data:`STREAM_NAMES`."""
+    return pd.Categorical(values, categories=list(STREAM_NAMES))
+
+
+def normalize_bssid(raw: pd.Series) -> tuple[pd.Series, np.ndarray]:
+    """Lower-case, colon-separated MAC addresses; returns (normalized, valid mask).
+
+    Accepts ``AA:BB:CC:DD:EE:FF``, ``aa-bb-...`` and bare 12 hex digits.
+    """
+    s = raw.astype("str").str.strip().str.lower().str.replace("-", ":", regex=False)
+    bare = s.str.fullmatch(r"[0-9a-f]{12}")
+    if bare.any():
+        s = s.where(~bare, s.str.replace(r"(..)(?!$)", r"\1:", regex=True))
+    valid = s.str.fullmatch(r"[0-9a-f]{2}(:[0-9a-f]{2}){5}").to_numpy(dtype=bool)
+    return s, valid

@@ -1,0 +1,718 @@
+"""Fast reader for survey traces (``.txt`` and ``.txt.gz``), see ``docs/trace_format.md``.
+
+The reader is columnar and works on batches of files at once: the texts of several traces are
+concatenated, split into lines with numpy, every line's record type is classified in bulk from the
+positions of its first two tabs, and all lines with the same value layout (calibrated sensors,
+uncalibrated sensors, Wi-Fi, beacons, waypoints) are handed to pyarrow's multi-threaded CSV parser
+as one block. Only a block that fails this fast path (a non-numeric value, a wrong field count, a
+stray carriage return, invalid UTF-8) is re-read line by line to find the bad lines.
+
+Every line ends up in exactly one count of its trace's :class:`~survey.trace_format.ParseReport`:
+header, blank, parsed record (per type), skipped undocumented type, or bad line (per reason).
+Lenient mode (default) skips bad lines; strict mode raises :class:`SurveyFormatError` naming the
+file and line of the first bad line.
+
+Rules applied after parsing (counted in ``report.dropped``):
+
+- ``duplicate_timestamp``: a sensor row whose timestamp repeats an earlier row of the same stream
+  in the same trace; the first row in file order is kept.
+- ``duplicate_bssid_in_scan``: a scan that lists a BSSID more than once keeps the freshest row
+  (latest last-seen time), then the strongest RSSI, then the first in file order.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.csv as pacsv
+
+from .errors import SurveyFormatError
+from .trace_bytes import MAX_TRACE_BYTES, read_trace_bytes
+from .trace_format import (
+    BLE_COLUMNS,
+    BLE_DTYPES,
+    CALIBRATED_STREAMS,
+    RSSI_RANGE_DBM,
+    SENSOR_COLUMNS,
+    SENSOR_DTYPES,
+    SENSOR_STREAMS,
+    STREAM_NAMES,
+    UNCALIBRATED_STREAMS,
+    VALUE_COUNTS,
+    WAYPOINT_COLUMNS,
+    WAYPOINT_DTYPES,
+    WIFI_COLUMNS,
+    WIFI_DTYPES,
+    ParseReport,
+    Trace,
+    empty_table,
+    stream_category,
+)
+from .trace_header import parse_header
+
+#: How many ``file:line: reason`` messages a report keeps.
+MAX_MESSAGES = 20
+#: Text bytes parsed together by :func:`iter_traces` (bounds memory; larger files go alone).
+BATCH_BYTES = 16 * 1024**2
+
+_TOKEN_WIDTH = 48  # a record-type token longer than this is malformed
+_TS_WIDTH = 16  # at most 16 digits of milliseconds
+_INT_LIMIT = 2**53  # integers beyond this cannot be values of this format
+
+# Value columns per record type: (name, kind) with kind "f" float, "i" integer, "s" string.
+_SPECS: dict[str, list[tuple[str, str]]] = {
+    **{k: [("x", "f"), ("y", "f"), ("z", "f"), ("accuracy", "i")] for k in CALIBRATED_STREAMS},
+    **{k: [("x", "f"), ("y", "f"), ("z", "f"), ("bx", "f"), ("by", "f"), ("bz", "f"),
+           ("accuracy", "i")] for k in UNCALIBRATED_STREAMS},
+    "TYPE_WIFI": [("ssid", "s"), ("bssid", "s"), ("rssi_dbm", "i"), ("freq_mhz", "i"),
+                  ("last_seen_ms", "i")],
+    "TYPE_BEACON": [("uuid", "s"), ("major", "i"), ("minor", "i"), ("tx_power_dbm", "i"),
+                    ("rssi_dbm", "i"), ("distance_m", "f"), ("mac", "s"), ("last_seen_ms", "i")],
+    "TYPE_WAYPOINT": [("x_m", "f"), ("y_m", "f")],
+}
+assert all(len(v) == VALUE_COUNTS[k] for k, v in _SPECS.items())
+_ARROW_KIND = {"f": pa.float64(), "i": pa.int64(), "s": pa.string()}
+
+# Record types with the same value layout are parsed together as one block ("group").
+_TYPE_LIST: list[str] = [*CALIBRATED_STREAMS, *UNCALIBRATED_STREAMS, "TYPE_WIFI",
+                         "TYPE_BEACON", "TYPE_WAYPOINT"]
+_TYPE_INDEX: dict[str, int] = {k: i for i, k in enumerate(_TYPE_LIST)}
+_GROUP_OF_INDEX = np.array([0] * len(CALIBRATED_STREAMS) + [1] * len(UNCALIBRATED_STREAMS)
+                           + [2, 3, 4], dtype=np.int32)
+_GROUP_SPECS = [_SPECS["TYPE_ACCELEROMETER"], _SPECS["TYPE_ACCELEROMETER_UNCALIBRATED"],
+                _SPECS["TYPE_WIFI"], _SPECS["TYPE_BEACON"], _SPECS["TYPE_WAYPOINT"]]
+_STREAM_CODE_OF_TYPE = np.array([STREAM_NAMES.index(SENSOR_STREAMS[k]) if k in SENSOR_STREAMS
+                                 else -1 for k in _TYPE_LIST], dtype=np.int16)
+# Row k keeps the first k bytes of a token window.
+_PREFIX_MASKS = np.where(np.arange(_TOKEN_WIDTH)[None, :] < np.arange(_TOKEN_WIDTH + 1)[:, None],
+                         np.uint8(255), np.uint8(0)).astype(np.uint8)
+_HASH_MULT = np.array([0x9E3779B97F4A7C15, 0xC2B2AE3D27D4EB4F, 0x165667B19E3779F9,
+                       0x27D4EB2F165667C5, 0xFF51AFD7ED558CCD, 0xC4CEB9FE1A85EC53],
+                      dtype=np.uint64)
+
+
+def trace_id_from_path(path: str | os.PathLike) -> str:
+    """Trace id = file name without ``.gz`` and ``.txt`` suffixes."""
+    name = Path(path).name
+    for suffix in (".gz", ".txt"):
+        if name.endswith(suffix):
+            name = name[: -len(suffix)]
+    return name
+
+
+def find_trace_files(paths: Iterable[str | os.PathLike]) -> list[Path]:
+    """Expand files and folders (recursively) into the sorted list of ``*.txt``/``*.txt.gz``."""
+    found: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_dir():
+            found.extend(q for q in p.rglob("*") if q.is_file()
+                         and (q.name.endswith(".txt") or q.name.endswith(".txt.gz")))
+        elif p.exists():
+            found.append(p)
+        else:
+            raise SurveyFormatError("no such file or folder", path=str(p), reason="missing")
+    return sorted(set(found))
+
+
+# --------------------------------------------------------------------------------------------
+# A batch of texts split into lines
+
+
+@dataclass
+class _Batch:
+    buf: np.ndarray  # uint8, the texts concatenated, each ending with b"\n", then zero padding
+    starts: np.ndarray  # int64 per line: first byte
+    ends: np.ndarray  # int64 per line: one past the last content byte (no \n, no final \r)
+    nexts: np.ndarray  # int64 per line: first byte of the next line
+    file_of_line: np.ndarray  # int64 per line: index into paths
+    first_line: np.ndarray  # int64 per file: global index of its first line (+ total at end)
+    paths: list[str]
+
+
+def _make_batch(texts: Sequence[bytes], paths: Sequence[str]) -> _Batch:
+    pieces = [t if (not t or t.endswith(b"\n")) else t + b"\n" for t in texts]
+    # Zero padding after the text lets fixed-width byte windows run past the last line.
+    buf = np.frombuffer(b"".join([*pieces, bytes(_TOKEN_WIDTH)]), dtype=np.uint8)
+    nl = np.flatnonzero(buf == 10)
+    starts = np.empty(len(nl), dtype=np.int64)
+    if len(nl):
+        starts[0] = 0
+        starts[1:] = nl[:-1] + 1
+    ends = nl.astype(np.int64)
+    cr = (ends > starts) & (buf[np.maximum(ends - 1, 0)] == 13)
+    file_start = np.cumsum([0] + [len(p) for p in pieces])
+    first_line = np.searchsorted(starts, file_start)
+    file_of_line = np.searchsorted(file_start, starts, side="right") - 1
+    return _Batch(buf, starts, ends - cr, ends + 1, file_of_line, first_line, list(paths))
+
+
+class _Collector:
+    """Bad lines (global line index, reason, message) found during one batch parse."""
+
+    def __init__(self) -> None:
+        self.parts: list[tuple[np.ndarray, str, object]] = []
+
+    def add(self, glines: np.ndarray, reason: str, detail: str | np.ndarray) -> None:
+        glines = np.asarray(glines, dtype=np.int64)
+        if len(glines):
+            self.parts.append((glines, reason, detail))
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if not self.parts:
+            empty = np.empty(0, dtype=object)
+            return np.empty(0, dtype=np.int64), empty, empty
+        glines = np.concatenate([p[0] for p in self.parts])
+        reasons = np.concatenate([np.full(len(p[0]), p[1], dtype=object) for p in self.parts])
+        details = np.concatenate([np.full(len(p[0]), p[2], dtype=object) if isinstance(p[2], str)
+                                  else np.asarray(p[2], dtype=object) for p in self.parts])
+        order = np.argsort(glines, kind="stable")
+        return glines[order], reasons[order], details[order]
+
+
+# --------------------------------------------------------------------------------------------
+# Line classification
+
+
+def _classify(b: _Batch, rec: np.ndarray, bad: _Collector,
+              skipped: dict[str, np.ndarray]) -> np.ndarray:
+    """Record type index (into ``_TYPE_LIST``) per line; -1 for other or bad lines.
+
+    Uses the first two tabs of each line: the timestamp before the first, the type token between
+    them. Tokens are hashed in bulk and then checked byte for byte against their group.
+    Undocumented ``TYPE_*`` tokens go to ``skipped`` (token -> global line indices).
+    """
+    buf = b.buf
+    type_of_line = np.full(len(b.starts), -1, dtype=np.int32)
+    idx = np.flatnonzero(rec)
+    if not len(idx):
+        return type_of_line
+    starts, ends = b.starts[idx], b.ends[idx]
+    tab_pos = np.flatnonzero(buf == 9)
+    k0 = np.searchsorted(tab_pos, starts)
+    n_tabs = np.searchsorted(tab_pos, ends) - k0
+    padded = np.append(tab_pos, len(buf))
+    t1 = np.where(n_tabs >= 1, padded[np.minimum(k0, len(tab_pos))], ends)
+    t2 = np.where(n_tabs >= 2, padded[np.minimum(k0 + 1, len(tab_pos))], ends)
+
+    no_tab = n_tabs == 0
+    bad.add(idx[no_tab], "no_type", "expected 'timestamp<TAB>TYPE...' but found no tab")
+    ts_len = t1 - starts
+    offs = np.arange(_TS_WIDTH)
+    windows = _byte_windows(buf, _TOKEN_WIDTH)
+    ts = windows[starts, :_TS_WIDTH]
+    ts_ok = (ts_len >= 1) & (ts_len <= _TS_WIDTH) & (
+        ((ts - np.uint8(48)) <= 9) | (offs >= ts_len[:, None])).all(axis=1)
+    bad.add(idx[~no_tab & ~ts_ok], "bad_timestamp", "timestamp is not an integer of milliseconds")
+    tok_len = t2 - t1 - 1
+    tok_ok = (tok_len >= 1) & (tok_len <= _TOKEN_WIDTH)
+    bad.add(idx[~no_tab & ts_ok & ~tok_ok], "unknown_record", "record type is not a TYPE_ name")
+    ok = ~no_tab & ts_ok & tok_ok
+    idx, t1, tok_len = idx[ok], t1[ok], tok_len[ok]
+    if not len(idx):
+        return type_of_line
+
+    tok = windows[t1 + 1] & _PREFIX_MASKS[tok_len]
+    words = tok.view(np.uint64)  # (n, 6)
+    h = (words * _HASH_MULT).sum(axis=1, dtype=np.uint64)
+    inverse, first = _factorize(h)
+    if not (words == words[first[inverse]]).all():  # a hash collision: compare exactly instead
+        _, first, inverse = np.unique(tok.view(f"S{_TOKEN_WIDTH}").ravel(), return_index=True,
+                                      return_inverse=True)
+    for u, row in enumerate(first):
+        name = tok[row].tobytes().rstrip(b"\0").decode("latin-1")
+        sel = idx[inverse == u]
+        if name in _TYPE_INDEX:
+            type_of_line[sel] = _TYPE_INDEX[name]
+        elif _is_type_name(name):
+            skipped[name] = sel
+        else:
+            bad.add(sel, "unknown_record", f"record type {name[:40]!r} is not a TYPE_ name")
+    return type_of_line
+
+
+def _factorize(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Codes per key and the index of each code's first occurrence (hash-based, O(n))."""
+    codes, uniques = pd.factorize(keys)
+    first = np.empty(len(uniques), dtype=np.int64)
+    first[codes[::-1]] = np.arange(len(codes) - 1, -1, -1)
+    return codes, first
+
+
+def _byte_windows(buf: np.ndarray, width: int) -> np.ndarray:
+    """Read-only view whose row i is ``buf[i:i + width]`` (``buf`` ends with ``width`` zeros).
+
+    Fancy-indexing its rows gathers ``width`` bytes per index without an index per byte."""
+    return np.lib.stride_tricks.as_strided(buf, shape=(len(buf) - width + 1, width),
+                                           strides=(1, 1), writeable=False)
+
+
+def _is_type_name(name: str) -> bool:
+    return (len(name) > 5 and name.startswith("TYPE_")
+            and all(c.isascii() and (c.isupper() or c.isdigit() or c == "_") for c in name))
+
+
+# --------------------------------------------------------------------------------------------
+# Parsing one block of lines that share a value layout
+
+
+def _join_lines(b: _Batch, sel: np.ndarray) -> bytes:
+    """Bytes of lines ``sel`` (sorted global indices) with their newlines; runs of consecutive
+    lines are copied as one slice."""
+    brk = np.flatnonzero(np.diff(sel) != 1)
+    first = sel[np.r_[0, brk + 1]]
+    last = sel[np.r_[brk, len(sel) - 1]]
+    mv = memoryview(b.buf)
+    return b"".join([mv[s:e] for s, e in zip(b.starts[first].tolist(), b.nexts[last].tolist())])
+
+
+def _arrow_options(spec: list[tuple[str, str]]):
+    names = ["t_ms", "type"] + [c for c, _ in spec]
+    types = {"t_ms": pa.int64(), **{c: _ARROW_KIND[kind] for c, kind in spec}}
+    return (
+        pacsv.ReadOptions(column_names=names, use_threads=True, block_size=1 << 24),
+        pacsv.ParseOptions(delimiter="\t", quote_char=False, double_quote=False,
+                           escape_char=False, newlines_in_values=False,
+                           ignore_empty_lines=False),
+        pacsv.ConvertOptions(column_types=types, include_columns=[n for n in names
+                                                                  if n != "type"],
+                             strings_can_be_null=False, quoted_strings_can_be_null=False,
+                             null_values=[], check_utf8=True),
+    )
+
+
+def _parse_block(block: bytes, spec, glines: np.ndarray, bad: _Collector,
+                 what: str) -> dict[str, np.ndarray | pa.Array]:
+    """Parse lines sharing one layout. Returns columns (numpy; arrow for strings) and
+    ``gline`` (global line index), bad rows removed."""
+    keep = np.ones(len(glines), dtype=bool)
+    try:
+        ro, po, co = _arrow_options(spec)
+        table = pacsv.read_csv(io.BytesIO(block), read_options=ro, parse_options=po,
+                               convert_options=co)
+        if table.num_rows != len(glines):
+            raise ValueError("row count mismatch")
+        cols = {c: (table.column(c).combine_chunks() if kind == "s"
+                    else table.column(c).to_numpy()) for c, kind in [("t_ms", "i"), *spec]}
+    except (pa.ArrowInvalid, UnicodeDecodeError, ValueError):
+        cols, keep, reasons, details = _parse_block_slow(block, spec)
+        for reason in np.unique(reasons[~keep]):
+            sel = ~keep & (reasons == reason)
+            bad.add(glines[sel], str(reason), details[sel])
+    finite = keep.copy()
+    for c, kind in spec:
+        if kind == "f":
+            finite &= np.isfinite(cols[c])
+        elif kind == "i":
+            finite &= np.abs(cols[c]) < _INT_LIMIT
+    bad.add(glines[finite != keep], "non_finite", f"{what}: a value is NaN, infinite or too large")
+    cols["gline"] = glines
+    return _take(cols, np.flatnonzero(finite)) if not finite.all() else cols
+
+
+def _take(cols: dict, index: np.ndarray) -> dict:
+    return {c: (v.take(pa.array(index, type=pa.int64())) if isinstance(v, pa.Array) else v[index])
+            for c, v in cols.items()}
+
+
+def _parse_block_slow(block: bytes, spec):
+    """Line-by-line fallback: (columns, keep mask, reasons, details) for every line."""
+    raw_lines = block.split(b"\n")[:-1]
+    n = len(raw_lines)
+    out: dict[str, list] = {"t_ms": [0] * n}
+    for c, kind in spec:
+        out[c] = [("" if kind == "s" else 0)] * n
+    keep = np.ones(n, dtype=bool)
+    reasons = np.full(n, "", dtype=object)
+    details = np.full(n, "", dtype=object)
+    for i, raw in enumerate(raw_lines):
+        raw = raw[:-1] if raw.endswith(b"\r") else raw
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError:
+            keep[i], reasons[i], details[i] = False, "invalid_utf8", "line is not valid UTF-8"
+            continue
+        fields = text.split("\t")
+        if len(fields) != len(spec) + 2:
+            keep[i], reasons[i] = False, "field_count"
+            name = fields[1] if len(fields) > 1 else "record"
+            details[i] = f"{name[:40]} needs {len(spec)} values, got {len(fields) - 2}"
+            continue
+        out["t_ms"][i] = int(fields[0])
+        for (c, kind), value in zip(spec, fields[2:]):
+            if kind == "s":
+                out[c][i] = value
+                continue
+            try:
+                number = float(value) if kind == "f" else int(value)
+                if kind == "i" and abs(number) >= _INT_LIMIT:
+                    raise OverflowError
+            except (ValueError, OverflowError):
+                keep[i], reasons[i] = False, "non_numeric"
+                expected = "a number" if kind == "f" else "an integer"
+                details[i] = (f"{fields[1][:40]}: field {c!r} expected {expected}, "
+                              f"got {value[:30]!r}")
+                break
+            out[c][i] = number
+    cols: dict[str, np.ndarray | pa.Array] = {"t_ms": np.array(out["t_ms"], dtype=np.int64)}
+    for c, kind in spec:
+        cols[c] = (pa.array(out[c], type=pa.string()) if kind == "s"
+                   else np.array(out[c], dtype=np.float64 if kind == "f" else np.int64))
+    return cols, keep, reasons, details
+
+
+# --------------------------------------------------------------------------------------------
+# Building the per-trace tables from parsed blocks. Every builder sorts rows by file first and
+# returns (rows per file as index ranges, arrays), so that tables are split with slices.
+
+
+def _file_ranges(file_sorted: np.ndarray, n_files: int) -> np.ndarray:
+    return np.searchsorted(file_sorted, np.arange(n_files + 1))
+
+
+def _str_array(values: pa.Array) -> pd.api.extensions.ExtensionArray:
+    return pd.array(values, dtype="str")
+
+
+def _split(frame: pd.DataFrame, ranges: np.ndarray) -> list[pd.DataFrame]:
+    """Row ranges of ``frame`` (sorted by file) as one frame per file, index from 0."""
+    return [frame.iloc[ranges[i]:ranges[i + 1]].reset_index(drop=True)
+            for i in range(len(ranges) - 1)]
+
+
+class _Tables:
+    """Per-file tables of one batch, plus per-file record and drop counts."""
+
+    def __init__(self, b: _Batch) -> None:
+        self.b = b
+        self.n_files = len(b.paths)
+        self.records = np.zeros((self.n_files, len(_TYPE_LIST)), dtype=np.int64)
+        self.dropped: dict[str, np.ndarray] = {}
+
+    def count(self, cols: dict) -> np.ndarray:
+        """Count kept records per file and type; returns the file of every row."""
+        f = self.b.file_of_line[cols["gline"]]
+        np.add.at(self.records, (f, cols["type"]), 1)
+        return f
+
+    def drop(self, name: str, files: np.ndarray) -> None:
+        self.dropped[name] = np.bincount(files, minlength=self.n_files)
+
+    def sensors(self, blocks: list[dict | None], bad: _Collector) -> list[pd.DataFrame]:
+        parts = []
+        for cols in blocks:
+            if cols is None:
+                continue
+            acc_ok = np.abs(cols["accuracy"]) <= 127
+            bad.add(cols["gline"][~acc_ok], "out_of_range", "accuracy must be a small integer")
+            if not acc_ok.all():
+                cols = _take(cols, np.flatnonzero(acc_ok))
+            if "bx" not in cols:
+                for c in ("bx", "by", "bz"):
+                    cols[c] = np.full(len(cols["t_ms"]), np.nan)
+            parts.append(cols)
+        if not parts:
+            return [self._empty_sensors() for _ in range(self.n_files)]
+        cat = {c: np.concatenate([p[c] for p in parts])
+               for c in ("t_ms", "x", "y", "z", "bx", "by", "bz", "accuracy", "gline", "type")}
+        files = self.count(cat)
+        code = _STREAM_CODE_OF_TYPE[cat["type"]]
+        order = np.lexsort((cat["gline"], cat["t_ms"], code, files))
+        files, code, t = files[order], code[order], cat["t_ms"][order]
+        dup = np.zeros(len(order), dtype=bool)
+        dup[1:] = (files[1:] == files[:-1]) & (code[1:] == code[:-1]) & (t[1:] == t[:-1])
+        if dup.any():
+            self.drop("duplicate_timestamp", files[dup])
+            order, files, code, t = order[~dup], files[~dup], code[~dup], t[~dup]
+        frame = pd.DataFrame({
+            "stream": pd.Categorical.from_codes(code, categories=list(STREAM_NAMES)),
+            "t_ms": t,
+            **{c: cat[c][order].astype(np.float32) for c in ("x", "y", "z", "bx", "by", "bz")},
+            "accuracy": cat["accuracy"][order].astype(np.int8)})
+        return _split(frame, _file_ranges(files, self.n_files))
+
+    @staticmethod
+    def _empty_sensors() -> pd.DataFrame:
+        table = empty_table(SENSOR_COLUMNS, SENSOR_DTYPES)
+        table["stream"] = stream_category([])
+        return table
+
+    def wifi(self, cols: dict | None, bad: _Collector) -> list[pd.DataFrame]:
+        if cols is None:
+            return [empty_table(WIFI_COLUMNS, WIFI_DTYPES) for _ in range(self.n_files)]
+        bssid = pc.replace_substring(pc.utf8_lower(pc.utf8_trim_whitespace(cols["bssid"])),
+                                     "-", ":")
+        bare = pc.match_substring_regex(bssid, r"^[0-9a-f]{12}$")
+        if pc.any(bare).as_py():
+            bssid = pc.if_else(bare, pc.replace_substring_regex(
+                bssid, r"^(..)(..)(..)(..)(..)(..)$", r"\1:\2:\3:\4:\5:\6"), bssid)
+        valid = pc.match_substring_regex(bssid, r"^[0-9a-f]{2}(:[0-9a-f]{2}){5}$").to_numpy(
+            zero_copy_only=False)
+        lo, hi = RSSI_RANGE_DBM
+        rssi_ok = (cols["rssi_dbm"] >= lo) & (cols["rssi_dbm"] <= hi)
+        freq_ok = (cols["freq_mhz"] >= 1) & (cols["freq_mhz"] <= 100_000)
+        bad.add(cols["gline"][~valid], "bad_bssid", "TYPE_WIFI: bssid is not a MAC address")
+        bad.add(cols["gline"][valid & ~rssi_ok], "out_of_range",
+                f"TYPE_WIFI: rssi outside [{lo}, {hi}] dBm")
+        bad.add(cols["gline"][valid & rssi_ok & ~freq_ok], "out_of_range",
+                "TYPE_WIFI: frequency is not in MHz")
+        cols["bssid"] = bssid
+        keep = valid & rssi_ok & freq_ok
+        if not keep.all():
+            cols = _take(cols, np.flatnonzero(keep))
+        files = self.count(cols)
+        enc = pc.dictionary_encode(cols["bssid"])
+        dictionary = enc.dictionary.to_numpy(zero_copy_only=False)
+        rank = np.argsort(np.argsort(dictionary, kind="stable"))
+        bcode = rank[enc.indices.to_numpy(zero_copy_only=False)] if len(dictionary) else \
+            np.zeros(0, dtype=np.int64)
+        # Per (file, scan, bssid) the freshest row first: latest last-seen, strongest RSSI.
+        order = np.lexsort((cols["gline"], -cols["rssi_dbm"], -cols["last_seen_ms"], bcode,
+                            cols["t_ms"], files))
+        files, scan, bc = files[order], cols["t_ms"][order], bcode[order]
+        dup = np.zeros(len(order), dtype=bool)
+        dup[1:] = (files[1:] == files[:-1]) & (scan[1:] == scan[:-1]) & (bc[1:] == bc[:-1])
+        if dup.any():
+            self.drop("duplicate_bssid_in_scan", files[dup])
+            order, files, scan = order[~dup], files[~dup], scan[~dup]
+        take = pa.array(order, type=pa.int64())
+        seen = cols["last_seen_ms"][order]
+        frame = pd.DataFrame({
+            "scan_t_ms": scan, "ssid": _str_array(cols["ssid"].take(take)),
+            "bssid": _str_array(cols["bssid"].take(take)),
+            "rssi_dbm": cols["rssi_dbm"][order].astype(np.int16),
+            "freq_mhz": cols["freq_mhz"][order].astype(np.int32),
+            "last_seen_ms": seen, "age_ms": scan - seen})
+        return _split(frame, _file_ranges(files, self.n_files))
+
+    def ble(self, cols: dict | None, bad: _Collector) -> list[pd.DataFrame]:
+        if cols is None:
+            return [empty_table(BLE_COLUMNS, BLE_DTYPES) for _ in range(self.n_files)]
+        lo, hi = RSSI_RANGE_DBM
+        ok = (cols["rssi_dbm"] >= lo) & (cols["rssi_dbm"] <= hi)
+        ok_id = ((cols["major"] >= 0) & (cols["major"] < 2**16) & (cols["minor"] >= 0)
+                 & (cols["minor"] < 2**16) & (np.abs(cols["tx_power_dbm"]) < 2**15))
+        bad.add(cols["gline"][~ok], "out_of_range", f"TYPE_BEACON: rssi outside [{lo}, {hi}] dBm")
+        bad.add(cols["gline"][ok & ~ok_id], "out_of_range",
+                "TYPE_BEACON: major/minor outside [0, 65535] or absurd tx power")
+        keep = ok & ok_id
+        if not keep.all():
+            cols = _take(cols, np.flatnonzero(keep))
+        files = self.count(cols)
+        order = np.lexsort((cols["gline"], cols["t_ms"], files))
+        files = files[order]
+        take = pa.array(order, type=pa.int64())
+        uuid = pc.utf8_lower(pc.utf8_trim_whitespace(cols["uuid"].take(take)))
+        mac = pc.utf8_lower(pc.utf8_trim_whitespace(cols["mac"].take(take)))
+        major, minor = cols["major"][order], cols["minor"][order]
+        key = pc.binary_join_element_wise(uuid, pa.array(major.astype(str)),
+                                          pa.array(minor.astype(str)), ":")
+        frame = pd.DataFrame({
+            "t_ms": cols["t_ms"][order], "uuid": _str_array(uuid),
+            "major": major.astype(np.int32), "minor": minor.astype(np.int32),
+            "key": _str_array(key), "tx_power_dbm": cols["tx_power_dbm"][order].astype(np.int16),
+            "rssi_dbm": cols["rssi_dbm"][order].astype(np.int16),
+            "distance_m": cols["distance_m"][order], "mac": _str_array(mac),
+            "last_seen_ms": cols["last_seen_ms"][order]})
+        return _split(frame, _file_ranges(files, self.n_files))
+
+    def waypoints(self, cols: dict | None) -> list[pd.DataFrame]:
+        if cols is None:
+            return [empty_table(WAYPOINT_COLUMNS, WAYPOINT_DTYPES) for _ in range(self.n_files)]
+        files = self.count(cols)
+        order = np.lexsort((cols["gline"], cols["t_ms"], files))
+        frame = pd.DataFrame({"t_ms": cols["t_ms"][order], "x_m": cols["x_m"][order],
+                              "y_m": cols["y_m"][order]})
+        return _split(frame, _file_ranges(files[order], self.n_files))
+
+
+# --------------------------------------------------------------------------------------------
+# The whole parse
+
+
+def parse_traces(texts: Sequence[bytes], paths: Sequence[str], *, strict: bool = False,
+                 notes: Sequence[str | None] | None = None) -> list[Trace]:
+    """Parse several trace texts (already decompressed) in one batch.
+
+    Parameters
+    ----------
+    texts : sequence of bytes
+        One text per trace.
+    paths : sequence of str
+        The file each text came from (for trace ids and messages).
+    strict : bool
+        Raise :class:`SurveyFormatError` at the first bad line (of the first trace with one).
+    notes : sequence of str or None, optional
+        Per text, a description of a damaged compressed stream whose readable prefix the text
+        is; its last line, if it lacks a newline, is then reported as a bad ``truncated`` line.
+
+    Returns
+    -------
+    list of Trace
+        One per text, in order.
+    """
+    notes = list(notes) if notes is not None else [None] * len(texts)
+    b = _make_batch(texts, paths)
+    n_files = len(b.paths)
+    bad = _Collector()
+    blank = b.ends == b.starts
+    header = ~blank & (b.buf[np.minimum(b.starts, max(len(b.buf) - 1, 0))] == ord("#"))
+    rec = ~blank & ~header
+    for i, (text, note) in enumerate(zip(texts, notes)):
+        if note and text and not text.endswith(b"\n"):
+            last = b.first_line[i + 1] - 1
+            bad.add(np.array([last]), "truncated", f"last line cut off ({note})")
+            blank[last] = header[last] = rec[last] = False
+
+    skipped: dict[str, np.ndarray] = {}
+    type_of_line = _classify(b, rec, bad, skipped)
+    group_of_line = np.where(type_of_line >= 0, _GROUP_OF_INDEX[np.maximum(type_of_line, 0)], -1)
+    blocks: list[dict | None] = []
+    for g, spec in enumerate(_GROUP_SPECS):
+        sel = np.flatnonzero(group_of_line == g)
+        if not len(sel):
+            blocks.append(None)
+            continue
+        what = "sensor record" if g < 2 else _TYPE_LIST[type_of_line[sel[0]]]
+        cols = _parse_block(_join_lines(b, sel), spec, sel, bad, what)
+        cols["type"] = type_of_line[cols["gline"]]
+        blocks.append(cols)
+
+    tables = _Tables(b)
+    sensors = tables.sensors(blocks[:2], bad)
+    wifi = tables.wifi(blocks[2], bad)
+    ble = tables.ble(blocks[3], bad)
+    waypoints = tables.waypoints(blocks[4])
+
+    glines, reasons, details = bad.arrays()
+    bad_file = b.file_of_line[glines]
+    if strict and len(glines):
+        i = int(np.argmin(bad_file * (len(b.starts) + 1) + glines))
+        f = bad_file[i]
+        raise SurveyFormatError(str(details[i]), path=b.paths[f],
+                                line=int(glines[i] - b.first_line[f] + 1), reason=str(reasons[i]))
+
+    per_file = lambda mask: np.bincount(b.file_of_line[mask], minlength=n_files)  # noqa: E731
+    lines_total = np.diff(b.first_line)
+    n_header, n_blank = per_file(header), per_file(blank)
+    skipped_per_file = {k: np.bincount(b.file_of_line[v], minlength=n_files)
+                        for k, v in sorted(skipped.items())}
+    bad_bounds = _file_ranges(bad_file, n_files)  # glines sorted => files sorted
+
+    traces = []
+    for f in range(n_files):
+        report = ParseReport(path=b.paths[f], lines_total=int(lines_total[f]),
+                             header_lines=int(n_header[f]), blank_lines=int(n_blank[f]))
+        report.records = {_TYPE_LIST[t]: int(c) for t, c in enumerate(tables.records[f]) if c}
+        report.skipped = {k: int(v[f]) for k, v in skipped_per_file.items() if v[f]}
+        report.dropped = {k: int(v[f]) for k, v in tables.dropped.items() if v[f]}
+        a, z = bad_bounds[f], bad_bounds[f + 1]
+        for r in reasons[a:z]:
+            report.bad[r] = report.bad.get(r, 0) + 1
+        report.messages = [f"{b.paths[f]}:{g - b.first_line[f] + 1}: {d}"
+                           for g, d in zip(glines[a:a + MAX_MESSAGES],
+                                           details[a:a + MAX_MESSAGES])]
+        if notes[f]:
+            report.messages.insert(0, f"{b.paths[f]}: {notes[f]}; kept the readable part")
+        hdr = np.flatnonzero(header[b.first_line[f]:b.first_line[f + 1]]) + b.first_line[f]
+        head = parse_header(b.buf[s:e].tobytes() for s, e in zip(b.starts[hdr], b.ends[hdr]))
+        traces.append(Trace(trace_id=trace_id_from_path(b.paths[f]), header=head,
+                            sensors=sensors[f], wifi=wifi[f], ble=ble[f],
+                            waypoints=waypoints[f], report=report))
+    return traces
+
+
+def parse_trace_bytes(data: bytes, *, path: str = "<input>", strict: bool = False,
+                      note: str | None = None) -> Trace:
+    """Parse one trace text (already decompressed); see :func:`parse_traces`."""
+    return parse_traces([data], [path], strict=strict, notes=[note])[0]
+
+
+# --------------------------------------------------------------------------------------------
+# Public entry points
+
+
+def read_trace(path: str | os.PathLike, *, strict: bool = False,
+               max_bytes: int = MAX_TRACE_BYTES) -> Trace:
+    """Read one survey trace (``.txt`` or ``.txt.gz``; gzip is detected by its magic bytes).
+
+    Parameters
+    ----------
+    path : path-like
+        The trace file.
+    strict : bool
+        Raise :class:`SurveyFormatError` for the first bad line (or a damaged gzip stream)
+        instead of skipping and counting it.
+    max_bytes : int
+        Refuse a file whose text is larger than this (bytes, after decompression).
+
+    Returns
+    -------
+    Trace
+        Header, the sensor / Wi-Fi / BLE / waypoint tables sorted by time, and a
+        :class:`ParseReport` that accounts for every line.
+
+    Raises
+    ------
+    SurveyFormatError
+        Unreadable file, over-size input, or (strict) the first malformed line, naming
+        ``file:line`` and the reason.
+    """
+    data, note = read_trace_bytes(path, strict=strict, max_bytes=max_bytes)
+    return parse_trace_bytes(data, path=str(path), strict=strict, note=note)
+
+
+@dataclass
+class ReadFailure:
+    """A file that could not be read at all (lenient :func:`iter_traces` yields these)."""
+
+    path: str
+    error: SurveyFormatError
+
+
+def iter_traces(paths: Iterable[str | os.PathLike], *, strict: bool = False,
+                batch_bytes: int = BATCH_BYTES,
+                max_bytes: int = MAX_TRACE_BYTES) -> Iterator[Trace | ReadFailure]:
+    """Read traces in batches of about ``batch_bytes`` of text, yielding them in path order.
+
+    In lenient mode a file that cannot be read at all (I/O error, over-size) is yielded as a
+    :class:`ReadFailure` and reading goes on; in strict mode its error is raised.
+    """
+    texts: list[bytes] = []
+    names: list[str] = []
+    notes: list[str | None] = []
+    size = 0
+    for p in paths:
+        try:
+            data, note = read_trace_bytes(p, strict=strict, max_bytes=max_bytes)
+        except SurveyFormatError as err:
+            if strict:
+                raise
+            yield from _flush(texts, names, notes, strict)
+            texts, names, notes, size = [], [], [], 0
+            yield ReadFailure(str(p), err)
+            continue
+        texts.append(data)
+        names.append(str(p))
+        notes.append(note)
+        size += len(data)
+        if size >= batch_bytes:
+            yield from _flush(texts, names, notes, strict)
+            texts, names, notes, size = [], [], [], 0
+    yield from _flush(texts, names, notes, strict)
+
+
+def _flush(texts, names, notes, strict) -> Iterator[Trace]:
+    if texts:
+        yield from parse_traces(texts, names, strict=strict, notes=notes)
+
+
+__all__ = ["read_trace", "parse_trace_bytes", "parse_traces", "iter_traces", "ReadFailure",
+           "find_trace_files", "trace_id_from_path", "MAX_TRACE_BYTES", "BATCH_BYTES"]

@@ -1,0 +1,237 @@
+"""indoormap's own walk-line format: a GeoJSON walk plan plus one sensor CSV per walk.
+
+For samplers who walk planned lines (see ``docs/walkline_format.md``). A plan is a GeoJSON
+FeatureCollection in map metres (x east, y north); each LineString feature is one walk with
+
+- ``walk_id`` (required): the trace id in the store;
+- ``sensor_log`` (required): path of the walk's sensor CSV, relative to the plan file;
+- either ``start_ms`` and ``end_ms`` (vertices get times in proportion to distance along the
+  line, i.e. a steady pace) or ``vertex_times_ms`` (one strictly increasing time per vertex);
+- optional ``site_id``, ``site_name``, ``floor_id``, ``floor_name``, ``device_brand``,
+  ``device_model``; the collection's own ``properties`` give defaults for every walk.
+
+The sensor CSV has a header row, one row per sample, and the column ``t_ms`` (Unix ms) plus any
+of these groups (a group is all-or-nothing): ``acc_x,acc_y,acc_z`` (m/s^2), ``gyro_x..z`` (rad/s),
+``mag_x..z`` (uT), ``rot_x..z`` (Android rotation vector), ``acc_uncal_x..z`` with
+``acc_bias_x..z``, ``gyro_uncal_x..z`` with ``gyro_bias_x..z``, ``mag_uncal_x..z`` with
+``mag_bias_x..z``, and optionally ``accuracy``. The plan's vertices become the walk's waypoints.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.csv as pacsv
+
+from .errors import SurveyFormatError
+from .trace_format import (
+    BLE_COLUMNS,
+    BLE_DTYPES,
+    STREAM_NAMES,
+    WIFI_COLUMNS,
+    WIFI_DTYPES,
+    ParseReport,
+    Trace,
+    TraceHeader,
+    empty_table,
+)
+
+#: CSV column prefix per stream: (value prefix, bias prefix or None).
+STREAM_COLUMNS: dict[str, tuple[str, str | None]] = {
+    "accelerometer": ("acc", None),
+    "gyroscope": ("gyro", None),
+    "magnetic_field": ("mag", None),
+    "rotation_vector": ("rot", None),
+    "accelerometer_uncalibrated": ("acc_uncal", "acc_bias"),
+    "gyroscope_uncalibrated": ("gyro_uncal", "gyro_bias"),
+    "magnetic_field_uncalibrated": ("mag_uncal", "mag_bias"),
+}
+_AXES = ("x", "y", "z")
+_HEADER_PROPS = {"site_id": "site_id", "site_name": "site_name", "floor_id": "floor_id",
+                 "floor_name": "floor_name", "device_brand": "brand", "device_model": "model"}
+
+
+def is_walk_plan(path: str | os.PathLike) -> bool:
+    """True for ``*.geojson`` files (walk plans are recognised by extension)."""
+    return str(path).endswith(".geojson")
+
+
+def read_walk_plan(path: str | os.PathLike, *, strict: bool = False
+                   ) -> list[tuple[Trace, str, bytes]]:
+    """Read a walk plan and its sensor logs.
+
+    Returns
+    -------
+    list of (Trace, source path of the sensor CSV, identity bytes)
+        One per walk; the identity bytes (the canonical feature JSON plus the CSV content)
+        are what the store hashes to detect changes.
+
+    Raises
+    ------
+    SurveyFormatError
+        Invalid JSON, a feature without the required properties, vertex times out of order,
+        a missing or malformed sensor CSV (strict mode: also any bad CSV row).
+    """
+    path = Path(path)
+    try:
+        plan = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as err:
+        raise SurveyFormatError(f"not a readable GeoJSON walk plan ({err})", path=str(path),
+                                reason="plan") from err
+    if not isinstance(plan, dict) or plan.get("type") != "FeatureCollection":
+        raise SurveyFormatError("walk plan must be a GeoJSON FeatureCollection", path=str(path),
+                                reason="plan")
+    defaults = plan.get("properties") or {}
+    walks = []
+    for k, feature in enumerate(plan.get("features") or []):
+        where = f"{path} (feature {k})"
+        props = {**defaults, **(feature.get("properties") or {})}
+        geom = feature.get("geometry") or {}
+        if geom.get("type") != "LineString":
+            raise SurveyFormatError("walk geometry must be a LineString", path=where,
+                                    reason="plan")
+        xy = np.asarray(geom.get("coordinates"), dtype=float)
+        if xy.ndim != 2 or xy.shape[0] < 2 or xy.shape[1] < 2 or not np.isfinite(xy).all():
+            raise SurveyFormatError("LineString needs at least two finite [x, y] vertices",
+                                    path=where, reason="plan")
+        walk_id = str(props.get("walk_id") or "").strip()
+        log = props.get("sensor_log")
+        if not walk_id or not log:
+            raise SurveyFormatError("feature needs properties 'walk_id' and 'sensor_log'",
+                                    path=where, reason="plan")
+        times = _vertex_times(xy[:, :2], props, where)
+        csv_path = (path.parent / log).resolve()
+        try:
+            csv_bytes = csv_path.read_bytes()
+        except OSError as err:
+            raise SurveyFormatError(f"sensor log {log!r} not readable ({err.strerror})",
+                                    path=where, reason="io") from err
+        trace = parse_sensor_csv(csv_bytes, path=str(csv_path), strict=strict)
+        trace.trace_id = walk_id
+        for prop, attr in _HEADER_PROPS.items():
+            if props.get(prop) is not None:
+                setattr(trace.header, attr, str(props[prop]))
+        trace.header.start_ms, trace.header.end_ms = int(times[0]), int(times[-1])
+        trace.waypoints = pd.DataFrame({"t_ms": times.astype(np.int64), "x_m": xy[:, 0],
+                                        "y_m": xy[:, 1]})
+        identity = json.dumps(feature, sort_keys=True).encode() + b"\n" + csv_bytes
+        walks.append((trace, str(csv_path), identity))
+    if not walks:
+        raise SurveyFormatError("walk plan has no features", path=str(path), reason="plan")
+    return walks
+
+
+def identity_sha256(identity: bytes) -> str:
+    return hashlib.sha256(identity).hexdigest()
+
+
+def _vertex_times(xy: np.ndarray, props: dict, where: str) -> np.ndarray:
+    if props.get("vertex_times_ms") is not None:
+        try:
+            times = np.asarray(props["vertex_times_ms"], dtype=np.float64)
+        except (TypeError, ValueError) as err:
+            raise SurveyFormatError("vertex_times_ms must be numbers", path=where,
+                                    reason="plan") from err
+        if times.shape != (len(xy),):
+            raise SurveyFormatError(f"vertex_times_ms has {times.size} values for {len(xy)} "
+                                    "vertices", path=where, reason="plan")
+    elif props.get("start_ms") is not None and props.get("end_ms") is not None:
+        start, end = float(props["start_ms"]), float(props["end_ms"])
+        dist = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
+        if dist[-1] <= 0:
+            raise SurveyFormatError("walk line has zero length", path=where, reason="plan")
+        times = np.round(start + (end - start) * dist / dist[-1])
+    else:
+        raise SurveyFormatError("feature needs 'start_ms' and 'end_ms' or 'vertex_times_ms'",
+                                path=where, reason="plan")
+    if not np.isfinite(times).all() or np.any(np.diff(times) <= 0):
+        raise SurveyFormatError("vertex times must be finite and strictly increasing",
+                                path=where, reason="plan")
+    return times
+
+
+def parse_sensor_csv(data: bytes, *, path: str = "<input>", strict: bool = False) -> Trace:
+    """Parse a walk-line sensor CSV into a :class:`Trace` (sensors only)."""
+    report = ParseReport(path=path)
+    try:
+        table = pacsv.read_csv(io.BytesIO(data), convert_options=pacsv.ConvertOptions(
+            column_types={}, strings_can_be_null=False))
+    except pa.ArrowInvalid as err:
+        raise SurveyFormatError(f"not a readable CSV ({err})", path=path, reason="csv") from err
+    frame = table.to_pandas()
+    columns = set(frame.columns)
+    if "t_ms" not in columns:
+        raise SurveyFormatError("sensor log needs a 't_ms' column", path=path, reason="csv")
+    report.lines_total = len(frame) + 1
+    report.header_lines = 1
+    numeric = {c: pd.to_numeric(frame[c], errors="coerce") for c in frame.columns}
+    t = numeric["t_ms"]
+    bad_t = ~np.isfinite(t.to_numpy(dtype=float)) | (t.to_numpy(dtype=float) < 0)
+    parts = []
+    row_bad = bad_t.copy()
+    for stream, (prefix, bias) in STREAM_COLUMNS.items():
+        cols = [f"{prefix}_{a}" for a in _AXES] + ([f"{bias}_{a}" for a in _AXES] if bias else [])
+        present = [c for c in cols if c in columns]
+        if not present:
+            continue
+        if len(present) != len(cols):
+            raise SurveyFormatError(f"stream {stream} needs columns {cols}, missing "
+                                    f"{sorted(set(cols) - set(present))}", path=path,
+                                    reason="csv")
+        values = np.column_stack([numeric[c].to_numpy(dtype=float) for c in cols])
+        row_bad |= ~np.isfinite(values).all(axis=1)
+        parts.append((stream, values))
+    if not parts:
+        raise SurveyFormatError("sensor log has no sensor columns (e.g. acc_x, acc_y, acc_z)",
+                                path=path, reason="csv")
+    if row_bad.any():
+        first = int(np.flatnonzero(row_bad)[0]) + 2
+        if strict:
+            raise SurveyFormatError("non-numeric, missing or non-finite value", path=path,
+                                    line=first, reason="non_numeric")
+        report.bad["non_numeric"] = int(row_bad.sum())
+        report.messages = [f"{path}:{i + 2}: non-numeric, missing or non-finite value"
+                           for i in np.flatnonzero(row_bad)[:20]]
+    good = ~row_bad
+    t_ms = t.to_numpy(dtype=float)[good].astype(np.int64)
+    accuracy = (numeric["accuracy"].to_numpy(dtype=float)[good] if "accuracy" in columns
+                else np.full(good.sum(), 3.0))
+    accuracy = np.nan_to_num(accuracy, nan=3.0).astype(np.int8)
+    frames = []
+    for stream, values in parts:
+        v = values[good]
+        order = np.argsort(t_ms, kind="stable")
+        keep = np.ones(len(order), dtype=bool)
+        keep[1:] = t_ms[order][1:] != t_ms[order][:-1]
+        if not keep.all():
+            report.dropped["duplicate_timestamp"] = report.dropped.get(
+                "duplicate_timestamp", 0) + int((~keep).sum())
+        order = order[keep]
+        frames.append(pd.DataFrame({
+            "stream": stream, "t_ms": t_ms[order],
+            "x": v[order, 0], "y": v[order, 1], "z": v[order, 2],
+            "bx": v[order, 3] if v.shape[1] > 3 else np.nan,
+            "by": v[order, 4] if v.shape[1] > 3 else np.nan,
+            "bz": v[order, 5] if v.shape[1] > 3 else np.nan,
+            "accuracy": accuracy[order]}))
+    sensors = pd.concat(frames, ignore_index=True)
+    sensors["stream"] = pd.Categorical(sensors["stream"], categories=list(STREAM_NAMES))
+    sensors = sensors.astype({"x": "float32", "y": "float32", "z": "float32", "bx": "float32",
+                              "by": "float32", "bz": "float32"})
+    sensors = sensors.sort_values(["stream", "t_ms"], kind="stable").reset_index(drop=True)
+    # Each CSV row is a "line" holding several streams: count lines, not stream rows.
+    report.records = {"SENSOR_ROW": int(good.sum())}
+    return Trace(trace_id=Path(path).stem, header=TraceHeader(), sensors=sensors,
+                 wifi=empty_table(WIFI_COLUMNS, WIFI_DTYPES),
+                 ble=empty_table(BLE_COLUMNS, BLE_DTYPES),
+                 waypoints=pd.DataFrame({"t_ms": pd.Series([], dtype="int64"),
+                                         "x_m": pd.Series([], dtype="float64"),
+                                         "y_m": pd.Series([], dtype="float64")}),
+                 report=report)

@@ -1,0 +1,167 @@
+"""Survey store: idempotent ingest, replacement, atomic commit, crash safety, locking."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from factories import small_trace
+from survey.errors import StoreError, SurveyFormatError
+from survey.ingest import ingest
+from survey.store import SurveyStore
+from survey.trace_writer import write_trace
+
+
+def _walks(folder: Path, n: int = 3) -> list[Path]:
+    folder.mkdir(parents=True, exist_ok=True)
+    return [write_trace(folder / f"w{i}.txt.gz", small_trace(n=80, seed=i, trace_id=f"w{i}"))
+            for i in range(n)]
+
+
+def _files(root: Path) -> set[str]:
+    return {str(p.relative_to(root)) for p in root.rglob("*") if p.is_file()}
+
+
+def test_ingest_then_read_tables(tmp_path):
+    _walks(tmp_path / "in")
+    s = ingest([tmp_path / "in"], tmp_path / "store")
+    assert s.status_counts() == {"new": 3}
+    store = SurveyStore.open(tmp_path / "store")
+    cat = store.catalog()
+    assert list(cat["trace_id"]) == ["w0", "w1", "w2"]
+    assert set(cat["site"]) == {"site_a"} and set(cat["floor"]) == {"F1"}
+    assert (cat["sha256"].str.len() == 64).all()
+    sensors = store.table("sensors", site="site_a", floor="F1")
+    assert len(sensors) == 3 * 7 * 80 and set(sensors["trace_id"]) == {"w0", "w1", "w2"}
+    wifi = store.table("wifi", trace_ids=["w1"])
+    expected = small_trace(n=80, seed=1).wifi
+    assert list(wifi["rssi_dbm"]) == list(expected.sort_values(["scan_t_ms", "bssid"])["rssi_dbm"])
+    # partitioned layout
+    assert any(p.startswith("sensors/site=site_a/floor=F1/w0-") for p in _files(store.root))
+
+
+def test_same_files_twice_is_a_no_op(tmp_path):
+    _walks(tmp_path / "in")
+    ingest([tmp_path / "in"], tmp_path / "store")
+    before = {p: (tmp_path / "store" / p).read_bytes() for p in _files(tmp_path / "store")}
+    s = ingest([tmp_path / "in"], tmp_path / "store")
+    assert s.status_counts() == {"unchanged": 3}
+    after = {p: (tmp_path / "store" / p).read_bytes() for p in _files(tmp_path / "store")}
+    assert before == after
+
+
+def test_copied_file_is_a_duplicate(tmp_path):
+    (p,) = _walks(tmp_path / "in", 1)
+    ingest([p], tmp_path / "store")
+    copy = tmp_path / "other" / "copy.txt.gz"
+    copy.parent.mkdir()
+    copy.write_bytes(p.read_bytes())
+    s = ingest([copy], tmp_path / "store")
+    assert [o.status for o in s.outcomes] == ["duplicate"] and "w0" in s.outcomes[0].detail
+
+
+def test_changed_file_replaces_its_rows(tmp_path):
+    paths = _walks(tmp_path / "in")
+    ingest([tmp_path / "in"], tmp_path / "store")
+    write_trace(paths[1], small_trace(n=30, seed=99, trace_id="w1"))
+    s = ingest([tmp_path / "in"], tmp_path / "store")
+    assert sorted(o.status for o in s.outcomes) == ["changed", "unchanged", "unchanged"]
+    store = SurveyStore.open(tmp_path / "store")
+    assert len(store.table("sensors", trace_ids=["w1"])) == 7 * 30
+    assert len(store.table("sensors", trace_ids=["w0"])) == 7 * 80
+    # the old version's part files are gone
+    assert sum("/w1-" in p for p in _files(store.root)) == 4
+
+
+def test_strict_failure_keeps_store(tmp_path):
+    _walks(tmp_path / "in")
+    ingest([tmp_path / "in"], tmp_path / "store")
+    before = {p: (tmp_path / "store" / p).read_bytes() for p in _files(tmp_path / "store")}
+    bad = tmp_path / "bad" / "bad.txt"
+    bad.parent.mkdir()
+    bad.write_text("1\tTYPE_WIFI\tonly\ttwo\n")
+    with pytest.raises(SurveyFormatError, match=r"bad.txt:1: TYPE_WIFI needs 5 values, got 2"):
+        ingest([bad], tmp_path / "store", strict=True)
+    after = {p: (tmp_path / "store" / p).read_bytes() for p in _files(tmp_path / "store")}
+    assert after == before
+    # lenient: the bad file is ingested with its bad line counted, nothing else changes
+    s = ingest([bad], tmp_path / "store")
+    assert s.bad == {"field_count": 1}
+    assert len(SurveyStore.open(tmp_path / "store").catalog()) == 4
+
+
+def test_unreadable_file_is_reported_and_others_ingested(tmp_path):
+    _walks(tmp_path / "in", 2)
+    (tmp_path / "in" / "broken.txt").mkdir()  # a folder named like a trace: cannot be read
+    s = ingest([tmp_path / "in" / "w0.txt.gz", tmp_path / "in" / "w1.txt.gz"],
+               tmp_path / "store")
+    assert s.status_counts() == {"new": 2}
+
+
+def test_not_a_store_and_schema_version(tmp_path):
+    (tmp_path / "x").mkdir()
+    (tmp_path / "x" / "file").write_text("hi")
+    with pytest.raises(StoreError, match="not a survey store"):
+        SurveyStore.create(tmp_path / "x")
+    with pytest.raises(StoreError, match="missing store.json"):
+        SurveyStore.open(tmp_path / "nothing")
+    SurveyStore.create(tmp_path / "s")
+    (tmp_path / "s" / "store.json").write_text('{"format": "indoormap-survey-store", '
+                                               '"schema_version": 99}')
+    with pytest.raises(StoreError, match="schema version 99"):
+        SurveyStore.open(tmp_path / "s")
+
+
+def test_lock_held_by_live_process(tmp_path):
+    store = SurveyStore.create(tmp_path / "s")
+    (store.root / ".lock").write_text(str(os.getppid()))
+    with pytest.raises(StoreError, match="locked by running process"):
+        with store.writer():
+            pass
+    (store.root / ".lock").write_text("999999999")  # stale: that process is gone
+    with store.writer():
+        pass
+    assert not (store.root / ".lock").exists()
+
+
+CRASH_SCRIPT = """
+import sys
+from survey.ingest import ingest
+ingest([sys.argv[1]], sys.argv[2], workers=1)
+"""
+
+
+@pytest.mark.parametrize("point", ["ingest:before-catalog", "ingest:after-catalog"])
+def test_crash_during_ingest_leaves_a_consistent_store(tmp_path, point):
+    paths = _walks(tmp_path / "in")
+    ingest([tmp_path / "in"], tmp_path / "store")
+    old_cat = SurveyStore.open(tmp_path / "store").catalog()
+    write_trace(paths[0], small_trace(n=20, seed=50, trace_id="w0"))  # a changed file
+    write_trace(tmp_path / "in" / "w9.txt.gz", small_trace(n=40, seed=9, trace_id="w9"))
+    env = {**os.environ, "INDOORMAP_CRASH_AT": point}
+    proc = subprocess.run([sys.executable, "-c", CRASH_SCRIPT, str(tmp_path / "in"),
+                           str(tmp_path / "store")], env=env, capture_output=True)
+    assert proc.returncode == 70, proc.stderr.decode()
+    store = SurveyStore.open(tmp_path / "store")
+    cat = store.catalog()
+    if point == "ingest:before-catalog":
+        pd.testing.assert_frame_equal(cat, old_cat)  # the old store, untouched
+        assert len(store.table("sensors", trace_ids=["w0"])) == 7 * 80
+    else:
+        assert sorted(cat["trace_id"]) == ["w0", "w1", "w2", "w9"]
+        assert len(store.table("sensors", trace_ids=["w0"])) == 7 * 20
+    for name in ("sensors", "wifi", "ble", "waypoints"):
+        store.table(name)  # every part file the catalog names is there and readable
+    # the next ingest takes over the stale lock, finishes the work and removes all litter
+    s = ingest([tmp_path / "in"], tmp_path / "store")
+    assert not s.failed
+    files = _files(store.root)
+    assert not any(".tmp-" in p or p.endswith(".lock") for p in files)
+    assert len([p for p in files if p.endswith(".parquet") and "/" in p]) == 4 * 4
+    assert np.array_equal(sorted(store.catalog()["trace_id"]), ["w0", "w1", "w2", "w9"])

@@ -1,0 +1,224 @@
+"""Trace reader: every record type, ordering, rules, and accounting for every line."""
+
+from __future__ import annotations
+
+import gzip
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from survey.errors import SurveyFormatError
+from survey.trace_reader import iter_traces, parse_trace_bytes, read_trace, ReadFailure
+from survey.trace_writer import render_trace, write_trace
+
+from factories import small_trace
+
+
+def _assert_same_tables(a, b):
+    for name in ("sensors", "wifi", "ble", "waypoints"):
+        pd.testing.assert_frame_equal(getattr(a, name).reset_index(drop=True),
+                                      getattr(b, name).reset_index(drop=True), check_dtype=True)
+
+
+@pytest.mark.parametrize("suffix", [".txt", ".txt.gz"])
+def test_round_trip_all_record_types(tmp_path, suffix):
+    trace = small_trace()
+    path = write_trace(tmp_path / f"walk0001{suffix}", trace,
+                       extra_lines=["1600000000123\tTYPE_BLUE\t\t16:E5:41:F6:CC:67\t-95",
+                                    "1600000000124\tTYPE_BLU4\t25000\t11257\t-95"])
+    got = read_trace(path)
+    _assert_same_tables(trace, got)
+    assert got.trace_id == "walk0001"
+    h = got.header
+    assert (h.site_id, h.floor_name, h.brand, h.model) == ("site_a", "F1", "ACME", "P1")
+    assert h.start_ms == trace.header.start_ms and h.end_ms == trace.header.end_ms
+    assert h.sensors[0].name == "Acc" and h.sensors[0].resolution == pytest.approx(0.002)
+    r = got.report
+    assert r.skipped == {"TYPE_BLUE": 1, "TYPE_BLU4": 1}
+    assert r.bad == {} and r.accounted_lines() == r.lines_total
+
+
+def test_waypoints_written_late_are_sorted_and_streams_time_ordered(tmp_path):
+    trace = small_trace()
+    text = render_trace(trace, waypoint_delay_ms=5000)
+    lines = text.splitlines()
+    # the writer mimics the real app: a waypoint line follows records with later timestamps
+    wp_line = next(i for i, ln in enumerate(lines) if "TYPE_WAYPOINT" in ln)
+    assert int(lines[wp_line - 1].split("\t")[0]) > int(lines[wp_line].split("\t")[0])
+    # shuffle the record lines: the reader must not depend on file order
+    head = [ln for ln in lines if ln.startswith("#")]
+    body = [ln for ln in lines if not ln.startswith("#")]
+    rng = np.random.default_rng(3)
+    body = [body[i] for i in rng.permutation(len(body))]
+    got = parse_trace_bytes(("\n".join(head + body) + "\n").encode(), path="shuffled.txt")
+    _assert_same_tables(trace, got)
+    for _, g in got.sensors.groupby("stream", observed=True):
+        assert g["t_ms"].is_monotonic_increasing
+
+
+def test_duplicate_bssid_in_scan_keeps_freshest_then_strongest():
+    text = "\n".join([
+        "100\tTYPE_WIFI\tA\t00:11:22:33:44:55\t-70\t2412\t90",
+        "100\tTYPE_WIFI\tA\t00-11-22-33-44-55\t-60\t2412\t80",  # older: dropped
+        "100\tTYPE_WIFI\tA\t001122334455\t-50\t2412\t90",  # same age, stronger: kept
+        "100\tTYPE_WIFI\tB\tAA:BB:CC:DD:EE:FF\t-80\t5180\t70",
+        "300\tTYPE_WIFI\tA\t00:11:22:33:44:55\t-65\t2412\t290",  # another scan: kept
+    ]).encode()
+    t = parse_trace_bytes(text)
+    w = t.wifi
+    assert list(w["bssid"]) == ["00:11:22:33:44:55", "aa:bb:cc:dd:ee:ff", "00:11:22:33:44:55"]
+    assert list(w["rssi_dbm"]) == [-50, -80, -65]
+    assert list(w["age_ms"]) == [10, 30, 10]
+    assert t.report.dropped == {"duplicate_bssid_in_scan": 2}
+    assert t.report.records == {"TYPE_WIFI": 5}
+
+
+def test_ble_key_and_normalisation():
+    line = ("5\tTYPE_BEACON\tFDA50693-A4E2-4FB1-AFCF-C6EB07647825\t10\t7\t-59\t-70\t1.5\t"
+            "E0:78:A3:3D:B5:D6\t5")
+    b = parse_trace_bytes(line.encode()).ble
+    assert b["key"][0] == "fda50693-a4e2-4fb1-afcf-c6eb07647825:10:7"
+    assert b["mac"][0] == "e0:78:a3:3d:b5:d6"
+
+
+def test_duplicate_sensor_timestamps_keep_first():
+    text = ("10\tTYPE_ACCELEROMETER\t1\t2\t3\t3\n10\tTYPE_ACCELEROMETER\t4\t5\t6\t3\n"
+            "10\tTYPE_GYROSCOPE\t1\t1\t1\t3\n").encode()
+    t = parse_trace_bytes(text)
+    acc = t.stream("accelerometer")
+    assert len(acc) == 1 and acc["x"][0] == 1
+    assert len(t.stream("gyroscope")) == 1
+    assert t.report.dropped == {"duplicate_timestamp": 1}
+
+
+BAD_LINES = [
+    ("10\tTYPE_WIFI\tssid\t00:11:22:33:44:55\t-50", "field_count", "TYPE_WIFI needs 5 values, got 3"),
+    ("10\tTYPE_ACCELEROMETER\t1\tabc\t3\t3", "non_numeric", "expected a number"),
+    ("10\tTYPE_MAGNETIC_FIELD\t1\tNaN\t3\t3", "non_finite", "NaN"),
+    ("10\tTYPE_GYROSCOPE\t1\tinf\t3\t3", "non_finite", "infinite"),
+    ("x10\tTYPE_GYROSCOPE\t1\t2\t3\t3", "bad_timestamp", "timestamp"),
+    ("10 TYPE_GYROSCOPE 1 2 3 3", "no_type", "no tab"),
+    ("10\tgarbage\t1", "unknown_record", "not a TYPE_ name"),
+    ("10\tTYPE_WIFI\tssid\tnot-a-mac\t-50\t2412\t5", "bad_bssid", "not a MAC"),
+    ("10\tTYPE_WIFI\tssid\t00:11:22:33:44:55\t-500\t2412\t5", "out_of_range", "rssi"),
+    ("10\tTYPE_WAYPOINT\t1.0\t\xff\xfe", "invalid_utf8", "UTF-8"),
+]
+
+
+@pytest.mark.parametrize("line,reason,hint", BAD_LINES)
+def test_bad_line_lenient_skips_and_counts(line, reason, hint):
+    good = "5\tTYPE_ACCELEROMETER\t1\t2\t3\t3"
+    data = ("#\tstartTime:1\n" + good + "\n").encode() + line.encode("latin-1") + b"\n" + \
+        good.replace("5", "7", 1).encode() + b"\n"
+    t = parse_trace_bytes(data, path="walk.txt")
+    r = t.report
+    assert r.bad == {reason: 1}
+    assert r.accounted_lines() == r.lines_total == 4
+    assert len(t.stream("accelerometer")) == 2
+    assert r.messages[0].startswith("walk.txt:3: ") and hint in r.messages[0]
+
+
+@pytest.mark.parametrize("line,reason,hint", BAD_LINES)
+def test_bad_line_strict_raises_with_file_and_line(line, reason, hint):
+    data = b"5\tTYPE_ACCELEROMETER\t1\t2\t3\t3\n" + line.encode("latin-1") + b"\n"
+    with pytest.raises(SurveyFormatError) as info:
+        parse_trace_bytes(data, path="walk.txt", strict=True)
+    assert str(info.value).startswith("walk.txt:2: ")
+    assert hint in str(info.value) and info.value.reason == reason and info.value.line == 2
+
+
+def test_empty_file(tmp_path):
+    p = tmp_path / "empty.txt"
+    p.write_bytes(b"")
+    t = read_trace(p)
+    assert t.report.lines_total == 0 and len(t.sensors) == 0 and len(t.waypoints) == 0
+    assert list(t.sensors.columns)[:2] == ["stream", "t_ms"]
+
+
+@pytest.mark.parametrize("n_waypoints", [0, 1])
+def test_no_or_one_waypoint_parses(n_waypoints):
+    trace = small_trace()
+    trace.waypoints = trace.waypoints.iloc[:n_waypoints]
+    t = parse_trace_bytes(render_trace(trace).encode())
+    assert len(t.waypoints) == n_waypoints and len(t.sensors) == len(trace.sensors)
+
+
+def test_truncated_gzip(tmp_path):
+    path = write_trace(tmp_path / "walk.txt.gz", small_trace(n=400))
+    full = read_trace(path)
+    data = path.read_bytes()
+    cut = tmp_path / "cut.txt.gz"
+    cut.write_bytes(data[: len(data) * 2 // 3])
+    t = read_trace(cut)  # lenient: keeps what is readable, counts the cut line
+    assert 0 < len(t.sensors) < len(full.sensors)
+    assert t.report.bad.get("truncated", 0) <= 1
+    assert "truncated gzip stream" in t.report.messages[0]
+    assert t.report.accounted_lines() == t.report.lines_total
+    with pytest.raises(SurveyFormatError, match="cut.txt.gz: truncated gzip"):
+        read_trace(cut, strict=True)
+
+
+def test_random_bytes(tmp_path):
+    rng = np.random.default_rng(0)
+    p = tmp_path / "noise.txt"
+    p.write_bytes(rng.integers(0, 256, 20000, dtype=np.uint8).tobytes())
+    t = read_trace(p)
+    assert t.report.accounted_lines() == t.report.lines_total
+    assert len(t.sensors) == 0
+    with pytest.raises(SurveyFormatError, match="noise.txt:1"):
+        read_trace(p, strict=True)
+    gz = tmp_path / "noise.txt.gz"
+    gz.write_bytes(b"\x1f\x8b" + rng.integers(0, 256, 2000, dtype=np.uint8).tobytes())
+    t = read_trace(gz)
+    assert t.report.lines_total == t.report.accounted_lines()
+    with pytest.raises(SurveyFormatError, match="noise.txt.gz"):
+        read_trace(gz, strict=True)
+
+
+def test_missing_file_and_size_limit(tmp_path):
+    with pytest.raises(SurveyFormatError, match="cannot read"):
+        read_trace(tmp_path / "nope.txt")
+    p = tmp_path / "big.txt.gz"
+    p.write_bytes(gzip.compress(b"1\tTYPE_WAYPOINT\t1\t2\n" * 1000))
+    with pytest.raises(SurveyFormatError, match="refused"):
+        read_trace(p, max_bytes=1000)
+
+
+def test_iter_traces_batches_match_single_reads(tmp_path):
+    paths = [write_trace(tmp_path / f"w{i}.txt.gz", small_trace(n=60 + i, seed=i,
+                                                                  trace_id=f"w{i}"))
+             for i in range(5)]
+    (tmp_path / "unreadable.txt").mkdir()
+    items = list(iter_traces([*paths, tmp_path / "unreadable.txt"], batch_bytes=8000))
+    assert isinstance(items[-1], ReadFailure)
+    for p, t in zip(paths, items[:-1]):
+        single = read_trace(p)
+        _assert_same_tables(single, t)
+        assert single.report == t.report
+
+
+def test_real_floor_every_line_accounted(ilc_floor):
+    """Store-independent check on the real traces: our counts per record type equal a plain
+    count of the lines, and no line is unaccounted for."""
+    files = sorted((ilc_floor / "path_data_files").glob("*.txt.gz"))
+    for item in iter_traces(files):
+        counts: dict[str, int] = {}
+        n = 0
+        with gzip.open(item.report.path, "rt", encoding="utf-8") as fh:
+            for line in fh:
+                n += 1
+                parts = line.rstrip("\n").split("\t")
+                key = "#" if line.startswith("#") else parts[1]
+                counts[key] = counts.get(key, 0) + 1
+        r = item.report
+        assert r.lines_total == n and r.accounted_lines() == n
+        assert r.header_lines == counts.pop("#")
+        assert r.bad == {}
+        documented = {k: v for k, v in counts.items() if k in r.records}
+        assert documented == r.records
+        assert {k: v for k, v in counts.items() if k not in r.records} == r.skipped
+        assert len(item.sensors) == sum(v for k, v in r.records.items()
+                                        if k not in ("TYPE_WIFI", "TYPE_BEACON", "TYPE_WAYPOINT"))
+        assert len(item.wifi) + r.dropped.get("duplicate_bssid_in_scan", 0) == r.records.get(
+            "TYPE_WIFI", 0)

@@ -1,0 +1,113 @@
+"""indoormap's own walk-line format (GeoJSON plan + sensor CSV) into the same store."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from survey.errors import SurveyFormatError
+from survey.ingest import ingest
+from survey.store import SurveyStore
+from survey.walkline import read_walk_plan
+
+
+def _csv(path, n=100, t0=1_700_000_000_000, extra_bad_row=False):
+    rng = np.random.default_rng(1)
+    cols = ["t_ms", "acc_x", "acc_y", "acc_z", "mag_x", "mag_y", "mag_z", "rot_x", "rot_y",
+            "rot_z", "mag_uncal_x", "mag_uncal_y", "mag_uncal_z", "mag_bias_x", "mag_bias_y",
+            "mag_bias_z"]
+    rows = [",".join(cols)]
+    for i in range(n):
+        vals = rng.normal(0, 1, len(cols) - 1)
+        rows.append(",".join([str(t0 + 20 * i)] + [f"{v:.6f}" for v in vals]))
+    if extra_bad_row:
+        rows.insert(5, ",".join([str(t0 + 3)] + ["oops"] + ["1"] * (len(cols) - 2)))
+    path.write_text("\n".join(rows) + "\n")
+
+
+def _plan(tmp_path, features):
+    plan = {"type": "FeatureCollection",
+            "properties": {"site_id": "siteW", "floor_name": "F2", "device_model": "Pixel"},
+            "features": features}
+    p = tmp_path / "plan.geojson"
+    p.write_text(json.dumps(plan))
+    return p
+
+
+def _feature(walk_id, coords, **props):
+    return {"type": "Feature", "geometry": {"type": "LineString", "coordinates": coords},
+            "properties": {"walk_id": walk_id, "sensor_log": f"{walk_id}.csv", **props}}
+
+
+def test_plan_with_both_time_styles_lands_in_store(tmp_path):
+    _csv(tmp_path / "a.csv")
+    _csv(tmp_path / "b.csv")
+    plan = _plan(tmp_path, [
+        _feature("a", [[0, 0], [3, 0], [3, 4]], start_ms=1_700_000_000_000,
+                 end_ms=1_700_000_007_000),
+        _feature("b", [[0, 0], [0, 10]], vertex_times_ms=[1_700_000_000_000, 1_700_000_001_980]),
+    ])
+    walks = read_walk_plan(plan)
+    a = walks[0][0]
+    # steady pace: the corner at 3 m of 7 m is reached at 3/7 of the time
+    assert list(a.waypoints["t_ms"]) == [1_700_000_000_000, 1_700_000_003_000, 1_700_000_007_000]
+    assert list(a.waypoints["x_m"]) == [0, 3, 3]
+    assert a.header.site_id == "siteW" and a.header.model == "Pixel"
+    assert set(a.sensors["stream"].astype(str)) == {"accelerometer", "magnetic_field",
+                                                    "rotation_vector",
+                                                    "magnetic_field_uncalibrated"}
+    unc = a.stream("magnetic_field_uncalibrated")
+    assert unc["bx"].notna().all() and a.stream("magnetic_field")["bx"].isna().all()
+    s = ingest([plan], tmp_path / "store")
+    assert s.status_counts() == {"new": 2}
+    store = SurveyStore.open(tmp_path / "store")
+    cat = store.catalog()
+    assert list(cat["source_format"]) == ["walkline", "walkline"]
+    assert set(cat["floor"]) == {"F2"}
+    assert len(store.table("waypoints", trace_ids=["b"])) == 2
+    assert ingest([plan], tmp_path / "store").status_counts() == {"unchanged": 2}
+    _csv(tmp_path / "b.csv", n=50)  # the log changed: b is replaced
+    assert ingest([plan], tmp_path / "store").status_counts() == {"unchanged": 1, "changed": 1}
+    assert len(store.table("sensors", trace_ids=["b"])) == 4 * 50
+
+
+def test_bad_csv_row_lenient_and_strict(tmp_path):
+    _csv(tmp_path / "a.csv", extra_bad_row=True)
+    plan = _plan(tmp_path, [_feature("a", [[0, 0], [1, 0]], start_ms=1, end_ms=2)])
+    (trace, _, _), = read_walk_plan(plan)
+    assert trace.report.bad == {"non_numeric": 1}
+    assert trace.report.messages[0].endswith("a.csv:6: non-numeric, missing or non-finite value")
+    with pytest.raises(SurveyFormatError, match=r"a.csv:6: non-numeric"):
+        read_walk_plan(plan, strict=True)
+
+
+@pytest.mark.parametrize("feature,message", [
+    (_feature("a", [[0, 0], [1, 0]], start_ms=5, end_ms=5), "strictly increasing"),
+    (_feature("a", [[0, 0], [1, 0]], vertex_times_ms=[1]), "1 values for 2 vertices"),
+    (_feature("a", [[0, 0], [1, 0]]), "needs 'start_ms' and 'end_ms'"),
+    (_feature("a", [[0, 0]], start_ms=1, end_ms=2), "at least two"),
+    ({"type": "Feature", "geometry": {"type": "Point", "coordinates": [0, 0]},
+      "properties": {}}, "LineString"),
+    (_feature("missing", [[0, 0], [1, 0]], start_ms=1, end_ms=2), "sensor log 'missing.csv'"),
+])
+def test_plan_errors_name_file_and_feature(tmp_path, feature, message):
+    _csv(tmp_path / "a.csv")
+    plan = _plan(tmp_path, [feature])
+    with pytest.raises(SurveyFormatError, match=message) as info:
+        read_walk_plan(plan)
+    assert "plan.geojson (feature 0)" in str(info.value)
+
+
+def test_csv_errors(tmp_path):
+    (tmp_path / "a.csv").write_text("time,acc_x\n1,2\n")
+    plan = _plan(tmp_path, [_feature("a", [[0, 0], [1, 0]], start_ms=1, end_ms=2)])
+    with pytest.raises(SurveyFormatError, match="needs a 't_ms' column"):
+        read_walk_plan(plan)
+    (tmp_path / "a.csv").write_text("t_ms,acc_x,acc_y\n1,2,3\n")
+    with pytest.raises(SurveyFormatError, match="missing \\['acc_z'\\]"):
+        read_walk_plan(plan)
+    (tmp_path / "plan2.geojson").write_text("{not json")
+    with pytest.raises(SurveyFormatError, match="plan2.geojson: not a readable GeoJSON"):
+        read_walk_plan(tmp_path / "plan2.geojson")
