@@ -22,7 +22,6 @@ Rules applied after parsing (counted in ``report.dropped``):
 
 from __future__ import annotations
 
-import io
 import os
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
@@ -56,6 +55,9 @@ from .trace_format import (
     empty_table,
     stream_category,
 )
+from .line_scan import TOKEN_WIDTH as _TOKEN_WIDTH
+from .line_scan import BAD_TIMESTAMP, BAD_TOKEN, BLANK, HEADER, NO_TAB, OTHER_TOKEN, \
+    ScanResult, scan_lines
 from .trace_header import parse_header
 
 #: How many ``file:line: reason`` messages a report keeps.
@@ -63,8 +65,6 @@ MAX_MESSAGES = 20
 #: Text bytes parsed together by :func:`iter_traces` (bounds memory; larger files go alone).
 BATCH_BYTES = 16 * 1024**2
 
-_TOKEN_WIDTH = 48  # a record-type token longer than this is malformed
-_TS_WIDTH = 16  # at most 16 digits of milliseconds
 _INT_LIMIT = 2**53  # integers beyond this cannot be values of this format
 
 # Value columns per record type: (name, kind) with kind "f" float, "i" integer, "s" string.
@@ -129,29 +129,41 @@ def find_trace_files(paths: Iterable[str | os.PathLike]) -> list[Path]:
 @dataclass
 class _Batch:
     buf: np.ndarray  # uint8, the texts concatenated, each ending with b"\n", then zero padding
-    starts: np.ndarray  # int64 per line: first byte
-    ends: np.ndarray  # int64 per line: one past the last content byte (no \n, no final \r)
-    nexts: np.ndarray  # int64 per line: first byte of the next line
+    scan: ScanResult  # lines, their kinds and types, and the per-group line blocks
     file_of_line: np.ndarray  # int64 per line: index into paths
     first_line: np.ndarray  # int64 per file: global index of its first line (+ total at end)
     paths: list[str]
+    cut_lines: np.ndarray  # global indices of lines cut off by a damaged compressed stream
+
+    @property
+    def starts(self) -> np.ndarray:
+        return self.scan.starts
+
+    @property
+    def ends(self) -> np.ndarray:
+        return self.scan.ends
 
 
-def _make_batch(texts: Sequence[bytes], paths: Sequence[str]) -> _Batch:
-    pieces = [t if (not t or t.endswith(b"\n")) else t + b"\n" for t in texts]
+def _make_batch(texts: Sequence[bytes], paths: Sequence[str],
+                notes: Sequence[str | None]) -> _Batch:
+    pieces, cut = [], []
+    for text, note in zip(texts, notes):
+        if note and text and not text.endswith(b"\n"):
+            # The partial last line of a damaged stream stands as an empty line, reported below.
+            text = text[:text.rfind(b"\n") + 1] + b"\n"
+            cut.append(len(pieces))
+        elif text and not text.endswith(b"\n"):
+            text = text + b"\n"
+        pieces.append(text)
+    n = sum(len(p) for p in pieces)
     # Zero padding after the text lets fixed-width byte windows run past the last line.
     buf = np.frombuffer(b"".join([*pieces, bytes(_TOKEN_WIDTH)]), dtype=np.uint8)
-    nl = np.flatnonzero(buf == 10)
-    starts = np.empty(len(nl), dtype=np.int64)
-    if len(nl):
-        starts[0] = 0
-        starts[1:] = nl[:-1] + 1
-    ends = nl.astype(np.int64)
-    cr = (ends > starts) & (buf[np.maximum(ends - 1, 0)] == 13)
+    scan = scan_lines(buf, n, _TYPE_LIST, _GROUP_OF_INDEX)
     file_start = np.cumsum([0] + [len(p) for p in pieces])
-    first_line = np.searchsorted(starts, file_start)
-    file_of_line = np.searchsorted(file_start, starts, side="right") - 1
-    return _Batch(buf, starts, ends - cr, ends + 1, file_of_line, first_line, list(paths))
+    first_line = np.searchsorted(scan.starts, file_start)
+    file_of_line = np.searchsorted(file_start, scan.starts, side="right") - 1
+    cut_lines = first_line[np.asarray(cut, dtype=np.int64) + 1] - 1
+    return _Batch(buf, scan, file_of_line, first_line, list(paths), cut_lines)
 
 
 class _Collector:
@@ -181,45 +193,21 @@ class _Collector:
 # Line classification
 
 
-def _classify(b: _Batch, rec: np.ndarray, bad: _Collector,
-              skipped: dict[str, np.ndarray]) -> np.ndarray:
-    """Record type index (into ``_TYPE_LIST``) per line; -1 for other or bad lines.
-
-    Uses the first two tabs of each line: the timestamp before the first, the type token between
-    them. Tokens are hashed in bulk and then checked byte for byte against their group.
-    Undocumented ``TYPE_*`` tokens go to ``skipped`` (token -> global line indices).
-    """
-    buf = b.buf
-    type_of_line = np.full(len(b.starts), -1, dtype=np.int32)
-    idx = np.flatnonzero(rec)
+def _classify_other(b: _Batch, bad: _Collector) -> dict[str, np.ndarray]:
+    """Lines whose type token is not a documented type: undocumented ``TYPE_*`` names are
+    returned (name -> global line indices) to be skipped; anything else is a bad line."""
+    sc = b.scan
+    bad.add(np.flatnonzero(sc.kind == NO_TAB), "no_type",
+            "expected 'timestamp<TAB>TYPE...' but found no tab")
+    bad.add(np.flatnonzero(sc.kind == BAD_TIMESTAMP), "bad_timestamp",
+            "timestamp is not an integer of milliseconds")
+    bad.add(np.flatnonzero(sc.kind == BAD_TOKEN), "unknown_record",
+            "record type is not a TYPE_ name")
+    idx = np.flatnonzero(sc.kind == OTHER_TOKEN)
+    skipped: dict[str, np.ndarray] = {}
     if not len(idx):
-        return type_of_line
-    starts, ends = b.starts[idx], b.ends[idx]
-    tab_pos = np.flatnonzero(buf == 9)
-    k0 = np.searchsorted(tab_pos, starts)
-    n_tabs = np.searchsorted(tab_pos, ends) - k0
-    padded = np.append(tab_pos, len(buf))
-    t1 = np.where(n_tabs >= 1, padded[np.minimum(k0, len(tab_pos))], ends)
-    t2 = np.where(n_tabs >= 2, padded[np.minimum(k0 + 1, len(tab_pos))], ends)
-
-    no_tab = n_tabs == 0
-    bad.add(idx[no_tab], "no_type", "expected 'timestamp<TAB>TYPE...' but found no tab")
-    ts_len = t1 - starts
-    offs = np.arange(_TS_WIDTH)
-    windows = _byte_windows(buf, _TOKEN_WIDTH)
-    ts = windows[starts, :_TS_WIDTH]
-    ts_ok = (ts_len >= 1) & (ts_len <= _TS_WIDTH) & (
-        ((ts - np.uint8(48)) <= 9) | (offs >= ts_len[:, None])).all(axis=1)
-    bad.add(idx[~no_tab & ~ts_ok], "bad_timestamp", "timestamp is not an integer of milliseconds")
-    tok_len = t2 - t1 - 1
-    tok_ok = (tok_len >= 1) & (tok_len <= _TOKEN_WIDTH)
-    bad.add(idx[~no_tab & ts_ok & ~tok_ok], "unknown_record", "record type is not a TYPE_ name")
-    ok = ~no_tab & ts_ok & tok_ok
-    idx, t1, tok_len = idx[ok], t1[ok], tok_len[ok]
-    if not len(idx):
-        return type_of_line
-
-    tok = windows[t1 + 1] & _PREFIX_MASKS[tok_len]
+        return skipped
+    tok = _byte_windows(b.buf, _TOKEN_WIDTH)[sc.tok_start[idx]] & _PREFIX_MASKS[sc.tok_len[idx]]
     words = tok.view(np.uint64)  # (n, 6)
     h = (words * _HASH_MULT).sum(axis=1, dtype=np.uint64)
     inverse, first = _factorize(h)
@@ -229,13 +217,11 @@ def _classify(b: _Batch, rec: np.ndarray, bad: _Collector,
     for u, row in enumerate(first):
         name = tok[row].tobytes().rstrip(b"\0").decode("latin-1")
         sel = idx[inverse == u]
-        if name in _TYPE_INDEX:
-            type_of_line[sel] = _TYPE_INDEX[name]
-        elif _is_type_name(name):
+        if _is_type_name(name):
             skipped[name] = sel
         else:
             bad.add(sel, "unknown_record", f"record type {name[:40]!r} is not a TYPE_ name")
-    return type_of_line
+    return skipped
 
 
 def _factorize(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -263,16 +249,6 @@ def _is_type_name(name: str) -> bool:
 # Parsing one block of lines that share a value layout
 
 
-def _join_lines(b: _Batch, sel: np.ndarray) -> bytes:
-    """Bytes of lines ``sel`` (sorted global indices) with their newlines; runs of consecutive
-    lines are copied as one slice."""
-    brk = np.flatnonzero(np.diff(sel) != 1)
-    first = sel[np.r_[0, brk + 1]]
-    last = sel[np.r_[brk, len(sel) - 1]]
-    mv = memoryview(b.buf)
-    return b"".join([mv[s:e] for s, e in zip(b.starts[first].tolist(), b.nexts[last].tolist())])
-
-
 def _arrow_options(spec: list[tuple[str, str]]):
     names = ["t_ms", "type"] + [c for c, _ in spec]
     types = {"t_ms": pa.int64(), **{c: _ARROW_KIND[kind] for c, kind in spec}}
@@ -288,21 +264,21 @@ def _arrow_options(spec: list[tuple[str, str]]):
     )
 
 
-def _parse_block(block: bytes, spec, glines: np.ndarray, bad: _Collector,
+def _parse_block(block: np.ndarray, spec, glines: np.ndarray, bad: _Collector,
                  what: str) -> dict[str, np.ndarray | pa.Array]:
     """Parse lines sharing one layout. Returns columns (numpy; arrow for strings) and
     ``gline`` (global line index), bad rows removed."""
     keep = np.ones(len(glines), dtype=bool)
     try:
         ro, po, co = _arrow_options(spec)
-        table = pacsv.read_csv(io.BytesIO(block), read_options=ro, parse_options=po,
-                               convert_options=co)
+        table = pacsv.read_csv(pa.BufferReader(pa.py_buffer(block)), read_options=ro,
+                               parse_options=po, convert_options=co)
         if table.num_rows != len(glines):
             raise ValueError("row count mismatch")
         cols = {c: (table.column(c).combine_chunks() if kind == "s"
                     else table.column(c).to_numpy()) for c, kind in [("t_ms", "i"), *spec]}
     except (pa.ArrowInvalid, UnicodeDecodeError, ValueError):
-        cols, keep, reasons, details = _parse_block_slow(block, spec)
+        cols, keep, reasons, details = _parse_block_slow(block.tobytes(), spec)
         for reason in np.unique(reasons[~keep]):
             sel = ~keep & (reasons == reason)
             bad.add(glines[sel], str(reason), details[sel])
@@ -559,30 +535,26 @@ def parse_traces(texts: Sequence[bytes], paths: Sequence[str], *, strict: bool =
         One per text, in order.
     """
     notes = list(notes) if notes is not None else [None] * len(texts)
-    b = _make_batch(texts, paths)
+    b = _make_batch(texts, paths, notes)
     n_files = len(b.paths)
     bad = _Collector()
-    blank = b.ends == b.starts
-    header = ~blank & (b.buf[np.minimum(b.starts, max(len(b.buf) - 1, 0))] == ord("#"))
-    rec = ~blank & ~header
-    for i, (text, note) in enumerate(zip(texts, notes)):
-        if note and text and not text.endswith(b"\n"):
-            last = b.first_line[i + 1] - 1
-            bad.add(np.array([last]), "truncated", f"last line cut off ({note})")
-            blank[last] = header[last] = rec[last] = False
+    kind = b.scan.kind
+    blank, header = kind == BLANK, kind == HEADER
+    blank[b.cut_lines] = False
+    for f, line in zip(np.searchsorted(b.first_line, b.cut_lines, side="right") - 1,
+                       b.cut_lines):
+        bad.add(np.array([line]), "truncated", f"last line cut off ({notes[f]})")
 
-    skipped: dict[str, np.ndarray] = {}
-    type_of_line = _classify(b, rec, bad, skipped)
-    group_of_line = np.where(type_of_line >= 0, _GROUP_OF_INDEX[np.maximum(type_of_line, 0)], -1)
+    skipped = _classify_other(b, bad)
     blocks: list[dict | None] = []
     for g, spec in enumerate(_GROUP_SPECS):
-        sel = np.flatnonzero(group_of_line == g)
+        sel = b.scan.group_lines[g]
         if not len(sel):
             blocks.append(None)
             continue
-        what = "sensor record" if g < 2 else _TYPE_LIST[type_of_line[sel[0]]]
-        cols = _parse_block(_join_lines(b, sel), spec, sel, bad, what)
-        cols["type"] = type_of_line[cols["gline"]]
+        what = "sensor record" if g < 2 else _TYPE_LIST[b.scan.type_idx[sel[0]]]
+        cols = _parse_block(b.scan.group_bytes[g], spec, sel, bad, what)
+        cols["type"] = b.scan.type_idx[cols["gline"]].astype(np.int32)
         blocks.append(cols)
 
     tables = _Tables(b)
