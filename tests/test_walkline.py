@@ -111,3 +111,15 @@ def test_csv_errors(tmp_path):
     (tmp_path / "plan2.geojson").write_text("{not json")
     with pytest.raises(SurveyFormatError, match="plan2.geojson: not a readable GeoJSON"):
         read_walk_plan(tmp_path / "plan2.geojson")
+
+
+def test_folders_ignore_geojson_that_is_not_a_walk_plan(tmp_path):
+    _csv(tmp_path / "a.csv")
+    _plan(tmp_path, [_feature("a", [[0, 0], [1, 0]], start_ms=1, end_ms=2)])
+    (tmp_path / "floor.geojson").write_text(json.dumps(
+        {"type": "FeatureCollection", "features": [{"type": "Feature", "properties": {},
+                                                    "geometry": None}]}))
+    s = ingest([tmp_path], tmp_path / "store")
+    assert s.status_counts() == {"new": 1}
+    with pytest.raises(SurveyFormatError, match="walk_id"):  # named explicitly: must be a plan
+        ingest([tmp_path / "floor.geojson"], tmp_path / "store")

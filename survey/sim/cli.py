@@ -1,0 +1,47 @@
+"""``indoormap simulate``: write a synthetic surveyed site (traces, maps, ground truth)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import click
+
+
+@click.command("simulate")
+@click.argument("out_dir", type=click.Path(file_okay=False, dir_okay=True, path_type=Path))
+@click.option("--preset", type=click.Choice(["sample", "default"]), default="sample",
+              show_default=True, help="Site size and survey effort.")
+@click.option("--seed", type=click.IntRange(min=0), default=None,
+              help="Seed of the whole simulation [default: the preset's, 7].")
+@click.option("--overwrite", is_flag=True, help="Replace OUT_DIR if it exists.")
+def simulate(out_dir: Path, preset: str, seed: int | None, overwrite: bool) -> None:
+    """Simulate a surveyed site into OUT_DIR (published atomically).
+
+    Writes per floor floor_info.json, geojson_map.json, walk_plan.geojson and
+    path_data_files/*.txt.gz, and the ground truth under OUT_DIR/truth/. The same preset and
+    seed always give byte-identical files.
+    """
+    from .site import SiteParams, simulate_site
+
+    t0 = time.perf_counter()
+    # indoormap's errors (PublishError: OUT_DIR exists, SimulationError) propagate to the main
+    # group, which prints them on one line and exits with code 1
+    params = SiteParams.preset_params(preset, seed=seed)
+    site = simulate_site(params, out_dir, overwrite=overwrite)
+    elapsed = time.perf_counter() - t0
+    walks = site.walks
+    devices = sorted({w.device_id for w in walks})
+    sessions = sorted({w.session_id for w in walks})
+    samples = sum(w.n_samples for w in walks)
+    click.echo(f"simulated site {site.site_id} (preset {params.preset}, seed {params.seed}) "
+               f"-> {site.out_dir}")
+    click.echo(f"  floors {', '.join(site.floors)}; {len(walks)} walks, "
+               f"{len(devices)} devices, {len(sessions)} calibration sessions")
+    for floor in site.floors:
+        fw = [w for w in walks if w.floor == floor]
+        click.echo(f"  {floor}: {len(fw)} walks, {sum(w.length_m for w in fw):.0f} m, "
+                   f"{sum((w.end_ms - w.start_ms) for w in fw) / 1000:.0f} s")
+    click.echo(f"  {samples} sensor samples, {sum(w.n_wifi_rows for w in walks)} Wi-Fi rows, "
+               f"{sum(w.n_ble_rows for w in walks)} beacon rows")
+    click.echo(f"  {site.n_files} files, {site.n_bytes / 1e6:.2f} MB in {elapsed:.1f} s")

@@ -1,0 +1,59 @@
+"""`indoormap ingest` and the CLI's error handling (exit codes 0 / 1 / 2)."""
+
+from __future__ import annotations
+
+from click.testing import CliRunner
+
+from factories import small_trace
+from survey.cli import main
+from survey.store import SurveyStore
+from survey.trace_writer import write_trace
+
+
+def test_version():
+    result = CliRunner().invoke(main, ["--version"])
+    assert result.exit_code == 0 and "indoormap, version" in result.output
+
+
+def test_ingest_prints_summary_and_is_idempotent(tmp_path):
+    write_trace(tmp_path / "in" / "w1.txt.gz", small_trace(trace_id="w1"),
+                extra_lines=["1600000000001\tTYPE_BLUE\t\taa:bb:cc:dd:ee:ff\t-80"])
+    (tmp_path / "in" / "w2.txt").write_text(
+        "1600000000000\tTYPE_WAYPOINT\t1\t2\n1600000000001\tTYPE_WIFI\tx\n")
+    runner = CliRunner()
+    result = runner.invoke(main, ["ingest", str(tmp_path / "in"), "--store",
+                                  str(tmp_path / "store")])
+    assert result.exit_code == 0, result.output
+    out = result.output
+    assert "files:    new 2" in out
+    assert "TYPE_BLUE" in out and "field_count" in out
+    assert "w2.txt:2: TYPE_WIFI needs 5 values, got 1" in out
+    assert len(SurveyStore.open(tmp_path / "store").catalog()) == 2
+    again = runner.invoke(main, ["ingest", str(tmp_path / "in"), "--store",
+                                 str(tmp_path / "store")])
+    assert again.exit_code == 0 and "unchanged 2" in again.output
+
+
+def test_strict_exits_1_with_file_and_line(tmp_path):
+    bad = tmp_path / "bad.txt"
+    bad.write_text("1600000000000\tTYPE_ACCELEROMETER\t1\tx\t3\t3\n")
+    result = CliRunner().invoke(main, ["ingest", str(bad), "--store", str(tmp_path / "s"),
+                                       "--strict"])
+    assert result.exit_code == 1
+    assert "bad.txt:1: TYPE_ACCELEROMETER: field 'y' expected a number, got 'x'" in result.output
+
+
+def test_usage_errors_exit_2(tmp_path):
+    runner = CliRunner()
+    assert runner.invoke(main, ["ingest", str(tmp_path)]).exit_code == 2  # no --store
+    assert runner.invoke(main, ["ingest", str(tmp_path / "missing"), "--store",
+                                str(tmp_path / "s")]).exit_code == 2
+
+
+def test_store_that_is_not_a_store_exits_1(tmp_path):
+    (tmp_path / "notastore").mkdir()
+    (tmp_path / "notastore" / "x").write_text("")
+    write_trace(tmp_path / "w.txt", small_trace())
+    result = CliRunner().invoke(main, ["ingest", str(tmp_path / "w.txt"), "--store",
+                                       str(tmp_path / "notastore")])
+    assert result.exit_code == 1 and "not a survey store" in result.output

@@ -1,0 +1,40 @@
+"""Atomic publication helpers: all or nothing, no litter, normal permissions."""
+
+from __future__ import annotations
+
+import os
+import stat
+
+import pytest
+
+from survey.errors import PublishError
+from survey.publish import DIR_MODE, FILE_MODE, atomic_directory, atomic_write_bytes
+
+
+def test_atomic_write_refuses_overwrite_and_uses_umask_permissions(tmp_path):
+    target = tmp_path / "a" / "file.bin"
+    atomic_write_bytes(target, b"one")
+    assert stat.S_IMODE(os.stat(target).st_mode) == FILE_MODE
+    with pytest.raises(PublishError, match="exists; pass overwrite"):
+        atomic_write_bytes(target, b"two")
+    atomic_write_bytes(target, b"two", overwrite=True)
+    assert target.read_bytes() == b"two"
+    assert sorted(p.name for p in target.parent.iterdir()) == ["file.bin"]
+
+
+def test_atomic_directory_all_or_nothing(tmp_path):
+    target = tmp_path / "out"
+    with atomic_directory(target) as tmp:
+        (tmp / "x.txt").write_text("1")
+    assert (target / "x.txt").read_text() == "1"
+    assert stat.S_IMODE(os.stat(target).st_mode) == DIR_MODE
+    with pytest.raises(RuntimeError):
+        with atomic_directory(target, overwrite=True) as tmp:
+            (tmp / "x.txt").write_text("2")
+            raise RuntimeError("build failed")
+    assert (target / "x.txt").read_text() == "1"  # the old output is intact
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no litter
+    with atomic_directory(target, overwrite=True) as tmp:
+        (tmp / "y.txt").write_text("3")
+    assert sorted(p.name for p in target.iterdir()) == ["y.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
