@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import sys
 
 import click
@@ -16,8 +15,9 @@ from .ingest import IngestSummary, ingest
               help="Survey store folder (created if missing).")
 @click.option("--strict", is_flag=True,
               help="Fail on the first malformed line instead of skipping and counting it.")
-@click.option("--workers", type=click.IntRange(1, 64), default=min(2, os.cpu_count() or 1),
-              show_default=True, help="Worker processes for parsing.")
+@click.option("--workers", type=click.IntRange(1, 64), default=1, show_default=True,
+              help="Worker processes for parsing (each also uses pyarrow's threads; more than "
+                   "one pays off on large inputs only).")
 def ingest_command(paths: tuple[str, ...], store_dir: str, strict: bool, workers: int) -> None:
     """Ingest survey traces (.txt, .txt.gz; folders are searched) and walk plans (.geojson)
     into the Parquet survey store STORE. Files already stored (same sha256) are skipped; a

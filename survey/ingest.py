@@ -7,6 +7,7 @@ the catalog once at the end. Returns an :class:`IngestSummary` that accounts for
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 from collections import Counter
 from collections.abc import Callable, Iterable
@@ -56,13 +57,15 @@ class IngestSummary:
 
 
 def find_inputs(paths: Iterable[str | os.PathLike]) -> tuple[list[Path], list[Path]]:
-    """Split inputs into trace files and walk plans (``*.geojson``), searching folders."""
+    """Split inputs into trace files and walk plans, searching folders. In folders, GeoJSON files
+    that are not walk plans (floor plans, planned routes) are ignored; named explicitly, a
+    ``.geojson`` file must be a walk plan."""
     traces, plans = [], []
     for p in map(Path, paths):
         if p.is_dir():
-            plans.extend(sorted(p.rglob("*.geojson")))
+            plans.extend(q for q in sorted(p.rglob("*.geojson")) if is_walk_plan(q))
             traces.extend(find_trace_files([p]))
-        elif is_walk_plan(p):
+        elif p.name.endswith(".geojson"):
             if not p.exists():
                 raise SurveyFormatError("no such file", path=str(p), reason="missing")
             plans.append(p)
@@ -136,7 +139,9 @@ def ingest(paths: Iterable[str | os.PathLike], store: str | os.PathLike | Survey
         chunks = _chunks(todo, batch_bytes, max(1, workers))
         results = []
         if workers > 1 and len(chunks) > 1:
-            with ProcessPoolExecutor(max_workers=workers) as pool:
+            # spawn, not fork: the parent already runs pyarrow's thread pool
+            with ProcessPoolExecutor(max_workers=workers,
+                                     mp_context=multiprocessing.get_context("spawn")) as pool:
                 futures = [pool.submit(_parse_and_write, str(store.root), *zip(*c), strict,
                                        batch_bytes) for c in chunks]
                 for fut in futures:

@@ -23,6 +23,18 @@ from .errors import PublishError
 TMP_PREFIX = ".tmp-"
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+#: Permissions of published files and folders: what ``open``/``mkdir`` would give (the
+#: temporary-file functions create 0600/0700, which must not leak into outputs).
+FILE_MODE = 0o666 & ~_umask()
+DIR_MODE = 0o777 & ~_umask()
+
+
 def crash_point(name: str) -> None:
     """Exit at once (no cleanup, like a power cut) if ``INDOORMAP_CRASH_AT == name``."""
     if os.environ.get("INDOORMAP_CRASH_AT") == name:
@@ -66,14 +78,19 @@ def remove_stale_temporaries(parent: str | os.PathLike) -> int:
     return n
 
 
-def atomic_write_bytes(path: str | os.PathLike, data: bytes, *, overwrite: bool = False) -> None:
-    """Write ``data`` to ``path`` atomically (temp file, fsync, rename, dir fsync)."""
+def atomic_write_bytes(path: str | os.PathLike, data: bytes, *, overwrite: bool = False,
+                       sync_dir: bool = True) -> None:
+    """Write ``data`` to ``path`` atomically (temp file, fsync, rename, dir fsync).
+
+    With ``sync_dir=False`` the caller fsyncs the parent folder itself (once for many files)
+    before relying on the rename being durable."""
     path = Path(path)
     if path.exists() and not overwrite:
         raise PublishError(f"{path}: exists; pass overwrite=True (CLI: --overwrite) to replace it")
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=TMP_PREFIX, dir=path.parent)
     try:
+        os.fchmod(fd, FILE_MODE)
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
             fh.flush()
@@ -83,7 +100,8 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes, *, overwrite: bool 
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
-    fsync_dir(path.parent)
+    if sync_dir:
+        fsync_dir(path.parent)
 
 
 @contextlib.contextmanager
@@ -102,6 +120,7 @@ def atomic_directory(target: str | os.PathLike, *, overwrite: bool = False,
     target.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_temporaries(target.parent)
     tmp = Path(tempfile.mkdtemp(prefix=TMP_PREFIX, dir=target.parent))
+    os.chmod(tmp, DIR_MODE)
     try:
         yield tmp
         crash_point(f"{crash_prefix}:before-fsync")

@@ -104,9 +104,13 @@ def catalog_row(trace: Trace, *, source_path: str, sha256: str, size_bytes: int,
 
 
 def _parquet_bytes(table: pa.Table) -> bytes:
+    """Parquet with page checksums; dictionary encoding only for text (floats gain nothing)."""
+    text = [f.name for f in table.schema
+            if pa.types.is_string(f.type) or pa.types.is_large_string(f.type)
+            or pa.types.is_dictionary(f.type)]
     sink = pa.BufferOutputStream()
-    pq.write_table(table, sink, compression="zstd", write_page_checksum=True,
-                   write_statistics=True)
+    pq.write_table(table, sink, compression="zstd", use_dictionary=text,
+                   write_page_checksum=True, write_statistics=True)
     return sink.getvalue().to_pybytes()
 
 
@@ -115,18 +119,32 @@ def trace_tables(trace: Trace) -> dict[str, pa.Table]:
     out = {}
     for name in TABLES:
         frame = getattr(trace, name)
-        table = pa.Table.from_pandas(frame, preserve_index=False)
         ids = pa.DictionaryArray.from_arrays(pa.array(np.zeros(len(frame), dtype=np.int32)),
                                              pa.array([trace.trace_id]))
-        out[name] = table.add_column(0, "trace_id", ids).replace_schema_metadata(None)
+        columns = {"trace_id": ids, **{c: _arrow_column(frame[c]) for c in frame.columns}}
+        out[name] = pa.table(columns)
     return out
 
 
+def _arrow_column(col: pd.Series) -> pa.Array:
+    """A pandas column as Arrow without pandas metadata (numbers zero-copy, category as
+    dictionary, text as string)."""
+    if isinstance(col.dtype, pd.CategoricalDtype):
+        return pa.DictionaryArray.from_arrays(pa.array(col.cat.codes.to_numpy().astype(np.int32)),
+                                              pa.array(list(col.cat.categories), pa.string()))
+    if col.dtype.kind in "iufb":
+        return pa.array(col.to_numpy())
+    if isinstance(col.dtype, pd.StringDtype) or col.dtype == object:
+        return pa.array(col.array, type=pa.string(), from_pandas=True)
+    return pa.array(col, from_pandas=True)  # nullable extension types (e.g. Int64)
+
+
 def write_parts(root: Path, trace: Trace, row: dict) -> None:
-    """Write a trace's part files into the store (each atomically); crash-safe and idempotent."""
+    """Write a trace's part files into the store, each atomically and fsynced; their folders
+    are fsynced by the commit that makes them live. Idempotent."""
     for name, table in trace_tables(trace).items():
         rel = part_path(name, row["site"], row["floor"], row["trace_id"], row["sha256"])
-        atomic_write_bytes(root / rel, _parquet_bytes(table), overwrite=True)
+        atomic_write_bytes(root / rel, _parquet_bytes(table), overwrite=True, sync_dir=False)
 
 
 @dataclass
@@ -305,6 +323,9 @@ class _StoreWriter:
     def commit(self) -> None:
         if not self.pending:
             return
+        for folder in {(self.root / part_path(t, r["site"], r["floor"], "x", "0")).parent
+                       for r in self.pending.values() for t in TABLES}:
+            fsync_dir(folder)  # the renames of the new part files are durable before the commit
         crash_point("ingest:before-catalog")
         keep = self.cat[~self.cat["trace_id"].isin(list(self.pending))]
         new = pd.DataFrame(list(self.pending.values()))

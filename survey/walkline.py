@@ -59,8 +59,18 @@ _HEADER_PROPS = {"site_id": "site_id", "site_name": "site_name", "floor_id": "fl
 
 
 def is_walk_plan(path: str | os.PathLike) -> bool:
-    """True for ``*.geojson`` files (walk plans are recognised by extension)."""
-    return str(path).endswith(".geojson")
+    """True for a ``*.geojson`` FeatureCollection whose features name a ``sensor_log``
+    (other GeoJSON, such as floor plans or a simulator's planned routes, is not a walk plan)."""
+    path = Path(path)
+    if not path.name.endswith(".geojson"):
+        return False
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return False
+    feats = data.get("features") if isinstance(data, dict) else None
+    return bool(feats) and all(isinstance(f, dict) and "sensor_log" in (f.get("properties")
+                                                                        or {}) for f in feats)
 
 
 def read_walk_plan(path: str | os.PathLike, *, strict: bool = False
