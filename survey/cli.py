@@ -32,10 +32,11 @@ def main() -> None:
 
 def _register() -> None:
     from .cli_ingest import ingest_command
+    from .cli_process import process_command, survey_report_command
     from .sim.cli import simulate
 
-    main.add_command(ingest_command)
-    main.add_command(simulate)
+    for command in (simulate, ingest_command, process_command, survey_report_command):
+        main.add_command(command)
 
 
 _register()

@@ -1,0 +1,125 @@
+"""Floor plans: read GeoJSON plans into the map frame (metres) and derive the reachable area.
+
+Two GeoJSON flavours are read:
+
+- the ``../shared/ilc`` kind: ``geojson_map.json`` in longitude/latitude whose feature 0 is the
+  floor outline; its lon/lat bounding box maps linearly onto [0, width] x [0, height] metres
+  given by ``floor_info.json`` (x east, y north);
+- plain GeoJSON already in metres (a FeatureCollection whose feature 0, or the feature with
+  property ``role: "outline"``, is the outline).
+
+Reachable (walkable) area = outline minus obstacle polygons (by default every other polygon
+feature; ``obstacle_filter`` selects by properties).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import shapely
+from shapely.geometry import shape
+
+from survey.errors import IndoormapError
+
+
+class FloorPlanError(IndoormapError, ValueError):
+    """A floor plan cannot be read or makes no sense."""
+
+
+@dataclass(frozen=True)
+class FloorPlan:
+    """A floor plan in the map frame (metres, x east, y north).
+
+    Attributes
+    ----------
+    outline : shapely geometry
+        The floor outline.
+    obstacles : shapely geometry
+        Union of obstacle polygons (shops, walls, pillars).
+    width_m, height_m : float
+        Extent of the map frame.
+    """
+
+    outline: shapely.Geometry
+    obstacles: shapely.Geometry
+    width_m: float
+    height_m: float
+
+    @property
+    def reachable(self) -> shapely.Geometry:
+        """Outline minus obstacles."""
+        return shapely.difference(self.outline, self.obstacles)
+
+
+def _features(path: Path) -> list[dict]:
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as err:
+        raise FloorPlanError(f"{path}: not a readable GeoJSON file ({err})") from err
+    feats = data.get("features") if isinstance(data, dict) else None
+    if not feats:
+        raise FloorPlanError(f"{path}: a floor plan needs a FeatureCollection with features")
+    return feats
+
+
+def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
+                    obstacle_filter: Callable[[dict], bool] | None = None) -> FloorPlan:
+    """Read a floor plan.
+
+    Parameters
+    ----------
+    floor_dir_or_geojson : path-like
+        A floor folder holding ``geojson_map.json`` (+ ``floor_info.json`` for lon/lat plans),
+        or a GeoJSON file. With ``floor_info.json`` next to it the plan is taken to be in
+        lon/lat; without, in metres.
+    obstacle_filter : callable(properties) -> bool, optional
+        Which non-outline features are obstacles (default: all polygons).
+    """
+    p = Path(floor_dir_or_geojson)
+    geo = p / "geojson_map.json" if p.is_dir() else p
+    info = geo.parent / "floor_info.json"
+    feats = _features(geo)
+    outline_idx = next((i for i, f in enumerate(feats)
+                        if (f.get("properties") or {}).get("role") == "outline"), 0)
+    geoms = []
+    for i, f in enumerate(feats):
+        try:
+            geoms.append(shape(f["geometry"]) if f.get("geometry") else None)
+        except (KeyError, ValueError, TypeError, AttributeError) as err:
+            raise FloorPlanError(f"{geo}: feature {i} has an invalid geometry ({err})") from err
+    outline = geoms[outline_idx]
+    if outline is None or outline.geom_type not in ("Polygon", "MultiPolygon"):
+        raise FloorPlanError(f"{geo}: feature {outline_idx} (the outline) is not a polygon")
+    if info.exists():
+        try:
+            meta = json.loads(info.read_text())["map_info"]
+            width, height = float(meta["width"]), float(meta["height"])
+        except (OSError, ValueError, KeyError, TypeError) as err:
+            raise FloorPlanError(f"{info}: needs map_info.width and map_info.height ({err})") \
+                from err
+        lon0, lat0, lon1, lat1 = outline.bounds
+        if lon1 <= lon0 or lat1 <= lat0 or width <= 0 or height <= 0:
+            raise FloorPlanError(f"{geo}: degenerate outline bounds or floor size")
+        sx, sy = width / (lon1 - lon0), height / (lat1 - lat0)
+
+        def to_m(coords: np.ndarray) -> np.ndarray:
+            return np.column_stack([(coords[:, 0] - lon0) * sx, (coords[:, 1] - lat0) * sy])
+
+        geoms = [None if g is None else shapely.transform(g, to_m) for g in geoms]
+        outline = geoms[outline_idx]
+    else:
+        minx, miny, maxx, maxy = outline.bounds
+        width, height = maxx, maxy
+    keep = obstacle_filter or (lambda props: True)
+    obstacles = [g for i, (g, f) in enumerate(zip(geoms, feats))
+                 if i != outline_idx and g is not None
+                 and g.geom_type in ("Polygon", "MultiPolygon")
+                 and keep(f.get("properties") or {})]
+    obstacle_union = shapely.union_all([shapely.make_valid(g) for g in obstacles]) \
+        if obstacles else shapely.Polygon()
+    return FloorPlan(shapely.make_valid(outline), obstacle_union, width, height)

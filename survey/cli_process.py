@@ -1,0 +1,92 @@
+"""``indoormap process`` and ``indoormap survey-report``: positioned, calibrated walks and QA."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+from .process_store import process_store, processed_catalog, processed_table
+from .store import SurveyStore
+
+
+@click.command("process")
+@click.option("--store", "store_dir", required=True, type=click.Path(file_okay=False,
+                                                                     exists=True))
+@click.option("--site", default=None, help="Only this site (id or partition name).")
+@click.option("--floor", default=None, help="Only this floor (name or id).")
+@click.option("--floor-plan", "floor_plans", multiple=True, type=click.Path(exists=True),
+              help="A floor folder (geojson_map.json [+ floor_info.json]) whose reachable area "
+                   "flags legs leaving it; its folder name is the floor. Repeatable.")
+def process_command(store_dir: str, site: str | None, floor: str | None,
+                    floor_plans: tuple[str, ...]) -> None:
+    """Position every sample, scan and beacon row along its walk, calibrate the magnetometer,
+    rotate the field into the map frame, and store the results (new or changed walks only)."""
+    from mapping.floorplan import read_floor_plan
+
+    store = SurveyStore.open(store_dir)
+    reachable = {}
+    cat = store.traces(site, floor)
+    for fp in floor_plans:
+        plan = read_floor_plan(fp)
+        name = Path(fp).name if Path(fp).is_dir() else Path(fp).parent.name
+        for s in cat.loc[cat["floor"] == name, "site"].unique():
+            reachable[(s, name)] = plan.reachable
+    with click.progressbar(length=max(len(cat), 1), label="process", file=sys.stderr) as bar:
+        def progress(done: int, total: int) -> None:
+            bar.update(done - bar.pos)
+
+        report = process_store(store, site=site, floor=floor, reachable=reachable,
+                               progress=progress)
+    click.echo(f"walks: processed {len(report.processed)}, unchanged {len(report.unchanged)}, "
+               f"skipped {len(report.skipped)}")
+    for tid, reason in report.skipped.items():
+        click.echo(f"  skipped {tid}: {reason}")
+    click.echo("calibration sessions (our pooled fit):")
+    for key, s in report.sessions.items():
+        click.echo(f"  {key:<28} {s['status']:<16} {s['reason']}")
+
+
+@click.command("survey-report")
+@click.option("--store", "store_dir", required=True, type=click.Path(file_okay=False,
+                                                                     exists=True))
+@click.option("--site", default=None)
+@click.option("--floor", default=None)
+@click.option("--csv", "csv_path", type=click.Path(dir_okay=False), default=None,
+              help="Also write the table as CSV.")
+def survey_report_command(store_dir: str, site: str | None, floor: str | None,
+                          csv_path: str | None) -> None:
+    """Per-walk QA: steps, length, flagged legs, step model, calibration decision, headings."""
+    cat = processed_catalog(store_dir)
+    if site is not None:
+        cat = cat[cat["site"] == site]
+    if floor is not None:
+        cat = cat[cat["floor"] == floor]
+    rows = []
+    for r in cat.itertuples(index=False):
+        s = r.summary
+        rows.append({
+            "trace_id": r.trace_id, "floor": r.floor, "status": r.status,
+            "steps": s.get("n_steps", ""), "length_m": round(s.get("walk_length_m", 0), 1),
+            "legs": s.get("n_legs", ""), "flagged": s.get("n_flagged_legs", ""),
+            "step_k": round(s.get("step_model", {}).get("k", float("nan")), 3),
+            "calibration": s.get("calibration", r.reason),
+            "heading_offset_deg": round(s.get("heading_offset_median_deg", float("nan")), 1),
+            "ufh_share": round(s.get("attitude_share", {}).get("UFH", 0.0), 2),
+            "session": r.session})
+    import pandas as pd
+
+    table = pd.DataFrame(rows)
+    if csv_path:
+        table.to_csv(csv_path, index=False)
+    with pd.option_context("display.max_rows", None, "display.width", 200,
+                           "display.max_colwidth", 40):
+        click.echo(table.to_string(index=False))
+    try:
+        legs = processed_table(store_dir, "legs", site=site, floor=floor)
+        flags = legs["flags"][legs["flags"] != ""].str.split(",").explode().value_counts()
+        click.echo("flagged legs by reason: " + (", ".join(f"{k} {v}" for k, v in flags.items())
+                                                 or "none"))
+    except Exception as err:  # noqa: BLE001 - the report stays useful without the legs table
+        click.echo(f"(no leg table: {err})")

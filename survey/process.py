@@ -1,0 +1,316 @@
+"""Survey processing of one walk: steps, positions, calibration, earth-frame field, headings.
+
+Pure computation on one walk's tables (as read from the store); :mod:`survey.process_store`
+runs it over a store and writes the results back. The output per walk:
+
+- ``samples``: every magnetometer sample inside the waypoint range, positioned (x_m, y_m), with
+  the calibrated field rotated into the map frame (east, north, up, uT), its strength,
+  horizontal and vertical components, azimuth and polar angle (deg), device heading and tilt
+  (deg) and the attitude class of its step;
+- ``steps``: every step with time, length (m), frequency (Hz), gyro and compass heading, the
+  walking direction from the positions, the heading offset (compass minus walking direction,
+  deg) and the attitude class;
+- ``legs``: per waypoint leg the quality flags of :mod:`survey.positions`;
+- ``summary``: counts, the step-length model, the calibration decision and the walk's median
+  heading offset (a constant: map rotation plus declination), reported apart from the
+  spatially varying part (``heading_offset_deg - median``).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+
+from .attitude import AttitudeParams, classify_attitude
+from .errors import ProcessingError
+from .field_features import circular_median_deg, field_features, wrap_deg
+from .magcal import MagCalResult
+from .positions import PositionParams, clean_waypoints, positions_along_walk
+from .rotation import heading_deg, interpolate_rotation_vector, rotation_matrices, tilt_deg
+from .steps import detect_steps, fit_weinberg, segment_ids, weinberg_length
+
+#: Weinberg constant used when a walk has too few legs to fit its own.
+DEFAULT_WEINBERG_K = 0.4
+
+
+@dataclass(frozen=True)
+class ProcessParams:
+    """Parameters of :func:`process_walk`."""
+
+    positions: PositionParams = field(default_factory=PositionParams)
+    attitude: AttitudeParams = field(default_factory=AttitudeParams)
+    #: Plausible range of the calibrated field strength (uT); outside it a stream is not trusted.
+    strength_range_ut: tuple[float, float] = (15.0, 120.0)
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), sort_keys=True)
+
+
+@dataclass
+class ProcessedWalk:
+    trace_id: str
+    samples: pd.DataFrame
+    steps: pd.DataFrame
+    legs: pd.DataFrame
+    summary: dict
+    track_t_ms: NDArray[np.float64]  # the positioned track: knot times (ms) ...
+    track_xy_m: NDArray[np.float64]  # ... and positions (k, 2), map metres
+    range_t_ms: tuple[float, float]  # first and last waypoint time
+
+    def position_at(self, t_ms) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+        """Positions (n, 2) at times ``t_ms`` and whether each lies in the waypoint range
+        (positions outside are NaN)."""
+        t = np.asarray(t_ms, dtype=np.float64)
+        inside = (t >= self.range_t_ms[0]) & (t <= self.range_t_ms[1])
+        xy = np.full((len(t), 2), np.nan)
+        xy[inside, 0] = np.interp(t[inside], self.track_t_ms, self.track_xy_m[:, 0])
+        xy[inside, 1] = np.interp(t[inside], self.track_t_ms, self.track_xy_m[:, 1])
+        return xy, inside
+
+
+def _stream(sensors: pd.DataFrame, name: str) -> pd.DataFrame:
+    rows = sensors[sensors["stream"] == name]
+    return rows.sort_values("t_ms", kind="stable").reset_index(drop=True)
+
+
+def reported_bias(sensors: pd.DataFrame) -> NDArray[np.float64] | None:
+    """The phone's own hard-iron estimate (uT): the median bias of the uncalibrated
+    magnetometer stream, or None when the stream or its bias is missing."""
+    unc = _stream(sensors, "magnetic_field_uncalibrated")
+    if not len(unc):
+        return None
+    bias = unc[["bx", "by", "bz"]].to_numpy(np.float64)
+    if not np.isfinite(bias).all():
+        return None
+    return np.median(bias, axis=0)
+
+
+def session_key(model: str, bias: NDArray[np.float64] | None) -> str:
+    """Calibration session of a walk: device model plus the reported bias rounded to 1 uT
+    (the bias is constant within a session and jumps by tens of uT between sessions)."""
+    if bias is None:
+        return f"{model or 'unknown'}|no-bias"
+    return f"{model or 'unknown'}|" + ",".join(f"{b:.0f}" for b in bias)
+
+
+def calibrated_field(sensors: pd.DataFrame, session_fit: MagCalResult | None = None,
+                     strength_range_ut: tuple[float, float] = (15.0, 120.0)
+                     ) -> tuple[NDArray, NDArray, str, str]:
+    """Choose the magnetometer calibration of a walk.
+
+    Order of preference: the phone's calibrated stream (if its strength is plausible); the
+    uncalibrated stream minus the phone's bias; our pooled session fit (if it is well
+    conditioned). Otherwise the raw stream is returned with decision ``"not-calibrated"``.
+
+    Returns
+    -------
+    (t_ms (n,), field_ut (n, 3) device frame, decision, detail)
+    """
+    lo, hi = strength_range_ut
+    cal = _stream(sensors, "magnetic_field")
+    unc = _stream(sensors, "magnetic_field_uncalibrated")
+
+    def plausible(m):
+        s = np.median(np.linalg.norm(m, axis=1))
+        return lo <= s <= hi, s
+
+    if len(cal):
+        m = cal[["x", "y", "z"]].to_numpy(np.float64)
+        ok, s = plausible(m)
+        if ok:
+            return cal["t_ms"].to_numpy(), m, "device-calibrated", f"median strength {s:.1f} uT"
+    if len(unc):
+        raw = unc[["x", "y", "z"]].to_numpy(np.float64)
+        bias = unc[["bx", "by", "bz"]].to_numpy(np.float64)
+        if np.isfinite(bias).all():
+            m = raw - bias
+            ok, s = plausible(m)
+            if ok:
+                return (unc["t_ms"].to_numpy(), m, "uncalibrated-minus-device-bias",
+                        f"median strength {s:.1f} uT")
+        if session_fit is not None and session_fit.ok:
+            return (unc["t_ms"].to_numpy(), session_fit.apply(raw), "own-session-fit",
+                    f"hard iron {np.round(session_fit.hard_iron_ut, 1).tolist()} uT")
+        reason = session_fit.reason if session_fit is not None else "no session fit"
+        return (unc["t_ms"].to_numpy(), raw, "not-calibrated",
+                f"own fit ill-conditioned, not applied ({reason})")
+    if len(cal):
+        m = cal[["x", "y", "z"]].to_numpy(np.float64)
+        return cal["t_ms"].to_numpy(), m, "not-calibrated", "calibrated stream implausible"
+    raise ProcessingError("no magnetometer stream")
+
+
+def gyro_heading_deg(sensors: pd.DataFrame, rot_t: NDArray, rot: NDArray
+                     ) -> tuple[NDArray, NDArray] | None:
+    """Heading (deg clockwise from north, unwrapped, arbitrary origin) integrated from the
+    gyroscope's rate about the vertical axis; None without a gyroscope stream."""
+    gyro = _stream(sensors, "gyroscope")
+    if len(gyro) < 2:
+        return None
+    t = gyro["t_ms"].to_numpy(np.float64)
+    q = interpolate_rotation_vector(rot_t, rot, t)
+    r = rotation_matrices(q, quaternion=True)
+    omega_up = np.einsum("nij,nj->ni", r, gyro[["x", "y", "z"]].to_numpy(np.float64))[:, 2]
+    rate = -np.degrees(omega_up)  # counter-clockwise about up is a decreasing heading
+    dt = np.diff(t) / 1000.0
+    return t, np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * dt)])
+
+
+#: A phone whose y axis points within this angle (deg) of the walking direction points forward.
+FORWARD_TOLERANCE_DEG = 45.0
+
+
+def _forward_by_heading(att, compass_minus_walk_deg: NDArray, params: AttitudeParams
+                        ) -> NDArray[np.str_]:
+    """Per-step attitude with the forward test done by heading where it can be.
+
+    The paper's per-step classes (001, Algorithm 2) decide "forward" from accelerometer events
+    (E2, E3), which a phone held flat with little lateral sway leaves undecided. In a survey the
+    walking direction is known: an upward phone whose y axis points within
+    ``FORWARD_TOLERANCE_DEG`` of it is forward (UFH or UFNH by the incline), one pointing farther
+    away is not (UNF). Steps without a known walking direction keep the paper's class.
+    """
+    classes = np.asarray(att.attitude, dtype=object).astype(str)
+    known = np.isfinite(compass_minus_walk_deg)
+    upward = np.isin(classes, ["UFH", "UFNH", "UNF"])
+    forward = np.abs(compass_minus_walk_deg) <= FORWARD_TOLERANCE_DEG
+    horizontal = np.abs(att.theta_deg) < params.k2 * 90.0
+    out = classes.copy()
+    sel = known & upward
+    out[sel & forward & horizontal] = "UFH"
+    out[sel & forward & ~horizontal] = "UFNH"
+    out[sel & ~forward] = "UNF"
+    return out
+
+
+def process_walk(trace_id: str, sensors: pd.DataFrame, waypoints: pd.DataFrame,
+                 params: ProcessParams = ProcessParams(), *, reachable=None,
+                 session_fit: MagCalResult | None = None) -> ProcessedWalk:
+    """Process one walk. See the module docstring for the outputs.
+
+    Raises
+    ------
+    ProcessingError
+        Fewer than two waypoints at distinct times, no accelerometer, no rotation vector, no
+        magnetometer, or no steps.
+    """
+    wt, wxy, n_dup_wp = clean_waypoints(waypoints["t_ms"], waypoints[["x_m", "y_m"]])
+    acc = _stream(sensors, "accelerometer")
+    if not len(acc):
+        acc = _stream(sensors, "accelerometer_uncalibrated")
+    if len(acc) < 10:
+        raise ProcessingError(f"{trace_id}: no accelerometer stream")
+    rv = _stream(sensors, "rotation_vector")
+    if len(rv) < 2:
+        raise ProcessingError(f"{trace_id}: no rotation vector: cannot rotate the field into the "
+                              "map frame")
+    acc_t = acc["t_ms"].to_numpy(np.float64)
+    acc_xyz = acc[["x", "y", "z"]].to_numpy(np.float64)
+    rot_t = rv["t_ms"].to_numpy(np.float64)
+    rot = rv[["x", "y", "z"]].to_numpy(np.float64)
+
+    steps = detect_steps(acc_t, acc_xyz)
+    st = steps.t_ms
+    if len(st) == 0:
+        raise ProcessingError(f"{trace_id}: no steps detected")
+    step_start = np.concatenate([[st[0] - 600.0], st[:-1]])
+    step_start = np.maximum(step_start, st - 1000.0)
+    mid = 0.5 * (step_start + st)
+
+    # Headings: gyro (relative, immune to magnetic anomalies) and compass (rotation vector).
+    compass_unwrapped = np.degrees(np.unwrap(np.radians(heading_deg(rot))))
+    good = np.isfinite(compass_unwrapped)
+    compass_step = np.mod(np.interp(mid, rot_t[good], compass_unwrapped[good]), 360.0)
+    gyro = gyro_heading_deg(sensors, rot_t, rot)
+    if gyro is not None:
+        relative_heading = np.interp(mid, *gyro)
+        # Anchor the gyro's arbitrary origin to the compass over the whole walk (a median, so
+        # local magnetic deviations do not move it); the shape stays the gyro's.
+        relative_heading = relative_heading + circular_median_deg(
+            wrap_deg(compass_step - relative_heading))
+        heading_source = "gyroscope"
+    else:
+        relative_heading = np.interp(mid, rot_t[good], compass_unwrapped[good])
+        heading_source = "compass"
+
+    # Step lengths: Weinberg fitted on this walk's legs, or the default constant.
+    seg = segment_ids(st, wt)
+    dist = np.hypot(*np.diff(wxy, axis=0).T)
+    try:
+        fit = fit_weinberg(steps.delta_acc_ms2, seg, dist)
+        k = fit.params[0] if fit.n_segments >= 2 else DEFAULT_WEINBERG_K
+        model = {"model": "weinberg", "k": k, "fitted": fit.n_segments >= 2,
+                 "residual_rms_m": fit.residual_rms_m, "n_legs": fit.n_segments}
+    except ProcessingError:
+        k = DEFAULT_WEINBERG_K
+        model = {"model": "weinberg", "k": k, "fitted": False}
+    lengths = weinberg_length(steps.delta_acc_ms2, k)
+
+    # Calibrated field at magnetometer times, rotated into the map frame.
+    mag_t, mag_dev, decision, detail = calibrated_field(sensors, session_fit,
+                                                        params.strength_range_ut)
+    pos = positions_along_walk(wt, wxy, mag_t, step_t_ms=st, step_heading_deg=relative_heading,
+                               step_weight=lengths, params=params.positions,
+                               reachable=reachable)
+    inside = pos.inside
+    q = interpolate_rotation_vector(rot_t, rot, mag_t[inside].astype(np.float64))
+    r = rotation_matrices(q, quaternion=True)
+    earth = np.einsum("nij,nj->ni", r, mag_dev[inside])
+    feats = field_features(earth)
+
+    att = classify_attitude(acc_t, acc_xyz, st, params.attitude)
+    step_of_sample = np.clip(np.searchsorted(st, mag_t[inside], side="left"), 0, len(st) - 1)
+
+    # Walking direction of each step from the final track, and the heading offset.
+    kt, kxy = pos.knots_t_ms, pos.knots_xy_m
+    p0 = np.column_stack([np.interp(step_start, kt, kxy[:, 0]),
+                          np.interp(step_start, kt, kxy[:, 1])])
+    p1 = np.column_stack([np.interp(st, kt, kxy[:, 0]), np.interp(st, kt, kxy[:, 1])])
+    d = p1 - p0
+    moved = np.hypot(d[:, 0], d[:, 1])
+    walk_dir = np.mod(np.degrees(np.arctan2(d[:, 0], d[:, 1])), 360.0)
+    step_inside = (st >= wt[0]) & (st <= wt[-1]) & (moved > 0.2)
+    walk_dir[~step_inside] = np.nan
+    offset = wrap_deg(compass_step - walk_dir)
+    attitude = _forward_by_heading(att, offset, params.attitude)
+    valid_offset = np.isfinite(offset)
+    median_offset = float(wrap_deg(circular_median_deg(offset[valid_offset]))) \
+        if valid_offset.any() else float("nan")
+
+    samples = pd.DataFrame({
+        "t_ms": mag_t[inside].astype(np.int64),
+        "x_m": pos.xy_m[inside, 0], "y_m": pos.xy_m[inside, 1], "leg": pos.leg[inside],
+        "mag_east_ut": earth[:, 0], "mag_north_ut": earth[:, 1], "mag_up_ut": earth[:, 2],
+        "strength_ut": feats.strength_ut, "horizontal_ut": feats.horizontal_ut,
+        "vertical_ut": feats.vertical_ut, "azimuth_deg": feats.azimuth_deg,
+        "polar_deg": feats.polar_deg,
+        "device_heading_deg": heading_deg(q, quaternion=True),
+        "tilt_deg": tilt_deg(q, quaternion=True),
+        "attitude": attitude[step_of_sample],
+    })
+    steps_table = pd.DataFrame({
+        "t_ms": st.astype(np.int64), "leg": seg, "length_m": lengths,
+        "frequency_hz": steps.frequency_hz, "delta_acc_ms2": steps.delta_acc_ms2,
+        "x_m": p1[:, 0], "y_m": p1[:, 1], "relative_heading_deg": np.mod(relative_heading, 360),
+        "compass_heading_deg": compass_step, "walk_direction_deg": walk_dir,
+        "heading_offset_deg": offset,
+        "heading_offset_local_deg": wrap_deg(offset - median_offset),
+        "attitude": attitude,
+    })
+    legs = pos.legs
+    summary = {
+        "trace_id": trace_id, "n_steps": int(len(st)),
+        "n_samples": int(inside.sum()), "n_samples_outside_waypoints": pos.n_outside,
+        "n_duplicate_waypoints": n_dup_wp, "n_legs": int(len(legs)),
+        "n_flagged_legs": int((legs["flags"] != "").sum()),
+        "walk_length_m": float(legs["distance_m"].sum()), "step_model": model,
+        "heading_source": heading_source, "calibration": decision,
+        "calibration_detail": detail, "heading_offset_median_deg": median_offset,
+        "attitude_share": {str(a): float(np.mean(attitude == a)) for a in np.unique(attitude)},
+    }
+    return ProcessedWalk(trace_id, samples, steps_table, legs, summary, kt, kxy,
+                         (float(wt[0]), float(wt[-1])))

@@ -1,0 +1,213 @@
+"""Run survey processing over a store and keep the results in it.
+
+Processed tables live beside the raw ones::
+
+    STORE/processed/catalog.parquet      one row per walk: status, summary, parameters
+    STORE/processed/{samples,steps,legs,wifi,ble}/site=S/floor=F/<trace_id>-<sha12>.parquet
+
+``wifi`` and ``ble`` are the raw rows with the positions (x_m, y_m) of their times added; rows
+outside the walk's waypoint range are dropped (counted in the summary). A walk that cannot be
+processed (no steps, no rotation vector, a single waypoint, ...) gets ``status = "skipped"`` and
+the reason; nothing is lost. Processing is redone when the walk or the parameters change.
+
+Calibration sessions are found across all walks of a device model by the phone's reported
+bias; walks that lack a trustworthy calibration use a fit pooled over their session.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+
+from .errors import ProcessingError
+from .magcal import MagCalResult, fit_ellipsoid
+from .process import ProcessedWalk, ProcessParams, process_walk, reported_bias, session_key
+from .publish import atomic_write_bytes, crash_point, fsync_dir
+from .store import SurveyStore, _arrow_column, _parquet_bytes, part_path
+
+PROCESSED_TABLES = ("samples", "steps", "legs", "wifi", "ble")
+PROCESSED_CATALOG_COLUMNS = ("trace_id", "sha256", "site", "floor", "params_sha256", "status",
+                             "reason", "session", "summary_json")
+
+
+@dataclass
+class ProcessReport:
+    processed: list[str] = field(default_factory=list)
+    skipped: dict[str, str] = field(default_factory=dict)
+    unchanged: list[str] = field(default_factory=list)
+    sessions: dict[str, dict] = field(default_factory=dict)
+
+
+def params_sha256(params: ProcessParams) -> str:
+    return hashlib.sha256(params.to_json().encode()).hexdigest()
+
+
+def _position_rows(rows: pd.DataFrame, t_col: str, walk: ProcessedWalk) -> pd.DataFrame:
+    """Rows inside the walk's waypoint range with the positions of their times added."""
+    xy, inside = walk.position_at(rows[t_col].to_numpy(np.float64))
+    out = rows[inside].drop(columns=["trace_id"], errors="ignore").reset_index(drop=True)
+    out["x_m"], out["y_m"] = xy[inside, 0], xy[inside, 1]
+    return out
+
+
+def session_fits(store: SurveyStore, catalog: pd.DataFrame, max_samples: int = 20000,
+                 seed: int = 0) -> tuple[dict[str, str], dict[str, MagCalResult]]:
+    """Session key of every walk and an ellipsoid fit pooled over each session's raw samples."""
+    rng = np.random.default_rng(seed)
+    sessions: dict[str, str] = {}
+    pooled: dict[str, list[np.ndarray]] = {}
+    for row in catalog.itertuples(index=False):
+        sensors = store.table("sensors", trace_ids=[row.trace_id])
+        key = session_key(row.device_model, reported_bias(sensors))
+        sessions[row.trace_id] = key
+        unc = sensors[sensors["stream"] == "magnetic_field_uncalibrated"]
+        if len(unc):
+            pooled.setdefault(key, []).append(unc[["x", "y", "z"]].to_numpy(np.float64))
+    fits = {}
+    for key, parts in sorted(pooled.items()):
+        raw = np.concatenate(parts)
+        if len(raw) > max_samples:
+            raw = raw[np.sort(rng.choice(len(raw), max_samples, replace=False))]
+        if len(raw) >= 20:
+            fits[key] = fit_ellipsoid(raw)
+    return sessions, fits
+
+
+def process_store(store: SurveyStore | str, *, site: str | None = None,
+                  floor: str | None = None, params: ProcessParams = ProcessParams(),
+                  reachable: dict[tuple[str, str], object] | None = None,
+                  progress: Callable[[int, int], None] | None = None) -> ProcessReport:
+    """Process every walk of the selected site/floor that is new or changed.
+
+    Parameters
+    ----------
+    reachable : dict, optional
+        ``(site, floor) -> shapely geometry`` of the reachable area (for ``off_floor`` flags).
+    """
+    store = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
+    root = store.root / "processed"
+    cat = store.traces(site, floor)
+    pcat_path = root / "catalog.parquet"
+    old = pd.read_parquet(pcat_path) if pcat_path.exists() else pd.DataFrame(
+        {c: pd.Series([], dtype="str") for c in PROCESSED_CATALOG_COLUMNS})
+    psha = params_sha256(params)
+    report = ProcessReport()
+    sessions, fits = session_fits(store, cat)
+    report.sessions = {k: {"status": f.status, "reason": f.reason,
+                           "hard_iron_ut": np.round(f.hard_iron_ut, 2).tolist(),
+                           "coverage": round(float(f.coverage), 3)} for k, f in fits.items()}
+    new_rows = []
+    with store.writer():  # one writer at a time for the whole store
+        for i, row in enumerate(cat.itertuples(index=False)):
+            done = old[(old["trace_id"] == row.trace_id) & (old["sha256"] == row.sha256)
+                       & (old["params_sha256"] == psha)]
+            if len(done):
+                report.unchanged.append(row.trace_id)
+                new_rows.append(done.iloc[0].to_dict())
+                if progress:
+                    progress(i + 1, len(cat))
+                continue
+            sensors = store.table("sensors", trace_ids=[row.trace_id])
+            waypoints = store.table("waypoints", trace_ids=[row.trace_id])
+            key = sessions.get(row.trace_id, "")
+            base = {"trace_id": row.trace_id, "sha256": row.sha256, "site": row.site,
+                    "floor": row.floor, "params_sha256": psha, "session": key}
+            try:
+                walk = process_walk(row.trace_id, sensors, waypoints, params,
+                                    reachable=(reachable or {}).get((row.site, row.floor)),
+                                    session_fit=fits.get(key))
+            except ProcessingError as err:
+                report.skipped[row.trace_id] = str(err)
+                new_rows.append({**base, "status": "skipped", "reason": str(err),
+                                 "summary_json": "{}"})
+                continue
+            tables = {"samples": walk.samples, "steps": walk.steps, "legs": walk.legs,
+                      "wifi": _position_rows(store.table("wifi", trace_ids=[row.trace_id]),
+                                             "scan_t_ms", walk),
+                      "ble": _position_rows(store.table("ble", trace_ids=[row.trace_id]),
+                                            "t_ms", walk)}
+            walk.summary["n_wifi_rows_positioned"] = len(tables["wifi"])
+            walk.summary["n_ble_rows_positioned"] = len(tables["ble"])
+            walk.summary["session"] = key
+            for name, frame in tables.items():
+                table = pa.table({c: _arrow_column(frame[c]) for c in frame.columns})
+                rel = part_path(name, row.site, row.floor, row.trace_id, row.sha256)
+                atomic_write_bytes(root / rel, _parquet_bytes(table), overwrite=True,
+                                   sync_dir=False)
+            report.processed.append(row.trace_id)
+            new_rows.append({**base, "status": "ok", "reason": "",
+                             "summary_json": json.dumps(walk.summary, default=_json_default)})
+            if progress:
+                progress(i + 1, len(cat))
+        for folder in {(root / part_path(t, r["site"], r["floor"], "x", "0")).parent
+                       for r in new_rows for t in PROCESSED_TABLES}:
+            fsync_dir(folder)
+        keep = old[~old["trace_id"].isin([r["trace_id"] for r in new_rows])]
+        pcat = pd.concat([keep, pd.DataFrame(new_rows)], ignore_index=True)
+        pcat = pcat[list(PROCESSED_CATALOG_COLUMNS)].astype("str")
+        pcat = pcat.sort_values(["site", "floor", "trace_id"], kind="stable")
+        crash_point("process:before-catalog")
+        table = pa.Table.from_pandas(pcat, preserve_index=False).replace_schema_metadata(None)
+        atomic_write_bytes(pcat_path, _parquet_bytes(table), overwrite=True)
+        _remove_unreferenced(root, pcat)
+    return report
+
+
+def _json_default(value):
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"not JSON serializable: {type(value)}")
+
+
+def _remove_unreferenced(root, pcat: pd.DataFrame) -> None:
+    live = {part_path(t, r.site, r.floor, r.trace_id, r.sha256)
+            for r in pcat[pcat["status"] == "ok"].itertuples(index=False)
+            for t in PROCESSED_TABLES}
+    for table in PROCESSED_TABLES:
+        base = root / table
+        if base.exists():
+            for p in base.rglob("*.parquet"):
+                if str(p.relative_to(root)) not in live:
+                    p.unlink()
+
+
+def processed_catalog(store: SurveyStore | str) -> pd.DataFrame:
+    """The processed catalog (one row per walk), with the summary parsed into a dict column."""
+    store = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
+    path = store.root / "processed" / "catalog.parquet"
+    if not path.exists():
+        raise ProcessingError(f"{store.root}: not processed yet; run `indoormap process`")
+    cat = pd.read_parquet(path)
+    cat["summary"] = [json.loads(s) for s in cat["summary_json"]]
+    return cat
+
+
+def processed_table(store: SurveyStore | str, name: str, *, site: str | None = None,
+                    floor: str | None = None) -> pd.DataFrame:
+    """One processed table over the walks that processed ``ok``, with a ``trace_id`` column."""
+    if name not in PROCESSED_TABLES:
+        raise ProcessingError(f"unknown processed table {name!r}; expected {PROCESSED_TABLES}")
+    store = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
+    cat = processed_catalog(store)
+    cat = cat[cat["status"] == "ok"]
+    if site is not None:
+        cat = cat[cat["site"] == site]
+    if floor is not None:
+        cat = cat[cat["floor"] == floor]
+    frames = []
+    for r in cat.itertuples(index=False):
+        frame = pd.read_parquet(store.root / "processed" / part_path(name, r.site, r.floor,
+                                                                     r.trace_id, r.sha256))
+        frame.insert(0, "trace_id", r.trace_id)
+        frames.append(frame)
+    if not frames:
+        raise ProcessingError(f"no processed walks for site={site!r} floor={floor!r}")
+    return pd.concat(frames, ignore_index=True)
