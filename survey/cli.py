@@ -35,7 +35,10 @@ def _register() -> None:
     from .cli_process import process_command, survey_report_command
     from .sim.cli import simulate
 
-    for command in (simulate, ingest_command, process_command, survey_report_command):
+    from mapping.cli_build import build_command, bundle_group
+
+    for command in (simulate, ingest_command, process_command, survey_report_command,
+                    build_command, bundle_group):
         main.add_command(command)
 
 

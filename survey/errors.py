@@ -49,3 +49,15 @@ class SimulationError(IndoormapError, ValueError):
 
 class ProcessingError(IndoormapError, ValueError):
     """A walk cannot be processed (no steps, no waypoints, missing streams, ...)."""
+
+
+class BundleError(IndoormapError, ValueError):
+    """A map bundle cannot be used: missing, wrong format or schema version, bad content."""
+
+
+class BundleIntegrityError(BundleError):
+    """A map bundle's content does not match its manifest (changed, missing or extra bytes)."""
+
+
+class RegistryError(IndoormapError):
+    """A bundle registry operation is refused (unknown version, silent rollback, ...)."""

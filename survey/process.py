@@ -4,7 +4,8 @@ Pure computation on one walk's tables (as read from the store); :mod:`survey.pro
 runs it over a store and writes the results back. The output per walk:
 
 - ``samples``: every magnetometer sample inside the waypoint range, positioned (x_m, y_m), with
-  the calibrated field rotated into the map frame (east, north, up, uT), its strength,
+  the calibrated device-frame field (uT), the attitude quaternion (w, x, y, z; device to map),
+  the field rotated into the map frame (east, north, up, uT), its strength,
   horizontal and vertical components, azimuth and polar angle (deg), device heading and tilt
   (deg) and the attitude class of its step;
 - ``steps``: every step with time, length (m), frequency (Hz), gyro and compass heading, the
@@ -89,12 +90,38 @@ def reported_bias(sensors: pd.DataFrame) -> NDArray[np.float64] | None:
     return np.median(bias, axis=0)
 
 
-def session_key(model: str, bias: NDArray[np.float64] | None) -> str:
-    """Calibration session of a walk: device model plus the reported bias rounded to 1 uT
-    (the bias is constant within a session and jumps by tens of uT between sessions)."""
-    if bias is None:
-        return f"{model or 'unknown'}|no-bias"
-    return f"{model or 'unknown'}|" + ",".join(f"{b:.0f}" for b in bias)
+def calibration_sessions(models: list[str], biases: list[NDArray[np.float64] | None],
+                         tolerance_ut: float = 2.0) -> list[str]:
+    """Calibration session of each walk.
+
+    The phone's reported bias is constant within a session and jumps by tens of uT between
+    sessions, with small wobbles: walks of one device model whose biases are within
+    ``tolerance_ut`` of each other (single linkage) form one session, named by the model and
+    the session's median bias rounded to 1 uT. Walks without a bias get ``model|no-bias``.
+    """
+    keys = [""] * len(models)
+    for model in sorted(set(models)):
+        idx = [i for i, m in enumerate(models) if m == model and biases[i] is not None]
+        for i, m in enumerate(models):
+            if m == model and biases[i] is None:
+                keys[i] = f"{model or 'unknown'}|no-bias"
+        if not idx:
+            continue
+        b = np.array([biases[i] for i in idx])
+        label = np.arange(len(idx))
+        close = np.linalg.norm(b[:, None, :] - b[None, :, :], axis=2) <= tolerance_ut
+        changed = True
+        while changed:  # single linkage: propagate the smallest label through neighbours
+            new = np.array([label[close[k]].min() for k in range(len(idx))])
+            changed = bool((new != label).any())
+            label = new
+        for lab in np.unique(label):
+            members = np.flatnonzero(label == lab)
+            med = np.median(b[members], axis=0)
+            name = f"{model or 'unknown'}|" + ",".join(f"{v:.0f}" for v in med)
+            for k in members:
+                keys[idx[k]] = name
+    return keys
 
 
 def calibrated_field(sensors: pd.DataFrame, session_fit: MagCalResult | None = None,
@@ -285,6 +312,9 @@ def process_walk(trace_id: str, sensors: pd.DataFrame, waypoints: pd.DataFrame,
         "t_ms": mag_t[inside].astype(np.int64),
         "x_m": pos.xy_m[inside, 0], "y_m": pos.xy_m[inside, 1], "leg": pos.leg[inside],
         "mag_east_ut": earth[:, 0], "mag_north_ut": earth[:, 1], "mag_up_ut": earth[:, 2],
+        "mag_dev_x_ut": mag_dev[inside, 0], "mag_dev_y_ut": mag_dev[inside, 1],
+        "mag_dev_z_ut": mag_dev[inside, 2],
+        "q_w": q[:, 0], "q_x": q[:, 1], "q_y": q[:, 2], "q_z": q[:, 3],
         "strength_ut": feats.strength_ut, "horizontal_ut": feats.horizontal_ut,
         "vertical_ut": feats.vertical_ut, "azimuth_deg": feats.azimuth_deg,
         "polar_deg": feats.polar_deg,

@@ -27,7 +27,8 @@ import pyarrow as pa
 
 from .errors import ProcessingError
 from .magcal import MagCalResult, fit_ellipsoid
-from .process import ProcessedWalk, ProcessParams, process_walk, reported_bias, session_key
+from .process import ProcessedWalk, ProcessParams, calibration_sessions, process_walk, \
+    reported_bias
 from .publish import atomic_write_bytes, crash_point, fsync_dir
 from .store import SurveyStore, _arrow_column, _parquet_bytes, part_path
 
@@ -60,15 +61,19 @@ def session_fits(store: SurveyStore, catalog: pd.DataFrame, max_samples: int = 2
                  seed: int = 0) -> tuple[dict[str, str], dict[str, MagCalResult]]:
     """Session key of every walk and an ellipsoid fit pooled over each session's raw samples."""
     rng = np.random.default_rng(seed)
-    sessions: dict[str, str] = {}
-    pooled: dict[str, list[np.ndarray]] = {}
+    raw_of: dict[str, np.ndarray] = {}
+    biases = []
     for row in catalog.itertuples(index=False):
         sensors = store.table("sensors", trace_ids=[row.trace_id])
-        key = session_key(row.device_model, reported_bias(sensors))
-        sessions[row.trace_id] = key
+        biases.append(reported_bias(sensors))
         unc = sensors[sensors["stream"] == "magnetic_field_uncalibrated"]
-        if len(unc):
-            pooled.setdefault(key, []).append(unc[["x", "y", "z"]].to_numpy(np.float64))
+        raw_of[row.trace_id] = unc[["x", "y", "z"]].to_numpy(np.float64)
+    keys = calibration_sessions(list(catalog["device_model"]), biases)
+    sessions = dict(zip(catalog["trace_id"], keys))
+    pooled: dict[str, list[np.ndarray]] = {}
+    for tid, key in sessions.items():
+        if len(raw_of[tid]):
+            pooled.setdefault(key, []).append(raw_of[tid])
     fits = {}
     for key, parts in sorted(pooled.items()):
         raw = np.concatenate(parts)
@@ -109,7 +114,9 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
                        & (old["params_sha256"] == psha)]
             if len(done):
                 report.unchanged.append(row.trace_id)
-                new_rows.append(done.iloc[0].to_dict())
+                # sessions depend on the other walks too: refresh the key
+                new_rows.append({**done.iloc[0].to_dict(), "session": sessions.get(
+                    row.trace_id, "")})
                 if progress:
                     progress(i + 1, len(cat))
                 continue

@@ -1,0 +1,363 @@
+"""Map bundles: the verified, read-only maps the localizer consumes (numpy and pyarrow only).
+
+A bundle is a folder (see ``docs/bundle_format.md``)::
+
+    manifest.json            format, schema version, bundle id, grid, layers, tables, members
+    mask.npy                 uint8 (height, width): 1 = reachable cell
+    layers/<name>.npy        float32 (height, width), NaN = no data; <name>_std.npy alongside
+    tables/<name>.parquet    fingerprints, devices, floor model, ...
+
+The grid: cell (row i, column j) covers ``x in [x0 + j*cell, x0 + (j+1)*cell)`` and
+``y in [y0 + i*cell, ...)`` metres in the map frame (x east, y north; row 0 is the south edge).
+
+:func:`load_bundle` verifies before it returns: format name, schema version, the bundle id (the
+sha256 of the canonical manifest without its id), every member's path, size and sha256, no
+member missing and no file unlisted, ``.npy`` headers (dtype, shape, size) before reading, and
+never unpickles. Any difference raises :class:`BundleIntegrityError`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path, PurePosixPath
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from survey.errors import BundleError, BundleIntegrityError
+
+BUNDLE_FORMAT = "indoormap-map-bundle"
+SCHEMA_VERSION = 1
+#: dtypes a bundle array may have.
+ALLOWED_DTYPES = frozenset({"<f4", "<f8", "|u1", "<i2", "<i4", "<i8", "|b1"})
+#: Largest array a bundle may hold (elements); bigger headers are refused before reading.
+MAX_ARRAY_ELEMENTS = 200_000_000
+MAX_MEMBERS = 10_000
+MAX_MANIFEST_BYTES = 16 * 1024**2
+
+
+def canonical_json(obj) -> bytes:
+    """The byte form hashed for the bundle id (sorted keys, no spaces, UTF-8)."""
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), ensure_ascii=False,
+                      allow_nan=False).encode("utf-8")
+
+
+def bundle_id_of(manifest: dict) -> str:
+    """Content hash of a manifest: sha256 of its canonical JSON without ``bundle_id``."""
+    body = {k: v for k, v in manifest.items() if k != "bundle_id"}
+    return hashlib.sha256(canonical_json(body)).hexdigest()
+
+
+def file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+@dataclass(frozen=True)
+class Grid:
+    """Raster geometry in the map frame (metres)."""
+
+    x0_m: float
+    y0_m: float
+    cell_m: float
+    width: int
+    height: int
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.x0_m) and math.isfinite(self.y0_m)
+                and math.isfinite(self.cell_m) and self.cell_m > 0):
+            raise BundleError(f"grid: finite origin and a positive cell size needed, got {self}")
+        if self.width < 1 or self.height < 1:
+            raise BundleError(f"grid: width and height must be positive, got {self}")
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Grid:
+        try:
+            return cls(float(d["x0_m"]), float(d["y0_m"]), float(d["cell_m"]), int(d["width"]),
+                       int(d["height"]))
+        except (KeyError, TypeError, ValueError) as err:
+            raise BundleError(f"manifest grid is malformed: {err}") from err
+
+    def to_dict(self) -> dict:
+        return {"x0_m": self.x0_m, "y0_m": self.y0_m, "cell_m": self.cell_m,
+                "width": self.width, "height": self.height}
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.height, self.width)
+
+    def cell_centers(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """x (width,) and y (height,) of the cell centres (m)."""
+        return (self.x0_m + (np.arange(self.width) + 0.5) * self.cell_m,
+                self.y0_m + (np.arange(self.height) + 0.5) * self.cell_m)
+
+    def cell_of(self, x_m: ArrayLike, y_m: ArrayLike) -> tuple[NDArray[np.int64],
+                                                              NDArray[np.int64],
+                                                              NDArray[np.bool_]]:
+        """(row, col, inside) of the cells holding the points."""
+        col = np.floor((np.asarray(x_m, dtype=np.float64) - self.x0_m) / self.cell_m)
+        row = np.floor((np.asarray(y_m, dtype=np.float64) - self.y0_m) / self.cell_m)
+        inside = (col >= 0) & (col < self.width) & (row >= 0) & (row < self.height)
+        return (np.where(inside, row, 0).astype(np.int64),
+                np.where(inside, col, 0).astype(np.int64), inside)
+
+
+def _safe_member(name: str, root: Path) -> Path:
+    p = PurePosixPath(name)
+    if (not name or p.is_absolute() or ".." in p.parts or "\\" in name or "\0" in name
+            or name.startswith("./")):
+        raise BundleIntegrityError(f"{root}: member name {name!r} is not a plain relative path")
+    path = root.joinpath(*p.parts)
+    if path.is_symlink() or any(q.is_symlink() for q in path.parents if q != root.parent
+                                and root in q.parents):
+        raise BundleIntegrityError(f"{root}: member {name!r} is a link")
+    return path
+
+
+def read_npy_checked(path: Path, *, mmap: bool = True) -> np.ndarray:
+    """Load a ``.npy`` after checking its header: allowed dtype, 1-3 dims, size cap; never
+    unpickles. Memory-mapped (read-only) by default."""
+    try:
+        with open(path, "rb") as fh:
+            version = np.lib.format.read_magic(fh)
+            if version == (1, 0):
+                shape, fortran, dtype = np.lib.format.read_array_header_1_0(fh)
+            elif version in ((2, 0), (3, 0)):
+                shape, fortran, dtype = np.lib.format.read_array_header_2_0(fh)
+            else:
+                raise BundleIntegrityError(f"{path}: unsupported .npy version {version}")
+            offset = fh.tell()
+    except (ValueError, OSError, EOFError) as err:
+        raise BundleIntegrityError(f"{path}: not a valid .npy file ({err})") from err
+    if dtype.hasobject or dtype.str not in ALLOWED_DTYPES:
+        raise BundleIntegrityError(f"{path}: dtype {dtype.str} is not allowed in a bundle")
+    if not (1 <= len(shape) <= 3) or math.prod(shape) > MAX_ARRAY_ELEMENTS:
+        raise BundleIntegrityError(f"{path}: shape {shape} is not allowed in a bundle")
+    expected = offset + math.prod(shape) * dtype.itemsize
+    if path.stat().st_size != expected:
+        raise BundleIntegrityError(f"{path}: {path.stat().st_size} bytes, header implies "
+                                   f"{expected}")
+    if mmap:
+        return np.load(path, mmap_mode="r", allow_pickle=False)
+    return np.load(path, allow_pickle=False)
+
+
+class MapBundle:
+    """A verified map bundle of one floor (or a site-level bundle without rasters).
+
+    Attributes
+    ----------
+    path : Path
+    manifest : dict
+    grid : Grid or None
+    mask : ndarray of bool (height, width) or None
+    layers : dict of name -> ndarray float32 (height, width), read-only
+    std : dict of name -> ndarray float32 (height, width): each layer's uncertainty
+    """
+
+    def __init__(self, path: Path, manifest: dict, grid: Grid | None, mask, layers, std):
+        self.path = path
+        self.manifest = manifest
+        self.grid = grid
+        self.mask = mask
+        self.layers = layers
+        self.std = std
+
+    @property
+    def bundle_id(self) -> str:
+        return self.manifest["bundle_id"]
+
+    @property
+    def site_id(self) -> str:
+        return self.manifest.get("site_id", "")
+
+    @property
+    def floor_id(self) -> str:
+        return self.manifest.get("floor_id", "")
+
+    def layer_unit(self, name: str) -> str:
+        return self.manifest["layers"][name]["unit"]
+
+    def verify(self) -> None:
+        """Re-check every member against the manifest (raises BundleIntegrityError)."""
+        verify_bundle_dir(self.path, self.manifest)
+
+    def table(self, name: str):
+        """A bundle table as a pyarrow Table (verified on load)."""
+        import pyarrow.parquet as pq
+
+        tables = self.manifest.get("tables", {})
+        if name not in tables:
+            raise BundleError(f"{self.path}: no table {name!r}; has {sorted(tables)}")
+        return pq.read_table(self.path / tables[name]["file"])
+
+    def has_table(self, name: str) -> bool:
+        return name in self.manifest.get("tables", {})
+
+    def reachable(self, x_m: ArrayLike, y_m: ArrayLike) -> NDArray[np.bool_]:
+        """Whether each point lies in a reachable cell."""
+        row, col, inside = self.grid.cell_of(x_m, y_m)
+        return inside & self.mask[row, col]
+
+    def sample(self, layer: str, x_m: ArrayLike, y_m: ArrayLike, *,
+               std: bool = False) -> NDArray[np.float64]:
+        """Bilinear lookup of a layer (or its uncertainty) at points in metres.
+
+        NaN where the point's own cell is off the mask or has no data. Neighbour cells without
+        data are left out of the interpolation (weights renormalised), so values next to walls
+        stay defined. Angle layers (``kind == "angle"``, deg) are interpolated as unit vectors.
+
+        Examples
+        --------
+        >>> b.sample("strength", [10.0, 1e6], [5.0, 5.0])  # doctest: +SKIP
+        array([43.1, nan])
+        """
+        meta = self.manifest["layers"].get(layer)
+        if meta is None:
+            raise BundleError(f"{self.path}: no layer {layer!r}; has {sorted(self.layers)}")
+        values = self.std[layer] if std else self.layers[layer]
+        return sample_grid(self.grid, self.mask, values, x_m, y_m,
+                           angle=meta.get("kind") == "angle" and not std)
+
+
+def sample_grid(grid: Grid, mask: NDArray[np.bool_], values: NDArray, x_m: ArrayLike,
+                y_m: ArrayLike, *, angle: bool = False) -> NDArray[np.float64]:
+    """Bilinear lookup of a raster at points (m); see :meth:`MapBundle.sample`.
+
+    Parameters
+    ----------
+    grid : Grid
+    mask : ndarray of bool (height, width)
+    values : ndarray (height, width); NaN = no data
+    x_m, y_m : array_like, broadcastable
+    angle : bool
+        Values are angles in degrees: interpolate unit vectors, return [0, 360).
+    """
+    x = np.asarray(x_m, dtype=np.float64)
+    y = np.asarray(y_m, dtype=np.float64)
+    shape = np.broadcast(x, y).shape
+    x, y = np.broadcast_to(x, shape).ravel(), np.broadcast_to(y, shape).ravel()
+    g = grid
+    row, col, inside = g.cell_of(x, y)
+    own = np.full(x.shape, np.nan)
+    ok = inside & mask[row, col]
+    own[ok] = values[row[ok], col[ok]]
+    ok &= np.isfinite(own)
+    fx = (x - g.x0_m) / g.cell_m - 0.5
+    fy = (y - g.y0_m) / g.cell_m - 0.5
+    j0, i0 = np.floor(fx).astype(np.int64), np.floor(fy).astype(np.int64)
+    wx, wy = fx - j0, fy - i0
+    acc = np.zeros((x.size, 2 if angle else 1))
+    wsum = np.zeros(x.size)
+    for di, dj, w in ((0, 0, (1 - wy) * (1 - wx)), (0, 1, (1 - wy) * wx),
+                      (1, 0, wy * (1 - wx)), (1, 1, wy * wx)):
+        i, j = i0 + di, j0 + dj
+        valid = ok & (i >= 0) & (i < g.height) & (j >= 0) & (j < g.width)
+        ic, jc = np.clip(i, 0, g.height - 1), np.clip(j, 0, g.width - 1)
+        v = values[ic, jc].astype(np.float64)
+        valid &= mask[ic, jc] & np.isfinite(v)
+        w = np.where(valid, w, 0.0)
+        v = np.where(valid, v, 0.0)
+        if angle:
+            acc[:, 0] += w * np.sin(np.radians(v))
+            acc[:, 1] += w * np.cos(np.radians(v))
+        else:
+            acc[:, 0] += w * v
+        wsum += w
+    out = np.full(x.size, np.nan)
+    good = ok & (wsum > 0)
+    if angle:
+        out[good] = np.mod(np.degrees(np.arctan2(acc[good, 0], acc[good, 1])), 360.0)
+    else:
+        out[good] = acc[good, 0] / wsum[good]
+    return out.reshape(shape)
+
+
+def read_manifest(path: Path) -> dict:
+    mpath = path / "manifest.json"
+    try:
+        if mpath.stat().st_size > MAX_MANIFEST_BYTES:
+            raise BundleIntegrityError(f"{mpath}: manifest too large")
+        manifest = json.loads(mpath.read_text(encoding="utf-8"))
+    except FileNotFoundError as err:
+        raise BundleError(f"{path}: not a map bundle (no manifest.json)") from err
+    except (OSError, UnicodeDecodeError, ValueError) as err:
+        raise BundleIntegrityError(f"{mpath}: unreadable manifest ({err})") from err
+    if not isinstance(manifest, dict) or manifest.get("format") != BUNDLE_FORMAT:
+        raise BundleError(f"{mpath}: not an {BUNDLE_FORMAT} manifest")
+    if manifest.get("schema_version") != SCHEMA_VERSION:
+        raise BundleError(f"{mpath}: schema version {manifest.get('schema_version')!r} is not "
+                          f"supported (this indoormap reads version {SCHEMA_VERSION})")
+    if manifest.get("bundle_id") != bundle_id_of(manifest):
+        raise BundleIntegrityError(f"{mpath}: bundle id does not match the manifest content")
+    return manifest
+
+
+def verify_bundle_dir(path: Path, manifest: dict) -> None:
+    """Every listed member present with its size and sha256; nothing else in the folder."""
+    members = manifest.get("members")
+    if not isinstance(members, dict) or len(members) > MAX_MEMBERS:
+        raise BundleIntegrityError(f"{path}: manifest members missing or too many")
+    listed = set()
+    for name, meta in members.items():
+        p = _safe_member(name, path)
+        try:
+            size = p.stat().st_size
+        except FileNotFoundError as err:
+            raise BundleIntegrityError(f"{path}: member {name} is missing") from err
+        if not p.is_file():
+            raise BundleIntegrityError(f"{path}: member {name} is not a regular file")
+        if size != meta.get("size") or file_sha256(p) != meta.get("sha256"):
+            raise BundleIntegrityError(f"{path}: member {name} does not match its checksum "
+                                       "(changed or corrupted)")
+        listed.add(os.path.normpath(p))
+    for dirpath, dirnames, filenames in os.walk(path):
+        for d in dirnames:
+            if Path(dirpath, d).is_symlink():
+                raise BundleIntegrityError(f"{path}: link {Path(dirpath, d)} in bundle")
+        for f in filenames:
+            q = os.path.normpath(os.path.join(dirpath, f))
+            if q != os.path.normpath(path / "manifest.json") and q not in listed:
+                raise BundleIntegrityError(f"{path}: file {os.path.relpath(q, path)} is not "
+                                           "listed in the manifest")
+
+
+def load_bundle(path: str | os.PathLike) -> MapBundle:
+    """Open and verify a map bundle folder. Arrays are memory-mapped read-only.
+
+    Raises
+    ------
+    BundleError
+        Not a bundle, unknown schema version, malformed grid.
+    BundleIntegrityError
+        Any member changed, missing, unlisted, unsafe, or with a disallowed array header.
+    """
+    path = Path(path)
+    if path.is_symlink():
+        raise BundleIntegrityError(f"{path}: a bundle folder may not be a link")
+    manifest = read_manifest(path)
+    verify_bundle_dir(path, manifest)
+    grid = Grid.from_dict(manifest["grid"]) if manifest.get("grid") else None
+    mask = None
+    layers: dict[str, np.ndarray] = {}
+    std: dict[str, np.ndarray] = {}
+    if grid is not None:
+        mask = read_npy_checked(_safe_member(manifest["mask"], path)).astype(bool)
+        if mask.shape != grid.shape:
+            raise BundleIntegrityError(f"{path}: mask shape {mask.shape} != grid {grid.shape}")
+        for name, meta in manifest.get("layers", {}).items():
+            for key, target in (("file", layers), ("std_file", std)):
+                arr = read_npy_checked(_safe_member(meta[key], path))
+                if arr.shape != grid.shape or arr.dtype != np.float32:
+                    raise BundleIntegrityError(f"{path}: layer {name} {key} has shape "
+                                               f"{arr.shape} {arr.dtype}, expected {grid.shape}"
+                                               " float32")
+                target[name] = arr
+    return MapBundle(path, manifest, grid, mask, layers, std)

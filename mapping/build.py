@@ -1,0 +1,163 @@
+"""Building the map bundle of a floor from a processed survey store.
+
+Steps: processed samples of the floor -> per-session levelling (:mod:`mapping.levelling`) ->
+layers on the reachable-area mask (:mod:`mapping.interpolate`): ``strength``, ``horizontal``,
+``vertical`` (uT), ``azimuth``, ``polar`` (deg) of the levelled map-frame field and
+``heading_offset`` (deg, compass heading minus walking direction) from the steps -> tables
+(source walks, levelling) -> :class:`~mapping.bundle_writer.BundleContent`.
+
+Deterministic: the same store, floor plan and parameters give the same bundle bytes. The build
+time written to the manifest is ``BuildParams.build_time`` (default: the end of the newest
+source walk, so rebuilding the same data gives the same bytes).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from datetime import datetime, timezone
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+
+from survey.errors import IndoormapError
+from survey.field_features import circular_median_deg, wrap_deg
+from survey.process_store import processed_catalog, processed_table
+from survey.store import SurveyStore
+
+from .bundle_writer import BundleContent, Layer
+from .floorplan import FloorPlan
+from .grid import grid_for_extent, reachable_mask
+from .interpolate import RasterParams, raster
+from .levelling import LevellingParams, apply_session_residuals, fit_session_residuals
+
+
+class BuildError(IndoormapError, ValueError):
+    """A bundle cannot be built from these inputs."""
+
+
+@dataclass(frozen=True)
+class BuildParams:
+    """Map-building parameters (lengths in m)."""
+
+    cell_m: float = 0.5
+    raster: RasterParams = field(default_factory=RasterParams)
+    heading_raster: RasterParams = field(default_factory=lambda: RasterParams(bandwidth_m=2.0))
+    levelling: LevellingParams = field(default_factory=LevellingParams)
+    level: bool = True
+    build_time: str | None = None
+    seed: int = 0
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def _time_text(ms: float) -> str:
+    return datetime.fromtimestamp(ms / 1000.0, tz=timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def coverage(grid, mask, x_m, y_m, distances_m=(1.0, 2.0, 5.0)) -> dict[str, float]:
+    """Share of reachable cells within each distance of a survey sample."""
+    from scipy import ndimage
+
+    row, col, inside = grid.cell_of(x_m, y_m)
+    support = np.zeros(grid.shape, dtype=bool)
+    support[row[inside], col[inside]] = True
+    dist = ndimage.distance_transform_edt(~support) * grid.cell_m
+    n = max(int(mask.sum()), 1)
+    return {f"within_{d:g}m": float((mask & (dist <= d)).sum() / n) for d in distances_m}
+
+
+def floor_samples(store: SurveyStore, site: str | None, floor: str) -> tuple[pd.DataFrame,
+                                                                            pd.DataFrame,
+                                                                            pd.DataFrame]:
+    """Processed samples and steps of a floor (with their session) and the walks' catalog."""
+    pcat = processed_catalog(store)
+    pcat = pcat[(pcat["floor"] == floor) & (pcat["status"] == "ok")]
+    if site is not None:
+        pcat = pcat[pcat["site"] == site]
+    if not len(pcat):
+        raise BuildError(f"{store.root}: no processed walks for floor {floor!r}"
+                         + (f" of site {site!r}" if site else "")
+                         + "; run `indoormap process` first")
+    sessions = dict(zip(pcat["trace_id"], pcat["session"]))
+    samples = processed_table(store, "samples", site=site, floor=floor)
+    steps = processed_table(store, "steps", site=site, floor=floor)
+    samples["session"] = samples["trace_id"].map(sessions)
+    return samples, steps, pcat
+
+
+def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
+                site: str | None = None, params: BuildParams = BuildParams(),
+                progress: Callable[[str], None] | None = None) -> BundleContent:
+    """Build the bundle content of one floor (write it with :func:`write_bundle`)."""
+    store = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
+    say = progress or (lambda msg: None)
+    samples, steps, pcat = floor_samples(store, site, floor)
+    cat = store.traces(site, floor).set_index("trace_id")
+    grid = grid_for_extent(plan.width_m, plan.height_m, params.cell_m)
+    mask = reachable_mask(grid, plan.reachable)
+    if not mask.any():
+        raise BuildError(f"floor {floor}: the reachable area is empty at {params.cell_m} m cells")
+    say(f"{floor}: {len(pcat)} walks, {len(samples)} samples")
+    if params.level:
+        residuals = fit_session_residuals(samples, params.levelling)
+        field_enu = apply_session_residuals(samples, residuals)
+        say(f"{floor}: levelled {int((residuals['n_pairs'] > 0).sum())} of "
+            f"{len(residuals)} sessions")
+    else:
+        residuals = pd.DataFrame(columns=["r_x_ut", "r_y_ut", "r_z_ut", "n_samples",
+                                          "n_pairs"])
+        field_enu = samples[["mag_east_ut", "mag_north_ut", "mag_up_ut"]].to_numpy(np.float64)
+    e, n, u = field_enu.T
+    strength = np.sqrt(e * e + n * n + u * u)
+    x, y, walk = samples["x_m"].to_numpy(), samples["y_m"].to_numpy(), samples["trace_id"]
+    values = {
+        "strength": (strength, "uT", "scalar", "field strength"),
+        "horizontal": (np.hypot(e, n), "uT", "scalar", "horizontal component"),
+        "vertical": (u, "uT", "scalar", "vertical component (up positive)"),
+        "azimuth": (np.mod(np.degrees(np.arctan2(e, n)), 360.0), "deg", "angle",
+                    "direction of the horizontal field, clockwise from map north"),
+        "polar": (np.degrees(np.arccos(np.clip(u / np.maximum(strength, 1e-9), -1, 1))), "deg",
+                  "angle", "angle between the field and up"),
+    }
+    layers = {}
+    for name, (v, unit, kind, desc) in values.items():
+        vals, std = raster(grid, mask, x, y, v, walk, params.raster, angle=kind == "angle")
+        layers[name] = Layer(vals, std, unit, kind, desc)
+        say(f"{floor}: layer {name}")
+    st = steps[np.isfinite(steps["heading_offset_deg"])]
+    walk_median = st.groupby("trace_id")["heading_offset_deg"].apply(
+        lambda a: circular_median_deg(a.to_numpy()))
+    global_offset = float(wrap_deg(circular_median_deg(walk_median.to_numpy()))) \
+        if len(walk_median) else 0.0
+    local = wrap_deg(st["heading_offset_local_deg"].to_numpy() + global_offset)
+    hv, hs = raster(grid, mask, st["x_m"].to_numpy(), st["y_m"].to_numpy(), local,
+                    st["trace_id"], params.heading_raster, angle=True)
+    layers["heading_offset"] = Layer(
+        hv, hs, "deg", "angle", "compass heading minus walking direction: the floor's median "
+        "constant plus the spatially varying part; walking direction = compass - offset")
+    walks = pcat[["trace_id", "session"]].copy()
+    walks["sha256"] = walks["trace_id"].map(cat["sha256"])
+    walks["calibration"] = [json.loads(sj).get("calibration", "") for sj in pcat["summary_json"]]
+    walks["heading_offset_median_deg"] = walks["trace_id"].map(walk_median).astype(float)
+    walks = walks.sort_values("trace_id").reset_index(drop=True)
+    lev = residuals.reset_index().rename(columns={"index": "session"})
+    end_ms = float(cat.loc[walks["trace_id"], "end_ms"].max())
+    build_time = params.build_time or _time_text(end_ms)
+    first = cat.loc[walks["trace_id"].iloc[0]]
+    metrics = {"coverage": coverage(grid, mask, x, y), "n_walks": int(len(walks)),
+               "n_samples": int(len(samples)), "heading_offset_floor_median_deg": global_offset}
+    return BundleContent(
+        site_id=str(first["site_id"] or first["site"]), floor_id=str(first["floor_id"] or floor),
+        floor_name=floor, grid=grid, mask=mask, layers=layers,
+        tables={"source_walks": pa.Table.from_pandas(walks, preserve_index=False),
+                "levelling": pa.Table.from_pandas(lev.astype({"session": "str"}),
+                                                  preserve_index=False)},
+        build={"params": params.to_dict(), "build_time": build_time,
+               "data_end_time": _time_text(end_ms), "seed": params.seed,
+               "source_walks": [{"trace_id": t, "sha256": h}
+                                for t, h in zip(walks["trace_id"], walks["sha256"])]},
+        metrics=metrics)

@@ -1,0 +1,129 @@
+"""Writing map bundles (the reader is :mod:`localize.bundle`; format in docs/bundle_format.md).
+
+A bundle is written into a temporary folder beside the target and moved into place atomically
+(:func:`survey.publish.atomic_directory`): a failed or killed build leaves no half bundle. The
+same inputs give the same bytes: arrays are plain ``.npy``, tables Parquet without timestamps,
+and the manifest canonical JSON whose build time the caller pins.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from localize.bundle import BUNDLE_FORMAT, SCHEMA_VERSION, Grid, bundle_id_of, file_sha256
+from survey import __version__
+from survey.errors import BundleError
+from survey.publish import atomic_directory, crash_point
+
+
+@dataclass
+class Layer:
+    """A raster layer: values and uncertainty (float32, NaN = no data), unit and kind."""
+
+    values: np.ndarray
+    std: np.ndarray
+    unit: str
+    kind: str = "scalar"  # or "angle" (deg, interpolated as unit vectors)
+    description: str = ""
+
+
+@dataclass
+class BundleContent:
+    """Everything a bundle holds besides its derived checksums and id."""
+
+    site_id: str
+    floor_id: str
+    floor_name: str
+    kind: str = "floor"  # or "site"
+    grid: Grid | None = None
+    mask: np.ndarray | None = None
+    layers: dict[str, Layer] = field(default_factory=dict)
+    tables: dict[str, pa.Table] = field(default_factory=dict)
+    build: dict = field(default_factory=dict)  # params, seed, source walks, build_time, ...
+    metrics: dict = field(default_factory=dict)
+
+
+def _npy_bytes(array: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, np.ascontiguousarray(array), allow_pickle=False)
+    return buf.getvalue()
+
+
+def _parquet_bytes(table: pa.Table) -> bytes:
+    sink = pa.BufferOutputStream()
+    pq.write_table(table.replace_schema_metadata(None), sink, compression="zstd",
+                   write_page_checksum=True)
+    return sink.getvalue().to_pybytes()
+
+
+def _check(content: BundleContent) -> None:
+    if content.grid is None:
+        if content.layers:
+            raise BundleError("layers need a grid")
+        return
+    shape = content.grid.shape
+    if content.mask is None or content.mask.shape != shape:
+        raise BundleError(f"mask must have the grid's shape {shape}")
+    for name, layer in content.layers.items():
+        for what, arr in (("values", layer.values), ("std", layer.std)):
+            if arr.shape != shape:
+                raise BundleError(f"layer {name} {what}: shape {arr.shape} != grid {shape}")
+            a = np.asarray(arr, dtype=np.float32)
+            if np.isinf(a).any():
+                raise BundleError(f"layer {name} {what}: infinite values (NaN is the only "
+                                  "nodata)")
+        if np.isfinite(layer.values[~content.mask]).any():
+            raise BundleError(f"layer {name}: values outside the reachable mask")
+
+
+def write_bundle(target: str | os.PathLike, content: BundleContent, *,
+                 overwrite: bool = False) -> str:
+    """Write ``content`` as a bundle folder at ``target``; returns the bundle id."""
+    _check(content)
+    target = Path(target)
+    files: dict[str, bytes] = {}
+    manifest: dict = {"format": BUNDLE_FORMAT, "schema_version": SCHEMA_VERSION,
+                      "kind": content.kind, "site_id": content.site_id,
+                      "floor_id": content.floor_id, "floor_name": content.floor_name,
+                      "map_frame": {"x": "east", "y": "north", "unit": "m"},
+                      "software_version": __version__}
+    if content.grid is not None:
+        manifest["grid"] = content.grid.to_dict()
+        manifest["mask"] = "mask.npy"
+        files["mask.npy"] = _npy_bytes(content.mask.astype(np.uint8))
+        manifest["layers"] = {}
+        for name in sorted(content.layers):
+            layer = content.layers[name]
+            f, s = f"layers/{name}.npy", f"layers/{name}_std.npy"
+            files[f] = _npy_bytes(np.asarray(layer.values, dtype=np.float32))
+            files[s] = _npy_bytes(np.asarray(layer.std, dtype=np.float32))
+            manifest["layers"][name] = {"file": f, "std_file": s, "unit": layer.unit,
+                                        "kind": layer.kind, "description": layer.description}
+    manifest["tables"] = {}
+    for name in sorted(content.tables):
+        f = f"tables/{name}.parquet"
+        files[f] = _parquet_bytes(content.tables[name])
+        manifest["tables"][name] = {"file": f, "rows": content.tables[name].num_rows}
+    manifest["build"] = content.build
+    manifest["metrics"] = content.metrics
+    with atomic_directory(target, overwrite=overwrite, crash_prefix="bundle") as tmp:
+        members = {}
+        for name, data in sorted(files.items()):
+            p = tmp / name
+            p.parent.mkdir(parents=True, exist_ok=True)
+            p.write_bytes(data)
+            members[name] = {"sha256": file_sha256(p), "size": len(data)}
+            crash_point("bundle:member")
+        manifest["members"] = members
+        manifest["bundle_id"] = bundle_id_of(manifest)
+        (tmp / "manifest.json").write_text(json.dumps(manifest, sort_keys=True, indent=1,
+                                                      allow_nan=False) + "\n")
+    return manifest["bundle_id"]

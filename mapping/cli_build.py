@@ -1,0 +1,196 @@
+"""``indoormap build`` and ``indoormap bundle info|verify|diff|list``."""
+
+from __future__ import annotations
+
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+import click
+import numpy as np
+
+from localize.bundle import load_bundle
+from survey.errors import IndoormapError
+
+from .build import BuildParams, build_floor
+from .bundle_writer import write_bundle
+from .floorplan import read_floor_plan
+from .registry import Registry
+
+
+def _is_floor_dir(p: Path) -> bool:
+    return (p / "geojson_map.json").exists()
+
+
+def floors_of(path: Path) -> list[Path]:
+    """A floor folder itself, or the floor folders of a site folder."""
+    if _is_floor_dir(path):
+        return [path]
+    floors = sorted(p for p in path.iterdir() if p.is_dir() and _is_floor_dir(p))
+    if not floors:
+        raise click.UsageError(f"{path}: neither a floor folder (geojson_map.json) nor a site "
+                               "folder of floors")
+    return floors
+
+
+@click.command("build")
+@click.argument("source", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("-o", "--out", "out", required=True, type=click.Path(path_type=Path),
+              help="Output folder: one bundle folder per floor (OUT/<floor>).")
+@click.option("--store", "store_dir", type=click.Path(path_type=Path), default=None,
+              help="Survey store to use (default: a temporary store of SOURCE's traces).")
+@click.option("--registry", "registry_dir", type=click.Path(path_type=Path), default=None,
+              help="Also publish every bundle into this registry and make it current.")
+@click.option("--cell", "cell_m", type=float, default=0.5, show_default=True,
+              help="Raster cell size (m).")
+@click.option("--interpolator", type=click.Choice(["kernel", "linear"]), default="kernel",
+              show_default=True)
+@click.option("--build-time", default=None,
+              help="Build time written to the manifest (default: end of the newest walk, so "
+                   "rebuilding the same data gives the same bytes).")
+@click.option("--overwrite", is_flag=True, help="Replace existing output bundles.")
+def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir: Path | None,
+                  cell_m: float, interpolator: str, build_time: str | None,
+                  overwrite: bool) -> None:
+    """Build map bundles from a floor folder (floor_info.json, geojson_map.json,
+    path_data_files/) or a site folder of floors: ingest, process, level, interpolate, publish
+    atomically."""
+    from survey.ingest import ingest
+    from survey.process_store import process_store
+    from survey.store import SurveyStore
+
+    from .interpolate import RasterParams
+
+    floors = floors_of(source)
+    params = BuildParams(cell_m=cell_m, raster=RasterParams(method=interpolator),
+                         build_time=build_time)
+    targets = {f.name: out / f.name for f in floors}
+    for name, target in targets.items():
+        if target.exists() and not overwrite:
+            raise click.UsageError(f"{target} exists; pass --overwrite to replace it")
+    with tempfile.TemporaryDirectory(prefix="indoormap-build-") as tmp:
+        store_path = store_dir or Path(tmp) / "store"
+
+        def say(msg: str) -> None:
+            click.echo(msg, err=True)
+
+        say(f"ingest {len(floors)} floor(s) into {store_path}")
+        summary = ingest([f / "path_data_files" for f in floors], store_path)
+        if summary.failed:
+            for o in summary.failed:
+                say(f"  unreadable: {o.path}: {o.detail}")
+        store = SurveyStore.open(store_path)
+        plans = {f.name: read_floor_plan(f) for f in floors}
+        cat = store.catalog()
+        reachable = {(s, fl): plans[fl].reachable for s, fl in
+                     cat[["site", "floor"]].drop_duplicates().itertuples(index=False)
+                     if fl in plans}
+        say("process walks")
+        report = process_store(store, reachable=reachable)
+        for tid, reason in report.skipped.items():
+            say(f"  skipped {tid}: {reason}")
+        registry = Registry(registry_dir) if registry_dir else None
+        for f in floors:
+            content = build_floor(store, plans[f.name], floor=f.name, params=params,
+                                  progress=say)
+            bundle_id = write_bundle(targets[f.name], content, overwrite=overwrite)
+            cov = content.metrics["coverage"]
+            click.echo(f"{f.name}: bundle {bundle_id[:16]} -> {targets[f.name]} "
+                       f"({content.metrics['n_walks']} walks; reachable area within 2 m of a "
+                       f"sample: {100 * cov['within_2m']:.0f} %)")
+            if registry:
+                entry = registry.publish(targets[f.name])
+                click.echo(f"  published as {content.site_id}/{f.name} #{entry['seq']}")
+
+
+@click.group("bundle")
+def bundle_group() -> None:
+    """Inspect, verify and compare map bundles, list a registry."""
+
+
+@bundle_group.command("info")
+@click.argument("path", type=click.Path(exists=True, path_type=Path))
+@click.option("--json", "as_json", is_flag=True, help="Print the whole manifest.")
+def bundle_info(path: Path, as_json: bool) -> None:
+    """Summary of a bundle (verified first)."""
+    b = load_bundle(path)
+    m = b.manifest
+    if as_json:
+        click.echo(json.dumps(m, indent=1, sort_keys=True))
+        return
+    click.echo(f"bundle {m['bundle_id']}\n  site {m['site_id']} floor {m['floor_name']} "
+               f"(schema {m['schema_version']}, indoormap {m['software_version']})")
+    if b.grid is not None:
+        g = b.grid
+        click.echo(f"  grid {g.width} x {g.height} cells of {g.cell_m} m, reachable "
+                   f"{int(b.mask.sum())} cells")
+        for name, meta in m["layers"].items():
+            v = b.layers[name]
+            finite = v[np.isfinite(v)]
+            click.echo(f"  layer {name:<15} {meta['unit']:<4} {meta['kind']:<6} "
+                       f"{100 * finite.size / max(int(b.mask.sum()), 1):5.1f} % of reachable "
+                       f"cells, range {finite.min():.1f} .. {finite.max():.1f}"
+                       if finite.size else f"  layer {name}: empty")
+    for name, meta in m.get("tables", {}).items():
+        click.echo(f"  table {name:<15} {meta['rows']} rows")
+    click.echo(f"  built {m['build'].get('build_time')} from "
+               f"{len(m['build'].get('source_walks', []))} walks")
+
+
+@bundle_group.command("verify")
+@click.argument("paths", nargs=-1, required=True, type=click.Path(path_type=Path))
+def bundle_verify(paths: tuple[Path, ...]) -> None:
+    """Verify bundles (every member's checksum, schema, no unlisted files). Exit 1 if any fails."""
+    bad = 0
+    for p in paths:
+        try:
+            b = load_bundle(p)
+            click.echo(f"ok      {p} ({b.bundle_id[:16]})")
+        except IndoormapError as err:
+            bad += 1
+            click.echo(f"FAILED  {p}: {err}")
+    if bad:
+        sys.exit(1)
+
+
+@bundle_group.command("diff")
+@click.argument("a", type=click.Path(exists=True, path_type=Path))
+@click.argument("b", type=click.Path(exists=True, path_type=Path))
+def bundle_diff(a: Path, b: Path) -> None:
+    """Differences between two bundles: parameters, walks, members, layer changes."""
+    ba, bb = load_bundle(a), load_bundle(b)
+    ma, mb = ba.manifest, bb.manifest
+    if ma["bundle_id"] == mb["bundle_id"]:
+        click.echo("identical")
+        return
+    wa = {w["trace_id"] for w in ma["build"].get("source_walks", [])}
+    wb = {w["trace_id"] for w in mb["build"].get("source_walks", [])}
+    click.echo(f"walks: {len(wa & wb)} shared, {len(wb - wa)} added, {len(wa - wb)} removed")
+    pa_, pb = ma["build"].get("params", {}), mb["build"].get("params", {})
+    for k in sorted(set(pa_) | set(pb)):
+        if pa_.get(k) != pb.get(k):
+            click.echo(f"param {k}: {pa_.get(k)} -> {pb.get(k)}")
+    for name in sorted(set(ma["members"]) | set(mb["members"])):
+        if ma["members"].get(name) != mb["members"].get(name):
+            where = ("changed" if name in ma["members"] and name in mb["members"]
+                     else f"only in {'a' if name in ma['members'] else 'b'}")
+            click.echo(f"member {name}: {where}")
+    if ba.grid == bb.grid:
+        for name in sorted(set(ba.layers) & set(bb.layers)):
+            d = np.asarray(bb.layers[name], float) - np.asarray(ba.layers[name], float)
+            if ma["layers"][name]["kind"] == "angle":
+                d = (d + 180) % 360 - 180
+            ok = np.isfinite(d)
+            if ok.any():
+                click.echo(f"layer {name}: mean abs change {np.abs(d[ok]).mean():.3f} "
+                           f"{ma['layers'][name]['unit']}, max {np.abs(d[ok]).max():.3f}")
+
+
+@bundle_group.command("list")
+@click.argument("registry", type=click.Path(exists=True, file_okay=False, path_type=Path))
+def bundle_list(registry: Path) -> None:
+    """Versions in a registry; * marks the current one."""
+    for e in Registry(registry).list():
+        click.echo(f"{'*' if e['current'] else ' '} {e['site']}/{e['floor']} #{e['seq']} "
+                   f"{e['bundle_id']}")

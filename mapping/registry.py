@@ -1,0 +1,126 @@
+"""A registry of map bundles: immutable versions per site/floor and a current pointer.
+
+Layout::
+
+    REG/<site>/<floor>/versions/<bundle_id>/   bundles, never modified once published
+    REG/<site>/<floor>/history.json            published versions in order: [{seq, bundle_id}]
+    REG/<site>/<floor>/CURRENT                 {"bundle_id": ..., "seq": ...}, replaced atomically
+
+A version is copied in with an atomic folder rename, then ``history.json`` and ``CURRENT`` are
+replaced atomically, so a reader that follows ``CURRENT`` always finds a complete, verified
+bundle; a crash leaves the previous current version in place. Versions only move forward:
+pointing ``CURRENT`` at an older version needs ``allow_rollback=True``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+from localize.bundle import MapBundle, load_bundle, read_manifest
+from survey.errors import RegistryError
+from survey.publish import atomic_directory, atomic_write_bytes, crash_point
+
+
+def _safe(name: str) -> str:
+    if not name or "/" in name or "\\" in name or name in (".", "..") or name.startswith("."):
+        raise RegistryError(f"invalid site or floor name {name!r}")
+    return name
+
+
+class Registry:
+    """Bundles of many sites and floors under one folder."""
+
+    def __init__(self, root: str | os.PathLike) -> None:
+        self.root = Path(root)
+
+    def _floor(self, site: str, floor: str) -> Path:
+        return self.root / _safe(site) / _safe(floor)
+
+    def history(self, site: str, floor: str) -> list[dict]:
+        path = self._floor(site, floor) / "history.json"
+        if not path.exists():
+            return []
+        return json.loads(path.read_text())
+
+    def current(self, site: str, floor: str) -> dict | None:
+        path = self._floor(site, floor) / "CURRENT"
+        if not path.exists():
+            return None
+        return json.loads(path.read_text())
+
+    def open(self, site: str, floor: str, bundle_id: str | None = None) -> MapBundle:
+        """Load (and verify) the current version, or a given one."""
+        if bundle_id is None:
+            cur = self.current(site, floor)
+            if cur is None:
+                raise RegistryError(f"{self.root}: no bundle published for {site}/{floor}")
+            bundle_id = cur["bundle_id"]
+        path = self._floor(site, floor) / "versions" / _safe(bundle_id)
+        if not path.is_dir():
+            raise RegistryError(f"{self.root}: {site}/{floor} has no version {bundle_id}")
+        return load_bundle(path)
+
+    def list(self) -> list[dict]:
+        """Every (site, floor, version) with its sequence number and whether it is current."""
+        out = []
+        for site_dir in sorted(p for p in self.root.iterdir() if p.is_dir()) \
+                if self.root.exists() else []:
+            for floor_dir in sorted(p for p in site_dir.iterdir() if p.is_dir()):
+                cur = self.current(site_dir.name, floor_dir.name) or {}
+                for h in self.history(site_dir.name, floor_dir.name):
+                    out.append({"site": site_dir.name, "floor": floor_dir.name, **h,
+                                "current": h["bundle_id"] == cur.get("bundle_id")})
+        return out
+
+    def publish(self, bundle_dir: str | os.PathLike, *, make_current: bool = True) -> dict:
+        """Copy a verified bundle in as a new version (a version already present is reused)
+        and, by default, make it current. Returns ``{"bundle_id", "seq"}``."""
+        bundle = load_bundle(bundle_dir)  # verify before anything is copied
+        site, floor = bundle.manifest["site_id"], bundle.manifest["floor_name"]
+        base = self._floor(site, floor)
+        target = base / "versions" / bundle.bundle_id
+        if not target.exists():
+            with atomic_directory(target, crash_prefix="registry") as tmp:
+                for src in sorted(Path(bundle_dir).rglob("*")):
+                    rel = src.relative_to(bundle_dir)
+                    if src.is_dir():
+                        (tmp / rel).mkdir(parents=True, exist_ok=True)
+                    else:
+                        (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
+                        shutil.copyfile(src, tmp / rel)
+            load_bundle(target)
+        crash_point("registry:after-copy")
+        history = self.history(site, floor)
+        entry = next((h for h in history if h["bundle_id"] == bundle.bundle_id), None)
+        if entry is None:
+            entry = {"seq": (history[-1]["seq"] + 1) if history else 1,
+                     "bundle_id": bundle.bundle_id}
+            history.append(entry)
+            atomic_write_bytes(base / "history.json", json.dumps(history, indent=1).encode(),
+                               overwrite=True)
+        crash_point("registry:after-history")
+        if make_current:
+            self.set_current(site, floor, bundle.bundle_id, allow_rollback=False,
+                             _newly_published=True)
+        return entry
+
+    def set_current(self, site: str, floor: str, bundle_id: str, *,
+                    allow_rollback: bool = False, _newly_published: bool = False) -> None:
+        """Point ``CURRENT`` at a published version. Moving to an older sequence number is a
+        rollback and is refused unless ``allow_rollback``."""
+        history = self.history(site, floor)
+        entry = next((h for h in history if h["bundle_id"] == bundle_id), None)
+        if entry is None:
+            raise RegistryError(f"{site}/{floor}: version {bundle_id} is not published")
+        cur = self.current(site, floor)
+        if cur is not None and entry["seq"] < cur["seq"] and not allow_rollback:
+            raise RegistryError(
+                f"{site}/{floor}: version {bundle_id[:12]} (#{entry['seq']}) is older than the "
+                f"current #{cur['seq']}; rolling back needs allow_rollback (CLI: --rollback)")
+        read_manifest(self._floor(site, floor) / "versions" / bundle_id)
+        atomic_write_bytes(self._floor(site, floor) / "CURRENT",
+                           json.dumps({"bundle_id": bundle_id, "seq": entry["seq"]}).encode(),
+                           overwrite=True)
