@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from datetime import datetime, timezone
 
 import numpy as np
@@ -30,6 +30,7 @@ from survey.store import SurveyStore
 from .bundle_writer import BundleContent, Layer
 from .floorplan import FloorPlan
 from .grid import grid_for_extent, reachable_mask
+from .holdout import choose_bandwidth
 from .interpolate import RasterParams, raster
 from .levelling import LevellingParams, apply_session_residuals, fit_session_residuals
 
@@ -47,6 +48,8 @@ class BuildParams:
     heading_raster: RasterParams = field(default_factory=lambda: RasterParams(bandwidth_m=2.0))
     levelling: LevellingParams = field(default_factory=LevellingParams)
     level: bool = True
+    #: choose the kernel bandwidth by grouped cross-validation (``raster.bandwidth_m`` if off)
+    auto_bandwidth: bool = True
     build_time: str | None = None
     seed: int = 0
 
@@ -114,6 +117,13 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
     e, n, u = field_enu.T
     strength = np.sqrt(e * e + n * n + u * u)
     x, y, walk = samples["x_m"].to_numpy(), samples["y_m"].to_numpy(), samples["trace_id"]
+    raster_params, heading_params, bandwidth_scores = params.raster, params.heading_raster, {}
+    if params.auto_bandwidth and params.raster.method == "kernel":
+        bw, bandwidth_scores = choose_bandwidth(grid, mask, x, y, strength, walk.to_numpy(),
+                                                params.raster)
+        raster_params = replace(params.raster, bandwidth_m=bw)
+        heading_params = replace(params.heading_raster, bandwidth_m=max(bw, 1.0))
+        say(f"{floor}: kernel bandwidth {bw} m chosen by 5-fold cross-validation over walks")
     values = {
         "strength": (strength, "uT", "scalar", "field strength"),
         "horizontal": (np.hypot(e, n), "uT", "scalar", "horizontal component"),
@@ -125,7 +135,7 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
     }
     layers = {}
     for name, (v, unit, kind, desc) in values.items():
-        vals, std = raster(grid, mask, x, y, v, walk, params.raster, angle=kind == "angle")
+        vals, std = raster(grid, mask, x, y, v, walk, raster_params, angle=kind == "angle")
         layers[name] = Layer(vals, std, unit, kind, desc)
         say(f"{floor}: layer {name}")
     st = steps[np.isfinite(steps["heading_offset_deg"])]
@@ -135,7 +145,7 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
         if len(walk_median) else 0.0
     local = wrap_deg(st["heading_offset_local_deg"].to_numpy() + global_offset)
     hv, hs = raster(grid, mask, st["x_m"].to_numpy(), st["y_m"].to_numpy(), local,
-                    st["trace_id"], params.heading_raster, angle=True)
+                    st["trace_id"], heading_params, angle=True)
     layers["heading_offset"] = Layer(
         hv, hs, "deg", "angle", "compass heading minus walking direction: the floor's median "
         "constant plus the spatially varying part; walking direction = compass - offset")
@@ -149,6 +159,8 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
     build_time = params.build_time or _time_text(end_ms)
     first = cat.loc[walks["trace_id"].iloc[0]]
     metrics = {"coverage": coverage(grid, mask, x, y), "n_walks": int(len(walks)),
+               "bandwidth_m": raster_params.bandwidth_m,
+               "bandwidth_cv_shape_rmse_ut": {str(k): v for k, v in bandwidth_scores.items()},
                "n_samples": int(len(samples)), "heading_offset_floor_median_deg": global_offset}
     return BundleContent(
         site_id=str(first["site_id"] or first["site"]), floor_id=str(first["floor_id"] or floor),

@@ -35,8 +35,8 @@ class RasterParams:
     """Interpolation parameters (lengths in m)."""
 
     method: str = "kernel"
-    bandwidth_m: float = 1.5
-    prior_walks: float = 1.0  # shrinkage lambda, in units of walk-cells at full kernel weight
+    bandwidth_m: float = 3.0
+    prior_walks: float = 2.0  # shrinkage lambda, in units of walk-cells at full kernel weight
     max_distance_m: float = 3.0
 
 
@@ -86,16 +86,27 @@ def _distance_ok(grid: Grid, support: NDArray[np.bool_], max_distance_m: float) 
     return dist <= max_distance_m
 
 
-def kernel_raster(grid: Grid, mask: NDArray[np.bool_], stats: CellStats,
-                  params: RasterParams) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-    """Kernel-smoothed values and their uncertainty, shape (height, width), NaN off-support."""
-    support = stats.n > 0
+def prior_of(stats: CellStats) -> tuple[float, float]:
+    """Floor mean and variance of the walk-cell means: the smoother's prior."""
     total = stats.n.sum()
     if total == 0:
+        return float("nan"), float("nan")
+    mu = stats.s.sum() / total
+    return float(mu), float(max(stats.q.sum() / total - mu * mu, 1e-6))
+
+
+def kernel_raster(grid: Grid, mask: NDArray[np.bool_], stats: CellStats,
+                  params: RasterParams, prior: tuple[float, float] | None = None
+                  ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """Kernel-smoothed values and their uncertainty, shape (height, width), NaN off-support.
+
+    ``prior`` (mean, variance) defaults to that of ``stats``; pass the whole floor's when
+    ``stats`` covers only a window of it."""
+    support = stats.n > 0
+    mu, prior_var = prior if prior is not None else prior_of(stats)
+    if not support.any() or not np.isfinite(mu):
         nan = np.full(grid.shape, np.nan, dtype=np.float32)
         return nan, nan.copy()
-    mu = stats.s.sum() / total
-    prior_var = max(stats.q.sum() / total - mu * mu, 1e-6)
     sigma = params.bandwidth_m / grid.cell_m
     # Smooth only within the reachable area: normalised convolution with the mask as weight.
     m = mask.astype(np.float64)
@@ -117,7 +128,8 @@ def kernel_raster(grid: Grid, mask: NDArray[np.bool_], stats: CellStats,
 
 
 def linear_raster(grid: Grid, mask: NDArray[np.bool_], stats: CellStats,
-                  params: RasterParams) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+                  params: RasterParams, prior: tuple[float, float] | None = None
+                  ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
     """Delaunay-linear values of the surveyed cells; uncertainty = distance to support (m)."""
     support = stats.n > 0
     rows, cols = np.nonzero(support)
@@ -139,14 +151,15 @@ INTERPOLATORS = {"kernel": kernel_raster, "linear": linear_raster}
 
 
 def raster_from_stats(grid: Grid, mask: NDArray[np.bool_], stats: CellStats,
-                      params: RasterParams) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-    """Interpolate with ``params.method``."""
+                      params: RasterParams, prior: tuple[float, float] | None = None
+                      ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """Interpolate with ``params.method`` (``prior``: see :func:`kernel_raster`)."""
     try:
         fn = INTERPOLATORS[params.method]
     except KeyError:
         raise ValueError(f"unknown interpolator {params.method!r}; expected one of "
                          f"{sorted(INTERPOLATORS)}") from None
-    return fn(grid, mask, stats, params)
+    return fn(grid, mask, stats, params, prior)
 
 
 def raster(grid: Grid, mask: NDArray[np.bool_], x_m: NDArray, y_m: NDArray, values: NDArray,

@@ -43,3 +43,7 @@ def _register() -> None:
 
 
 _register()
+
+
+if __name__ == "__main__":  # python -m survey.cli
+    main()

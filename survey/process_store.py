@@ -45,6 +45,24 @@ class ProcessReport:
     sessions: dict[str, dict] = field(default_factory=dict)
 
 
+def _by_trace(frame: pd.DataFrame) -> dict[str, pd.DataFrame]:
+    """Rows of a store table split by trace id (every catalog trace has an entry)."""
+    groups = {tid: frame.iloc[idx].reset_index(drop=True)
+              for tid, idx in frame.groupby("trace_id", sort=False).indices.items()}
+    return _Missing(groups, frame.iloc[:0])
+
+
+class _Missing(dict):
+    """A dict that answers an empty frame for traces without rows (e.g. no Wi-Fi at all)."""
+
+    def __init__(self, data: dict, empty: pd.DataFrame) -> None:
+        super().__init__(data)
+        self.empty = empty
+
+    def __missing__(self, key):
+        return self.empty
+
+
 def params_sha256(params: ProcessParams) -> str:
     return hashlib.sha256(params.to_json().encode()).hexdigest()
 
@@ -57,14 +75,17 @@ def _position_rows(rows: pd.DataFrame, t_col: str, walk: ProcessedWalk) -> pd.Da
     return out
 
 
-def session_fits(store: SurveyStore, catalog: pd.DataFrame, max_samples: int = 20000,
-                 seed: int = 0) -> tuple[dict[str, str], dict[str, MagCalResult]]:
-    """Session key of every walk and an ellipsoid fit pooled over each session's raw samples."""
+def session_fits(sensors_of: dict[str, pd.DataFrame], catalog: pd.DataFrame,
+                 max_samples: int = 20000, seed: int = 0
+                 ) -> tuple[dict[str, str], dict[str, MagCalResult]]:
+    """Session key of every walk and an ellipsoid fit pooled over each session's raw samples.
+
+    ``sensors_of`` maps trace id to that walk's sensor rows."""
     rng = np.random.default_rng(seed)
     raw_of: dict[str, np.ndarray] = {}
     biases = []
     for row in catalog.itertuples(index=False):
-        sensors = store.table("sensors", trace_ids=[row.trace_id])
+        sensors = sensors_of[row.trace_id]
         biases.append(reported_bias(sensors))
         unc = sensors[sensors["stream"] == "magnetic_field_uncalibrated"]
         raw_of[row.trace_id] = unc[["x", "y", "z"]].to_numpy(np.float64)
@@ -103,7 +124,11 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
         {c: pd.Series([], dtype="str") for c in PROCESSED_CATALOG_COLUMNS})
     psha = params_sha256(params)
     report = ProcessReport()
-    sessions, fits = session_fits(store, cat)
+    if not len(cat):
+        return report
+    tables = {name: _by_trace(store.table(name, site=site, floor=floor))
+              for name in ("sensors", "waypoints", "wifi", "ble")}
+    sessions, fits = session_fits(tables["sensors"], cat)
     report.sessions = {k: {"status": f.status, "reason": f.reason,
                            "hard_iron_ut": np.round(f.hard_iron_ut, 2).tolist(),
                            "coverage": round(float(f.coverage), 3)} for k, f in fits.items()}
@@ -120,8 +145,8 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
                 if progress:
                     progress(i + 1, len(cat))
                 continue
-            sensors = store.table("sensors", trace_ids=[row.trace_id])
-            waypoints = store.table("waypoints", trace_ids=[row.trace_id])
+            sensors = tables["sensors"][row.trace_id]
+            waypoints = tables["waypoints"][row.trace_id]
             key = sessions.get(row.trace_id, "")
             base = {"trace_id": row.trace_id, "sha256": row.sha256, "site": row.site,
                     "floor": row.floor, "params_sha256": psha, "session": key}
@@ -134,15 +159,13 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
                 new_rows.append({**base, "status": "skipped", "reason": str(err),
                                  "summary_json": "{}"})
                 continue
-            tables = {"samples": walk.samples, "steps": walk.steps, "legs": walk.legs,
-                      "wifi": _position_rows(store.table("wifi", trace_ids=[row.trace_id]),
-                                             "scan_t_ms", walk),
-                      "ble": _position_rows(store.table("ble", trace_ids=[row.trace_id]),
-                                            "t_ms", walk)}
-            walk.summary["n_wifi_rows_positioned"] = len(tables["wifi"])
-            walk.summary["n_ble_rows_positioned"] = len(tables["ble"])
+            outputs = {"samples": walk.samples, "steps": walk.steps, "legs": walk.legs,
+                      "wifi": _position_rows(tables["wifi"][row.trace_id], "scan_t_ms", walk),
+                      "ble": _position_rows(tables["ble"][row.trace_id], "t_ms", walk)}
+            walk.summary["n_wifi_rows_positioned"] = len(outputs["wifi"])
+            walk.summary["n_ble_rows_positioned"] = len(outputs["ble"])
             walk.summary["session"] = key
-            for name, frame in tables.items():
+            for name, frame in outputs.items():
                 table = pa.table({c: _arrow_column(frame[c]) for c in frame.columns})
                 rel = part_path(name, row.site, row.floor, row.trace_id, row.sha256)
                 atomic_write_bytes(root / rel, _parquet_bytes(table), overwrite=True,

@@ -212,3 +212,31 @@ def test_registry_versions_move_forward(tmp_path):
     v.write_bytes(v.read_bytes()[:-1] + b"\x07")
     with pytest.raises(BundleIntegrityError):
         reg.open("site", "F1", e2["bundle_id"])
+
+
+REG_CRASH = """
+import sys
+sys.path.insert(0, sys.argv[3])
+from mapping.registry import Registry
+Registry(sys.argv[1]).publish(sys.argv[2])
+"""
+
+
+@pytest.mark.parametrize("point", ["registry:before-rename", "registry:after-copy",
+                                   "registry:after-history"])
+def test_killed_publish_keeps_current_version(tmp_path, point):
+    reg = Registry(tmp_path / "reg")
+    write_bundle(tmp_path / "v1", _content(0.0))
+    write_bundle(tmp_path / "v2", _content(1.0))
+    e1 = reg.publish(tmp_path / "v1")
+    env = {**os.environ, "INDOORMAP_CRASH_AT": point}
+    proc = subprocess.run([sys.executable, "-c", REG_CRASH, str(tmp_path / "reg"),
+                           str(tmp_path / "v2"), str(Path(__file__).parent)], env=env,
+                          capture_output=True)
+    assert proc.returncode == 70, proc.stderr.decode()
+    assert reg.open("site", "F1").bundle_id == e1["bundle_id"]  # never dangling or partial
+    e2 = reg.publish(tmp_path / "v2")  # the retry completes the publication
+    assert reg.open("site", "F1").bundle_id == e2["bundle_id"]
+    versions = tmp_path / "reg" / "site" / "F1" / "versions"
+    assert sorted(p.name for p in versions.iterdir()) == sorted([e1["bundle_id"],
+                                                                  e2["bundle_id"]])
