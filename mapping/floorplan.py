@@ -9,7 +9,8 @@ Two GeoJSON flavours are read:
   property ``role: "outline"``, is the outline).
 
 Reachable (walkable) area = outline minus obstacle polygons (by default every other polygon
-feature; ``obstacle_filter`` selects by properties).
+feature; ``obstacle_filter`` selects by properties). DXF drawings are read by
+:mod:`mapping.floorplan_dxf` (``read_floor_plan`` dispatches on the ``.dxf`` suffix).
 """
 
 from __future__ import annotations
@@ -81,6 +82,10 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
         Which non-outline features are obstacles (default: all polygons).
     """
     p = Path(floor_dir_or_geojson)
+    if p.suffix.lower() == ".dxf":
+        from .floorplan_dxf import read_dxf_floor_plan
+
+        return read_dxf_floor_plan(p)
     geo = p / "geojson_map.json" if p.is_dir() else p
     info = geo.parent / "floor_info.json"
     feats = _features(geo)

@@ -1,0 +1,64 @@
+"""Floor plans: ILC lon/lat GeoJSON, metre GeoJSON, DXF; reachable mask."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import ezdxf
+import numpy as np
+import pytest
+import shapely
+
+from mapping.floorplan import FloorPlanError, read_floor_plan
+from mapping.grid import grid_for_extent, reachable_mask
+
+SITE = Path(__file__).resolve().parents[1] / "data" / "sample_site"
+
+
+def test_lonlat_plan_maps_onto_floor_info_metres():
+    plan = read_floor_plan(SITE / "F1")
+    info = json.loads((SITE / "F1" / "floor_info.json").read_text())["map_info"]
+    minx, miny, maxx, maxy = plan.outline.bounds
+    assert (minx, miny) == pytest.approx((0, 0), abs=1e-6)
+    assert (maxx, maxy) == pytest.approx((info["width"], info["height"]), rel=1e-9)
+    assert 0 < plan.reachable.area < plan.outline.area
+
+
+def test_metre_geojson_and_mask(tmp_path):
+    fc = {"type": "FeatureCollection", "features": [
+        {"type": "Feature", "properties": {"role": "outline"},
+         "geometry": {"type": "Polygon", "coordinates": [[[0, 0], [10, 0], [10, 4], [0, 4],
+                                                          [0, 0]]]}},
+        {"type": "Feature", "properties": {"kind": "shop"},
+         "geometry": {"type": "Polygon", "coordinates": [[[2, 1], [4, 1], [4, 3], [2, 3],
+                                                          [2, 1]]]}}]}
+    (tmp_path / "plan.geojson").write_text(json.dumps(fc))
+    plan = read_floor_plan(tmp_path / "plan.geojson")
+    assert plan.reachable.area == pytest.approx(40 - 4)
+    g = grid_for_extent(plan.width_m, plan.height_m, 0.5)
+    mask = reachable_mask(g, plan.reachable)
+    assert mask.shape == (8, 20) and mask.sum() == 160 - 16
+    assert not mask[3, 5] and mask[0, 0]
+
+
+def test_dxf_plan_with_walls_and_obstacles(tmp_path):
+    doc = ezdxf.new()
+    doc.header["$INSUNITS"] = 4  # millimetres
+    msp = doc.modelspace()
+    msp.add_lwpolyline([(0, 0), (20000, 0), (20000, 8000), (0, 8000)], close=True,
+                       dxfattribs={"layer": "Outline"})
+    msp.add_lwpolyline([(2000, 2000), (5000, 2000), (5000, 6000), (2000, 6000)], close=True,
+                       dxfattribs={"layer": "SHOPS"})
+    msp.add_line((10000, 0), (10000, 6000), dxfattribs={"layer": "walls"})
+    msp.add_circle((15000, 4000), 500, dxfattribs={"layer": "pillars"})
+    msp.add_line((0, 0), (1, 1), dxfattribs={"layer": "text"})  # other layers are ignored
+    doc.saveas(tmp_path / "plan.dxf")
+    plan = read_floor_plan(tmp_path / "plan.dxf")
+    assert (plan.width_m, plan.height_m) == pytest.approx((20.0, 8.0))
+    expected = 160 - 12 - 0.2 * 6 - np.pi * 0.25
+    assert plan.reachable.area == pytest.approx(expected, rel=0.01)
+    assert not plan.reachable.contains(shapely.Point(10.0, 3.0))  # the wall
+    (tmp_path / "bad.dxf").write_text("not a dxf")
+    with pytest.raises(FloorPlanError, match="bad.dxf"):
+        read_floor_plan(tmp_path / "bad.dxf")
