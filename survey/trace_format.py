@@ -12,7 +12,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import numpy as np
 import pandas as pd
 
 #: Sensor record types -> stream name used in the store. Calibrated streams carry x, y, z and an
@@ -167,16 +166,3 @@ def empty_table(columns: tuple[str, ...], dtypes: dict[str, str]) -> pd.DataFram
 def stream_category(values) -> pd.Categorical:
     """Stream names as a categorical with the fixed category order :data:`STREAM_NAMES`."""
     return pd.Categorical(values, categories=list(STREAM_NAMES))
-
-
-def normalize_bssid(raw: pd.Series) -> tuple[pd.Series, np.ndarray]:
-    """Lower-case, colon-separated MAC addresses; returns (normalized, valid mask).
-
-    Accepts ``AA:BB:CC:DD:EE:FF``, ``aa-bb-...`` and bare 12 hex digits.
-    """
-    s = raw.astype("str").str.strip().str.lower().str.replace("-", ":", regex=False)
-    bare = s.str.fullmatch(r"[0-9a-f]{12}")
-    if bare.any():
-        s = s.where(~bare, s.str.replace(r"(..)(?!$)", r"\1:", regex=True))
-    valid = s.str.fullmatch(r"[0-9a-f]{2}(:[0-9a-f]{2}){5}").to_numpy(dtype=bool)
-    return s, valid
