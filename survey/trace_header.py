@@ -32,11 +32,12 @@ def parse_header(lines: Iterable[bytes]) -> TraceHeader:
             continue
         for key, value in values.items():
             if key in ("startTime", "endTime"):
-                try:
-                    ms = int(value)
-                except ValueError:
+                # Unix ms, 1-16 ASCII digits like record timestamps (int() would also take
+                # huge, signed, '_'-grouped or non-ASCII digits that do not fit the store)
+                if not (value.isascii() and value.isdigit() and len(value) <= 16):
                     header.extra[key] = value
                     continue
+                ms = int(value)
                 if key == "startTime":
                     header.start_ms = ms
                 else:

@@ -23,6 +23,7 @@ Rules applied after parsing (counted in ``report.dropped``):
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -66,6 +67,12 @@ MAX_MESSAGES = 20
 BATCH_BYTES = 16 * 1024**2
 
 _INT_LIMIT = 2**53  # integers beyond this cannot be values of this format
+# Finite float64 values at or beyond this become infinite as float32 (round to nearest even).
+_FLOAT32_LIMIT = 2.0**128 - 2.0**103
+# Number spellings pyarrow's parser accepts and Python's int()/float() do not. The line-by-line
+# fallback accepts them too, so that a line parses the same whichever path reads it.
+_ARROW_HEX_INT = re.compile(r" *0[xX]([0-9a-fA-F]{1,16}) *")
+_ARROW_NAN = re.compile(r" *[+-]?nan\([0-9A-Za-z_]*\) *", re.IGNORECASE)
 
 # Value columns per record type: (name, kind) with kind "f" float, "i" integer, "s" string.
 _SPECS: dict[str, list[tuple[str, str]]] = {
@@ -207,15 +214,19 @@ def _classify_other(b: _Batch, bad: _Collector) -> dict[str, np.ndarray]:
     skipped: dict[str, np.ndarray] = {}
     if not len(idx):
         return skipped
-    tok = _byte_windows(b.buf, _TOKEN_WIDTH)[sc.tok_start[idx]] & _PREFIX_MASKS[sc.tok_len[idx]]
+    lens = sc.tok_len[idx]
+    tok = _byte_windows(b.buf, _TOKEN_WIDTH)[sc.tok_start[idx]] & _PREFIX_MASKS[lens]
     words = tok.view(np.uint64)  # (n, 6)
-    h = (words * _HASH_MULT).sum(axis=1, dtype=np.uint64)
+    # The length is part of the key: masked windows of "TYPE_X" and "TYPE_X\0" are equal.
+    h = (words * _HASH_MULT).sum(axis=1, dtype=np.uint64) + lens.astype(np.uint64) * _HASH_MULT[0]
     inverse, first = _factorize(h)
-    if not (words == words[first[inverse]]).all():  # a hash collision: compare exactly instead
-        _, first, inverse = np.unique(tok.view(f"S{_TOKEN_WIDTH}").ravel(), return_index=True,
-                                      return_inverse=True)
+    if not ((words == words[first[inverse]]).all() and (lens == lens[first[inverse]]).all()):
+        # a hash collision: compare exactly instead
+        _, first, inverse = np.unique(np.column_stack([tok, lens.astype(np.uint8)]), axis=0,
+                                      return_index=True, return_inverse=True)
+        inverse = inverse.ravel()
     for u, row in enumerate(first):
-        name = tok[row].tobytes().rstrip(b"\0").decode("latin-1")
+        name = tok[row, :lens[row]].tobytes().decode("latin-1")
         sel = idx[inverse == u]
         if _is_type_name(name):
             skipped[name] = sel
@@ -286,8 +297,8 @@ def _parse_block(block: np.ndarray, spec, glines: np.ndarray, bad: _Collector,
     for c, kind in spec:
         if kind == "f":
             finite &= np.isfinite(cols[c])
-        elif kind == "i":
-            finite &= np.abs(cols[c]) < _INT_LIMIT
+        elif kind == "i":  # not np.abs: it overflows for the int64 minimum
+            finite &= (cols[c] > -_INT_LIMIT) & (cols[c] < _INT_LIMIT)
     bad.add(glines[finite != keep], "non_finite", f"{what}: a value is NaN, infinite or too large")
     cols["gline"] = glines
     return _take(cols, np.flatnonzero(finite)) if not finite.all() else cols
@@ -327,16 +338,16 @@ def _parse_block_slow(block: bytes, spec):
                 out[c][i] = value
                 continue
             try:
-                number = float(value) if kind == "f" else int(value)
-                if kind == "i" and abs(number) >= _INT_LIMIT:
-                    raise OverflowError
-            except (ValueError, OverflowError):
+                number = _float(value) if kind == "f" else _int(value)
+            except ValueError:
                 keep[i], reasons[i] = False, "non_numeric"
                 expected = "a number" if kind == "f" else "an integer"
                 details[i] = (f"{fields[1][:40]}: field {c!r} expected {expected}, "
                               f"got {value[:30]!r}")
                 break
-            out[c][i] = number
+            # An integer too large for the format is flagged ``non_finite`` by the caller, as
+            # on the fast path; clip it so that it fits the int64 column until then.
+            out[c][i] = number if kind == "f" or abs(number) < _INT_LIMIT else _INT_LIMIT
     cols: dict[str, np.ndarray | pa.Array] = {"t_ms": np.array(out["t_ms"], dtype=np.int64)}
     for c, kind in spec:
         cols[c] = (pa.array(out[c], type=pa.string()) if kind == "s"
@@ -344,9 +355,77 @@ def _parse_block_slow(block: bytes, spec):
     return cols, keep, reasons, details
 
 
+def _int(value: str) -> int:
+    """An integer field as pyarrow reads it (also 0x-hex, as two's complement int64)."""
+    try:
+        return int(value)
+    except ValueError:
+        m = _ARROW_HEX_INT.fullmatch(value)
+        if not m:
+            raise
+        number = int(m.group(1), 16)
+        return number - 2**64 if number >= 2**63 else number
+
+
+def _float(value: str) -> float:
+    """A float field as pyarrow reads it (also ``nan(...)``)."""
+    try:
+        return float(value)
+    except ValueError:
+        if _ARROW_NAN.fullmatch(value):
+            return float("nan")
+        raise
+
+
 # --------------------------------------------------------------------------------------------
 # Building the per-trace tables from parsed blocks. Every builder sorts rows by file first and
 # returns (rows per file as index ranges, arrays), so that tables are split with slices.
+
+
+_MAC_COLONS = np.array([2, 5, 8, 11, 14])
+_MAC_HEX = np.setdiff1d(np.arange(17), _MAC_COLONS)
+
+
+def normalize_bssids(raw: pa.Array) -> tuple[pa.Array, np.ndarray]:
+    """Lower-case colon-separated MACs and a validity mask.
+
+    Canonical 17-character entries (``AA:BB:..`` in any case) are checked and lower-cased as a
+    fixed-width byte array; anything else (``aa-bb-..``, bare 12 hex digits, blanks, garbage)
+    goes through the general path.
+    """
+    raw = raw.cast(pa.string())
+    n = len(raw)
+    offsets = np.frombuffer(raw.buffers()[1], dtype=np.int32, count=n + 1,
+                            offset=raw.offset * 4) if n else np.zeros(1, np.int32)
+    data = np.frombuffer(raw.buffers()[2], dtype=np.uint8) if n and raw.buffers()[2] \
+        else np.zeros(0, np.uint8)
+    lengths = np.diff(offsets)
+    fixed = lengths == 17
+    rows = np.zeros((n, 17), dtype=np.uint8)
+    if fixed.any():
+        idx = offsets[:-1][fixed, None] + np.arange(17)
+        rows[fixed] = data[idx]
+    upper = (rows >= 65) & (rows <= 70)  # A-F
+    rows = rows + (upper * 32).astype(np.uint8)
+    hexd = rows[:, _MAC_HEX]
+    ok = fixed & ((rows[:, _MAC_COLONS] == 58).all(axis=1)
+                  & (((hexd >= 48) & (hexd <= 57)) | ((hexd >= 97) & (hexd <= 102))).all(axis=1))
+    out = pa.StringArray.from_buffers(n, pa.py_buffer((np.arange(n + 1) * 17).astype(np.int32)),
+                                      pa.py_buffer(rows.tobytes()))
+    valid = ok.copy()
+    other = np.flatnonzero(~ok)
+    if len(other):
+        rest = pc.replace_substring(pc.utf8_lower(pc.utf8_trim_whitespace(
+            raw.take(pa.array(other)))), "-", ":")
+        bare = pc.match_substring_regex(rest, r"^[0-9a-f]{12}$")
+        rest = pc.if_else(bare, pc.replace_substring_regex(
+            rest, r"^(..)(..)(..)(..)(..)(..)$", r"\1:\2:\3:\4:\5:\6"), rest)
+        valid[other] = pc.match_substring_regex(
+            rest, r"^[0-9a-f]{2}(:[0-9a-f]{2}){5}$").to_numpy(zero_copy_only=False)
+        merged = np.asarray(out.to_numpy(zero_copy_only=False), dtype=object)
+        merged[other] = np.asarray(rest.to_numpy(zero_copy_only=False), dtype=object)
+        out = pa.array(merged, type=pa.string())
+    return out, valid
 
 
 def _file_ranges(file_sorted: np.ndarray, n_files: int) -> np.ndarray:
@@ -388,8 +467,15 @@ class _Tables:
                 continue
             acc_ok = np.abs(cols["accuracy"]) <= 127
             bad.add(cols["gline"][~acc_ok], "out_of_range", "accuracy must be a small integer")
-            if not acc_ok.all():
-                cols = _take(cols, np.flatnonzero(acc_ok))
+            # Values are stored as float32: a finite float64 beyond its range would be infinite.
+            ok = acc_ok.copy()
+            for c in ("x", "y", "z", "bx", "by", "bz"):
+                if c in cols:
+                    ok &= np.abs(cols[c]) < _FLOAT32_LIMIT
+            bad.add(cols["gline"][acc_ok & ~ok], "non_finite",
+                    "sensor record: a value is too large for float32")
+            if not ok.all():
+                cols = _take(cols, np.flatnonzero(ok))
             if "bx" not in cols:
                 for c in ("bx", "by", "bz"):
                     cols[c] = np.full(len(cols["t_ms"]), np.nan)
@@ -423,14 +509,7 @@ class _Tables:
     def wifi(self, cols: dict | None, bad: _Collector) -> list[pd.DataFrame]:
         if cols is None:
             return [empty_table(WIFI_COLUMNS, WIFI_DTYPES) for _ in range(self.n_files)]
-        bssid = pc.replace_substring(pc.utf8_lower(pc.utf8_trim_whitespace(cols["bssid"])),
-                                     "-", ":")
-        bare = pc.match_substring_regex(bssid, r"^[0-9a-f]{12}$")
-        if pc.any(bare).as_py():
-            bssid = pc.if_else(bare, pc.replace_substring_regex(
-                bssid, r"^(..)(..)(..)(..)(..)(..)$", r"\1:\2:\3:\4:\5:\6"), bssid)
-        valid = pc.match_substring_regex(bssid, r"^[0-9a-f]{2}(:[0-9a-f]{2}){5}$").to_numpy(
-            zero_copy_only=False)
+        bssid, valid = normalize_bssids(cols["bssid"])
         lo, hi = RSSI_RANGE_DBM
         rssi_ok = (cols["rssi_dbm"] >= lo) & (cols["rssi_dbm"] <= hi)
         freq_ok = (cols["freq_mhz"] >= 1) & (cols["freq_mhz"] <= 100_000)
@@ -588,9 +667,9 @@ def parse_traces(texts: Sequence[bytes], paths: Sequence[str], *, strict: bool =
         a, z = bad_bounds[f], bad_bounds[f + 1]
         for r in reasons[a:z]:
             report.bad[r] = report.bad.get(r, 0) + 1
+        m = min(z, a + MAX_MESSAGES)  # this file's bad lines only
         report.messages = [f"{b.paths[f]}:{g - b.first_line[f] + 1}: {d}"
-                           for g, d in zip(glines[a:a + MAX_MESSAGES],
-                                           details[a:a + MAX_MESSAGES])]
+                           for g, d in zip(glines[a:m], details[a:m])]
         if notes[f]:
             report.messages.insert(0, f"{b.paths[f]}: {notes[f]}; kept the readable part")
         hdr = np.flatnonzero(header[b.first_line[f]:b.first_line[f + 1]]) + b.first_line[f]

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 
 from .errors import SurveyFormatError
@@ -54,6 +55,10 @@ STREAM_COLUMNS: dict[str, tuple[str, str | None]] = {
     "magnetic_field_uncalibrated": ("mag_uncal", "mag_bias"),
 }
 _AXES = ("x", "y", "z")
+#: Times (Unix ms) must be below this; larger values are not times of this format.
+MAX_TIME_MS = 2**53
+# Finite float64 values at or beyond this become infinite as float32 (round to nearest even).
+_FLOAT32_LIMIT = 2.0**128 - 2.0**103
 _HEADER_PROPS = {"site_id": "site_id", "site_name": "site_name", "floor_id": "floor_id",
                  "floor_name": "floor_name", "device_brand": "brand", "device_model": "model"}
 
@@ -66,11 +71,12 @@ def is_walk_plan(path: str | os.PathLike) -> bool:
         return False
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError):
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError):  # deep nesting
         return False
     feats = data.get("features") if isinstance(data, dict) else None
-    return bool(feats) and all(isinstance(f, dict) and "sensor_log" in (f.get("properties")
-                                                                        or {}) for f in feats)
+    return isinstance(feats, list) and bool(feats) and all(
+        isinstance(f, dict) and isinstance(f.get("properties"), dict)
+        and "sensor_log" in f["properties"] for f in feats)
 
 
 def read_walk_plan(path: str | os.PathLike, *, strict: bool = False
@@ -92,22 +98,33 @@ def read_walk_plan(path: str | os.PathLike, *, strict: bool = False
     path = Path(path)
     try:
         plan = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError) as err:
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as err:  # deep nesting
         raise SurveyFormatError(f"not a readable GeoJSON walk plan ({err})", path=str(path),
                                 reason="plan") from err
     if not isinstance(plan, dict) or plan.get("type") != "FeatureCollection":
         raise SurveyFormatError("walk plan must be a GeoJSON FeatureCollection", path=str(path),
                                 reason="plan")
     defaults = plan.get("properties") or {}
+    features = plan.get("features") or []
+    if not isinstance(defaults, dict) or not isinstance(features, list):
+        raise SurveyFormatError("walk plan 'properties' must be an object and 'features' a list",
+                                path=str(path), reason="plan")
     walks = []
-    for k, feature in enumerate(plan.get("features") or []):
+    for k, feature in enumerate(features):
         where = f"{path} (feature {k})"
-        props = {**defaults, **(feature.get("properties") or {})}
-        geom = feature.get("geometry") or {}
+        own = feature.get("properties") if isinstance(feature, dict) else None
+        geom = (feature.get("geometry") or {}) if isinstance(feature, dict) else None
+        if not isinstance(own or {}, dict) or not isinstance(geom, dict):
+            raise SurveyFormatError("feature must be an object with object 'properties' and "
+                                    "'geometry'", path=where, reason="plan")
+        props = {**defaults, **(own or {})}
         if geom.get("type") != "LineString":
             raise SurveyFormatError("walk geometry must be a LineString", path=where,
                                     reason="plan")
-        xy = np.asarray(geom.get("coordinates"), dtype=float)
+        try:
+            xy = np.asarray(geom.get("coordinates"), dtype=float)
+        except (TypeError, ValueError, OverflowError):  # ragged, non-numeric, huge integers
+            xy = np.empty(0)
         if xy.ndim != 2 or xy.shape[0] < 2 or xy.shape[1] < 2 or not np.isfinite(xy).all():
             raise SurveyFormatError("LineString needs at least two finite [x, y] vertices",
                                     path=where, reason="plan")
@@ -116,12 +133,18 @@ def read_walk_plan(path: str | os.PathLike, *, strict: bool = False
         if not walk_id or not log:
             raise SurveyFormatError("feature needs properties 'walk_id' and 'sensor_log'",
                                     path=where, reason="plan")
+        if not isinstance(log, str):
+            raise SurveyFormatError("'sensor_log' must be a path (a string)", path=where,
+                                    reason="plan")
         times = _vertex_times(xy[:, :2], props, where)
-        csv_path = (path.parent / log).resolve()
         try:
+            csv_path = (path.parent / log).resolve()
+            if csv_path.exists() and not csv_path.is_file():  # a device or fifo could hang
+                raise OSError(0, "not a regular file")
             csv_bytes = csv_path.read_bytes()
-        except OSError as err:
-            raise SurveyFormatError(f"sensor log {log!r} not readable ({err.strerror})",
+        except (OSError, ValueError) as err:  # ValueError: a NUL byte in the path
+            raise SurveyFormatError(f"sensor log {log!r} not readable "
+                                    f"({getattr(err, 'strerror', None) or err})",
                                     path=where, reason="io") from err
         trace = parse_sensor_csv(csv_bytes, path=str(csv_path), strict=strict)
         trace.trace_id = walk_id
@@ -145,26 +168,50 @@ def identity_sha256(identity: bytes) -> str:
 def _vertex_times(xy: np.ndarray, props: dict, where: str) -> np.ndarray:
     if props.get("vertex_times_ms") is not None:
         try:
-            times = np.asarray(props["vertex_times_ms"], dtype=np.float64)
-        except (TypeError, ValueError) as err:
+            times = np.round(np.asarray(props["vertex_times_ms"], dtype=np.float64))
+        except (TypeError, ValueError, OverflowError) as err:
             raise SurveyFormatError("vertex_times_ms must be numbers", path=where,
                                     reason="plan") from err
         if times.shape != (len(xy),):
             raise SurveyFormatError(f"vertex_times_ms has {times.size} values for {len(xy)} "
                                     "vertices", path=where, reason="plan")
     elif props.get("start_ms") is not None and props.get("end_ms") is not None:
-        start, end = float(props["start_ms"]), float(props["end_ms"])
-        dist = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
-        if dist[-1] <= 0:
-            raise SurveyFormatError("walk line has zero length", path=where, reason="plan")
-        times = np.round(start + (end - start) * dist / dist[-1])
+        try:
+            start, end = float(props["start_ms"]), float(props["end_ms"])
+        except (TypeError, ValueError, OverflowError) as err:
+            raise SurveyFormatError("start_ms and end_ms must be numbers", path=where,
+                                    reason="plan") from err
+        if not (0 <= start < MAX_TIME_MS and 0 <= end < MAX_TIME_MS):
+            raise SurveyFormatError("start_ms and end_ms must be within [0, 2^53) ms",
+                                    path=where, reason="plan")
+        # Huge coordinates overflow to an infinite length or time, refused below.
+        with np.errstate(over="ignore", invalid="ignore"):
+            dist = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
+            if not dist[-1] > 0 or not np.isfinite(dist[-1]):
+                raise SurveyFormatError("walk line has zero or non-finite length", path=where,
+                                        reason="plan")
+            times = np.round(start + (end - start) * dist / dist[-1])
     else:
         raise SurveyFormatError("feature needs 'start_ms' and 'end_ms' or 'vertex_times_ms'",
                                 path=where, reason="plan")
-    if not np.isfinite(times).all() or np.any(np.diff(times) <= 0):
-        raise SurveyFormatError("vertex times must be finite and strictly increasing",
-                                path=where, reason="plan")
+    if (not np.isfinite(times).all() or times.min() < 0 or times.max() >= MAX_TIME_MS
+            or np.any(np.diff(times) <= 0)):
+        raise SurveyFormatError("vertex times must be within [0, 2^53) ms and strictly "
+                                "increasing (after rounding to whole ms)", path=where,
+                                reason="plan")
     return times
+
+
+def _numeric(column: pa.ChunkedArray) -> np.ndarray:
+    """Float64 values of a CSV column, NaN where a value is missing or not a number (columns
+    pyarrow typed as booleans, dates or times hold no numbers)."""
+    kind = column.type
+    if pa.types.is_integer(kind) or pa.types.is_floating(kind):
+        return pc.cast(column, pa.float64(), safe=False).to_numpy(zero_copy_only=False)
+    if pa.types.is_string(kind) or pa.types.is_large_string(kind):
+        return pd.to_numeric(column.to_pandas(), errors="coerce").to_numpy(dtype=float,
+                                                                             na_value=np.nan)
+    return np.full(len(column), np.nan)
 
 
 def parse_sensor_csv(data: bytes, *, path: str = "<input>", strict: bool = False) -> Trace:
@@ -173,17 +220,19 @@ def parse_sensor_csv(data: bytes, *, path: str = "<input>", strict: bool = False
     try:
         table = pacsv.read_csv(io.BytesIO(data), convert_options=pacsv.ConvertOptions(
             column_types={}, strings_can_be_null=False))
-    except pa.ArrowInvalid as err:
+        names = table.column_names  # decoding a name can fail
+    except (pa.ArrowInvalid, UnicodeDecodeError) as err:
         raise SurveyFormatError(f"not a readable CSV ({err})", path=path, reason="csv") from err
-    frame = table.to_pandas()
-    columns = set(frame.columns)
+    if len(set(names)) != len(names):
+        raise SurveyFormatError("sensor log has duplicate column names", path=path, reason="csv")
+    columns = set(names)
     if "t_ms" not in columns:
         raise SurveyFormatError("sensor log needs a 't_ms' column", path=path, reason="csv")
-    report.lines_total = len(frame) + 1
+    report.lines_total = table.num_rows + 1
     report.header_lines = 1
-    numeric = {c: pd.to_numeric(frame[c], errors="coerce") for c in frame.columns}
+    numeric = {c: _numeric(table.column(c)) for c in names}
     t = numeric["t_ms"]
-    bad_t = ~np.isfinite(t.to_numpy(dtype=float)) | (t.to_numpy(dtype=float) < 0)
+    bad_t = ~np.isfinite(t) | (t < 0)
     parts = []
     row_bad = bad_t.copy()
     for stream, (prefix, bias) in STREAM_COLUMNS.items():
@@ -195,23 +244,34 @@ def parse_sensor_csv(data: bytes, *, path: str = "<input>", strict: bool = False
             raise SurveyFormatError(f"stream {stream} needs columns {cols}, missing "
                                     f"{sorted(set(cols) - set(present))}", path=path,
                                     reason="csv")
-        values = np.column_stack([numeric[c].to_numpy(dtype=float) for c in cols])
-        row_bad |= ~np.isfinite(values).all(axis=1)
+        values = np.column_stack([numeric[c] for c in cols])
+        # stored as float32: a value beyond its range would become infinite
+        row_bad |= ~(np.abs(values) < _FLOAT32_LIMIT).all(axis=1)
         parts.append((stream, values))
     if not parts:
         raise SurveyFormatError("sensor log has no sensor columns (e.g. acc_x, acc_y, acc_z)",
                                 path=path, reason="csv")
-    if row_bad.any():
-        first = int(np.flatnonzero(row_bad)[0]) + 2
+    # Out of range: a time beyond 2^53 ms, an accuracy beyond int8 (a missing one means 3).
+    out_of_range = ~row_bad & (t >= MAX_TIME_MS)
+    if "accuracy" in columns:
+        out_of_range |= ~row_bad & (np.abs(numeric["accuracy"]) > 127)
+    problems = {"non_numeric": (row_bad, "non-numeric, missing or non-finite value"),
+                "out_of_range": (out_of_range, "t_ms beyond 2^53 ms or accuracy beyond 127")}
+    any_bad = row_bad | out_of_range
+    if any_bad.any():
+        first = int(np.flatnonzero(any_bad)[0])
+        reason = "non_numeric" if row_bad[first] else "out_of_range"
         if strict:
-            raise SurveyFormatError("non-numeric, missing or non-finite value", path=path,
-                                    line=first, reason="non_numeric")
-        report.bad["non_numeric"] = int(row_bad.sum())
-        report.messages = [f"{path}:{i + 2}: non-numeric, missing or non-finite value"
-                           for i in np.flatnonzero(row_bad)[:20]]
-    good = ~row_bad
-    t_ms = t.to_numpy(dtype=float)[good].astype(np.int64)
-    accuracy = (numeric["accuracy"].to_numpy(dtype=float)[good] if "accuracy" in columns
+            raise SurveyFormatError(problems[reason][1], path=path, line=first + 2,
+                                    reason=reason)
+        for reason, (mask, _) in problems.items():
+            if mask.any():
+                report.bad[reason] = int(mask.sum())
+        text = np.where(row_bad, problems["non_numeric"][1], problems["out_of_range"][1])
+        report.messages = [f"{path}:{i + 2}: {text[i]}" for i in np.flatnonzero(any_bad)[:20]]
+    good = ~any_bad
+    t_ms = t[good].astype(np.int64)
+    accuracy = (numeric["accuracy"][good] if "accuracy" in columns
                 else np.full(good.sum(), 3.0))
     accuracy = np.nan_to_num(accuracy, nan=3.0).astype(np.int8)
     frames = []

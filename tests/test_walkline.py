@@ -123,3 +123,12 @@ def test_folders_ignore_geojson_that_is_not_a_walk_plan(tmp_path):
     assert s.status_counts() == {"new": 1}
     with pytest.raises(SurveyFormatError, match="floor.geojson \(feature 0\)"):  # must be a plan
         ingest([tmp_path / "floor.geojson"], tmp_path / "store")
+
+
+def test_sensor_log_must_be_a_regular_file(tmp_path):
+    plan = _plan(tmp_path, [{"type": "Feature",
+                             "geometry": {"type": "LineString", "coordinates": [[0, 0], [1, 0]]},
+                             "properties": {"walk_id": "a", "sensor_log": "/dev/zero",
+                                            "start_ms": 1, "end_ms": 2}}])
+    with pytest.raises(SurveyFormatError, match="not a regular file"):
+        read_walk_plan(plan)
