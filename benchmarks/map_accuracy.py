@@ -20,7 +20,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
 REPO = Path(__file__).resolve().parents[1]
@@ -37,8 +36,10 @@ def main() -> int:
         return 0
     from mapping.floorplan import read_floor_plan
     from mapping.grid import grid_for_extent, reachable_mask
-    from mapping.holdout import choose_bandwidth, default_pipelines, \
-        floor_samples_with_baseline_positions, leave_one_walk_out
+    from mapping.build import BuildParams, build_bandwidth
+    from mapping.holdout import default_pipelines, floor_samples_with_baseline_positions, \
+        leave_one_walk_out
+    from mapping.levelling import apply_session_residuals, fit_session_residuals
     from mapping.interpolate import RasterParams
     from survey.ingest import ingest
     from survey.process_store import process_store
@@ -59,11 +60,10 @@ def main() -> int:
             samples = floor_samples_with_baseline_positions(store, f)
             grid = grid_for_extent(plans[f].width_m, plans[f].height_m, 0.5)
             mask = reachable_mask(grid, plans[f].reachable)
-            strength = np.linalg.norm(samples[["mag_east_ut", "mag_north_ut",
-                                               "mag_up_ut"]].to_numpy(), axis=1)
-            bw, _ = choose_bandwidth(grid, mask, samples["x_m"].to_numpy(),
-                                     samples["y_m"].to_numpy(), strength,
-                                     samples["trace_id"].to_numpy(), RasterParams())
+            params = BuildParams()
+            levelled = apply_session_residuals(samples, fit_session_residuals(
+                samples, params.levelling))
+            bw, _ = build_bandwidth(samples, levelled, grid, mask, params)
             table = leave_one_walk_out(samples, grid, mask,
                                        default_pipelines(RasterParams(bandwidth_m=bw)),
                                        layers=("strength", "vertical"))

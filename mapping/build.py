@@ -73,6 +73,15 @@ def coverage(grid, mask, x_m, y_m, distances_m=(1.0, 2.0, 5.0)) -> dict[str, flo
     return {f"within_{d:g}m": float((mask & (dist <= d)).sum() / n) for d in distances_m}
 
 
+def build_bandwidth(samples: pd.DataFrame, field_enu: np.ndarray, grid, mask,
+                    params: BuildParams) -> tuple[float, dict[float, float]]:
+    """The kernel bandwidth a build chooses: grouped cross-validation of the levelled strength
+    over walks (:func:`mapping.holdout.choose_bandwidth`). Benchmarks call this too."""
+    return choose_bandwidth(grid, mask, samples["x_m"].to_numpy(), samples["y_m"].to_numpy(),
+                            np.linalg.norm(field_enu, axis=1), samples["trace_id"].to_numpy(),
+                            params.raster)
+
+
 def floor_samples(store: SurveyStore, site: str | None, floor: str) -> tuple[pd.DataFrame,
                                                                             pd.DataFrame,
                                                                             pd.DataFrame]:
@@ -119,8 +128,7 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
     x, y, walk = samples["x_m"].to_numpy(), samples["y_m"].to_numpy(), samples["trace_id"]
     raster_params, heading_params, bandwidth_scores = params.raster, params.heading_raster, {}
     if params.auto_bandwidth and params.raster.method == "kernel":
-        bw, bandwidth_scores = choose_bandwidth(grid, mask, x, y, strength, walk.to_numpy(),
-                                                params.raster)
+        bw, bandwidth_scores = build_bandwidth(samples, field_enu, grid, mask, params)
         raster_params = replace(params.raster, bandwidth_m=bw)
         heading_params = replace(params.heading_raster, bandwidth_m=max(bw, 1.0))
         say(f"{floor}: kernel bandwidth {bw} m chosen by 5-fold cross-validation over walks")

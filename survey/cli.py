@@ -36,9 +36,10 @@ def _register() -> None:
     from .sim.cli import simulate
 
     from mapping.cli_build import build_command, bundle_group
+    from mapping.cli_validate import validate_command
 
     for command in (simulate, ingest_command, process_command, survey_report_command,
-                    build_command, bundle_group):
+                    build_command, bundle_group, validate_command):
         main.add_command(command)
 
 
