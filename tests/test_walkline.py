@@ -121,7 +121,7 @@ def test_folders_ignore_geojson_that_is_not_a_walk_plan(tmp_path):
                                                     "geometry": None}]}))
     s = ingest([tmp_path], tmp_path / "store")
     assert s.status_counts() == {"new": 1}
-    with pytest.raises(SurveyFormatError, match="floor.geojson \(feature 0\)"):  # must be a plan
+    with pytest.raises(SurveyFormatError, match=r"floor.geojson \(feature 0\)"):  # a plan
         ingest([tmp_path / "floor.geojson"], tmp_path / "store")
 
 

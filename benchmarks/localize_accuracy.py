@@ -1,0 +1,135 @@
+"""Accuracy of the localizer and its baselines, 5-fold by walk.
+
+1. Simulated site (``survey.sim`` preset ``default``: 3 floors of 80 x 50 m, 16 walks each;
+   simulated once into ``--work``): truth at every step. Maps:
+
+   - ``truth``: the simulator's field on a 0.25 m grid (a perfect map);
+   - ``built``: ``mapping.build.build_floor`` from the survey walks of the other four folds
+     (when the builder is importable).
+
+2. Real traces ``../shared/ilc/site1`` F1-F3 (skipped when absent, or without the builder):
+   maps built without the evaluated walks, errors at the recorded waypoints.
+
+Every walk starts from its first Wi-Fi fix (a kNN positioner over the other folds' scans;
+walks without Wi-Fi start at their first waypoint, counted), except ``pdr@wp0``: PDR with 0.7 m
+steps from the first waypoint, the ILC baseline. Prints, per data set, floor and method, the
+error at the waypoints and (simulation) at every step: median, p80, mean (m).
+
+Usage: ``python benchmarks/localize_accuracy.py [--work DIR] [--methods a,b] [--skip-real]
+[--skip-sim] [--maps truth,built]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from localize_eval import (
+    ALL_METHODS,
+    SHARED_SITE,
+    RunResult,
+    builder_available,
+    built_bundle,
+    folds_of,
+    print_table,
+    processed_store,
+    radio_for,
+    real_walks,
+    run_fold,
+    sim_site,
+    sim_walks,
+    truth_bundle_of,
+)
+
+from localize.params import FilterParams
+
+
+def run_floors(floors: dict, methods, params: FilterParams, label: str, steps: bool) -> None:
+    """floors: name -> (walks, folds, bundle_of(fold index))."""
+    pooled = RunResult()
+    for floor, (walks, folds, bundle_of) in floors.items():
+        t0 = time.time()
+        res = RunResult()
+        for i, test in enumerate(folds):
+            res.merge(run_fold(walks, test, bundle_of(i), methods, params, start="wifi",
+                               radio=radio_for(walks, set(test))))
+        print_table(f"{label} {floor}: {len(walks)} walks, 5-fold by walk "
+                    f"({time.time() - t0:.0f} s)", res, methods,
+                    ("wp", "step") if steps else ("wp",))
+        pooled.merge(res)
+        for note in res.notes:
+            print(f"  note: {note}")
+    if len(floors) > 1:
+        print_table(f"{label} all floors", pooled, methods, ("wp", "step") if steps else ("wp",))
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description="localizer accuracy, 5-fold by walk")
+    ap.add_argument("--work", type=Path, default=Path("benchmarks/.work"),
+                    help="cache of the simulated site, stores, bundles and step summaries")
+    ap.add_argument("--methods", default=",".join(ALL_METHODS))
+    ap.add_argument("--maps", default="truth,built", help="simulation maps: truth, built")
+    ap.add_argument("--params", default="{}", help="JSON FilterParams overrides")
+    ap.add_argument("--skip-sim", action="store_true")
+    ap.add_argument("--skip-real", action="store_true")
+    args = ap.parse_args(argv)
+    args.work.mkdir(parents=True, exist_ok=True)
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    d = json.loads(FilterParams().to_json())
+    d.update(json.loads(args.params))
+    params = FilterParams.from_dict(d)
+    print(f"parameters: {params.to_json()}")
+
+    if not args.skip_sim:
+        site = sim_site(args.work)
+        names = ("F1", "F2", "F3")
+        data = {f: sim_walks(site, f, args.work) for f in names}
+        kinds = [k.strip() for k in args.maps.split(",")]
+        if "truth" in kinds:
+            floors = {}
+            for f in names:
+                b = truth_bundle_of(site, f, args.work)
+                floors[f] = (data[f], folds_of(data[f]), lambda i, b=b: b)
+            run_floors(floors, methods, params, "SIMULATED site, truth maps,", steps=True)
+        if "built" in kinds:
+            if not builder_available():
+                print("\nSIMULATED site, built maps: skipped (mapping.build not available)")
+            else:
+                store = processed_store(site.name, [site / f for f in names], args.work)
+                floors = {}
+                for f in names:
+                    folds = folds_of(data[f])
+                    floors[f] = (data[f], folds,
+                                 lambda i, f=f, folds=folds: built_bundle(
+                                     store, site / f, set(folds[i]), args.work, site.name))
+                run_floors(floors, methods, params,
+                           "SIMULATED site, maps built without the test walks,", steps=True)
+
+    if args.skip_real:
+        return
+    if not SHARED_SITE.is_dir():
+        print(f"\nREAL traces: skipped ({SHARED_SITE} is absent)")
+        return
+    if not builder_available():
+        print("\nREAL traces: skipped (mapping.build, the map builder, is not available)")
+        return
+    floor_dirs = [SHARED_SITE / f for f in ("F1", "F2", "F3")]
+    store = processed_store("ilc_site1", floor_dirs, args.work)
+    floors = {}
+    for fd in floor_dirs:
+        walks = real_walks(fd, args.work)
+        folds = folds_of(walks)
+        floors[fd.name] = (walks, folds, lambda i, fd=fd, folds=folds: built_bundle(
+            store, fd, set(folds[i]), args.work, "ilc"))
+    run_floors(floors, methods, params, "REAL traces site1, maps built without the test walks,",
+               steps=False)
+
+
+if __name__ == "__main__":
+    main()

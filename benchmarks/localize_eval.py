@@ -1,0 +1,353 @@
+"""Shared machinery of the localizer benchmarks (accuracy, tuning): walks, folds, maps, runs.
+
+Two data sources:
+
+- a simulated site (``survey.sim``): truth at every step; maps are either the *truth bundle*
+  (the simulator's field sampled on a 0.25 m grid, :mod:`survey.sim.truth_bundle`) or bundles
+  *built* by ``mapping.build.build_floor`` from the survey walks of the other folds;
+- the real ILC traces (``../shared/ilc/site1``): errors at the recorded waypoints only; maps
+  built from the other folds' walks.
+
+Folds are 5-fold by walk (a seeded permutation of the sorted trace ids). The radio positioner of
+a fold is a kNN over the training walks' scans, positioned by the simulator's truth (sim) or by
+time interpolation between waypoints (real, as the ILC kNN baseline).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from localize.baselines import make_localizer
+from localize.bundle import MapBundle, load_bundle
+from localize.errors import LocalizationError
+from localize.evaluate import step_errors, summarize, waypoint_errors
+from localize.maps import FilterMap
+from localize.params import FilterParams
+from localize.radio import KnnRadioPositioner
+from localize.steps import RadioScan, StepSummaries
+from localize.track import Track
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_SITE = REPO.parent / "shared" / "ilc" / "site1"
+
+#: Methods in table order; "pdr@wp0" is PDR from the first waypoint (the ILC baseline);
+#: "name[variant]" runs a method with other parameters (:data:`VARIANTS`).
+ALL_METHODS = ("indoormap", "indoormap[paper]", "indoormap[weinberg]", "pf_no_mag",
+               "magpp_gaussian", "magicol_dtw", "pdr", "pdr@wp0", "radio")
+
+
+def _variant(name: str, params: FilterParams) -> tuple[str, FilterParams]:
+    """Method and parameters of a table row name."""
+    if "[" not in name:
+        return name, params
+    base, variant = name[:-1].split("[")
+    if variant == "paper":
+        return base, FilterParams.paper_params()
+    if variant == "weinberg":
+        return base, replace(params, step_model="weinberg", genome_a_mean=0.38,
+                             genome_a_sd=0.03)
+    raise ValueError(f"unknown variant {variant!r}")
+
+
+@dataclass
+class EvalWalk:
+    """A walk ready to localize, with its references."""
+
+    trace_id: str
+    floor: str
+    steps: StepSummaries
+    wp_t: np.ndarray                       # recorded waypoints (ms, m)
+    wp_xy: np.ndarray
+    true_xy: np.ndarray | None = None      # truth at every step (simulation only)
+    radio_refs: list[tuple[RadioScan, np.ndarray]] = field(default_factory=list)
+
+
+# -- walks ---------------------------------------------------------------------------------
+
+def _cache(path: Path, make):
+    """Build the walks (no on-disk cache: the project never unpickles anything)."""
+    return make()
+
+
+def sim_site(work: Path, preset: str = "default", seed: int = 7) -> Path:
+    """The simulated site (simulated once into ``work``)."""
+    from survey.sim.site import SiteParams, simulate_site
+
+    site = work / f"sim_{preset}_{seed}"
+    if not (site / "truth" / "site.json").exists():
+        simulate_site(SiteParams.preset_params(preset, seed=seed), site, overwrite=True)
+    return site
+
+
+def sim_walks(site: Path, floor: str, work: Path) -> list[EvalWalk]:
+    """Walks of a simulated floor with truth at every step and truth-positioned scans."""
+    def make():
+        import pandas as pd
+
+        from survey.step_summaries import scans_of, step_summaries, waypoints_of
+        from survey.trace_reader import read_trace
+
+        sj = json.loads((site / "truth" / "site.json").read_text())
+        out = []
+        for w in sj["walks"]:
+            if w["floor"] != floor:
+                continue
+            trace = read_trace(site / w["trace_path"])
+            steps = step_summaries(trace)
+            truth = pd.read_parquet(site / w["truth_path"])
+            tt = truth["t_ms"].to_numpy(np.float64)
+
+            def at(t, truth=truth, tt=tt):
+                t = np.asarray(t, dtype=np.float64)
+                return np.column_stack([np.interp(t, tt, truth["x_m"]),
+                                        np.interp(t, tt, truth["y_m"])])
+
+            wp_t, wp_xy = waypoints_of(trace)
+            refs = [(s, at([s.t_ms])[0]) for s in scans_of(trace)]
+            out.append(EvalWalk(w["trace_id"], floor, steps, wp_t, wp_xy, at(steps.t_ms),
+                                refs))
+        return out
+
+    return _cache(work / "cache" / f"{site.name}_{floor}_walks.pkl", make)
+
+
+def real_walks(floor_dir: Path, work: Path) -> list[EvalWalk]:
+    """Walks of a real floor; scans positioned by time interpolation between waypoints."""
+    def make():
+        from survey.errors import IndoormapError
+        from survey.step_summaries import scans_of, step_summaries, waypoints_of
+        from survey.trace_reader import find_trace_files, read_trace
+
+        out = []
+        for path in find_trace_files([floor_dir / "path_data_files"]):
+            trace = read_trace(path)
+            wp_t, wp_xy = waypoints_of(trace)
+            if len(wp_t) < 2:
+                continue
+            try:
+                steps = step_summaries(trace)
+            except IndoormapError as err:
+                print(f"  skip {trace.trace_id}: {err}")
+                continue
+            refs = []
+            for s in scans_of(trace):
+                if wp_t[0] <= s.t_ms <= wp_t[-1]:
+                    refs.append((s, np.array([np.interp(s.t_ms, wp_t, wp_xy[:, 0]),
+                                              np.interp(s.t_ms, wp_t, wp_xy[:, 1])])))
+            out.append(EvalWalk(trace.trace_id, floor_dir.name, steps, wp_t, wp_xy, None,
+                                refs))
+        return out
+
+    return _cache(work / "cache" / f"ilc_{floor_dir.parent.name}_{floor_dir.name}_walks.pkl",
+                  make)
+
+
+def folds_of(walks: list[EvalWalk], k: int = 5, seed: int = 0) -> list[list[str]]:
+    """Test trace ids of each of ``k`` folds (a seeded permutation of the sorted ids)."""
+    ids = sorted(w.trace_id for w in walks)
+    perm = np.random.default_rng(seed).permutation(len(ids))
+    return [sorted(ids[i] for i in perm[f::k]) for f in range(k)]
+
+
+#: Options of the benchmarks' kNN positioner (``likelihood_sigma_m=0``: the filter's radio
+#: update is a Gaussian around the fix instead of the k-reference mixture).
+RADIO_OPTIONS: dict = {"k": 5}
+
+
+def radio_for(walks: list[EvalWalk], exclude: set[str]) -> KnnRadioPositioner | None:
+    refs = [(s, xy) for w in walks if w.trace_id not in exclude for s, xy in w.radio_refs]
+    if not refs:
+        return None
+    return KnnRadioPositioner.from_scans(np.array([xy for _, xy in refs]),
+                                         [s for s, _ in refs], **RADIO_OPTIONS)
+
+
+# -- maps ----------------------------------------------------------------------------------
+
+def truth_bundle_of(site: Path, floor: str, work: Path, cell_m: float = 0.25) -> MapBundle:
+    from survey.sim.truth_bundle import truth_bundle
+
+    target = work / "bundles" / f"{site.name}_{floor}_truth_{cell_m:g}"
+    if not (target / "manifest.json").exists():
+        truth_bundle(site, floor, target, cell_m=cell_m, overwrite=True)
+    return load_bundle(target)
+
+
+def builder_available() -> bool:
+    try:
+        import mapping.build  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+@contextlib.contextmanager
+def _walks_excluded(exclude: set[str]):
+    """Make ``mapping.build.build_floor`` ignore some walks.
+
+    ``build_floor`` has no parameter for this (yet); its floor-sample reader is wrapped for the
+    duration so that the test walks of a fold never reach the map."""
+    import mapping.build as mb
+
+    original = mb.floor_samples
+
+    def filtered(store, site, floor):
+        samples, steps, pcat = original(store, site, floor)
+        return (samples[~samples["trace_id"].isin(exclude)],
+                steps[~steps["trace_id"].isin(exclude)],
+                pcat[~pcat["trace_id"].isin(exclude)])
+
+    mb.floor_samples = filtered
+    try:
+        yield
+    finally:
+        mb.floor_samples = original
+
+
+def processed_store(name: str, floor_dirs: list[Path], work: Path):
+    """A survey store with the floors' traces ingested and processed (made once)."""
+    from mapping.floorplan import read_floor_plan
+    from survey.ingest import ingest
+    from survey.process_store import process_store
+    from survey.store import SurveyStore
+
+    path = work / "stores" / name
+    done = path / ".processed"
+    if not done.exists():
+        t0 = time.time()
+        ingest([f / "path_data_files" for f in floor_dirs], path)
+        store = SurveyStore.open(path)
+        cat = store.traces()
+        reach = {}
+        for f in floor_dirs:
+            plan = read_floor_plan(f)
+            for site in cat.loc[cat["floor"] == f.name, "site"].unique():
+                reach[(site, f.name)] = plan.reachable
+        process_store(store, reachable=reach)
+        done.write_text(f"{time.time() - t0:.0f} s\n")
+    return SurveyStore.open(path)
+
+
+def built_bundle(store, floor_dir: Path, exclude: set[str], work: Path, tag: str,
+                 cell_m: float = 0.5) -> MapBundle:
+    """A bundle of the floor built by ``mapping.build`` without the ``exclude`` walks."""
+    from mapping.build import BuildParams, build_floor
+    from mapping.bundle_writer import write_bundle
+    from mapping.floorplan import read_floor_plan
+
+    key = hashlib.sha256(",".join(sorted(exclude)).encode()).hexdigest()[:12]
+    target = work / "bundles" / f"{tag}_{floor_dir.name}_built_{cell_m:g}_{key}"
+    if not (target / "manifest.json").exists():
+        plan = read_floor_plan(floor_dir)
+        with _walks_excluded(exclude):
+            content = build_floor(store, plan, floor=floor_dir.name,
+                                  params=BuildParams(cell_m=cell_m, build_time="bench"))
+        write_bundle(target, content, overwrite=True)
+    return load_bundle(target)
+
+
+# -- runs ----------------------------------------------------------------------------------
+
+@dataclass
+class RunResult:
+    wp: dict[str, list[np.ndarray]] = field(default_factory=dict)
+    step: dict[str, list[np.ndarray]] = field(default_factory=dict)
+    seconds: dict[str, float] = field(default_factory=dict)
+    steps: dict[str, int] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+    def add(self, method: str, track: Track, w: EvalWalk, seconds: float) -> None:
+        self.wp.setdefault(method, []).append(waypoint_errors(track, w.wp_t, w.wp_xy))
+        if w.true_xy is not None:
+            self.step.setdefault(method, []).append(step_errors(track, w.true_xy))
+        self.seconds[method] = self.seconds.get(method, 0.0) + seconds
+        self.steps[method] = self.steps.get(method, 0) + len(track)
+
+    def merge(self, other: RunResult) -> None:
+        for d_self, d_other in ((self.wp, other.wp), (self.step, other.step)):
+            for k, v in d_other.items():
+                d_self.setdefault(k, []).extend(v)
+        for k, v in other.seconds.items():
+            self.seconds[k] = self.seconds.get(k, 0.0) + v
+            self.steps[k] = self.steps.get(k, 0) + other.steps[k]
+        self.notes.extend(other.notes)
+
+    def summary(self, method: str, what: str = "wp") -> dict[str, float]:
+        d = self.wp if what == "wp" else self.step
+        return summarize(np.concatenate(d[method]) if d.get(method) else np.empty(0))
+
+
+def run_fold(walks: list[EvalWalk], test_ids: list[str], bundle: MapBundle, methods,
+             params: FilterParams, *, start: str = "wifi", seed: int = 0,
+             radio=None) -> RunResult:
+    """Localize the test walks of one fold with every method.
+
+    ``start``: ``"wifi"`` (first radio fix of the walk; walks without one start at their first
+    waypoint, noted), ``"waypoint"`` (first waypoint) or ``"truth"`` (true position, sim).
+    """
+    res = RunResult()
+    fmaps: dict[str, FilterMap] = {}
+    for w in walks:
+        if w.trace_id not in test_ids:
+            continue
+        wp0 = (float(w.wp_xy[0, 0]), float(w.wp_xy[0, 1]))
+        start_xy, t_start = None, None
+        if start == "truth" and w.true_xy is not None:
+            start_xy = tuple(w.true_xy[0])
+        elif start == "waypoint":
+            start_xy, t_start = wp0, float(w.wp_t[0])
+        elif start == "wifi":
+            fix = None
+            if radio is not None and w.steps.scans is not None:
+                fix = next((radio.locate(s) for s in w.steps.scans if s is not None
+                            and radio.locate(s) is not None), None)
+            if fix is None:
+                start_xy, t_start = wp0, float(w.wp_t[0])
+                res.notes.append(f"{w.trace_id}: no Wi-Fi fix, started at the first waypoint")
+        for m in methods:
+            name, p = _variant(m, params)
+            s_xy, t0 = start_xy, t_start
+            if m == "pdr@wp0":
+                name, s_xy, t0 = "pdr", wp0, float(w.wp_t[0])
+            try:
+                if name in ("indoormap", "pf_no_mag", "magpp_gaussian", "magicol_dtw"):
+                    if m not in fmaps:  # pack the layers once per fold and row
+                        fmaps[m] = make_localizer(name, bundle, p, rng=seed).fmap
+                    loc = make_localizer(name, bundle, p, radio=radio, rng=seed,
+                                         fmap=fmaps[m])
+                else:
+                    loc = make_localizer(name, bundle, p, radio=radio, rng=seed)
+                t = time.process_time()
+                track = loc.run(w.steps, start_xy=s_xy,
+                                start_t_ms=t0 if t0 is not None and t0 < w.steps.t_ms[0]
+                                else None)
+                res.add(m, track, w, time.process_time() - t)
+            except LocalizationError as err:
+                res.notes.append(f"{w.trace_id} {m}: {err}")
+    return res
+
+
+def print_table(title: str, res: RunResult, methods, what=("wp", "step")) -> None:
+    print(f"\n{title}")
+    head = f"{'method':<20}"
+    for w in what:
+        label = "waypoints" if w == "wp" else "every step"
+        head += f"| {label + ' (m): median  p80  mean':<36}"
+    print(head + "| ms/step")
+    for m in methods:
+        if m not in res.wp:
+            continue
+        line = f"{m:<20}"
+        for w in what:
+            s = res.summary(m, w)
+            line += f"| n={s['n']:<6} {s['median']:>6.2f} {s['p80']:>6.2f} {s['mean']:>6.2f}" \
+                    f"{'':<6}" if s["n"] else f"| {'-':<35}"
+        ms = 1000.0 * res.seconds.get(m, 0.0) / max(res.steps.get(m, 1), 1)
+        print(line + f"| {ms:.2f}")

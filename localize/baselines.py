@@ -1,0 +1,120 @@
+"""Baselines behind the localizer interface, and the method registry.
+
+- :class:`PdrLocalizer`: dead reckoning from the start fix, a fixed step length along the
+  compass heading (no map; the ILC baseline uses 0.7 m);
+- :class:`RadioOnlyLocalizer`: the latest Wi-Fi/BLE fix, held until the next scan;
+- the particle-filter variants are :class:`~localize.filter.Localizer` with another
+  ``weight_mode`` (see :data:`METHODS`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from localize.bundle import MapBundle
+from localize.errors import LocalizationError
+from localize.filter import BaseLocalizer, Localizer
+from localize.maps import FilterMap
+from localize.params import FilterParams
+from localize.steps import StepSummary
+from localize.track import Estimate
+
+__all__ = ["METHODS", "PdrLocalizer", "RadioOnlyLocalizer", "make_localizer"]
+
+
+class PdrLocalizer(BaseLocalizer):
+    """Pedestrian dead reckoning with a fixed step length.
+
+    Parameters
+    ----------
+    bundle : MapBundle
+        Only its floor id is used (and the compatibility checks).
+    step_length_m : float
+        Length of every step (m).
+    heading_offset_deg : float
+        Constant subtracted from the compass heading (deg); 0 = the compass as is.
+    """
+
+    method = "pdr"
+
+    def __init__(self, bundle: MapBundle, step_length_m: float = 0.7, *, radio=None,
+                 heading_offset_deg: float = 0.0) -> None:
+        super().__init__(bundle, radio=radio)
+        if not step_length_m > 0:
+            raise LocalizationError(f"step_length_m must be positive, got {step_length_m}")
+        self.step_length_m = float(step_length_m)
+        self.heading_offset_deg = float(heading_offset_deg)
+
+    def _start_at(self, x, y, t_ms, sigma, half_width_m) -> Estimate:
+        return Estimate(t_ms, x, y, 0.0, 1.0, False, self.bundle.floor_id)
+
+    def step(self, s: StepSummary) -> Estimate:
+        if self._last is None:
+            raise LocalizationError("call start() (or run()) before step()")
+        h = np.radians(s.compass_deg - self.heading_offset_deg)
+        x = self._last.x_m + self.step_length_m * np.sin(h)
+        y = self._last.y_m + self.step_length_m * np.cos(h)
+        self._last = Estimate(float(s.t_ms), float(x), float(y), 0.0, 1.0, False,
+                              self.bundle.floor_id)
+        return self._last
+
+
+class RadioOnlyLocalizer(BaseLocalizer):
+    """The latest Wi-Fi/BLE fix of the radio model, held between scans."""
+
+    method = "radio"
+
+    def __init__(self, bundle: MapBundle, *, radio) -> None:
+        if radio is None:
+            raise LocalizationError("the radio-only method needs a radio model")
+        super().__init__(bundle, radio=radio)
+
+    def _start_at(self, x, y, t_ms, sigma, half_width_m) -> Estimate:
+        return Estimate(t_ms, x, y, 0.0 if sigma is None else float(sigma), 1.0, False,
+                        self.bundle.floor_id)
+
+    def step(self, s: StepSummary) -> Estimate:
+        if self._last is None:
+            raise LocalizationError("call start() (or run()) before step()")
+        x, y, spread = self._last.x_m, self._last.y_m, self._last.spread_m
+        if s.scan is not None:
+            fix = self.radio.locate(s.scan)
+            if fix is not None:
+                x, y, spread = fix
+        self._last = Estimate(float(s.t_ms), float(x), float(y), float(spread), 1.0, False,
+                              self.bundle.floor_id)
+        return self._last
+
+
+#: Method name -> description. ``indoormap`` is the default (mass-centered update).
+METHODS: dict[str, str] = {
+    "indoormap": "particle filter, mass-centered MMSE/MMAE/MMPE update (papers 000/001)",
+    "pf_no_mag": "particle filter without magnetic update (PDR + map constraints)",
+    "magpp_gaussian": "particle filter, Gaussian likelihood of strength deltas (002-style)",
+    "magicol_dtw": "particle filter, DTW of raw magnetometer strengths (Magicol-style)",
+    "pdr": "dead reckoning, fixed 0.7 m steps along the compass",
+    "radio": "Wi-Fi/BLE positioner alone",
+}
+
+_MODES = {"indoormap": "mass_centered", "pf_no_mag": "none", "magpp_gaussian": "gaussian",
+          "magicol_dtw": "dtw"}
+
+
+def make_localizer(method: str, bundle: MapBundle, params: FilterParams | None = None, *,
+                   radio=None, rng: np.random.Generator | int | None = None,
+                   fmap: FilterMap | None = None) -> BaseLocalizer:
+    """Build a localizer of the named method (see :data:`METHODS`).
+
+    For the particle-filter methods ``params`` gives everything but the weight mode, which
+    the method fixes.
+    """
+    if method not in METHODS:
+        raise LocalizationError(f"unknown method {method!r}; expected one of {sorted(METHODS)}")
+    if method == "pdr":
+        return PdrLocalizer(bundle, radio=radio)
+    if method == "radio":
+        return RadioOnlyLocalizer(bundle, radio=radio)
+    p = replace(params or FilterParams(), weight_mode=_MODES[method])
+    return Localizer(bundle, p, radio=radio, rng=rng, method=method, fmap=fmap)

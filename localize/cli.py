@@ -1,0 +1,244 @@
+"""``indoormap localize`` and ``indoormap evaluate``: run localizers on survey walks.
+
+Both read traces with the survey stage (:mod:`survey.step_summaries`, imported lazily so that
+importing this module stays light), pick the floor bundle of each walk (a floor bundle, or a
+folder of floor bundles: the walk's floor id decides), and run one of
+:data:`localize.baselines.METHODS`.
+
+Start position (``--start``): ``auto`` (the bundle's radio fingerprints when it has them, else
+the walk's first waypoint), ``waypoint`` (first waypoint, as the ILC PDR baseline), ``radio``
+(first Wi-Fi fix), or ``X,Y`` in metres.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+import numpy as np
+
+from localize.errors import LocalizationError
+
+#: Bundle table the CLI reads radio fingerprints from (long format, see
+#: :meth:`localize.radio.KnnRadioPositioner.from_table`).
+RADIO_TABLE = "radio_fingerprints"
+
+
+def _open_maps(path: Path):
+    from localize.bundle import load_bundle
+    from localize.floors import SiteMaps
+
+    if (path / "manifest.json").exists():
+        return SiteMaps([load_bundle(path)])
+    subs = sorted(p for p in path.iterdir() if (p / "manifest.json").exists())
+    if not subs:
+        raise LocalizationError(f"{path}: neither a bundle nor a folder of bundles")
+    return SiteMaps([load_bundle(p) for p in subs])
+
+
+def _radio_of(bundle):
+    from localize.radio import KnnRadioPositioner
+
+    if bundle.has_table(RADIO_TABLE):
+        return KnnRadioPositioner.from_table(bundle.table(RADIO_TABLE))
+    return None
+
+
+def _walks(paths: tuple[str, ...]) -> list[Path]:
+    from survey.trace_reader import find_trace_files
+
+    files = find_trace_files(paths)
+    if not files:
+        raise click.UsageError("no trace files (.txt, .txt.gz) found in the given paths")
+    return files
+
+
+def _start(start: str, steps, trace, radio) -> tuple[tuple[float, float] | None, str]:
+    """Start position and how it was chosen; None = let the localizer use the radio fix."""
+    from survey.step_summaries import waypoints_of
+
+    if start not in ("auto", "waypoint", "radio"):
+        try:
+            x, y = (float(v) for v in start.split(","))
+        except ValueError as err:
+            raise click.BadParameter(f"--start must be auto, waypoint, radio or X,Y; got "
+                                     f"{start!r}") from err
+        return (x, y), "given"
+    if start == "radio" or (start == "auto" and radio is not None):
+        if radio is None:
+            raise LocalizationError("--start radio needs a bundle with a "
+                                    f"{RADIO_TABLE!r} table")
+        return None, "radio"
+    t, xy = waypoints_of(trace)
+    if not len(t):
+        raise LocalizationError(f"{steps.trace_id}: no waypoint to start from; pass --start X,Y")
+    return (float(xy[0, 0]), float(xy[0, 1])), "first waypoint"
+
+
+def plot_track(path: Path, bundle, tracks: dict, waypoints_xy=None, title: str = "") -> bool:
+    """Trajectories over the bundle's reachable mask as a PNG; False without matplotlib."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return False
+    g = bundle.grid
+    fig, ax = plt.subplots(figsize=(8, 8 * g.height / max(g.width, 1) + 0.8))
+    ax.imshow(np.asarray(bundle.mask), origin="lower", cmap="Greys", alpha=0.35,
+              extent=(g.x0_m, g.x0_m + g.width * g.cell_m, g.y0_m, g.y0_m + g.height * g.cell_m))
+    for name, tr in tracks.items():
+        ax.plot(np.r_[tr.start.x_m, tr.x_m], np.r_[tr.start.y_m, tr.y_m], lw=1.2, label=name)
+    if waypoints_xy is not None and len(waypoints_xy):
+        ax.plot(waypoints_xy[:, 0], waypoints_xy[:, 1], "k.--", lw=0.6, ms=5, label="waypoints")
+    ax.set_xlabel("x east (m)")
+    ax.set_ylabel("y north (m)")
+    ax.set_aspect("equal")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
+def _write_track(track, path: Path, fmt: str) -> Path:
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+    import pyarrow.parquet as pq
+
+    from survey.publish import atomic_write_bytes
+
+    table = track.to_arrow()
+    sink = pa.BufferOutputStream()
+    if fmt == "csv":
+        target = path.with_suffix(".csv")
+        pacsv.write_csv(table, sink)
+    else:
+        target = path.with_suffix(".parquet")
+        pq.write_table(table, sink)
+    atomic_write_bytes(target, sink.getvalue().to_pybytes())
+    return target
+
+
+def _params(particles: int | None):
+    from localize.params import FilterParams
+
+    return FilterParams() if particles is None else FilterParams(n_particles=particles)
+
+
+@click.command("localize")
+@click.argument("bundle_path", metavar="BUNDLE",
+                type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.argument("walks", nargs=-1, required=True, type=click.Path(exists=True))
+@click.option("-o", "--out", "out", required=True, type=click.Path(file_okay=False,
+                                                                   path_type=Path),
+              help="Output folder: <trace_id>.parquet|csv and <trace_id>.png per walk.")
+@click.option("--method", default="indoormap", show_default=True,
+              type=click.Choice(["indoormap", "pf_no_mag", "magpp_gaussian", "magicol_dtw",
+                                 "pdr", "radio"]))
+@click.option("--start", default="auto", show_default=True,
+              help="auto, waypoint, radio or X,Y (m).")
+@click.option("--particles", type=click.IntRange(1, 1_000_000), default=None,
+              help="Particles (default 300).")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--format", "fmt", type=click.Choice(["parquet", "csv"]), default="parquet",
+              show_default=True)
+@click.option("--plot/--no-plot", default=True, show_default=True,
+              help="Trajectory PNG over the bundle mask (needs matplotlib).")
+def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, method: str,
+                     start: str, particles: int | None, seed: int, fmt: str,
+                     plot: bool) -> None:
+    """Localize survey walks (trace files or folders) on BUNDLE (a floor bundle or a folder
+    of floor bundles): positions per step as Parquet/CSV and a trajectory plot."""
+    from localize.baselines import make_localizer
+    from survey.step_summaries import step_summaries, waypoints_of
+    from survey.trace_reader import read_trace
+
+    maps = _open_maps(bundle_path)
+    out.mkdir(parents=True, exist_ok=True)
+    for f in _walks(walks):
+        trace = read_trace(f)
+        steps = step_summaries(trace)
+        bundle = maps.select(steps)
+        radio = _radio_of(bundle)
+        start_xy, how = _start(start, steps, trace, radio)
+        loc = make_localizer(method, bundle, _params(particles), radio=radio, rng=seed)
+        track = loc.run(steps, start_xy=start_xy)
+        target = _write_track(track, out / trace.trace_id, fmt)
+        msg = (f"{trace.trace_id}: {len(track)} steps on {bundle.floor_id} "
+               f"({bundle.manifest.get('floor_name', '')}), start {how}, "
+               f"{track.n_recoveries} recoveries -> {target}")
+        if plot:
+            png = out / f"{trace.trace_id}.png"
+            if plot_track(png, bundle, {method: track}, waypoints_of(trace)[1],
+                          title=f"{trace.trace_id} ({method})"):
+                msg += f", {png.name}"
+            else:
+                msg += " (no plot: matplotlib not installed)"
+        click.echo(msg)
+
+
+@click.command("evaluate")
+@click.argument("bundle_path", metavar="BUNDLE",
+                type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.argument("walks", nargs=-1, required=True, type=click.Path(exists=True))
+@click.option("--methods", default="indoormap,pf_no_mag,pdr", show_default=True,
+              help="Comma-separated methods.")
+@click.option("--start", default="auto", show_default=True,
+              help="auto, waypoint, radio or X,Y (m).")
+@click.option("--particles", type=click.IntRange(1, 1_000_000), default=None)
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--plot", "plot_path", type=click.Path(dir_okay=False, path_type=Path),
+              default=None, help="Write the error CDFs as a PNG.")
+def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, start: str,
+                     particles: int | None, seed: int, plot_path: Path | None) -> None:
+    """Error at the waypoints of walks (median, p80, mean per method). The bundles should be
+    built without these walks (a warning names walks the bundle was built from)."""
+    from localize.baselines import METHODS, make_localizer
+    from localize.evaluate import summarize, waypoint_errors
+    from survey.step_summaries import step_summaries, waypoints_of
+    from survey.trace_reader import read_trace
+
+    names = [m.strip() for m in methods.split(",") if m.strip()]
+    unknown = [m for m in names if m not in METHODS]
+    if unknown:
+        raise click.BadParameter(f"unknown methods {unknown}; known: {sorted(METHODS)}")
+    maps = _open_maps(bundle_path)
+    errors: dict[str, list[np.ndarray]] = {m: [] for m in names}
+    for f in _walks(walks):
+        trace = read_trace(f)
+        t_wp, xy_wp = waypoints_of(trace)
+        if len(t_wp) == 0:
+            click.echo(f"{trace.trace_id}: no waypoints, skipped", err=True)
+            continue
+        steps = step_summaries(trace)
+        bundle = maps.select(steps)
+        if bundle.has_table("source_walks"):
+            used = set(bundle.table("source_walks").column("trace_id").to_pylist())
+            if trace.trace_id in used:
+                click.echo(f"warning: {trace.trace_id} was used to build {bundle.path}; its "
+                           "errors are optimistic", err=True)
+        radio = _radio_of(bundle)
+        start_xy, _ = _start(start, steps, trace, radio)
+        for m in names:
+            loc = make_localizer(m, bundle, _params(particles), radio=radio, rng=seed)
+            track = loc.run(steps, start_xy=start_xy)
+            errors[m].append(waypoint_errors(track, t_wp, xy_wp))
+    click.echo(f"{'method':<16}{'n':>6}{'median':>9}{'p80':>9}{'mean':>9}  (m, at waypoints)")
+    for m in names:
+        s = summarize(np.concatenate(errors[m]) if errors[m] else np.empty(0))
+        click.echo(f"{m:<16}{s['n']:>6}{s['median']:>9.2f}{s['p80']:>9.2f}{s['mean']:>9.2f}")
+    if plot_path is not None:
+        from localize.evaluate import plot_cdfs
+
+        if not plot_cdfs(plot_path, {m: np.concatenate(v) for m, v in errors.items() if v}):
+            click.echo("(no plot: matplotlib not installed)", err=True)
+
+
+def main() -> None:  # pragma: no cover - convenience entry for python -m localize.cli
+    from survey.cli import main as indoormap_main
+
+    sys.exit(indoormap_main())

@@ -1,0 +1,162 @@
+"""Many users' particle filters advanced together, vectorized across users.
+
+A positioning provider runs one process per core; each tick it receives the steps users took
+since the last tick and advances all their filters at once. The particles of all users of a
+floor live in one array of shape ``(users, particles)`` (see
+:class:`~localize.particles.ParticleState`), so a tick is the same few dozen numpy operations
+whether it serves one user or ten thousand: the per-step cost per user falls with the batch
+size instead of being dominated by interpreter overhead (paper 001 reports 130 users per core
+for a single-user implementation).
+
+Supports the mass-centered update, no magnetic update and the Gaussian update (the DTW update
+compares per-user raw sequences and stays single-user).
+
+Examples
+--------
+>>> eng = MultiUserEngine(bundle, FilterParams(n_particles=300), rng=1)   # doctest: +SKIP
+>>> ids = eng.add_users([[10.0, 5.0], [30.0, 12.0]])                        # doctest: +SKIP
+>>> x, y, spread = eng.tick(ids, StepInputs(...))                           # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from localize.bundle import MapBundle
+from localize.errors import LocalizationError
+from localize.filter import make_rng
+from localize.maps import FilterMap
+from localize.params import FilterParams
+from localize.particles import ParticleState, estimate, init_state, needed_layers
+from localize.stepper import StepInputs, StepOutputs, advance
+
+__all__ = ["MultiUserEngine"]
+
+
+class MultiUserEngine:
+    """Particle filters of many users on one floor bundle.
+
+    Parameters
+    ----------
+    bundle : MapBundle
+        Floor bundle all users are on (run one engine per floor).
+    params : FilterParams, optional
+        Shared by all users; ``weight_mode`` must not be ``"dtw"``.
+    rng : numpy.random.Generator or int, optional
+    dtype : numpy dtype
+        Particle storage (float32 halves memory per user).
+    """
+
+    def __init__(self, bundle: MapBundle, params: FilterParams | None = None, *,
+                 rng: np.random.Generator | int | None = None, dtype=np.float64,
+                 fmap: FilterMap | None = None) -> None:
+        self.params = params or FilterParams()
+        if self.params.weight_mode == "dtw":
+            raise LocalizationError("the multi-user engine does not run the DTW update")
+        self.bundle = bundle
+        self.rng = make_rng(rng)
+        self.dtype = dtype
+        if fmap is None:
+            layers, stds = needed_layers(self.params)
+            fmap = FilterMap(bundle, layers, stds)
+        self.fmap = fmap
+        self.state: ParticleState | None = None
+        self.user_ids = np.empty(0, dtype=np.int64)   # row -> user id
+        self.last_xy = np.empty((0, 2))
+        self.consecutive = np.empty(0, dtype=np.int64)
+        self.n_recoveries = np.empty(0, dtype=np.int64)
+        self._next_id = 0
+
+    # -- users ----------------------------------------------------------------------------
+    @property
+    def n_users(self) -> int:
+        return len(self.user_ids)
+
+    def add_users(self, start_xy: ArrayLike, half_width_m: ArrayLike | None = None
+                  ) -> NDArray[np.int64]:
+        """Start filters for new users around their start positions; returns their ids."""
+        xy = np.asarray(start_xy, dtype=np.float64).reshape(-1, 2)
+        k = len(xy)
+        hw = np.broadcast_to(self.params.init_half_width_m if half_width_m is None
+                             else np.asarray(half_width_m, dtype=np.float64), (k,))
+        new = init_state(self.fmap, self.params, self.rng, xy, hw, dtype=self.dtype)
+        ids = np.arange(self._next_id, self._next_id + k, dtype=np.int64)
+        self._next_id += k
+        if self.state is None:
+            self.state = new
+        else:
+            self.state.data = np.concatenate([self.state.data, new.data], axis=1)
+            for name in self.state.obs:
+                self.state.obs[name] = np.concatenate([self.state.obs[name], new.obs[name]],
+                                                      axis=1)
+        mx, my, _ = estimate(new)
+        self.user_ids = np.concatenate([self.user_ids, ids])
+        self.last_xy = np.concatenate([self.last_xy, np.column_stack([mx, my])])
+        self.consecutive = np.concatenate([self.consecutive, np.zeros(k, dtype=np.int64)])
+        self.n_recoveries = np.concatenate([self.n_recoveries, np.zeros(k, dtype=np.int64)])
+        return ids
+
+    def remove_users(self, ids: ArrayLike) -> None:
+        """Drop users (their filters are freed)."""
+        keep = ~np.isin(self.user_ids, np.asarray(ids))
+        if self.state is not None:
+            self.state.data = self.state.data[:, keep]
+            for name in self.state.obs:
+                self.state.obs[name] = self.state.obs[name][:, keep]
+        self.user_ids = self.user_ids[keep]
+        self.last_xy = self.last_xy[keep]
+        self.consecutive = self.consecutive[keep]
+        self.n_recoveries = self.n_recoveries[keep]
+
+    def rows_of(self, ids: ArrayLike) -> NDArray[np.intp]:
+        """Rows of user ids (raises for unknown ids)."""
+        ids = np.asarray(ids, dtype=np.int64).ravel()
+        order = np.argsort(self.user_ids)
+        pos = np.searchsorted(self.user_ids, ids, sorter=order)
+        pos = np.minimum(pos, len(order) - 1) if len(order) else pos
+        rows = order[pos] if len(order) else pos
+        if len(order) == 0 or not np.array_equal(self.user_ids[rows], ids):
+            raise LocalizationError("unknown user id in tick")
+        return rows
+
+    @property
+    def bytes_per_user(self) -> float:
+        """Memory of the particle state per user (bytes)."""
+        if self.state is None or self.n_users == 0:
+            return 0.0
+        return self.state.nbytes / self.n_users
+
+    # -- ticks ----------------------------------------------------------------------------
+    def tick(self, ids: ArrayLike | None, inputs: StepInputs) -> StepOutputs:
+        """Advance the users ``ids`` (all users when None) by one step each.
+
+        Parameters
+        ----------
+        ids : array_like of int (k,) or None
+            Users that took a step since the last tick.
+        inputs : StepInputs
+            Their step summaries, arrays of shape (k,) in the order of ``ids``.
+
+        Returns
+        -------
+        StepOutputs
+            Estimates of those users, shape (k,).
+        """
+        if self.state is None:
+            raise LocalizationError("no users")
+        if ids is None:
+            out = advance(self.state, self.fmap, self.params, self.rng, inputs, self.last_xy,
+                          self.consecutive)
+            rows = slice(None)
+        else:
+            rows = self.rows_of(ids)
+            sub = self.state.subset(rows)
+            cons = self.consecutive[rows]
+            out = advance(sub, self.fmap, self.params, self.rng, inputs, self.last_xy[rows],
+                          cons)
+            self.state.put(rows, sub)
+            self.consecutive[rows] = cons
+        self.last_xy[rows] = np.column_stack([out.x_m, out.y_m])
+        self.n_recoveries[rows] += out.recovered
+        return out

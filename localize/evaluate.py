@@ -1,0 +1,77 @@
+"""Localization errors: at waypoints, at every step, and their summaries (numpy only)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from localize.track import Track
+
+__all__ = ["plot_cdfs", "step_errors", "summarize", "waypoint_errors"]
+
+
+def waypoint_errors(track: Track, t_ms: ArrayLike, xy_m: ArrayLike) -> NDArray[np.float64]:
+    """Distance (m) between the track (interpolated in time) and reference points.
+
+    Parameters
+    ----------
+    track : Track
+    t_ms : array_like (k,)
+        Reference times (Unix ms), e.g. waypoint clicks.
+    xy_m : array_like (k, 2)
+        Reference positions (m).
+    """
+    ref = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
+    est = track.at(np.asarray(t_ms, dtype=np.float64))
+    return np.hypot(*(est - ref).T)
+
+
+def step_errors(track: Track, true_xy_m: ArrayLike) -> NDArray[np.float64]:
+    """Distance (m) between each step's estimate and the true position at that step."""
+    ref = np.asarray(true_xy_m, dtype=np.float64).reshape(-1, 2)
+    return np.hypot(track.x_m - ref[:, 0], track.y_m - ref[:, 1])
+
+
+def summarize(errors_m: ArrayLike) -> dict[str, float]:
+    """``n``, median, p80, mean and max of errors (NaN when empty).
+
+    Examples
+    --------
+    >>> summarize([1.0, 2.0, 3.0, 4.0, 5.0])["p80"]
+    4.2
+    """
+    e = np.asarray(errors_m, dtype=np.float64)
+    e = e[np.isfinite(e)]
+    if e.size == 0:
+        return {"n": 0, "median": float("nan"), "p80": float("nan"), "mean": float("nan"),
+                "max": float("nan")}
+    return {"n": int(e.size), "median": float(np.median(e)),
+            "p80": float(np.percentile(e, 80)), "mean": float(e.mean()),
+            "max": float(e.max())}
+
+
+def plot_cdfs(path: str | Path, errors: dict[str, NDArray], title: str = "") -> bool:
+    """Error CDFs per method as a PNG; False without matplotlib."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return False
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for name, e in errors.items():
+        e = np.sort(np.asarray(e)[np.isfinite(e)])
+        if e.size:
+            ax.plot(e, np.arange(1, e.size + 1) / e.size, label=name)
+    ax.set_xlabel("error (m)")
+    ax.set_ylabel("share")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True

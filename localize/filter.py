@@ -1,0 +1,276 @@
+"""The particle-filter localizer of one user: batch (:meth:`Localizer.run`) and streaming
+(:meth:`Localizer.start`, then :meth:`Localizer.step` per step).
+
+Paper 001, Algorithm 1: particles start on the reachable area around a fix (square of
+half-width ``delta``), move each step with their own step-length genomes and the map's heading
+offset (eqs. 13-15), die when they leave the reachable area, are weighted by the mass-centered
+magnetic update (eq. 12; or a baseline update, see :mod:`localize.update`), resampled
+systematically, and the estimate is their mean. When every particle has died the filter
+re-draws them around the last estimate with a growing spread (counted as a recovery).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from localize.bundle import MapBundle
+from localize.errors import LocalizationError
+from localize.floors import check_walk_fits
+from localize.maps import FilterMap
+from localize.params import FilterParams
+from localize.particles import (
+    ParticleState,
+    estimate,
+    init_state,
+    inject,
+    needed_layers,
+    resample,
+)
+from localize.stepper import StepInputs, advance
+from localize.steps import RadioScan, StepSummaries, StepSummary
+from localize.track import Estimate, Track
+from localize.update import radio_update
+
+__all__ = ["BaseLocalizer", "Localizer", "make_rng"]
+
+
+def make_rng(rng: np.random.Generator | int | None) -> np.random.Generator:
+    """A generator from a generator (used as is), a seed, or None (seed 0: reproducible)."""
+    if isinstance(rng, np.random.Generator):
+        return rng
+    return np.random.default_rng(0 if rng is None else rng)
+
+
+class BaseLocalizer:
+    """What every method shares: the start logic and the batch run over a walk.
+
+    Subclasses implement :meth:`_start_at` and :meth:`step`.
+    """
+
+    method = "base"
+    #: Whether the method reads the magnetometer (walks without one are refused).
+    needs_magnetometer = False
+
+    def __init__(self, bundle: MapBundle, *, radio=None) -> None:
+        self.bundle = bundle
+        self.radio = radio
+        self._last: Estimate | None = None
+
+    # -- start ---------------------------------------------------------------------------
+    def start(self, x_m: float | None = None, y_m: float | None = None, *, t_ms: float = 0.0,
+              scan: RadioScan | None = None, half_width_m: float | None = None) -> Estimate:
+        """Start at a given position, or at the radio fix of ``scan``.
+
+        Parameters
+        ----------
+        x_m, y_m : float, optional
+            Start position (m). Without it ``scan`` and the radio model give the start.
+        t_ms : float
+            Start time (Unix ms).
+        scan : RadioScan, optional
+        half_width_m : float, optional
+            ``delta`` (m); default from the parameters (and the fix's accuracy).
+
+        Raises
+        ------
+        LocalizationError
+            No position and no usable fix.
+        """
+        sigma = None
+        if x_m is None or y_m is None:
+            if scan is None or self.radio is None:
+                raise LocalizationError("no start position: give x_m, y_m or a radio model "
+                                        "and a scan")
+            fix = self.radio.locate(scan)
+            if fix is None:
+                raise LocalizationError("the radio model gives no fix for the start scan")
+            x_m, y_m, sigma = fix
+        self._last = self._start_at(float(x_m), float(y_m), float(t_ms), sigma, half_width_m)
+        return self._last
+
+    def _start_at(self, x: float, y: float, t_ms: float, sigma: float | None,
+                  half_width_m: float | None) -> Estimate:
+        raise NotImplementedError
+
+    def step(self, s: StepSummary) -> Estimate:
+        raise NotImplementedError
+
+    @property
+    def started(self) -> bool:
+        return self._last is not None
+
+    # -- batch ---------------------------------------------------------------------------
+    def check(self, steps: StepSummaries) -> None:
+        """Refuse walks this method cannot localize on its bundle (see
+        :func:`~localize.floors.check_walk_fits`)."""
+        check_walk_fits(self.bundle, steps)
+        if self.needs_magnetometer and not steps.has_magnetometer:
+            raise LocalizationError(f"{steps.trace_id or 'walk'}: no magnetometer values; "
+                                    f"method {self.method} needs the magnetic field")
+
+    def first_fix(self, steps: StepSummaries) -> tuple[float, float, float, float] | None:
+        """``(x, y, sigma, t_ms)`` of the first scan of the walk the radio model can locate."""
+        if self.radio is None or steps.scans is None:
+            return None
+        for i, scan in enumerate(steps.scans):
+            if scan is None:
+                continue
+            fix = self.radio.locate(scan)
+            if fix is not None:
+                return fix[0], fix[1], fix[2], float(steps.t_ms[i])
+        return None
+
+    def run(self, steps: StepSummaries, start_xy: tuple[float, float] | None = None, *,
+            start_t_ms: float | None = None, half_width_m: float | None = None) -> Track:
+        """Localize a whole walk.
+
+        Parameters
+        ----------
+        steps : StepSummaries
+        start_xy : (float, float), optional
+            Start position (m); default the first radio fix of the walk.
+        start_t_ms : float, optional
+            Time of the start (default half a second before the first step).
+        half_width_m : float, optional
+            ``delta`` of the start square (m).
+
+        Returns
+        -------
+        Track
+            One estimate per step.
+        """
+        self.check(steps)
+        t0 = float(steps.t_ms[0]) - 500.0 if start_t_ms is None else float(start_t_ms)
+        if start_xy is None:
+            fix = self.first_fix(steps)
+            if fix is None:
+                raise LocalizationError(f"{steps.trace_id or 'walk'}: no start position given "
+                                        "and no Wi-Fi/BLE fix in the walk")
+            start = self._start_at(fix[0], fix[1], t0, fix[2], half_width_m)
+        else:
+            start = self._start_at(float(start_xy[0]), float(start_xy[1]), t0, None,
+                                   half_width_m)
+        self._last = start
+        est = [self.step(s) for s in steps]
+        return Track.from_estimates(start, est, method=self.method, trace_id=steps.trace_id,
+                                    floor_id=self.bundle.floor_id)
+
+
+class Localizer(BaseLocalizer):
+    """Particle-filter localizer on one floor bundle.
+
+    Parameters
+    ----------
+    bundle : MapBundle
+        A floor bundle (grid, mask, layers ``strength``, ``azimuth``, ``polar``,
+        ``heading_offset``; missing layers switch their part off).
+    params : FilterParams, optional
+    radio : RadioModel, optional
+        Wi-Fi/BLE positioner for the start fix (and weight updates when
+        ``params.radio_update``).
+    rng : numpy.random.Generator or int, optional
+        Randomness (same seed and input: same trajectory).
+    method : str, optional
+        Name reported in tracks.
+    fmap : FilterMap, optional
+        Pre-packed layers (share one between localizers of the same bundle).
+
+    Examples
+    --------
+    >>> loc = Localizer(load_bundle("bundles/F1"), FilterParams(), rng=7)  # doctest: +SKIP
+    >>> track = loc.run(steps, start_xy=(12.0, 30.5))                      # doctest: +SKIP
+    >>> loc.start(12.0, 30.5); est = loc.step(steps[0])                    # doctest: +SKIP
+    """
+
+    method = "indoormap"
+
+    def __init__(self, bundle: MapBundle, params: FilterParams | None = None, *, radio=None,
+                 rng: np.random.Generator | int | None = None, method: str | None = None,
+                 fmap: FilterMap | None = None) -> None:
+        super().__init__(bundle, radio=radio)
+        self.params = params or FilterParams()
+        self.rng = make_rng(rng)
+        if method:
+            self.method = method
+        if fmap is None:
+            layers, stds = needed_layers(self.params)
+            fmap = FilterMap(bundle, layers, stds)
+        self.fmap = fmap
+        self.needs_magnetometer = self.params.weight_mode != "none"
+        self.state: ParticleState | None = None
+        self.n_recoveries = 0
+        self._consecutive = np.zeros(1, dtype=np.int64)
+
+    def _start_at(self, x: float, y: float, t_ms: float, sigma: float | None,
+                  half_width_m: float | None) -> Estimate:
+        p = self.params
+        hw = p.init_half_width_m if half_width_m is None else float(half_width_m)
+        if sigma is not None and half_width_m is None:
+            hw = max(hw, p.init_from_fix_scale * float(sigma))
+        n0 = max(p.n_particles_start, p.n_particles)
+        self.state = init_state(self.fmap, p, self.rng, np.array([[x, y]]), np.array([hw]),
+                                n=n0)
+        self._steps_since_start = 0
+        self.n_recoveries = 0
+        self._consecutive = np.zeros(1, dtype=np.int64)
+        mx, my, spread = estimate(self.state)
+        return Estimate(t_ms, float(mx[0]), float(my[0]), float(spread[0]), 1.0, False,
+                        self.bundle.floor_id)
+
+    def step(self, s: StepSummary) -> Estimate:
+        """Advance by one step and return the new estimate.
+
+        Raises
+        ------
+        LocalizationError
+            Called before :meth:`start`, or a step without a finite compass heading.
+        """
+        if self.state is None or self._last is None:
+            raise LocalizationError("call start() (or run()) before step()")
+        if not np.isfinite(s.compass_deg):
+            raise LocalizationError(f"step at {s.t_ms}: no compass heading")
+        st, p = self.state, self.params
+        inp = StepInputs(np.array([s.compass_deg]), np.array([s.frequency_hz]),
+                         np.array([s.turn_deg]), np.array([s.strength_ut]),
+                         np.array([s.azimuth_deg]), np.array([s.polar_deg]),
+                         np.array([s.attitude]), np.array([s.relative_heading_deg]),
+                         np.array([s.delta_acc_ms2]))
+        extra = None
+        if s.scan is not None and self.radio is not None and (
+                p.radio_update or p.radio_inject_fraction > 0):
+            def extra(state: ParticleState) -> None:
+                self._radio_step(state, s.scan)
+        out = advance(st, self.fmap, p, self.rng, inp,
+                      np.array([[self._last.x_m, self._last.y_m]]), self._consecutive,
+                      raw_strength_ut=s.mag_strength_ut, extra_update=extra)
+        recovered = bool(out.recovered[0])
+        self.n_recoveries += int(recovered)
+        self._steps_since_start += 1
+        if st.shape[1] > p.n_particles and (out.spread_m[0] < p.shrink_spread_m
+                                           or self._steps_since_start >= p.shrink_after_steps):
+            resample(st, self.rng, n_out=p.n_particles)
+        self._last = Estimate(float(s.t_ms), float(out.x_m[0]), float(out.y_m[0]),
+                              float(out.spread_m[0]), float(out.alive_fraction[0]), recovered,
+                              self.bundle.floor_id)
+        return self._last
+
+    def _radio_step(self, st: ParticleState, scan: RadioScan) -> None:
+        """Radio weight update and/or particle injection around the scan's fix."""
+        p = self.params
+        if p.radio_update:
+            radio_update(st, 0, self.radio, scan, p)
+        if p.radio_inject_fraction > 0:
+            fix = self.radio.locate(scan)
+            far = fix is not None and np.hypot(fix[0] - self._last.x_m, fix[1] - self._last.y_m
+                                               ) >= p.radio_inject_distance_m
+            if far:
+                hw = max(p.radio_sigma_floor_m, p.init_from_fix_scale * float(fix[2]))
+                inject(st, self.fmap, p, self.rng, 0, p.radio_inject_fraction, fix[:2], hw)
+
+    @property
+    def particles(self) -> tuple[NDArray, NDArray, NDArray]:
+        """Current particle positions and weights ``(x (n,), y (n,), w (n,))``."""
+        if self.state is None:
+            raise LocalizationError("not started")
+        return self.state.x[0], self.state.y[0], self.state.w[0]

@@ -1,0 +1,115 @@
+"""Which floor bundle a walk runs on, and the checks that a walk fits a bundle.
+
+A floor bundle answers for one floor. :class:`SiteMaps` holds the floor bundles of a site and
+picks one per walk: by the walk's floor id (trace header), else by a floor model (an object
+with ``floor_of(scan) -> floor id | None``, e.g. the site-level bundle's classifier once the
+mapping stage writes one, or :meth:`KnnRadioPositioner.floor_of`), else it refuses.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from typing import Protocol
+
+from localize.bundle import MapBundle
+from localize.errors import LocalizationError
+from localize.steps import StepSummaries
+
+__all__ = ["FloorModel", "SiteMaps", "check_walk_fits"]
+
+
+class FloorModel(Protocol):
+    def floor_of(self, scan) -> str | None:
+        """Floor id of a scan, or None when unsure."""
+
+
+def check_walk_fits(bundle: MapBundle, steps: StepSummaries) -> None:
+    """Refuse walks that cannot be localized on ``bundle``.
+
+    Raises
+    ------
+    LocalizationError
+        No steps; no magnetometer values (unless the caller runs a method without magnetic
+        update, see ``require_magnetometer`` of :meth:`Localizer.run`); the walk's site or
+        floor id differs from the bundle's.
+    """
+    where = steps.trace_id or "walk"
+    if len(steps) == 0:
+        raise LocalizationError(f"{where}: no steps detected, nothing to localize")
+    if steps.site_id and bundle.site_id and steps.site_id != bundle.site_id:
+        raise LocalizationError(f"{where}: recorded at site {steps.site_id}, but the bundle "
+                                f"{bundle.path} is of site {bundle.site_id}")
+    if steps.floor_id and bundle.floor_id and steps.floor_id != bundle.floor_id:
+        name = f" ({steps.floor_name})" if steps.floor_name else ""
+        raise LocalizationError(f"{where}: recorded on floor {steps.floor_id}{name}, but the "
+                                f"bundle {bundle.path} is floor {bundle.floor_id} "
+                                f"({bundle.manifest.get('floor_name', '')})")
+
+
+class SiteMaps:
+    """The floor bundles of one site.
+
+    Parameters
+    ----------
+    bundles : iterable of MapBundle
+        Floor bundles of one site (distinct floor ids).
+    floor_model : FloorModel, optional
+        Used when a walk carries no floor id.
+    """
+
+    def __init__(self, bundles: Iterable[MapBundle], floor_model: FloorModel | None = None):
+        self.bundles: dict[str, MapBundle] = {}
+        sites = set()
+        for b in bundles:
+            if b.grid is None:
+                continue  # a site-level bundle: holds the floor model later, no rasters
+            if b.floor_id in self.bundles:
+                raise LocalizationError(f"two bundles for floor {b.floor_id}")
+            self.bundles[b.floor_id] = b
+            sites.add(b.site_id)
+        if len(sites) > 1:
+            raise LocalizationError(f"bundles of several sites given: {sorted(sites)}")
+        if not self.bundles:
+            raise LocalizationError("no floor bundle given")
+        self.site_id = sites.pop()
+        self.floor_model = floor_model
+        self._by_name = {b.manifest.get("floor_name", ""): b for b in self.bundles.values()}
+
+    def select(self, steps: StepSummaries) -> MapBundle:
+        """The bundle of the walk's floor.
+
+        Raises
+        ------
+        LocalizationError
+            Another site, a floor without a bundle, or no way to tell the floor.
+        """
+        where = steps.trace_id or "walk"
+        if steps.site_id and steps.site_id != self.site_id:
+            raise LocalizationError(f"{where}: recorded at site {steps.site_id}, the bundles "
+                                    f"are of site {self.site_id}")
+        if steps.floor_id:
+            if steps.floor_id in self.bundles:
+                return self.bundles[steps.floor_id]
+            raise LocalizationError(f"{where}: unknown floor {steps.floor_id} "
+                                    f"({steps.floor_name or '?'}); bundles exist for "
+                                    f"{sorted(self._by_name)}")
+        if steps.floor_name and steps.floor_name in self._by_name:
+            return self._by_name[steps.floor_name]
+        if self.floor_model is not None and steps.scans is not None:
+            votes: dict[str, int] = {}
+            for scan in steps.scans:
+                if scan is None:
+                    continue
+                f = self.floor_model.floor_of(scan)
+                if f is not None:
+                    votes[f] = votes.get(f, 0) + 1
+            if votes:
+                best = max(votes, key=votes.get)
+                if best in self.bundles:
+                    return self.bundles[best]
+                raise LocalizationError(f"{where}: the floor model says floor {best}, which "
+                                        "has no bundle")
+        if len(self.bundles) == 1:
+            return next(iter(self.bundles.values()))
+        raise LocalizationError(f"{where}: the walk names no floor and no floor model decided; "
+                                f"floors: {sorted(self._by_name)}")

@@ -1,0 +1,147 @@
+"""Fingerprint matching kernels (numpy only, shared by the mapping stage and the localizer).
+
+Scans and reference points are dense matrices over one list of transmitters, RSSI in dBm with
+NaN = not heard. Matching works on the *powed* representation (Torres-Sospedra et al.)::
+
+    p = ((rssi - floor) / -floor) ** beta,   0 where not heard or below the floor,
+
+which keeps "not heard" at 0 without baking a fake RSSI into storage and lets strong
+transmitters dominate. The Sorensen (Bray-Curtis) distance between two such vectors,
+``sum |a - b| / sum (a + b)``, lies in [0, 1]. The Gaussian log-likelihood of eqs. 1-2 / 9-10 of
+the papers is here too, for the probabilistic matcher and the online RSSI calibration.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["age_weights", "euclidean_distances", "gaussian_loglik", "knn_positions", "powed",
+           "sorensen_distances"]
+
+FloatArray = NDArray[np.float64]
+
+
+def powed(rssi_dbm: FloatArray, floor_dbm: float = -100.0, beta: float = float(np.e)
+          ) -> FloatArray:
+    """Powed representation of RSSI (dBm) in [0, 1]; NaN (not heard) and values at or below
+    ``floor_dbm`` give 0."""
+    r = np.asarray(rssi_dbm, dtype=np.float64)
+    out = np.zeros(r.shape)
+    heard = r > floor_dbm  # False for NaN
+    out[heard] = np.minimum((r[heard] - floor_dbm) / -floor_dbm, 1.0) ** beta
+    return out
+
+
+def age_weights(age_ms: FloatArray, fresh_ms: float, decay_ms: float) -> FloatArray:
+    """Weight of a row by its age: 1 up to ``fresh_ms``, then ``exp(-(age - fresh) / decay)``.
+    NaN ages (not heard, or unknown) give 1."""
+    a = np.nan_to_num(np.asarray(age_ms, dtype=np.float64), nan=0.0)
+    return np.exp(-np.clip(a - fresh_ms, 0.0, None) / decay_ms)
+
+
+def sorensen_distances(q: FloatArray, r: FloatArray) -> FloatArray:
+    """Sorensen distance between every row of ``q`` (S, A) and of ``r`` (R, A), both >= 0.
+
+    Only the columns a query hears are visited (``min(a, b) = 0`` elsewhere), so the cost is
+    S * R * (transmitters per scan). Two all-zero rows are at distance 1.
+    """
+    q = np.asarray(q, dtype=np.float64)
+    r = np.asarray(r, dtype=np.float64)
+    out = np.ones((len(q), len(r)))
+    if len(q) == 0 or len(r) == 0:
+        return out
+    r_sum = r.sum(axis=1)
+    r32 = r.astype(np.float32)
+    for i, row in enumerate(q):
+        nz = np.flatnonzero(row > 0)
+        if len(nz) == 0:
+            continue
+        common = np.minimum(r32[:, nz], row[nz].astype(np.float32)).sum(axis=1, dtype=np.float64)
+        denom = row[nz].sum() + r_sum
+        out[i] = 1.0 - 2.0 * common / denom
+    return out
+
+
+def euclidean_distances(q: FloatArray, r: FloatArray) -> FloatArray:
+    """Euclidean distance between every row of ``q`` (S, A) and of ``r`` (R, A)."""
+    q = np.asarray(q, dtype=np.float64)
+    r = np.asarray(r, dtype=np.float64)
+    d2 = (q ** 2).sum(1)[:, None] + (r ** 2).sum(1)[None, :] - 2.0 * q @ r.T
+    return np.sqrt(np.maximum(d2, 0.0))
+
+
+def knn_positions(dist: FloatArray, xy_m: FloatArray, k: int, power: float = 1.0
+                  ) -> tuple[FloatArray, FloatArray, NDArray[np.intp]]:
+    """Weighted mean position of the k nearest references of every query.
+
+    Parameters
+    ----------
+    dist : ndarray, shape (S, R)
+        Signal distances (any metric; smaller is closer).
+    xy_m : ndarray, shape (R, 2)
+        Reference positions (m).
+    k : int
+        Neighbours (at most R).
+    power : float
+        Weights ``1 / dist ** power`` (0 = plain mean).
+
+    Returns
+    -------
+    xy : ndarray, shape (S, 2)
+        Estimated positions (m).
+    d_mean : ndarray, shape (S,)
+        Mean distance of the k neighbours (a match score: lower is better).
+    nn : ndarray, shape (S, k)
+        Indexes of the neighbours, nearest first.
+    """
+    dist = np.asarray(dist, dtype=np.float64)
+    k = int(min(max(k, 1), dist.shape[1]))
+    if k < dist.shape[1]:
+        nn = np.argpartition(dist, k - 1, axis=1)[:, :k]
+    else:
+        nn = np.tile(np.arange(dist.shape[1]), (len(dist), 1))
+    d = np.take_along_axis(dist, nn, axis=1)
+    order = np.argsort(d, axis=1)
+    nn, d = np.take_along_axis(nn, order, 1), np.take_along_axis(d, order, 1)
+    w = 1.0 / np.maximum(d, 1e-9) ** power
+    xy = (xy_m[nn] * w[..., None]).sum(axis=1) / w.sum(axis=1, keepdims=True)
+    return xy, d.mean(axis=1), nn
+
+
+def gaussian_loglik(rssi_dbm: FloatArray, mean_dbm: FloatArray, var_db2: FloatArray,
+                    detect_p: FloatArray, *, var_floor_db2: float = 9.0,
+                    missing_mean_dbm: float = -95.0, missing_var_db2: float = 49.0
+                    ) -> FloatArray:
+    """Log-likelihood of every scan at every reference point (independent transmitters).
+
+    For a transmitter the scan heard with RSSI ``v``:
+
+    - known at the reference point: ``log p + log N(v; mean, max(var, var_floor))``;
+    - not heard there: ``log p + log N(v; missing_mean, missing_var)`` (a weak, wide guess);
+
+    with ``p`` the detection probability at the reference point (``detect_p``, which the
+    caller smooths so that it is never 0). Transmitters the scan did not hear add nothing
+    (absence is too often a missed sweep to count as evidence).
+
+    Parameters
+    ----------
+    rssi_dbm : ndarray, shape (S, A)
+        Scans; NaN = not heard.
+    mean_dbm, var_db2, detect_p : ndarray, shape (R, A)
+        Per reference point and transmitter; ``mean_dbm`` NaN where never heard, ``var_db2``
+        NaN where unknown (fewer than two samples: ``var_floor_db2`` is used).
+
+    Returns
+    -------
+    ndarray, shape (S, R)
+    """
+    heard = np.isfinite(rssi_dbm).astype(np.float64)
+    v = np.nan_to_num(np.asarray(rssi_dbm, dtype=np.float64), nan=0.0)
+    have = np.isfinite(mean_dbm)
+    m = np.where(have, mean_dbm, missing_mean_dbm)
+    s2 = np.where(have, np.maximum(np.nan_to_num(var_db2, nan=var_floor_db2), var_floor_db2),
+                  missing_var_db2)
+    p = np.clip(np.asarray(detect_p, dtype=np.float64), 1e-6, 1.0)
+    const = np.log(p) - 0.5 * np.log(2.0 * np.pi * s2) - m ** 2 / (2.0 * s2)
+    return heard @ const.T + (v ** 2) @ (-0.5 / s2).T + v @ (m / s2).T

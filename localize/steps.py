@@ -1,0 +1,242 @@
+"""Per-step sensor summaries: what the localizer consumes, one record per detected step.
+
+The survey side (:mod:`survey.step_summaries`) turns a trace into :class:`StepSummaries`; a phone
+or a server streams one :class:`StepSummary` at a time into :meth:`Localizer.step`. Both are
+plain numpy (no pandas), so the runtime stays light.
+
+Conventions: times in Unix ms; headings are azimuths in degrees clockwise from map north (+y);
+the field features are those of :mod:`survey.field_features` (strength uT, azimuth of the
+horizontal field deg, polar angle from up deg), averaged over the step cycle (the interval from
+the previous step to this one).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import IntEnum
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from localize.errors import LocalizationError
+
+__all__ = ["AttitudeCode", "RadioScan", "StepSummaries", "StepSummary", "attitude_codes"]
+
+
+class AttitudeCode(IntEnum):
+    """Phone attitude of a step as a small integer (names as in :mod:`survey.attitude`)."""
+
+    UNKNOWN = 0
+    UFH = 1
+    UFNH = 2
+    UNF = 3
+    NOT_UPWARD = 4
+
+
+_NAMES = {"UNKNOWN": 0, "UFH": 1, "UFNH": 2, "UNF": 3, "NU": 4, "NOT_UPWARD": 4}
+
+
+def attitude_codes(names: ArrayLike) -> NDArray[np.int8]:
+    """Attitude names (``"UFH"``, ``"UNF"``, ``"NU"``, ...) to :class:`AttitudeCode` values.
+
+    Unknown names map to ``UNKNOWN`` (0).
+
+    Examples
+    --------
+    >>> attitude_codes(["UFH", "NU", "?"]).tolist()
+    [1, 4, 0]
+    """
+    arr = np.asarray(names, dtype=object).ravel()
+    return np.array([_NAMES.get(str(a), 0) for a in arr], dtype=np.int8)
+
+
+@dataclass(frozen=True)
+class RadioScan:
+    """One Wi-Fi (or BLE) scan: transmitter keys and RSSI.
+
+    Attributes
+    ----------
+    t_ms : int
+        Scan time (Unix ms).
+    keys : ndarray of str, shape (k,)
+        BSSIDs (lower-case, colon separated) or beacon keys; unique within the scan.
+    rssi_dbm : ndarray of float, shape (k,)
+        Received signal strength (dBm).
+    """
+
+    t_ms: int
+    keys: NDArray[np.str_]
+    rssi_dbm: NDArray[np.float64]
+
+    def __post_init__(self) -> None:
+        if len(self.keys) != len(self.rssi_dbm):
+            raise LocalizationError(f"scan at {self.t_ms}: {len(self.keys)} keys but "
+                                    f"{len(self.rssi_dbm)} RSSI values")
+
+    def __len__(self) -> int:
+        return len(self.keys)
+
+
+@dataclass(frozen=True)
+class StepSummary:
+    """The sensor summary of one step (scalars, plus optional raw samples and a scan).
+
+    Attributes
+    ----------
+    t_ms : float
+        Step time (Unix ms).
+    frequency_hz : float
+        Step frequency (Hz); NaN when unknown (the filter uses its nominal frequency).
+    delta_acc_ms2 : float
+        Peak-to-valley acceleration swing of the step (m/s^2), for Weinberg-type models.
+    compass_deg : float
+        Compass heading of the phone over the step (deg clockwise from map north).
+    turn_deg : float
+        Heading change over the step (deg, signed; gyroscope when available).
+    strength_ut, azimuth_deg, polar_deg : float
+        Earth-frame field features averaged over the step cycle; NaN when not measured.
+    attitude : int
+        :class:`AttitudeCode` of the step.
+    relative_heading_deg : float
+        Gyroscope heading (deg, unwrapped, arbitrary origin); NaN without a gyroscope.
+    mag_strength_ut : ndarray or None
+        Raw magnetometer strength samples of the step cycle (uT), for DTW matching.
+    scan : RadioScan or None
+        A Wi-Fi/BLE scan that arrived during the step.
+    """
+
+    t_ms: float
+    frequency_hz: float
+    delta_acc_ms2: float
+    compass_deg: float
+    turn_deg: float
+    strength_ut: float
+    azimuth_deg: float
+    polar_deg: float
+    attitude: int = int(AttitudeCode.UNKNOWN)
+    relative_heading_deg: float = float("nan")
+    mag_strength_ut: NDArray[np.float64] | None = None
+    scan: RadioScan | None = None
+
+
+_FLOAT_COLUMNS = ("frequency_hz", "delta_acc_ms2", "compass_deg", "turn_deg", "strength_ut",
+                  "azimuth_deg", "polar_deg", "relative_heading_deg")
+
+
+@dataclass(frozen=True)
+class StepSummaries:
+    """The steps of one walk, column-wise; every array has shape (m,).
+
+    Attributes
+    ----------
+    t_ms : ndarray of float
+        Step times (Unix ms), strictly increasing.
+    frequency_hz, delta_acc_ms2, compass_deg, turn_deg, strength_ut, azimuth_deg, polar_deg,
+    relative_heading_deg : ndarray of float
+        As in :class:`StepSummary`.
+    attitude : ndarray of int8
+        :class:`AttitudeCode` per step.
+    mag_offsets : ndarray of int64, shape (m + 1,), optional
+        Step ``i``'s raw magnetometer samples are ``mag_strength_ut[mag_offsets[i]:
+        mag_offsets[i + 1]]``.
+    mag_strength_ut : ndarray of float, optional
+        Raw magnetometer strength samples of all steps, concatenated (uT).
+    scans : tuple of (RadioScan or None), optional
+        One entry per step: the scan that arrived during that step, if any.
+    trace_id, site_id, floor_id, floor_name : str
+        Where the walk was recorded (from the trace header; empty when unknown).
+    """
+
+    t_ms: NDArray[np.float64]
+    frequency_hz: NDArray[np.float64]
+    delta_acc_ms2: NDArray[np.float64]
+    compass_deg: NDArray[np.float64]
+    turn_deg: NDArray[np.float64]
+    strength_ut: NDArray[np.float64]
+    azimuth_deg: NDArray[np.float64]
+    polar_deg: NDArray[np.float64]
+    attitude: NDArray[np.int8]
+    relative_heading_deg: NDArray[np.float64] | None = None
+    mag_offsets: NDArray[np.int64] | None = None
+    mag_strength_ut: NDArray[np.float64] | None = None
+    scans: tuple[RadioScan | None, ...] | None = None
+    trace_id: str = ""
+    site_id: str = ""
+    floor_id: str = ""
+    floor_name: str = ""
+    extra: dict = field(default_factory=dict, compare=False)
+
+    def __post_init__(self) -> None:
+        m = len(np.asarray(self.t_ms))
+        obj = object.__setattr__
+        obj(self, "t_ms", np.asarray(self.t_ms, dtype=np.float64).ravel())
+        if self.relative_heading_deg is None:
+            obj(self, "relative_heading_deg", np.full(m, np.nan))
+        for name in _FLOAT_COLUMNS:
+            arr = np.asarray(getattr(self, name), dtype=np.float64).ravel()
+            if len(arr) != m:
+                raise LocalizationError(f"step summaries: column {name} has {len(arr)} values, "
+                                        f"t_ms has {m}")
+            obj(self, name, arr)
+        att = np.asarray(self.attitude).ravel()
+        if len(att) != m:
+            raise LocalizationError(f"step summaries: attitude has {len(att)} values, t_ms {m}")
+        obj(self, "attitude", att.astype(np.int8))
+        if not np.all(np.isfinite(self.t_ms)) or np.any(np.diff(self.t_ms) <= 0):
+            raise LocalizationError("step summaries: step times must be finite and strictly "
+                                    "increasing")
+        if not np.all(np.isfinite(self.compass_deg)):
+            raise LocalizationError("step summaries: every step needs a finite compass heading")
+        if (self.mag_offsets is None) != (self.mag_strength_ut is None):
+            raise LocalizationError("step summaries: mag_offsets and mag_strength_ut go "
+                                    "together")
+        if self.mag_offsets is not None:
+            off = np.asarray(self.mag_offsets, dtype=np.int64).ravel()
+            raw = np.asarray(self.mag_strength_ut, dtype=np.float64).ravel()
+            if (len(off) != m + 1 or (m and (off[0] != 0 or off[-1] != len(raw)))
+                    or np.any(np.diff(off) < 0)):
+                raise LocalizationError("step summaries: mag_offsets must be non-decreasing "
+                                        "from 0 to len(mag_strength_ut), one more than steps")
+            obj(self, "mag_offsets", off)
+            obj(self, "mag_strength_ut", raw)
+        if self.scans is not None:
+            if len(self.scans) != m:
+                raise LocalizationError(f"step summaries: {len(self.scans)} scan slots for {m} "
+                                        "steps")
+            obj(self, "scans", tuple(self.scans))
+
+    def __len__(self) -> int:
+        return len(self.t_ms)
+
+    @property
+    def has_magnetometer(self) -> bool:
+        """Whether any step carries a measured field strength."""
+        return bool(np.isfinite(self.strength_ut).any())
+
+    def __getitem__(self, i: int) -> StepSummary:
+        i = int(i)
+        if i < 0:
+            i += len(self)
+        if not 0 <= i < len(self):
+            raise IndexError(f"step {i} out of range for {len(self)} steps")
+        raw = None
+        if self.mag_offsets is not None:
+            raw = self.mag_strength_ut[self.mag_offsets[i]:self.mag_offsets[i + 1]]
+        return StepSummary(
+            t_ms=float(self.t_ms[i]), frequency_hz=float(self.frequency_hz[i]),
+            delta_acc_ms2=float(self.delta_acc_ms2[i]), compass_deg=float(self.compass_deg[i]),
+            turn_deg=float(self.turn_deg[i]), strength_ut=float(self.strength_ut[i]),
+            azimuth_deg=float(self.azimuth_deg[i]), polar_deg=float(self.polar_deg[i]),
+            attitude=int(self.attitude[i]),
+            relative_heading_deg=float(self.relative_heading_deg[i]),
+            mag_strength_ut=raw, scan=None if self.scans is None else self.scans[i])
+
+    def __iter__(self):
+        for i in range(len(self)):
+            yield self[i]
+
+    def with_columns(self, **columns) -> StepSummaries:
+        """A copy with some columns replaced (e.g. smoothed strength)."""
+        from dataclasses import replace
+
+        return replace(self, **columns)

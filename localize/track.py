@@ -1,0 +1,117 @@
+"""Results of localization: one estimate per step, and a walk's track."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = ["Estimate", "Track"]
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """The position estimate after one step (or after the start).
+
+    Attributes
+    ----------
+    t_ms : float
+        Time of the step (Unix ms).
+    x_m, y_m : float
+        Estimated position (map frame, m).
+    spread_m : float
+        RMS distance of the particles from the estimate (m); 0 for single-point methods.
+    alive_fraction : float
+        Share of particles whose last move stayed reachable (before resampling).
+    recovered : bool
+        True when all particles had died and were re-drawn around the last estimate.
+    floor_id : str
+    """
+
+    t_ms: float
+    x_m: float
+    y_m: float
+    spread_m: float = 0.0
+    alive_fraction: float = 1.0
+    recovered: bool = False
+    floor_id: str = ""
+
+
+@dataclass
+class Track:
+    """Per-step estimates of one walk (arrays of shape (m,)), plus the start estimate.
+
+    Attributes
+    ----------
+    t_ms, x_m, y_m, spread_m, alive_fraction : ndarray
+    recovered : ndarray of bool
+    start : Estimate
+        Where the filter started (before the first step).
+    method : str
+    trace_id, floor_id : str
+    n_recoveries : int
+    """
+
+    t_ms: NDArray[np.float64]
+    x_m: NDArray[np.float64]
+    y_m: NDArray[np.float64]
+    spread_m: NDArray[np.float64]
+    alive_fraction: NDArray[np.float64]
+    recovered: NDArray[np.bool_]
+    start: Estimate
+    method: str = ""
+    trace_id: str = ""
+    floor_id: str = ""
+    info: dict = field(default_factory=dict)
+
+    @classmethod
+    def from_estimates(cls, start: Estimate, estimates: list[Estimate], **kw) -> Track:
+        def col(name, dtype=np.float64):
+            return np.array([getattr(e, name) for e in estimates], dtype=dtype)
+
+        return cls(col("t_ms"), col("x_m"), col("y_m"), col("spread_m"), col("alive_fraction"),
+                   col("recovered", bool), start, **kw)
+
+    def __len__(self) -> int:
+        return len(self.t_ms)
+
+    @property
+    def n_recoveries(self) -> int:
+        return int(np.count_nonzero(self.recovered))
+
+    @property
+    def xy_m(self) -> NDArray[np.float64]:
+        return np.column_stack([self.x_m, self.y_m])
+
+    def at(self, t_ms: ArrayLike) -> NDArray[np.float64]:
+        """Positions (k, 2) at times, linear between steps; before the first step the track
+        moves from the start position (at the start time) to the first step; after the last
+        step it stays."""
+        t = np.asarray(t_ms, dtype=np.float64)
+        tt = np.concatenate([[self.start.t_ms], self.t_ms]) if len(self) else np.array(
+            [self.start.t_ms])
+        xx = np.concatenate([[self.start.x_m], self.x_m])
+        yy = np.concatenate([[self.start.y_m], self.y_m])
+        if len(tt) > 1 and tt[0] >= tt[1]:
+            tt = tt[1:]
+            xx, yy = xx[1:], yy[1:]
+        return np.column_stack([np.interp(t, tt, xx), np.interp(t, tt, yy)])
+
+    def to_columns(self) -> dict[str, NDArray]:
+        """Plain columns for a table: step, t_ms, x_m, y_m, spread_m, alive_fraction,
+        recovered."""
+        return {"step": np.arange(len(self), dtype=np.int32),
+                "t_ms": self.t_ms.astype(np.int64), "x_m": self.x_m, "y_m": self.y_m,
+                "spread_m": self.spread_m, "alive_fraction": self.alive_fraction,
+                "recovered": self.recovered}
+
+    def to_arrow(self):
+        """The track as a pyarrow Table (metadata: method, trace id, floor id)."""
+        import pyarrow as pa
+
+        table = pa.table(self.to_columns())
+        meta = {"method": self.method, "trace_id": self.trace_id, "floor_id": self.floor_id,
+                "start_x_m": repr(self.start.x_m), "start_y_m": repr(self.start.y_m),
+                "n_recoveries": str(self.n_recoveries)}
+        return table.replace_schema_metadata({k: str(v) for k, v in meta.items()})

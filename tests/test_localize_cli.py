@@ -1,0 +1,59 @@
+"""``indoormap localize`` and ``indoormap evaluate``."""
+
+from __future__ import annotations
+
+import numpy as np
+import pyarrow.parquet as pq
+from click.testing import CliRunner
+from localize_fixtures import SAMPLE, truth_bundles  # noqa: F401  (fixture)
+
+from survey.cli import main
+
+F1_WALKS = SAMPLE / "F1" / "path_data_files"
+
+
+def test_localize_writes_positions_and_plots(truth_bundles, tmp_path):  # noqa: F811
+    walk = min(F1_WALKS.glob("*.txt.gz"))
+    res = CliRunner().invoke(main, ["localize", str(truth_bundles["F1"]), str(walk), "-o",
+                                    str(tmp_path / "out"), "--particles", "200"])
+    assert res.exit_code == 0, res.output
+    tid = walk.name.split(".")[0]
+    table = pq.read_table(tmp_path / "out" / f"{tid}.parquet")
+    assert {"step", "t_ms", "x_m", "y_m", "spread_m"} <= set(table.column_names)
+    assert table.num_rows > 20 and np.isfinite(table.column("x_m").to_numpy()).all()
+    assert table.schema.metadata[b"method"] == b"indoormap"
+    assert (tmp_path / "out" / f"{tid}.png").stat().st_size > 1000
+    assert "start first waypoint" in res.output
+
+
+def test_localize_csv_on_a_folder_of_bundles(truth_bundles, tmp_path):  # noqa: F811
+    walk = min((SAMPLE / "F2" / "path_data_files").glob("*.txt.gz"))
+    bundles = truth_bundles["F1"].parent  # holds F1 and F2: the walk's floor decides
+    res = CliRunner().invoke(main, ["localize", str(bundles), str(walk), "-o", str(tmp_path),
+                                    "--format", "csv", "--no-plot", "--method", "pdr",
+                                    "--start", "20,10"])
+    assert res.exit_code == 0, res.output
+    assert "(F2)" in res.output and "start given" in res.output
+    assert len(list(tmp_path.glob("*.csv"))) == 1 and not list(tmp_path.glob("*.png"))
+
+
+def test_localize_errors_exit_1(truth_bundles, tmp_path):  # noqa: F811
+    walk = min((SAMPLE / "F2" / "path_data_files").glob("*.txt.gz"))
+    res = CliRunner().invoke(main, ["localize", str(truth_bundles["F1"]), str(walk), "-o",
+                                    str(tmp_path)])
+    assert res.exit_code == 1
+    assert "floor" in res.output
+    f1_walk = min((SAMPLE / "F1" / "path_data_files").glob("*.txt.gz"))
+    res = CliRunner().invoke(main, ["localize", str(truth_bundles["F1"]), str(f1_walk), "-o",
+                                    str(tmp_path), "--start", "nonsense"])
+    assert res.exit_code == 2, res.output
+
+
+def test_evaluate_prints_errors_and_cdfs(truth_bundles, tmp_path):  # noqa: F811
+    res = CliRunner().invoke(main, ["evaluate", str(truth_bundles["F1"]), str(F1_WALKS),
+                                    "--methods", "indoormap,pdr", "--particles", "150",
+                                    "--plot", str(tmp_path / "cdf.png")])
+    assert res.exit_code == 0, res.output
+    lines = {ln.split()[0]: ln.split() for ln in res.output.splitlines() if ln.strip()}
+    assert float(lines["indoormap"][2]) < float(lines["pdr"][2])  # median error
+    assert (tmp_path / "cdf.png").exists()

@@ -1,0 +1,210 @@
+"""The particle-filter localizer on simulated walks with a known map."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from localize_fixtures import f1_bundle, sim_walks, truth_bundles  # noqa: F401  (fixtures)
+
+from localize.baselines import METHODS, make_localizer
+from localize.bundle import load_bundle
+from localize.engine import MultiUserEngine
+from localize.errors import LocalizationError
+from localize.evaluate import step_errors, summarize
+from localize.filter import Localizer
+from localize.floors import SiteMaps
+from localize.params import FilterParams
+from localize.radio import KnnRadioPositioner
+from localize.stepper import StepInputs
+
+RUNTIME_MODULES = ["localize", "localize.bundle", "localize.errors", "localize.steps",
+                   "localize.maps", "localize.params", "localize.particles", "localize.weights",
+                   "localize.update", "localize.resample", "localize.stepper", "localize.filter",
+                   "localize.baselines", "localize.engine", "localize.radio", "localize.floors",
+                   "localize.track", "localize.evaluate", "localize.cli"]
+
+
+def test_runtime_imports_no_scipy_pandas_sklearn():
+    code = ("import sys\n"
+            + "".join(f"import {m}\n" for m in RUNTIME_MODULES)
+            + "bad = sorted(m for m in sys.modules if m.split('.')[0] in "
+              "('scipy', 'pandas', 'sklearn', 'shapely', 'numba', 'matplotlib'))\n"
+              "print(','.join(bad))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.strip() == "", f"runtime pulled in: {out.stdout}"
+
+
+def _f1(sim_walks):  # noqa: F811
+    return [w for w in sim_walks if w.floor == "F1"]
+
+
+def test_same_seed_same_trajectory(f1_bundle, sim_walks):  # noqa: F811
+    w = _f1(sim_walks)[0]
+    runs = [Localizer(f1_bundle, FilterParams(), rng=11).run(w.steps, start_xy=w.start_xy)
+            for _ in range(2)]
+    assert np.array_equal(runs[0].x_m, runs[1].x_m)
+    assert np.array_equal(runs[0].y_m, runs[1].y_m)
+    other = Localizer(f1_bundle, FilterParams(), rng=12).run(w.steps, start_xy=w.start_xy)
+    assert not np.array_equal(runs[0].x_m, other.x_m)
+    # an injected generator is used as is
+    g1, g2 = np.random.default_rng(5), np.random.default_rng(5)
+    a = Localizer(f1_bundle, rng=g1).run(w.steps, start_xy=w.start_xy)
+    b = Localizer(f1_bundle, rng=g2).run(w.steps, start_xy=w.start_xy)
+    assert np.array_equal(a.x_m, b.x_m)
+
+
+def test_streaming_equals_batch(f1_bundle, sim_walks):  # noqa: F811
+    w = _f1(sim_walks)[1]
+    batch = Localizer(f1_bundle, rng=3).run(w.steps, start_xy=w.start_xy)
+    loc = Localizer(f1_bundle, rng=3)
+    loc.start(*w.start_xy, t_ms=w.steps.t_ms[0] - 500.0)
+    xs = [loc.step(s).x_m for s in w.steps]
+    assert np.array_equal(xs, batch.x_m)
+
+
+def test_converges_on_simulated_walks(f1_bundle, sim_walks):  # noqa: F811
+    """Truth map, start within 2 m of the truth: the default filter tracks every walk.
+
+    Bound: median per-step error below 1.0 m and p80 below 1.5 m over all F1 walks (on this
+    site the filter achieves ~0.4 m median, PDR ~2 m; the walker strays 0.6-1.8 m from the
+    waypoint lines, so PDR errors grow along the walk while the filter's do not)."""
+    errs, pdr = [], []
+    for w in _f1(sim_walks):
+        t = Localizer(f1_bundle, FilterParams(), rng=1).run(w.steps, start_xy=w.start_xy)
+        e = step_errors(t, w.true_xy)
+        assert np.median(e) < 1.5, w.trace_id
+        errs.append(e)
+        p = make_localizer("pdr", f1_bundle).run(w.steps, start_xy=w.start_xy)
+        pdr.append(step_errors(p, w.true_xy))
+    s, sp = summarize(np.concatenate(errs)), summarize(np.concatenate(pdr))
+    assert s["median"] < 1.0 and s["p80"] < 1.5, s
+    assert s["median"] < 0.6 * sp["median"], (s, sp)
+
+
+@pytest.mark.parametrize("method", sorted(METHODS))
+def test_every_method_runs(f1_bundle, sim_walks, method):  # noqa: F811
+    walks = _f1(sim_walks)
+    w = max(walks, key=lambda v: sum(s is not None for s in v.steps.scans))
+    scans = [(s, xy) for v in walks if v is not w
+             for s, xy in zip(v.steps.scans, v.true_xy) if s is not None]
+    radio = KnnRadioPositioner.from_scans(np.array([xy for _, xy in scans]),
+                                          [s for s, _ in scans])
+    loc = make_localizer(method, f1_bundle, FilterParams(n_particles=100), radio=radio, rng=0)
+    track = loc.run(w.steps)  # start from the first Wi-Fi fix
+    assert len(track) == len(w.steps) and np.isfinite(track.x_m).all()
+    assert track.method == method
+    assert np.median(step_errors(track, w.true_xy)) < 15.0
+
+
+def test_engine_matches_single_user_and_scales(f1_bundle, sim_walks):  # noqa: F811
+    w = _f1(sim_walks)[0]
+    p = FilterParams(n_particles_start=0)  # the engine keeps n_particles from the start
+    ref = Localizer(f1_bundle, p, rng=9).run(w.steps, start_xy=w.start_xy)
+    eng = MultiUserEngine(f1_bundle, p, rng=9)
+    ids = eng.add_users([w.start_xy])
+    cols = ["compass_deg", "frequency_hz", "turn_deg", "strength_ut", "azimuth_deg",
+            "polar_deg", "attitude"]
+    xs = []
+    for i in range(len(w.steps)):
+        out = eng.tick(ids, StepInputs(*(np.array([getattr(w.steps, c)[i]]) for c in cols)))
+        xs.append(out.x_m[0])
+    assert np.allclose(xs, ref.x_m)
+    # many users of all F1 walks at once, float32 particles: every user is tracked
+    walks = _f1(sim_walks)
+    eng = MultiUserEngine(f1_bundle, p, rng=2, dtype=np.float32)
+    ids = eng.add_users(np.array([v.start_xy for v in walks]))
+    n = min(len(v.steps) for v in walks)
+    est = []
+    for i in range(n):
+        out = eng.tick(ids, StepInputs(*(np.array([getattr(v.steps, c)[i] for v in walks])
+                                         for c in cols)))
+        est.append(np.column_stack([out.x_m, out.y_m]))
+    est = np.stack(est, axis=1)  # (users, steps, 2)
+    for k, v in enumerate(walks):
+        err = np.hypot(*(est[k] - v.true_xy[:n]).T)
+        assert np.median(err) < 2.0, v.trace_id
+    assert eng.bytes_per_user < 40_000
+    # a subset of users ticks alone; removing users keeps the others
+    eng.tick(ids[:2], StepInputs(*(np.array([getattr(v.steps, c)[n - 1] for v in walks[:2]])
+                                   for c in cols)))
+    eng.remove_users(ids[:1])
+    assert eng.n_users == len(walks) - 1
+    with pytest.raises(LocalizationError):
+        eng.tick(ids[:1], StepInputs(*(np.zeros(1) for _ in cols)))
+
+
+def test_recovery_when_all_particles_die(f1_bundle, sim_walks):  # noqa: F811
+    w = _f1(sim_walks)[0]
+    # compass turned by 90 deg: particles walk into walls, die, and are re-drawn
+    bad = w.steps.with_columns(compass_deg=(w.steps.compass_deg + 90.0) % 360.0)
+    loc = Localizer(f1_bundle, FilterParams(n_particles=100), rng=0)
+    track = loc.run(bad, start_xy=w.start_xy)
+    assert track.n_recoveries > 0 and loc.n_recoveries == track.n_recoveries
+    assert np.isfinite(track.x_m).all()
+    assert f1_bundle.reachable(track.x_m, track.y_m).mean() > 0.5
+
+
+# -- bad input ------------------------------------------------------------------------------
+
+def test_walk_without_steps(f1_bundle, sim_walks):  # noqa: F811
+    w = _f1(sim_walks)[0]
+    empty = w.steps.with_columns(**{c: getattr(w.steps, c)[:0] for c in (
+        "t_ms", "frequency_hz", "delta_acc_ms2", "compass_deg", "turn_deg", "strength_ut",
+        "azimuth_deg", "polar_deg", "attitude", "relative_heading_deg")},
+        mag_offsets=np.zeros(1, dtype=np.int64), mag_strength_ut=np.empty(0), scans=())
+    with pytest.raises(LocalizationError, match="no steps"):
+        Localizer(f1_bundle).run(empty, start_xy=w.start_xy)
+
+
+def test_walk_without_magnetometer(f1_bundle, sim_walks):  # noqa: F811
+    w = _f1(sim_walks)[0]
+    nan = np.full(len(w.steps), np.nan)
+    no_mag = w.steps.with_columns(strength_ut=nan, azimuth_deg=nan, polar_deg=nan)
+    with pytest.raises(LocalizationError, match="no magnetometer"):
+        Localizer(f1_bundle).run(no_mag, start_xy=w.start_xy)
+    # methods without magnetic update still run
+    make_localizer("pf_no_mag", f1_bundle).run(no_mag, start_xy=w.start_xy)
+
+
+def test_bundle_of_another_floor_or_site(truth_bundles, sim_walks):  # noqa: F811
+    f2 = load_bundle(truth_bundles["F2"])
+    w = _f1(sim_walks)[0]
+    with pytest.raises(LocalizationError, match="floor"):
+        Localizer(f2).run(w.steps, start_xy=w.start_xy)
+    other_site = replace(w.steps, site_id="another-site")
+    with pytest.raises(LocalizationError, match="site"):
+        Localizer(load_bundle(truth_bundles["F1"])).run(other_site, start_xy=w.start_xy)
+
+
+def test_unknown_floor(truth_bundles, sim_walks):  # noqa: F811
+    maps = SiteMaps([load_bundle(truth_bundles["F1"]), load_bundle(truth_bundles["F2"])])
+    w = _f1(sim_walks)[0]
+    assert maps.select(w.steps).floor_id == w.steps.floor_id
+    with pytest.raises(LocalizationError, match="unknown floor"):
+        maps.select(replace(w.steps, floor_id="nope", floor_name="F9"))
+    with pytest.raises(LocalizationError, match="site"):
+        maps.select(replace(w.steps, site_id="elsewhere"))
+    with pytest.raises(LocalizationError, match="no floor"):
+        maps.select(replace(w.steps, floor_id="", floor_name=""))
+
+
+def test_other_bad_calls(f1_bundle, sim_walks):  # noqa: F811
+    w = _f1(sim_walks)[0]
+    loc = Localizer(f1_bundle)
+    with pytest.raises(LocalizationError, match="start"):
+        loc.step(w.steps[0])
+    with pytest.raises(LocalizationError, match="no reachable"):
+        loc.start(5000.0, 5000.0)
+    with pytest.raises(LocalizationError, match="no start position"):
+        loc.run(w.steps)  # neither a start nor a radio model
+    with pytest.raises(LocalizationError):
+        FilterParams(n_particles=0)
+    with pytest.raises(LocalizationError):
+        FilterParams(weight_mode="magic")
+    with pytest.raises(LocalizationError):
+        make_localizer("nope", f1_bundle)

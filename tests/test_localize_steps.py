@@ -1,0 +1,95 @@
+"""Step summaries: the survey-side converter and the runtime structure's validation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+from localize_fixtures import SAMPLE, site_json
+
+from localize.errors import LocalizationError
+from localize.steps import AttitudeCode, RadioScan, StepSummaries, attitude_codes
+from survey.errors import ProcessingError
+from survey.step_summaries import step_summaries
+from survey.trace_reader import read_trace
+
+
+@pytest.fixture(scope="module")
+def walk():
+    w = site_json()["walks"][1]
+    return w, read_trace(SAMPLE / w["trace_path"])
+
+
+def test_summaries_follow_the_truth(walk):
+    w, trace = walk
+    s = step_summaries(trace)
+    truth_steps = pd.read_parquet(SAMPLE / w["truth_path"].replace(".parquet", ".steps.parquet"))
+    assert abs(len(s) - len(truth_steps)) <= 2
+    assert s.trace_id == w["trace_id"] and s.floor_name == "F1" and s.site_id
+    truth = pd.read_parquet(SAMPLE / w["truth_path"])
+    t = truth["t_ms"].to_numpy(float)
+    heading = np.degrees(np.unwrap(np.radians(truth["heading_deg"].to_numpy(float))))
+    dev = truth["compass_deviation_deg"].to_numpy(float)
+    true_compass = np.interp(s.t_ms - 250, t, heading - dev)
+    d = (s.compass_deg - true_compass + 180) % 360 - 180
+    assert np.median(np.abs(d)) < 10.0
+    b = truth[["field_e_ut", "field_n_ut", "field_u_ut"]].to_numpy(float)
+    true_strength = np.interp(s.t_ms - 250, t, np.linalg.norm(b, axis=1))
+    # device-calibrated stream: a residual of a few uT, constant over the walk
+    diff = s.strength_ut - true_strength
+    assert np.std(diff) < 2.0 and abs(np.median(diff)) < 8.0
+    assert np.isfinite(s.polar_deg).all() and np.isfinite(s.turn_deg).all()
+    assert s.mag_offsets[-1] == len(s.mag_strength_ut) and len(s.mag_offsets) == len(s) + 1
+    assert s[3].mag_strength_ut.size > 10
+    assert any(sc is not None for sc in s.scans)
+    assert set(np.unique(s.attitude)) <= {int(a) for a in AttitudeCode}
+
+
+def test_trace_without_magnetometer(walk):
+    _, trace = walk
+    sensors = trace.sensors[~trace.sensors["stream"].astype(str).str.startswith("magnetic")]
+    bare = type(trace)(trace.trace_id, trace.header, sensors, trace.wifi, trace.ble,
+                       trace.waypoints)
+    with pytest.raises(ProcessingError, match="magnetometer"):
+        step_summaries(bare)
+
+
+def test_trace_without_steps(walk):
+    _, trace = walk
+    sensors = trace.sensors.copy()
+    acc = sensors["stream"].astype(str).str.startswith("accelerometer")
+    sensors.loc[acc, ["x", "y"]] = 0.0
+    sensors.loc[acc, "z"] = 9.81
+    still = type(trace)(trace.trace_id, trace.header, sensors, trace.wifi, trace.ble,
+                        trace.waypoints)
+    with pytest.raises(ProcessingError, match="no steps"):
+        step_summaries(still)
+
+
+def _cols(m, **over):
+    base = {c: np.zeros(m) for c in ("frequency_hz", "delta_acc_ms2", "compass_deg",
+                                     "turn_deg", "strength_ut", "azimuth_deg", "polar_deg")}
+    base["t_ms"] = np.arange(m, dtype=float) * 500.0
+    base["attitude"] = np.zeros(m, dtype=np.int8)
+    base.update(over)
+    return base
+
+
+def test_step_summaries_validate():
+    s = StepSummaries(**_cols(4, strength_ut=np.full(4, np.nan)))
+    assert len(s) == 4 and s[-1].t_ms == 1500.0 and not s.has_magnetometer
+    with pytest.raises(LocalizationError, match="strictly increasing"):
+        StepSummaries(**_cols(3, t_ms=np.array([0.0, 0.0, 1.0])))
+    with pytest.raises(LocalizationError, match="compass"):
+        StepSummaries(**_cols(2, compass_deg=np.array([0.0, np.nan])))
+    with pytest.raises(LocalizationError, match="column"):
+        StepSummaries(**_cols(3, polar_deg=np.zeros(2)))
+    with pytest.raises(LocalizationError, match="mag_offsets"):
+        StepSummaries(**_cols(2), mag_offsets=np.array([0, 5]), mag_strength_ut=np.zeros(5))
+    with pytest.raises(LocalizationError, match="scan"):
+        StepSummaries(**_cols(2), scans=(None,))
+    with pytest.raises(LocalizationError):
+        RadioScan(0, np.array(["a"]), np.array([-50.0, -60.0]))
+    with pytest.raises(IndexError):
+        s[4]
+    assert attitude_codes(["UFH", "NU", "?"]).tolist() == [1, 4, 0]
