@@ -12,7 +12,9 @@
 
 Every walk starts from its first Wi-Fi fix (a kNN positioner over the other folds' scans;
 walks without Wi-Fi start at their first waypoint, counted), except ``pdr@wp0``: PDR with 0.7 m
-steps from the first waypoint, the ILC baseline. Prints, per data set, floor and method, the
+steps from the first waypoint, the ILC baseline. ``indoormap`` runs the default parameters;
+``indoormap[paper]`` the papers' (W 3, K 70, T 0.05 on strength, azimuth and polar, radio for
+the start only, 300 particles); ``indoormap[weinberg]`` the Weinberg step model. Prints, per data set, floor and method, the
 error at the waypoints and (simulation) at every step: median, p80, mean (m).
 
 Usage: ``python benchmarks/localize_accuracy.py [--work DIR] [--methods a,b] [--skip-real]

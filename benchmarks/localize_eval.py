@@ -71,9 +71,80 @@ class EvalWalk:
 
 # -- walks ---------------------------------------------------------------------------------
 
-def _cache(path: Path, make):
-    """Build the walks (no on-disk cache: the project never unpickles anything)."""
-    return make()
+_STEP_ARRAYS = ("t_ms", "frequency_hz", "delta_acc_ms2", "compass_deg", "turn_deg",
+                "strength_ut", "azimuth_deg", "polar_deg", "attitude", "relative_heading_deg",
+                "mag_offsets", "mag_strength_ut")
+_SCAN_KEYS = ("slot", "t", "off", "keys", "rssi")
+
+
+def _scans_arrays(scans: list[RadioScan | None]) -> dict[str, np.ndarray]:
+    present = [s for s in scans if s is not None]
+    return {"slot": np.array([i for i, s in enumerate(scans) if s is not None], dtype=np.int64),
+            "t": np.array([s.t_ms for s in present], dtype=np.int64),
+            "off": np.cumsum([0] + [len(s) for s in present]).astype(np.int64),
+            "keys": np.concatenate([s.keys for s in present]).astype(str) if present
+            else np.empty(0, dtype="<U1"),
+            "rssi": np.concatenate([s.rssi_dbm for s in present]) if present else np.empty(0)}
+
+
+def _scans_from(a: dict, n: int) -> list[RadioScan | None]:
+    out: list[RadioScan | None] = [None] * n
+    for j, slot in enumerate(a["slot"]):
+        lo, hi = a["off"][j], a["off"][j + 1]
+        out[int(slot)] = RadioScan(int(a["t"][j]), a["keys"][lo:hi], a["rssi"][lo:hi])
+    return out
+
+
+def _save_walks(path: Path, walks: list[EvalWalk]) -> None:
+    """Walks as one ``.npz`` of plain arrays (never pickles: RELIABILITY.md item 4)."""
+    arrays: dict[str, np.ndarray] = {}
+    meta = []
+    for i, w in enumerate(walks):
+        s = w.steps
+        for name in _STEP_ARRAYS:
+            arrays[f"{i}/{name}"] = np.asarray(getattr(s, name))
+        for k, v in _scans_arrays(list(s.scans)).items():
+            arrays[f"{i}/scan_{k}"] = v
+        for k, v in _scans_arrays([r for r, _ in w.radio_refs]).items():
+            arrays[f"{i}/ref_{k}"] = v
+        arrays[f"{i}/ref_xy"] = np.array([xy for _, xy in w.radio_refs]).reshape(-1, 2)
+        arrays[f"{i}/wp_t"], arrays[f"{i}/wp_xy"] = w.wp_t, w.wp_xy
+        if w.true_xy is not None:
+            arrays[f"{i}/true_xy"] = w.true_xy
+        meta.append({"trace_id": w.trace_id, "floor": w.floor, "site_id": s.site_id,
+                     "floor_id": s.floor_id, "floor_name": s.floor_name})
+    arrays["meta"] = np.array(json.dumps(meta))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.stem + ".tmp.npz")
+    np.savez(tmp, **arrays)
+    tmp.replace(path)
+
+
+def _load_walks(path: Path) -> list[EvalWalk]:
+    with np.load(path, allow_pickle=False) as z:
+        a = {k: z[k] for k in z.files}
+    out = []
+    for i, m in enumerate(json.loads(str(a["meta"]))):
+        cols = {name: a[f"{i}/{name}"] for name in _STEP_ARRAYS}
+        n = len(cols["t_ms"])
+        scans = _scans_from({k: a[f"{i}/scan_{k}"] for k in _SCAN_KEYS}, n)
+        steps = StepSummaries(**cols, scans=tuple(scans), trace_id=m["trace_id"],
+                              site_id=m["site_id"], floor_id=m["floor_id"],
+                              floor_name=m["floor_name"])
+        ref = {k: a[f"{i}/ref_{k}"] for k in _SCAN_KEYS}
+        refs = _scans_from(ref, len(ref["slot"]))
+        out.append(EvalWalk(m["trace_id"], m["floor"], steps, a[f"{i}/wp_t"], a[f"{i}/wp_xy"],
+                            a.get(f"{i}/true_xy"), list(zip(refs, a[f"{i}/ref_xy"]))))
+    return out
+
+
+def _cache(path: Path, make) -> list[EvalWalk]:
+    """Walks from the ``.npz`` cache, or built and cached."""
+    if path.exists():
+        return _load_walks(path)
+    walks = make()
+    _save_walks(path, walks)
+    return walks
 
 
 def sim_site(work: Path, preset: str = "default", seed: int = 7) -> Path:
@@ -115,7 +186,7 @@ def sim_walks(site: Path, floor: str, work: Path) -> list[EvalWalk]:
                                 refs))
         return out
 
-    return _cache(work / "cache" / f"{site.name}_{floor}_walks.pkl", make)
+    return _cache(work / "cache" / f"{site.name}_{floor}_walks.npz", make)
 
 
 def real_walks(floor_dir: Path, work: Path) -> list[EvalWalk]:
@@ -145,7 +216,7 @@ def real_walks(floor_dir: Path, work: Path) -> list[EvalWalk]:
                                 refs))
         return out
 
-    return _cache(work / "cache" / f"ilc_{floor_dir.parent.name}_{floor_dir.name}_walks.pkl",
+    return _cache(work / "cache" / f"ilc_{floor_dir.parent.name}_{floor_dir.name}_walks.npz",
                   make)
 
 

@@ -1,0 +1,244 @@
+"""Fingerprint databases: reference points along the surveyed walks and per-transmitter RSSI
+statistics (papers 003/004, eqs. 1-2).
+
+Positioned scans are binned into square cells of ``cell_m`` metres; every cell that holds at
+least one scan is a reference point (RP) at the mean position of its scans. Per (RP,
+transmitter) the database keeps, over the rows younger than ``max_age_ms``:
+
+- ``mean_dbm``: mean RSSI over the T rows that heard it (eq. 1);
+- ``var_db2``: unbiased variance ``sum (rssi - mean)^2 / (T - 1)`` (eq. 2), NaN when T < 2;
+- ``n``: T, and ``detection_rate = T / n_scans`` of the RP.
+
+A transmitter an RP never heard has no row: missing stays missing (the papers' 0 and the
+baselines' -100 dBm are matcher choices, not stored data). ``cell_m = 0`` makes every scan its
+own reference point (the "raw scans" database of the plain kNN baseline).
+
+Tables (see :meth:`FingerprintDB.to_tables`)::
+
+    rp   rp_id int64, x_m, y_m float64 (m), n_scans int64
+    fp   rp_id int64, ap str, mean_dbm, var_db2 float64 (dBm, dB^2), n int64,
+         detection_rate float64
+    meta kind, cell_m, max_age_ms (NaN = no limit), format_version
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+
+from .errors import FingerprintError
+from .radio_scans import OBS_COLUMNS
+
+__all__ = ["DenseFingerprints", "FingerprintDB", "build_fingerprints", "DEFAULT_CELL_M",
+           "DEFAULT_MAX_AGE_MS"]
+
+DEFAULT_CELL_M = 1.0
+"""Cell size (m). Measured on site1 (grouped 5-fold by walk, Sorensen kNN): 1 m and 2 m are
+equal (3.93 / 3.96 m median), 3 m is worse; 1 m follows the walk lines more closely."""
+DEFAULT_MAX_AGE_MS = {"wifi": 6000.0, "ble": None}
+"""Stale-row limit per kind (ms). Wi-Fi on site1 (LOWO, Sorensen kNN on raw scans): 3 s 3.90 m,
+4 s 3.75, 6 s 3.68, 8 s 3.64 median; 6 s keeps the previous sweep of a scan but little more."""
+FORMAT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class DenseFingerprints:
+    """A fingerprint database as dense arrays over one list of transmitters.
+
+    Attributes
+    ----------
+    xy_m : ndarray, shape (R, 2)
+        Reference point positions (m).
+    n_scans : ndarray, shape (R,)
+    aps : ndarray of str, shape (A,)
+    mean_dbm, var_db2, detection_rate : ndarray, shape (R, A)
+        NaN mean / variance where the RP never heard the transmitter (detection rate 0).
+    n : ndarray, shape (R, A)
+    """
+
+    xy_m: NDArray[np.float64]
+    n_scans: NDArray[np.int64]
+    aps: NDArray[np.str_]
+    mean_dbm: NDArray[np.float64]
+    var_db2: NDArray[np.float64]
+    n: NDArray[np.int64]
+    detection_rate: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class FingerprintDB:
+    """Reference points and their per-transmitter statistics (one floor, one kind).
+
+    Attributes
+    ----------
+    kind : str
+        ``"wifi"`` or ``"ble"``.
+    rp : DataFrame
+        ``rp_id, x_m, y_m, n_scans``.
+    fp : DataFrame
+        ``rp_id, ap, mean_dbm, var_db2, n, detection_rate`` (long; heard pairs only).
+    cell_m : float
+        Cell size (m); 0 = one reference point per scan.
+    max_age_ms : float or None
+        Rows older than this were dropped (ms).
+    """
+
+    kind: str
+    rp: pd.DataFrame
+    fp: pd.DataFrame
+    cell_m: float
+    max_age_ms: float | None
+
+    @property
+    def aps(self) -> NDArray[np.str_]:
+        """Transmitters heard anywhere, sorted."""
+        return np.sort(pd.unique(self.fp["ap"].to_numpy()).astype(str))
+
+    def __len__(self) -> int:
+        return len(self.rp)
+
+    def dense(self, aps: NDArray[np.str_] | list[str] | None = None) -> DenseFingerprints:
+        """Dense arrays over ``aps`` (default: :attr:`aps`; unknown ones stay all-missing)."""
+        codes, uniques = pd.factorize(self.fp["ap"].to_numpy(), sort=True)
+        uniques = np.asarray(uniques).astype(str)
+        if aps is None:
+            aps, a_idx = uniques, codes
+        else:
+            aps = np.asarray(aps).astype(str)
+            a_idx = pd.Index(aps).get_indexer(uniques)[codes]
+        rp_ids = self.rp["rp_id"].to_numpy()
+        fp_rp = self.fp["rp_id"].to_numpy()
+        r_idx = np.searchsorted(rp_ids, fp_rp)
+        r_idx = np.where((r_idx < len(rp_ids)) & (rp_ids[np.minimum(r_idx, len(rp_ids) - 1)]
+                                                  == fp_rp), r_idx, -1)
+        ok = (a_idx >= 0) & (r_idx >= 0)
+        shape = (len(rp_ids), len(aps))
+        mean, var, det = np.full(shape, np.nan), np.full(shape, np.nan), np.zeros(shape)
+        n = np.zeros(shape, dtype=np.int64)
+        r_idx, a_idx = r_idx[ok], a_idx[ok]
+        mean[r_idx, a_idx] = self.fp["mean_dbm"].to_numpy(np.float64)[ok]
+        var[r_idx, a_idx] = self.fp["var_db2"].to_numpy(np.float64)[ok]
+        n[r_idx, a_idx] = self.fp["n"].to_numpy(np.int64)[ok]
+        det[r_idx, a_idx] = self.fp["detection_rate"].to_numpy(np.float64)[ok]
+        return DenseFingerprints(self.rp[["x_m", "y_m"]].to_numpy(np.float64),
+                                 self.rp["n_scans"].to_numpy(np.int64), aps, mean, var, n, det)
+
+    def restricted(self, aps: NDArray[np.str_] | list[str]) -> FingerprintDB:
+        """The same database with only the rows of ``aps`` (after AP selection)."""
+        keep = self.fp["ap"].isin(set(np.asarray(aps).astype(str).tolist()))
+        return replace(self, fp=self.fp[keep].reset_index(drop=True))
+
+    def to_tables(self) -> dict[str, pd.DataFrame]:
+        """``{"rp", "fp", "meta"}`` as plain DataFrames (for Parquet in a bundle)."""
+        meta = pd.DataFrame({"kind": [self.kind], "cell_m": [float(self.cell_m)],
+                             "max_age_ms": [np.nan if self.max_age_ms is None
+                                            else float(self.max_age_ms)],
+                             "format_version": [FORMAT_VERSION]})
+        return {"rp": self.rp.copy(), "fp": self.fp.copy(), "meta": meta}
+
+    @classmethod
+    def from_tables(cls, tables: dict[str, pd.DataFrame]) -> FingerprintDB:
+        """Inverse of :meth:`to_tables`; checks columns and references."""
+        for name, cols in (("rp", RP_COLUMNS), ("fp", FP_COLUMNS),
+                           ("meta", ("kind", "cell_m", "max_age_ms", "format_version"))):
+            if name not in tables:
+                raise FingerprintError(f"fingerprint tables lack {name!r}")
+            missing = [c for c in cols if c not in tables[name].columns]
+            if missing:
+                raise FingerprintError(f"fingerprint table {name!r} lacks columns {missing}")
+        meta = tables["meta"].iloc[0]
+        if int(meta["format_version"]) != FORMAT_VERSION:
+            raise FingerprintError(f"fingerprint format {meta['format_version']} is not "
+                                   f"supported (expected {FORMAT_VERSION})")
+        rp, fp = tables["rp"], tables["fp"]
+        if not fp["rp_id"].isin(rp["rp_id"]).all():
+            raise FingerprintError("fingerprint rows refer to unknown reference points")
+        age = float(meta["max_age_ms"])
+        return cls(str(meta["kind"]), rp[list(RP_COLUMNS)].reset_index(drop=True),
+                   fp[list(FP_COLUMNS)].reset_index(drop=True), float(meta["cell_m"]),
+                   None if np.isnan(age) else age)
+
+
+RP_COLUMNS = ("rp_id", "x_m", "y_m", "n_scans")
+FP_COLUMNS = ("rp_id", "ap", "mean_dbm", "var_db2", "n", "detection_rate")
+
+
+def build_fingerprints(obs: pd.DataFrame, *, kind: str = "wifi",
+                       cell_m: float = DEFAULT_CELL_M,
+                       max_age_ms: float | None | str = "default") -> FingerprintDB:
+    """Fingerprint database of positioned scans.
+
+    Parameters
+    ----------
+    obs : DataFrame
+        Observation table (:func:`~mapping.radio_scans.wifi_observations` /
+        :func:`~mapping.radio_scans.ble_observations`) *before* any age filter, so that a scan
+        whose rows are all stale still counts in ``n_scans``. Scans without a position are
+        ignored.
+    kind : {"wifi", "ble"}
+    cell_m : float
+        Cell size (m); 0 = every scan is a reference point.
+    max_age_ms : float, None or "default"
+        Rows older than this (ms) are not used; None keeps all; "default" takes
+        :data:`DEFAULT_MAX_AGE_MS` of ``kind``.
+
+    Raises
+    ------
+    FingerprintError
+        Missing columns, an unknown kind, a negative cell size, no positioned scan, or no row
+        left after the age filter (e.g. a floor without any Wi-Fi).
+    """
+    if kind not in DEFAULT_MAX_AGE_MS:
+        raise FingerprintError(f"kind must be one of {sorted(DEFAULT_MAX_AGE_MS)}, not {kind!r}")
+    if not cell_m >= 0:
+        raise FingerprintError(f"cell_m must be >= 0, got {cell_m}")
+    if isinstance(max_age_ms, str):
+        max_age_ms = DEFAULT_MAX_AGE_MS[kind]
+    missing = [c for c in OBS_COLUMNS if c not in obs.columns]
+    if missing:
+        raise FingerprintError(f"observation table lacks columns {missing}")
+    pos = obs[np.isfinite(obs["x_m"].to_numpy(np.float64))
+              & np.isfinite(obs["y_m"].to_numpy(np.float64))]
+    if len(pos) == 0:
+        raise FingerprintError(f"no positioned {kind} scans: cannot build reference points "
+                               f"(a floor without {kind} rows, or rows outside the walks)")
+    scans = pos.groupby("scan_id", sort=True)[["x_m", "y_m"]].first()
+    xy = scans.to_numpy(np.float64)
+    if cell_m > 0:
+        cells = np.floor(xy / cell_m).astype(np.int64)
+        _, rp_of_scan = np.unique(cells, axis=0, return_inverse=True)
+    else:
+        rp_of_scan = np.arange(len(scans))
+    rp_of_scan = rp_of_scan.reshape(-1)
+    rp = (pd.DataFrame({"rp_id": rp_of_scan, "x_m": xy[:, 0], "y_m": xy[:, 1]})
+          .groupby("rp_id", sort=True)
+          .agg(x_m=("x_m", "mean"), y_m=("y_m", "mean"), n_scans=("x_m", "size"))
+          .reset_index())
+    rp["rp_id"] = rp["rp_id"].astype(np.int64)
+    rp["n_scans"] = rp["n_scans"].astype(np.int64)
+    rows = pos if max_age_ms is None else pos[pos["age_ms"].to_numpy() <= max_age_ms]
+    if len(rows) == 0:
+        raise FingerprintError(f"no {kind} rows younger than {max_age_ms} ms among "
+                               f"{len(scans)} positioned scans")
+    rp_of_row = rp_of_scan[np.searchsorted(scans.index.to_numpy(), rows["scan_id"].to_numpy())]
+    ap_code, ap_names = pd.factorize(rows["ap"].to_numpy(), sort=True)
+    key = rp_of_row.astype(np.int64) * len(ap_names) + ap_code
+    keys, inv = np.unique(key, return_inverse=True)
+    rssi = rows["rssi_dbm"].to_numpy(np.float64)
+    n = np.bincount(inv, minlength=len(keys))
+    mean = np.bincount(inv, weights=rssi, minlength=len(keys)) / n
+    ss = np.bincount(inv, weights=(rssi - mean[inv]) ** 2, minlength=len(keys))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        var = np.where(n > 1, ss / (n - 1), np.nan)  # eq. 2, unbiased
+    rp_ids = (keys // len(ap_names)).astype(np.int64)
+    n_scans = rp["n_scans"].to_numpy()[np.searchsorted(rp["rp_id"].to_numpy(), rp_ids)]
+    stats = pd.DataFrame({"rp_id": rp_ids,
+                          "ap": np.asarray(ap_names, dtype=object)[keys % len(ap_names)],
+                          "mean_dbm": mean, "var_db2": var, "n": n.astype(np.int64),
+                          "detection_rate": np.minimum(n / n_scans, 1.0)})
+    stats["ap"] = stats["ap"].astype(str)
+    return FingerprintDB(kind, rp[list(RP_COLUMNS)], stats[list(FP_COLUMNS)], float(cell_m),
+                         None if max_age_ms is None else float(max_age_ms))
