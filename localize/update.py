@@ -75,7 +75,8 @@ def gaussian_update(st: ParticleState, params: FilterParams) -> None:
     has = np.isfinite(worst)
     e2 = np.where(np.isfinite(e2), e2, np.where(has, worst, 0.0))
     ll = -(e2 - np.where(has, best, 0.0)) / (2.0 * params.gaussian_sigma ** 2)
-    st.w = st.w * np.exp(ll)
+    # dead particles (w = 0) may fit better than the best living one: never exp(> 0) * 0
+    st.w = st.w * np.exp(np.minimum(ll, 0.0))
 
 
 def dtw_update(st: ParticleState, fmap: FilterMap, params: FilterParams,
@@ -113,7 +114,7 @@ def dtw_update(st: ParticleState, fmap: FilterMap, params: FilterParams,
             continue
         worst = np.nanmin(ll[alive])
         ll = np.where(np.isfinite(ll), ll, worst)
-        st.w[r] = st.w[r] * np.exp(ll - np.nanmax(ll[alive]))
+        st.w[r] = st.w[r] * np.exp(np.minimum(ll - np.nanmax(ll[alive]), 0.0))
 
 
 def magnetic_update(st: ParticleState, fmap: FilterMap, params: FilterParams,

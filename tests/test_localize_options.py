@@ -131,3 +131,14 @@ def test_radio_updates_and_injection_run(f1_bundle, sim_walks):  # noqa: F811
     e = step_errors(t, w.true_xy)
     assert np.median(e[len(e) // 2:]) < 2.0
     assert isinstance(radio, RadioModel)  # the protocol is structural: locate() suffices
+
+
+def test_gaussian_update_never_makes_nan_from_dead_particles():
+    """A dead particle (w = 0) fitting better than every living one gave 0 * exp(+big) = NaN."""
+    from localize.update import gaussian_update
+
+    st = ParticleState(1, 4, {"strength": (1, 1)})
+    st.w = np.array([[0.0, 1.0, 1.0, 0.0]])
+    st.terms["strength"][0] = np.array([[0.0, 5000.0, 6000.0, 1e-9]])
+    gaussian_update(st, FilterParams(weight_mode="gaussian", gaussian_window=1))
+    assert np.isfinite(st.w).all() and st.w[0, 0] == 0.0 and st.w[0, 1] == 1.0
