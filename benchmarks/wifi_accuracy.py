@@ -46,7 +46,7 @@ from survey.process_store import process_store, processed_table
 
 REPO = Path(__file__).resolve().parents[1]
 SITE = REPO.parent / "shared" / "ilc" / "site1"
-TRANSFORM = (0.85, -8.0)
+TRANSFORMS = ((0.85, -8.0), (1.0, -12.0))
 CAL_SCANS = 8
 
 
@@ -107,15 +107,17 @@ def floor_positions(obs: pd.DataFrame, folds: int) -> tuple[dict[str, list], lis
         knn = default_matcher().fit(grid)
         out.setdefault("default", []).append(errors(knn, grid, scans))
         out.setdefault("gaussian", []).append(errors(GaussianMatch(), grid, scans))
-        for walk in held:  # device transform, per walk
+        for walk in held:  # device transforms, per walk
             one = scans.subset(scans.scans["trace_id"].to_numpy().astype(str) == walk)
             if len(one) == 0:
                 continue
-            moved = one.transformed(*TRANSFORM)
-            out.setdefault("transformed, untreated", []).append(errors(knn, grid, moved))
-            fixed, k, b = calibrated_walk(moved, grid)
-            cal_kb.append((k * TRANSFORM[0], k * TRANSFORM[1] + b))
-            out.setdefault("transformed, calibrated", []).append(errors(knn, grid, fixed))
+            for tk, tb in TRANSFORMS:
+                moved = one.transformed(tk, tb)
+                tag = f"k={tk:g},b={tb:g}"
+                out.setdefault(f"{tag} untreated", []).append(errors(knn, grid, moved))
+                fixed, k, b = calibrated_walk(moved, grid)
+                cal_kb.append((tag, k * tk, k * tb + b))
+                out.setdefault(f"{tag} calibrated", []).append(errors(knn, grid, fixed))
     return out, cal_kb
 
 
@@ -149,14 +151,20 @@ def main() -> int:
         print(f"{'all':6} {name:26} {'%7.2f %7.2f %7.2f %6d' % stats(np.concatenate(parts))}")
     med = {n: stats(np.concatenate(p))[0] for n, p in pooled.items()}
     base = med["default"]
-    print(f"\nDevice transform k={TRANSFORM[0]}, b={TRANSFORM[1]} dB on held-out walks "
-          f"(median over all floors): untransformed {base:.2f} m")
-    for name in ("transformed, untreated", "transformed, calibrated"):
-        print(f"  {name:26} {med[name]:.2f} m  loss {100 * (med[name] / base - 1):+.1f} %")
-    kb = np.array(kb_all)
-    print(f"  online estimate, combined map at -70 dBm: slope median {np.median(kb[:, 0]):.3f} "
-          f"(IQR {np.subtract(*np.percentile(kb[:, 0], [75, 25])):.3f}), offset median "
-          f"{np.median(kb[:, 0] * -70 + kb[:, 1] + 70):+.2f} dB; ideal 1, 0")
+    print(f"\nDevice transforms on held-out walks (median over all floors; untransformed "
+          f"{base:.2f} m); calibration from the first {CAL_SCANS} scans of each walk")
+    kb = pd.DataFrame(kb_all, columns=["tag", "slope", "offset"])
+    for tk, tb in TRANSFORMS:
+        tag = f"k={tk:g},b={tb:g}"
+        for kind in ("untreated", "calibrated"):
+            name = f"{tag} {kind}"
+            print(f"  {name:26} {med[name]:.2f} m  loss {100 * (med[name] / base - 1):+.1f} %")
+        part = kb[kb["tag"] == tag]
+        at70 = part["slope"] * -70 + part["offset"] + 70
+        print(f"  {'':26} combined map after calibration: slope median "
+              f"{part['slope'].median():.3f} (IQR {part['slope'].quantile(.75) - part['slope'].quantile(.25):.3f}), "
+              f"error at -70 dBm median {at70.median():+.2f} dB (IQR "
+              f"{at70.quantile(.75) - at70.quantile(.25):.2f}); ideal 1, 0")
     print(f"(positions and calibration: {time.time() - t:.0f} s)")
 
     t = time.time()
