@@ -30,8 +30,13 @@ from numpy.typing import NDArray
 from .errors import FingerprintError
 from .radio_scans import OBS_COLUMNS
 
-__all__ = ["APSelection", "APSelectionParams", "HOTSPOT_SSID", "is_locally_administered",
-           "select_aps"]
+__all__ = [
+    "HOTSPOT_SSID",
+    "APSelection",
+    "APSelectionParams",
+    "is_locally_administered",
+    "select_aps",
+]
 
 HOTSPOT_SSID = re.compile(
     r"iphone|androidap|direct-.*android|\bandroid\b|redmi|红米|小米手机|手机$|\bvivo\b|\boppo\b|"

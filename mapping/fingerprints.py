@@ -24,6 +24,7 @@ Tables (see :meth:`FingerprintDB.to_tables`)::
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numpy as np
 import pandas as pd
@@ -32,8 +33,13 @@ from numpy.typing import NDArray
 from .errors import FingerprintError
 from .radio_scans import OBS_COLUMNS
 
-__all__ = ["DenseFingerprints", "FingerprintDB", "build_fingerprints", "DEFAULT_CELL_M",
-           "DEFAULT_MAX_AGE_MS"]
+__all__ = [
+    "DEFAULT_CELL_M",
+    "DEFAULT_MAX_AGE_MS",
+    "DenseFingerprints",
+    "FingerprintDB",
+    "build_fingerprints",
+]
 
 DEFAULT_CELL_M = 1.0
 """Cell size (m). Measured on site1 (grouped 5-fold by walk, Sorensen kNN): 1 m and 2 m are
@@ -100,8 +106,16 @@ class FingerprintDB:
     def __len__(self) -> int:
         return len(self.rp)
 
+    @cached_property
+    def _dense_all(self) -> DenseFingerprints:
+        return self._dense(None)
+
     def dense(self, aps: NDArray[np.str_] | list[str] | None = None) -> DenseFingerprints:
-        """Dense arrays over ``aps`` (default: :attr:`aps`; unknown ones stay all-missing)."""
+        """Dense arrays over ``aps`` (default: :attr:`aps`, computed once and shared; unknown
+        ones stay all-missing). Treat the arrays as read-only."""
+        return self._dense_all if aps is None else self._dense(aps)
+
+    def _dense(self, aps: NDArray[np.str_] | list[str] | None) -> DenseFingerprints:
         codes, uniques = pd.factorize(self.fp["ap"].to_numpy(), sort=True)
         uniques = np.asarray(uniques).astype(str)
         if aps is None:

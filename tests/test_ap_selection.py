@@ -24,7 +24,7 @@ def _survey() -> tuple[pd.DataFrame, dict[str, str]]:
                 t = w * 1_000_000 + int(x) * 1000 + (DAY if w >= 3 else 0)
                 fade = rng.normal(0, 2)
 
-                def add(ap, rssi):
+                def add(ap, rssi, w=w, floor=floor, scan=scan, t=t, x=x):
                     rows.append((f"w{w}{floor}", scan, t, x, 0.0, ap, rssi, 0.0, floor))
 
                 if floor == "F4":

@@ -7,7 +7,12 @@ import pandas as pd
 import pytest
 from radio_fixtures import sample_store, split_walks, walk_ids, wifi_obs  # noqa: F401
 
-from localize.radio_match import gaussian_loglik, knn_positions, powed, sorensen_distances
+from localize.radio_match import (
+    gaussian_loglik,
+    knn_positions,
+    powed,
+    sorensen_distances,
+)
 from mapping.errors import FingerprintError
 from mapping.fingerprints import build_fingerprints
 from mapping.matching import GaussianMatch, WeightedKNN, default_matcher
