@@ -20,29 +20,57 @@ import numpy as np
 
 from localize.errors import LocalizationError
 
-#: Bundle table the CLI reads radio fingerprints from (long format, see
-#: :meth:`localize.radio.KnnRadioPositioner.from_table`).
-RADIO_TABLE = "radio_fingerprints"
+#: Scans of a walk used to calibrate an unknown phone's RSSI online.
+ONLINE_CALIBRATION_SCANS = 8
 
 
 def _open_maps(path: Path):
+    """Floor bundles (and the site bundle's floor model) of a bundle or a folder of bundles."""
     from localize.bundle import load_bundle
+    from localize.floor_classifier import FloorClassifier
     from localize.floors import SiteMaps
 
     if (path / "manifest.json").exists():
         return SiteMaps([load_bundle(path)])
-    subs = sorted(p for p in path.iterdir() if (p / "manifest.json").exists())
+    subs = [load_bundle(p) for p in sorted(path.iterdir()) if (p / "manifest.json").exists()]
     if not subs:
         raise LocalizationError(f"{path}: neither a bundle nor a folder of bundles")
-    return SiteMaps([load_bundle(p) for p in subs])
+    site = [b for b in subs if b.manifest.get("kind") == "site"]
+    model = FloorClassifier.from_bundle(site[0]) if site else None
+    return SiteMaps([b for b in subs if b.manifest.get("kind") != "site"], floor_model=model)
 
 
-def _radio_of(bundle):
-    from localize.radio import KnnRadioPositioner
+def radio_for_walk(bundle, device_model: str | None, scans, *, kind: str | None = None
+                   ) -> tuple[object | None, str]:
+    """The bundle's Wi-Fi (else BLE, or ``kind``) positioner, calibrated for the walk's phone,
+    and how.
 
-    if bundle.has_table(RADIO_TABLE):
-        return KnnRadioPositioner.from_table(bundle.table(RADIO_TABLE))
-    return None
+    A phone model in the bundle's device table (fitted on Wi-Fi) uses its stored ``k, b``; any
+    other phone, and BLE, is calibrated online from the first
+    :data:`ONLINE_CALIBRATION_SCANS` scans of ``scans`` (same kind). Returns ``(None, "")``
+    when the bundle has no fingerprints of that kind.
+    """
+    from localize.fingerprint_positioner import FingerprintPositioner
+
+    pos, kind = next(((p, k) for k in ([kind] if kind else ["wifi", "ble"])
+                      if (p := FingerprintPositioner.from_bundle(bundle, k)) is not None),
+                     (None, ""))
+    if pos is None:
+        return None, ""
+    known = pos.for_device(bundle, device_model or "") if kind == "wifi" else None
+    if known is not None:
+        return known, f"device table ({device_model}: k={known.rssi_k:.3f}, " \
+                      f"b={known.rssi_b:+.1f} dB)"
+    first = [s for s in (scans or []) if s is not None][:ONLINE_CALIBRATION_SCANS]
+    if not first:
+        return pos, "uncalibrated (no scan to calibrate from)"
+    cal = pos.online_calibration(first)
+    return pos.with_calibration(cal.k, cal.b), \
+        f"online from {cal.n_scans} scans (k={cal.k:.3f}, b={cal.b:+.1f} dB)"
+
+
+def _radio_of(bundle, trace, steps):
+    return radio_for_walk(bundle, trace.header.model, steps.scans)[0]
 
 
 def _walks(paths: tuple[str, ...]) -> list[Path]:
@@ -67,8 +95,8 @@ def _start(start: str, steps, trace, radio) -> tuple[tuple[float, float] | None,
         return (x, y), "given"
     if start == "radio" or (start == "auto" and radio is not None):
         if radio is None:
-            raise LocalizationError("--start radio needs a bundle with a "
-                                    f"{RADIO_TABLE!r} table")
+            raise LocalizationError("--start radio needs a bundle with Wi-Fi or BLE "
+                                    "fingerprints (wifi_rp/wifi_fp tables)")
         return None, "radio"
     t, xy = waypoints_of(trace)
     if not len(t):
@@ -163,7 +191,7 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
         trace = read_trace(f)
         steps = step_summaries(trace)
         bundle = maps.select(steps)
-        radio = _radio_of(bundle)
+        radio = _radio_of(bundle, trace, steps)
         start_xy, how = _start(start, steps, trace, radio)
         loc = make_localizer(method, bundle, _params(particles), radio=radio, rng=seed)
         track = loc.run(steps, start_xy=start_xy)
@@ -221,7 +249,7 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
             if trace.trace_id in used:
                 click.echo(f"warning: {trace.trace_id} was used to build {bundle.path}; its "
                            "errors are optimistic", err=True)
-        radio = _radio_of(bundle)
+        radio = _radio_of(bundle, trace, steps)
         start_xy, _ = _start(start, steps, trace, radio)
         for m in names:
             loc = make_localizer(m, bundle, _params(particles), radio=radio, rng=seed)

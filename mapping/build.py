@@ -33,6 +33,7 @@ from .grid import grid_for_extent, reachable_mask
 from .holdout import choose_bandwidth
 from .interpolate import RasterParams, raster
 from .levelling import LevellingParams, apply_session_residuals, fit_session_residuals
+from .radio_build import RadioParams, SiteRadio, build_site_radio
 
 
 class BuildError(IndoormapError, ValueError):
@@ -48,6 +49,8 @@ class BuildParams:
     heading_raster: RasterParams = field(default_factory=lambda: RasterParams(bandwidth_m=2.0))
     levelling: LevellingParams = field(default_factory=LevellingParams)
     level: bool = True
+    #: Wi-Fi/BLE fingerprints and device table in the floor bundle (see mapping.radio_build)
+    radio: RadioParams | None = field(default_factory=RadioParams)
     #: choose the kernel bandwidth by grouped cross-validation (``raster.bandwidth_m`` if off)
     auto_bandwidth: bool = True
     build_time: str | None = None
@@ -103,8 +106,14 @@ def floor_samples(store: SurveyStore, site: str | None, floor: str) -> tuple[pd.
 
 def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
                 site: str | None = None, params: BuildParams = BuildParams(),
+                radio: SiteRadio | None = None,
                 progress: Callable[[str], None] | None = None) -> BundleContent:
-    """Build the bundle content of one floor (write it with :func:`write_bundle`)."""
+    """Build the bundle content of one floor (write it with :func:`write_bundle`).
+
+    ``radio``: the site's radio maps (:func:`mapping.radio_build.build_site_radio` over all its
+    floors, so that the device table and AP selection see every floor); default: computed from
+    this floor alone when ``params.radio`` is set.
+    """
     store = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
     say = progress or (lambda msg: None)
     samples, steps, pcat = floor_samples(store, site, floor)
@@ -170,12 +179,19 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
                "bandwidth_m": raster_params.bandwidth_m,
                "bandwidth_cv_shape_rmse_ut": {str(k): v for k, v in bandwidth_scores.items()},
                "n_samples": int(len(samples)), "heading_offset_floor_median_deg": global_offset}
+    tables = {"source_walks": pa.Table.from_pandas(walks, preserve_index=False),
+              "levelling": pa.Table.from_pandas(lev.astype({"session": "str"}),
+                                                preserve_index=False)}
+    if params.radio is not None:
+        if radio is None:
+            radio = build_site_radio(store, [floor], site=site, params=params.radio,
+                                     progress=say)
+        tables.update(radio.floor_tables(floor))
+        metrics["radio"] = radio.floor_metrics(floor)
     return BundleContent(
         site_id=str(first["site_id"] or first["site"]), floor_id=str(first["floor_id"] or floor),
         floor_name=floor, grid=grid, mask=mask, layers=layers,
-        tables={"source_walks": pa.Table.from_pandas(walks, preserve_index=False),
-                "levelling": pa.Table.from_pandas(lev.astype({"session": "str"}),
-                                                  preserve_index=False)},
+        tables=tables,
         build={"params": params.to_dict(), "build_time": build_time,
                "data_end_time": _time_text(end_ms), "seed": params.seed,
                "source_walks": [{"trace_id": t, "sha256": h}

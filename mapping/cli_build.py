@@ -16,7 +16,12 @@ from survey.errors import IndoormapError
 from .build import BuildParams, build_floor
 from .bundle_writer import write_bundle
 from .floorplan import read_floor_plan
-from .registry import Registry
+from .radio_build import build_site_radio
+from .registry import SITE_BUNDLE, Registry
+
+
+def _walks_of(bundle_dir: Path) -> list[dict]:
+    return json.loads((bundle_dir / "manifest.json").read_text())["build"]["source_walks"]
 
 
 def _is_floor_dir(p: Path) -> bool:
@@ -55,7 +60,8 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
                   overwrite: bool) -> None:
     """Build map bundles from a floor folder (floor_info.json, geojson_map.json,
     path_data_files/) or a site folder of floors: ingest, process, level, interpolate, publish
-    atomically."""
+    atomically. Writes OUT/<floor> per floor (rasters, Wi-Fi/BLE fingerprints, device table)
+    and OUT/_site (floor model, device table, AP selection report)."""
     from survey.ingest import ingest
     from survey.process_store import process_store
     from survey.store import SurveyStore
@@ -66,7 +72,8 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
     params = BuildParams(cell_m=cell_m, raster=RasterParams(method=interpolator),
                          build_time=build_time)
     targets = {f.name: out / f.name for f in floors}
-    for name, target in targets.items():
+    site_target = out / SITE_BUNDLE
+    for name, target in [*targets.items(), (SITE_BUNDLE, site_target)]:
         if target.exists() and not overwrite:
             raise click.UsageError(f"{target} exists; pass --overwrite to replace it")
     with tempfile.TemporaryDirectory(prefix="indoormap-build-") as tmp:
@@ -91,9 +98,11 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
         for tid, reason in report.skipped.items():
             say(f"  skipped {tid}: {reason}")
         registry = Registry(registry_dir) if registry_dir else None
+        radio = build_site_radio(store, [f.name for f in floors], params=params.radio,
+                                 progress=say)
         for f in floors:
             content = build_floor(store, plans[f.name], floor=f.name, params=params,
-                                  progress=say)
+                                  radio=radio, progress=say)
             bundle_id = write_bundle(targets[f.name], content, overwrite=overwrite)
             cov = content.metrics["coverage"]
             click.echo(f"{f.name}: bundle {bundle_id[:16]} -> {targets[f.name]} "
@@ -102,6 +111,20 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
             if registry:
                 entry = registry.publish(targets[f.name])
                 click.echo(f"  published as {content.site_id}/{f.name} #{entry['seq']}")
+        site_content = radio.site_content(content.site_id, build={
+            "build_time": content.build["build_time"], "seed": params.seed,
+            "source_walks": sorted((w for f in floors for w in _walks_of(targets[f.name])),
+                                   key=lambda w: w["trace_id"])})
+        site_id = write_bundle(site_target, site_content, overwrite=overwrite)
+        fm = site_content.metrics["floor_model"]
+        acc = ("no floor model (no radio rows)" if fm is None else
+               f"floor model: {len(fm['floors'])} floors, cross-validated per scan "
+               + ("n/a" if fm["cv_scan_accuracy"] is None else
+                  f"{100 * fm['cv_scan_accuracy']:.2f} %"))
+        click.echo(f"site: bundle {site_id[:16]} -> {site_target} ({acc})")
+        if registry:
+            entry = registry.publish(site_target)
+            click.echo(f"  published as {site_content.site_id}/{SITE_BUNDLE} #{entry['seq']}")
 
 
 @click.group("bundle")

@@ -32,6 +32,8 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
+from localize.floor_classifier import FloorClassifier, floor_log_proba, level_features
+
 from .errors import FingerprintError
 from .matching import align_scans
 from .radio_scans import OBS_COLUMNS, ScanSet, scan_set
@@ -89,12 +91,7 @@ class FloorModel:
         """Log-probability of every floor per scan, shape (S, F); NaN rows for scans without
         a known transmitter."""
         rssi, _ = align_scans(scans, self.aps)
-        x = _features(rssi)
-        z = x @ self.coef.T + self.intercept
-        z = z - z.max(axis=1, keepdims=True)
-        lp = z - np.log(np.exp(z).sum(axis=1, keepdims=True))
-        lp[x.sum(axis=1) == 0] = np.nan
-        return lp
+        return floor_log_proba(level_features(rssi), self.coef, self.intercept)
 
     def _label(self, lp: NDArray[np.float64]) -> NDArray[np.str_]:
         ok = np.isfinite(lp).all(axis=1)
@@ -136,17 +133,14 @@ class FloorModel:
         labels = self._label(total.to_numpy(np.float64))
         return pd.Series(labels, index=total.index, name="floor")
 
+    def classifier(self) -> FloorClassifier:
+        """The localizer's view of this model (what the site bundle holds)."""
+        return FloorClassifier(self.floors, self.aps, self.coef, self.intercept)
+
     def floor_of(self, scan) -> str | None:
-        """Floor of one scan given as an object with ``keys`` and ``rssi_dbm`` (the
-        localizer's ``RadioScan``); None when no transmitter is known."""
-        keys = np.asarray(scan.keys).astype(str)
-        idx = pd.Index(self.aps).get_indexer(keys)
-        known = idx >= 0
-        if not known.any():
-            return None
-        level = _features(np.asarray(scan.rssi_dbm, dtype=np.float64)[known])
-        z = self.coef[:, idx[known]] @ level + self.intercept
-        return str(self.floors[int(np.argmax(z))])
+        """Floor of one scan given as the localizer's ``RadioScan``; None when no
+        transmitter is known."""
+        return self.classifier().floor_of(scan)
 
     def to_tables(self) -> dict[str, pd.DataFrame]:
         """``{"coef", "intercept", "meta"}`` as plain DataFrames."""
@@ -184,11 +178,6 @@ class FloorModel:
                    meta)
 
 
-def _features(rssi_dbm: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``(rssi + 100) / 100`` in [0, 1]; 0 where not heard (NaN)."""
-    return np.clip(np.nan_to_num((np.asarray(rssi_dbm) + 100.0) / 100.0, nan=0.0), 0.0, 1.0)
-
-
 def _scan_sets(obs_by_floor: Mapping[str, pd.DataFrame]
                ) -> tuple[dict[str, ScanSet], list[str]]:
     sets, skipped = {}, []
@@ -210,7 +199,7 @@ def _design(sets: Mapping[str, ScanSet], aps: NDArray[np.str_]
     xs, ys, meta = [], [], []
     for floor, s in sets.items():
         rssi, _ = align_scans(s, aps)
-        xs.append(_features(rssi))
+        xs.append(level_features(rssi))
         ys.append(np.full(len(s), floor, dtype=object))
         meta.append(s.scans.assign(floor=floor))
     return (np.concatenate(xs), np.concatenate(ys).astype(str),

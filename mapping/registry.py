@@ -24,6 +24,11 @@ from survey.errors import RegistryError
 from survey.publish import atomic_directory, atomic_write_bytes, crash_point
 
 
+SITE_BUNDLE = "_site"
+"""Name under which a site's site-level bundle (floor model, device table) is kept, in a
+registry and beside the floor bundles of ``indoormap build``."""
+
+
 def _safe(name: str) -> str:
     if not name or "/" in name or "\\" in name or name in (".", "..") or name.startswith("."):
         raise RegistryError(f"invalid site or floor name {name!r}")
@@ -79,7 +84,9 @@ class Registry:
         """Copy a verified bundle in as a new version (a version already present is reused)
         and, by default, make it current. Returns ``{"bundle_id", "seq"}``."""
         bundle = load_bundle(bundle_dir)  # verify before anything is copied
-        site, floor = bundle.manifest["site_id"], bundle.manifest["floor_name"]
+        site = bundle.manifest["site_id"]
+        floor = (SITE_BUNDLE if bundle.manifest.get("kind") == "site"
+                 else bundle.manifest["floor_name"])
         base = self._floor(site, floor)
         target = base / "versions" / bundle.bundle_id
         if not target.exists():

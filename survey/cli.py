@@ -37,11 +37,12 @@ def _register() -> None:
 
     from mapping.cli_build import build_command, bundle_group
     from localize.cli import evaluate_command, localize_command
+    from localize.cli_radio import floor_command, wifi_locate_command
     from mapping.cli_validate import validate_command
 
     for command in (simulate, ingest_command, process_command, survey_report_command,
                     build_command, bundle_group, validate_command, localize_command,
-                    evaluate_command):
+                    evaluate_command, floor_command, wifi_locate_command):
         main.add_command(command)
 
 

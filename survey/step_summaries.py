@@ -76,6 +76,26 @@ def scans_of(trace: Trace, max_age_ms: int = 3000) -> list[RadioScan]:
     return out
 
 
+def ble_scans_of(trace: Trace, window_ms: int = 2000) -> list[RadioScan]:
+    """BLE sightings of a trace grouped into windows of ``window_ms`` from its first sighting
+    (one "scan" per window: mean RSSI per beacon key ``uuid:major:minor``, lower case), the
+    way :func:`mapping.radio_scans.ble_observations` groups survey rows. Time = the window's
+    last sighting (ms)."""
+    ble = trace.ble
+    if ble is None or not len(ble):
+        return []
+    t = ble["t_ms"].to_numpy(np.int64)
+    frame = pd.DataFrame({"win": (t - t.min()) // int(window_ms), "t_ms": t,
+                          "key": ble["key"].astype(str).str.lower().to_numpy(),
+                          "rssi_dbm": ble["rssi_dbm"].to_numpy(np.float64)})
+    out = []
+    for _, g in frame.groupby("win", sort=True):
+        mean = g.groupby("key", sort=True)["rssi_dbm"].mean()
+        out.append(RadioScan(int(g["t_ms"].max()), mean.index.to_numpy().astype(str),
+                             mean.to_numpy(np.float64)))
+    return out
+
+
 def _ble_scans(trace: Trace, step_t: NDArray) -> dict[int, tuple[list[str], list[float]]]:
     ble = trace.ble
     if ble is None or not len(ble):

@@ -1,0 +1,172 @@
+"""``indoormap floor`` and ``indoormap wifi-locate``: the radio maps of bundles applied to walks.
+
+Both print CSV on standard output (progress and notes on standard error):
+
+- ``floor SITE_BUNDLE WALK...``: per scan ``level=scan`` rows (floor of the scan alone and of the
+  last ``--window`` scans) and one ``level=walk`` row per walk (all its scans), with the floor
+  the trace file names (``recorded_floor``) for checking.
+- ``wifi-locate BUNDLE WALK...``: per scan the Wi-Fi (or BLE) position, its spread, the number
+  of transmitters the bundle knows and, when the walk has waypoints, the distance to the
+  waypoint track interpolated in time at the scan (``error_m``).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+import numpy as np
+
+from localize.errors import LocalizationError
+
+SCAN_MAX_AGE_MS = {"floor": 10**9, "locate": 3000}
+"""Wi-Fi rows used per scan: the floor model was fitted on rows of any age (a transmitter heard
+at all tells the floor); positions use rows seen within 3 s of the scan."""
+
+
+def _scans(trace, kind: str, max_age_ms: int):
+    from survey.step_summaries import ble_scans_of, scans_of
+
+    return scans_of(trace, max_age_ms) if kind == "wifi" else ble_scans_of(trace)
+
+
+def _site_bundle(path: Path):
+    from localize.bundle import load_bundle
+
+    from mapping.registry import SITE_BUNDLE
+
+    for cand in (path, path / SITE_BUNDLE):
+        if (cand / "manifest.json").exists():
+            b = load_bundle(cand)
+            if b.manifest.get("kind") == "site":
+                return b
+    raise LocalizationError(f"{path}: not a site bundle (nor a folder holding {SITE_BUNDLE}/); "
+                            "`indoormap build` writes one beside the floor bundles")
+
+
+def _csv(rows: list[dict], columns: list[str]) -> None:
+    import csv
+
+    w = csv.DictWriter(sys.stdout, fieldnames=columns, lineterminator="\n",
+                       extrasaction="ignore")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: (f"{v:.3f}" if isinstance(v, float) else v) for k, v in r.items()})
+
+
+@click.command("floor")
+@click.argument("site_path", metavar="SITE_BUNDLE",
+                type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.argument("walks", nargs=-1, required=True, type=click.Path(exists=True))
+@click.option("--window", type=click.IntRange(1, 1000), default=5, show_default=True,
+              help="Scans in the sequence estimate (this scan and the ones before it).")
+def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
+    """Predicted floor per scan and per walk (CSV) from the site bundle's floor model."""
+    from localize.cli import _walks
+    from localize.floor_classifier import FloorClassifier
+    from survey.trace_reader import read_trace
+
+    site = _site_bundle(site_path)
+    model = FloorClassifier.from_bundle(site)
+    if model is None:
+        raise LocalizationError(f"{site.path}: the site bundle has no floor model (the survey "
+                                "had no Wi-Fi or BLE rows)")
+    kind = (site.manifest.get("metrics", {}).get("floor_model") or {}).get("kind", "wifi")
+    rows, n_right, n_scans = [], 0, 0
+    for f in _walks(walks):
+        trace = read_trace(f)
+        recorded = trace.header.floor_name or ""
+        scans = _scans(trace, kind, SCAN_MAX_AGE_MS["floor"])
+        lp = model.log_proba(model.scan_matrix(scans))
+        ok = np.isfinite(lp).all(axis=1)
+        n_known = np.isfinite(model.scan_matrix(scans)).sum(axis=1)
+        for i, scan in enumerate(scans):
+            lo = max(0, i - window + 1)
+            seq = lp[lo:i + 1][ok[lo:i + 1]]
+            floor = str(model.floors[np.argmax(lp[i])]) if ok[i] else ""
+            rows.append({"level": "scan", "trace_id": trace.trace_id, "t_ms": scan.t_ms,
+                         "n_known": int(n_known[i]), "floor": floor,
+                         "p_floor": float(np.exp(lp[i].max())) if ok[i] else "",
+                         "window_floor": str(model.floors[np.argmax(seq.sum(axis=0))])
+                         if len(seq) else "", "recorded_floor": recorded})
+            n_scans += 1
+            n_right += bool(recorded) and floor == recorded
+        walk_floor = str(model.floors[np.argmax(lp[ok].sum(axis=0))]) if ok.any() else ""
+        rows.append({"level": "walk", "trace_id": trace.trace_id, "t_ms": "",
+                     "n_known": int(ok.sum()), "floor": walk_floor, "p_floor": "",
+                     "window_floor": "", "recorded_floor": recorded})
+        if not ok.any():
+            click.echo(f"{trace.trace_id}: no {kind} scan hears a transmitter the floor model "
+                       "knows; floor unknown", err=True)
+    _csv(rows, ["level", "trace_id", "t_ms", "n_known", "floor", "p_floor", "window_floor",
+                "recorded_floor"])
+    if n_scans:
+        click.echo(f"{n_scans} scans; {100 * n_right / n_scans:.2f} % on the floor the trace "
+                   "files name", err=True)
+
+
+@click.command("wifi-locate")
+@click.argument("bundle_path", metavar="BUNDLE",
+                type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.argument("walks", nargs=-1, required=True, type=click.Path(exists=True))
+@click.option("--kind", type=click.Choice(["wifi", "ble"]), default="wifi", show_default=True)
+@click.option("--calibration", default="auto", show_default=True,
+              help="RSSI calibration of the walk's phone: auto (device table, else online from "
+                   "its first scans), none, or K,B (calibrated = K * rssi + B).")
+def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
+                        calibration: str) -> None:
+    """Wi-Fi (or BLE) position per scan (CSV) from the fingerprints of BUNDLE (a floor bundle
+    or a folder of bundles: the walk's floor, else the site floor model, picks one)."""
+    from localize.cli import _open_maps, _walks, radio_for_walk
+    from localize.fingerprint_positioner import FingerprintPositioner
+    from survey.step_summaries import step_summaries, waypoints_of
+    from survey.trace_reader import read_trace
+
+    maps = _open_maps(bundle_path)
+    rows = []
+    for f in _walks(walks):
+        trace = read_trace(f)
+        scans = _scans(trace, kind, SCAN_MAX_AGE_MS["locate"])
+        if not scans:
+            click.echo(f"{trace.trace_id}: no {kind} scans", err=True)
+            continue
+        bundle = maps.select(step_summaries(trace))
+        pos = FingerprintPositioner.from_bundle(bundle, kind)
+        if pos is None:
+            raise LocalizationError(f"{bundle.path}: no {kind} fingerprints in this bundle")
+        if calibration == "auto":
+            pos, how = radio_for_walk(bundle, trace.header.model, scans, kind=kind)
+        elif calibration == "none":
+            how = "none"
+        else:
+            try:
+                k, b = (float(v) for v in calibration.split(","))
+            except ValueError as err:
+                raise click.BadParameter(f"--calibration must be auto, none or K,B; got "
+                                         f"{calibration!r}") from err
+            pos, how = pos.with_calibration(k, b), f"given k={k:g}, b={b:+g} dB"
+        fixes = pos.locate_scans(scans)
+        t = np.array([s.t_ms for s in scans], dtype=np.float64)
+        t_wp, xy_wp = waypoints_of(trace)
+        truth = np.full((len(scans), 2), np.nan)
+        inside = (t >= t_wp[0]) & (t <= t_wp[-1]) if len(t_wp) >= 2 else np.zeros(len(t), bool)
+        if inside.any():
+            truth[inside, 0] = np.interp(t[inside], t_wp, xy_wp[:, 0])
+            truth[inside, 1] = np.interp(t[inside], t_wp, xy_wp[:, 1])
+        err = np.hypot(*(fixes.xy_m - truth).T)
+        for i, scan in enumerate(scans):
+            rows.append({"trace_id": trace.trace_id, "floor": bundle.manifest.get("floor_name",
+                                                                                 ""),
+                         "t_ms": scan.t_ms, "n_known": int(fixes.n_known[i]),
+                         "x_m": float(fixes.xy_m[i, 0]) if np.isfinite(fixes.xy_m[i, 0]) else "",
+                         "y_m": float(fixes.xy_m[i, 1]) if np.isfinite(fixes.xy_m[i, 1]) else "",
+                         "sigma_m": float(fixes.sigma_m[i]) if np.isfinite(fixes.sigma_m[i])
+                         else "", "error_m": float(err[i]) if np.isfinite(err[i]) else ""})
+        e = err[np.isfinite(err)]
+        click.echo(f"{trace.trace_id}: {len(scans)} {kind} scans on "
+                   f"{bundle.manifest.get('floor_name', '')}, {int(np.isfinite(fixes.xy_m[:, 0]).sum())} "
+                   f"located; calibration {how}"
+                   + (f"; error vs waypoint track median {np.median(e):.2f} m" if len(e) else ""),
+                   err=True)
+    _csv(rows, ["trace_id", "floor", "t_ms", "n_known", "x_m", "y_m", "sigma_m", "error_m"])

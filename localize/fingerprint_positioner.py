@@ -1,0 +1,250 @@
+"""Wi-Fi/BLE positions from a bundle's fingerprint tables (numpy only).
+
+The floor bundles written by ``indoormap build`` carry, per radio kind (``wifi``, ``ble``),
+the reference-point tables of :mod:`mapping.fingerprints` (``<kind>_rp``, ``<kind>_fp``). This
+module turns them into the localizer's :class:`~localize.radio.RadioModel` with indoormap's
+default matcher (:func:`mapping.matching.default_matcher`, same kernels from
+:mod:`localize.radio_match`): Sorensen distance on the powed representation, references
+weighted by their detection rate, the k = 5 nearest reference points averaged with weights
+1/d^2.
+
+A phone whose RSSI scale differs from the survey device is handled by a linear map
+``k * rssi + b`` applied to every scan first: from the bundle's device table when its model is
+known (:meth:`FingerprintPositioner.for_device`), or estimated online from a few of its scans
+(:meth:`FingerprintPositioner.calibrated_online`, the calibration-free search of
+:mod:`localize.rssi_calibration`).
+
+Missing-transmitter policy: transmitters the bundle does not know are ignored; a scan that
+hears none of the bundle's transmitters gives no fix (``None``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from localize.errors import LocalizationError
+from localize.radio_match import knn_positions, powed, sorensen_distances
+from localize.rssi_calibration import OnlineCalibration, estimate_rssi_calibration
+from localize.steps import RadioScan
+
+__all__ = ["FingerprintPositioner", "RadioFixes", "fingerprint_kinds"]
+
+RP_TABLE, FP_TABLE, DEVICE_TABLE = "{kind}_rp", "{kind}_fp", "devices"
+
+
+def fingerprint_kinds(bundle) -> list[str]:
+    """Radio kinds (``wifi``, ``ble``) whose fingerprint tables the bundle holds."""
+    return [k for k in ("wifi", "ble")
+            if bundle.has_table(RP_TABLE.format(kind=k)) and bundle.has_table(FP_TABLE.format(
+                kind=k))]
+
+
+@dataclass(frozen=True)
+class RadioFixes:
+    """Positions of several scans.
+
+    Attributes
+    ----------
+    xy_m : ndarray, shape (S, 2)
+        Estimated positions (m); NaN for scans without a known transmitter.
+    sigma_m : ndarray, shape (S,)
+        Weighted RMS spread of the k neighbours around the estimate (m), at least 1 m.
+    n_known : ndarray, shape (S,)
+        Transmitters of the scan the bundle knows.
+    distance : ndarray, shape (S,)
+        Mean Sorensen distance of the k neighbours (0 = identical, 1 = nothing shared).
+    """
+
+    xy_m: NDArray[np.float64]
+    sigma_m: NDArray[np.float64]
+    n_known: NDArray[np.int64]
+    distance: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class FingerprintPositioner:
+    """Weighted kNN over reference points (see the module docstring).
+
+    Attributes
+    ----------
+    aps : ndarray of str, shape (A,)
+        Transmitter keys, sorted (BSSIDs lower-case, beacon keys ``uuid:major:minor``).
+    xy_m : ndarray, shape (R, 2)
+        Reference point positions (m).
+    mean_dbm, var_db2 : ndarray, shape (R, A)
+        Mean RSSI (dBm) and its variance (dB^2); NaN where the reference never heard it.
+    detection_rate : ndarray, shape (R, A)
+        Share of the reference point's scans that heard the transmitter.
+    k : int
+        Neighbours averaged.
+    weight_power : float
+        Neighbour weights ``1 / distance ** weight_power``.
+    rssi_k, rssi_b : float
+        Calibration ``k * rssi + b`` applied to every scan (dBm); identity by default.
+    likelihood_sigma_m : float
+        Spread (m) of each neighbour's Gaussian in :meth:`likelihood`.
+    """
+
+    aps: NDArray[np.str_]
+    xy_m: NDArray[np.float64]
+    mean_dbm: NDArray[np.float64]
+    var_db2: NDArray[np.float64]
+    detection_rate: NDArray[np.float64]
+    k: int = 5
+    weight_power: float = 2.0
+    rssi_k: float = 1.0
+    rssi_b: float = 0.0
+    likelihood_sigma_m: float = 3.0
+
+    def __post_init__(self) -> None:
+        shape = (len(self.xy_m), len(self.aps))
+        for name in ("mean_dbm", "var_db2", "detection_rate"):
+            if getattr(self, name).shape != shape:
+                raise LocalizationError(f"fingerprints: {name} has shape "
+                                        f"{getattr(self, name).shape}, expected {shape}")
+        if shape[0] == 0:
+            raise LocalizationError("fingerprints: no reference point")
+        ref = powed(self.mean_dbm) * self.detection_rate
+        object.__setattr__(self, "_ref", ref)
+        object.__setattr__(self, "_index", {a: i for i, a in enumerate(self.aps.tolist())})
+
+    # -- construction ------------------------------------------------------------------------
+    @classmethod
+    def from_tables(cls, rp, fp, **kw) -> FingerprintPositioner:
+        """From the ``<kind>_rp`` and ``<kind>_fp`` tables (pyarrow) of a bundle."""
+        need = {"rp": (rp, ("rp_id", "x_m", "y_m")),
+                "fp": (fp, ("rp_id", "ap", "mean_dbm", "var_db2", "detection_rate"))}
+        for what, (table, cols) in need.items():
+            missing = [c for c in cols if c not in table.column_names]
+            if missing:
+                raise LocalizationError(f"fingerprint table {what!r} lacks columns {missing}")
+        rp_id = np.asarray(rp.column("rp_id").to_numpy(), dtype=np.int64)
+        order = np.argsort(rp_id, kind="stable")
+        rp_id = rp_id[order]
+        xy = np.column_stack([np.asarray(rp.column("x_m").to_numpy(), np.float64)[order],
+                              np.asarray(rp.column("y_m").to_numpy(), np.float64)[order]])
+        fp_rp = np.asarray(fp.column("rp_id").to_numpy(), dtype=np.int64)
+        r_idx = np.searchsorted(rp_id, fp_rp)
+        if len(fp_rp) and (np.any(r_idx >= len(rp_id)) or
+                           np.any(rp_id[np.minimum(r_idx, len(rp_id) - 1)] != fp_rp)):
+            raise LocalizationError("fingerprint rows refer to unknown reference points")
+        ap_col = np.asarray(fp.column("ap").to_pylist(), dtype=object).astype(str)
+        aps, a_idx = np.unique(ap_col, return_inverse=True)
+        shape = (len(rp_id), len(aps))
+        mean, var, det = np.full(shape, np.nan), np.full(shape, np.nan), np.zeros(shape)
+        mean[r_idx, a_idx] = fp.column("mean_dbm").to_numpy()
+        var[r_idx, a_idx] = fp.column("var_db2").to_numpy(zero_copy_only=False)
+        det[r_idx, a_idx] = fp.column("detection_rate").to_numpy()
+        return cls(aps, xy, mean, var, det, **kw)
+
+    @classmethod
+    def from_bundle(cls, bundle, kind: str = "wifi", **kw) -> FingerprintPositioner | None:
+        """The positioner of a floor bundle's ``kind`` fingerprints; None when it has none."""
+        if kind not in fingerprint_kinds(bundle):
+            return None
+        return cls.from_tables(bundle.table(RP_TABLE.format(kind=kind)),
+                               bundle.table(FP_TABLE.format(kind=kind)), **kw)
+
+    def with_calibration(self, k: float, b: float) -> FingerprintPositioner:
+        """The same positioner applying ``k * rssi + b`` (dBm) to every scan."""
+        if not (np.isfinite(k) and np.isfinite(b) and k > 0):
+            raise LocalizationError(f"RSSI calibration needs a finite k > 0 and b; got {k}, {b}")
+        return replace(self, rssi_k=float(k), rssi_b=float(b))
+
+    def for_device(self, bundle, device_model: str) -> FingerprintPositioner | None:
+        """Calibrated with the bundle's device table entry of ``device_model``; None when the
+        bundle has no device table or does not know the model (calibrate online instead)."""
+        if not bundle.has_table(DEVICE_TABLE):
+            return None
+        table = bundle.table(DEVICE_TABLE)
+        models = np.asarray(table.column("device_model").to_pylist(), dtype=object).astype(str)
+        hit = np.flatnonzero(models == str(device_model))
+        if len(hit) == 0:
+            return None
+        i = int(hit[0])
+        return self.with_calibration(float(table.column("k")[i].as_py()),
+                                     float(table.column("b")[i].as_py()))
+
+    def online_calibration(self, scans: Sequence[RadioScan], **kw) -> OnlineCalibration:
+        """Estimate ``k, b`` of an unknown phone from a few of its scans (no positions needed;
+        see :func:`localize.rssi_calibration.estimate_rssi_calibration`)."""
+        rssi = self.scan_matrix(scans, calibrated=False)
+        return estimate_rssi_calibration(rssi, self.mean_dbm, self.var_db2, **kw)
+
+    def calibrated_online(self, scans: Sequence[RadioScan], **kw) -> FingerprintPositioner:
+        """The positioner calibrated from ``scans`` (see :meth:`online_calibration`)."""
+        cal = self.online_calibration(scans, **kw)
+        return self.with_calibration(cal.k, cal.b)
+
+    # -- matching ----------------------------------------------------------------------------
+    def scan_matrix(self, scans: Sequence[RadioScan], *, calibrated: bool = True
+                    ) -> NDArray[np.float64]:
+        """RSSI of ``scans`` over :attr:`aps`, shape (S, A) (dBm; NaN = not heard), with the
+        calibration applied unless ``calibrated=False``."""
+        out = np.full((len(scans), len(self.aps)), np.nan)
+        for i, scan in enumerate(scans):
+            if scan is None or len(scan) == 0:
+                continue
+            idx = np.fromiter((self._index.get(k, -1) for k in scan.keys.tolist()),
+                              dtype=np.int64, count=len(scan))
+            known = idx >= 0
+            out[i, idx[known]] = np.asarray(scan.rssi_dbm, dtype=np.float64)[known]
+        if calibrated and (self.rssi_k != 1.0 or self.rssi_b != 0.0):
+            out = self.rssi_k * out + self.rssi_b
+        return out
+
+    def locate_matrix(self, rssi_dbm: ArrayLike) -> RadioFixes:
+        """Positions of scans given as a matrix over :attr:`aps` (already calibrated)."""
+        rssi = np.asarray(rssi_dbm, dtype=np.float64).reshape(-1, len(self.aps))
+        n = len(rssi)
+        n_known = np.isfinite(rssi).sum(axis=1).astype(np.int64)
+        xy, sigma, dist = np.full((n, 2), np.nan), np.full(n, np.nan), np.full(n, np.nan)
+        q = powed(rssi)
+        ok = q.sum(axis=1) > 0
+        if ok.any():
+            d = sorensen_distances(q[ok], self._ref)
+            p, d_mean, nn = knn_positions(d, self.xy_m, self.k, self.weight_power)
+            w = 1.0 / np.maximum(np.take_along_axis(d, nn, axis=1), 1e-9) ** self.weight_power
+            spread2 = (((self.xy_m[nn] - p[:, None, :]) ** 2).sum(axis=2) * w).sum(axis=1) \
+                / w.sum(axis=1)
+            xy[ok], dist[ok] = p, d_mean
+            sigma[ok] = np.maximum(np.sqrt(spread2), 1.0)
+        return RadioFixes(xy, sigma, n_known, dist)
+
+    def locate_scans(self, scans: Sequence[RadioScan]) -> RadioFixes:
+        """Positions of several scans (calibration applied)."""
+        return self.locate_matrix(self.scan_matrix(scans))
+
+    def locate(self, scan: RadioScan) -> tuple[float, float, float] | None:
+        """``(x_m, y_m, sigma_m)`` of one scan, or None when it hears no known transmitter."""
+        fix = self.locate_scans([scan])
+        if not np.isfinite(fix.xy_m[0, 0]):
+            return None
+        return float(fix.xy_m[0, 0]), float(fix.xy_m[0, 1]), float(fix.sigma_m[0])
+
+    def likelihood(self, scan: RadioScan, x_m: ArrayLike, y_m: ArrayLike
+                   ) -> NDArray[np.float64] | None:
+        """Radio likelihood at positions (m): a mixture of Gaussians (``likelihood_sigma_m``)
+        at the 2k nearest reference points, weighted 1/d^2. Keeps the alternatives of an
+        ambiguous scan for the particle filter. None when the scan hears no known transmitter.
+        """
+        if self.likelihood_sigma_m <= 0 or scan is None:
+            return None
+        q = powed(self.scan_matrix([scan]))
+        if q.sum() <= 0:
+            return None
+        d = sorensen_distances(q, self._ref)
+        _, _, nn = knn_positions(d, self.xy_m, 2 * self.k, self.weight_power)
+        nn = nn[0]
+        w = 1.0 / np.maximum(d[0, nn], 1e-9) ** self.weight_power
+        w /= w.sum()
+        x = np.asarray(x_m, dtype=np.float64)
+        y = np.asarray(y_m, dtype=np.float64)
+        inv = 1.0 / (2.0 * self.likelihood_sigma_m ** 2)
+        dx = x[..., None] - self.xy_m[nn, 0]
+        dy = y[..., None] - self.xy_m[nn, 1]
+        return (np.exp(-(dx * dx + dy * dy) * inv) * w).sum(axis=-1)

@@ -1,0 +1,211 @@
+"""Radio maps in the bundles: what `indoormap build` writes, what the localizer reads from it,
+and the `floor` / `wifi-locate` commands."""
+
+from __future__ import annotations
+
+import csv
+import gzip
+import io
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from localize.bundle import load_bundle
+from localize.cli import radio_for_walk
+from localize.fingerprint_positioner import FingerprintPositioner, fingerprint_kinds
+from localize.floor_classifier import FloorClassifier
+from localize.steps import RadioScan
+from mapping.fingerprints import FingerprintDB
+from mapping.floor_model import FloorModel
+from mapping.matching import default_matcher
+from mapping.radio_scans import scan_set
+from survey.cli import main
+
+from radio_fixtures import SITE, ble_obs, device_of, sample_store, sample_truth, wifi_obs  # noqa: F401
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("radio_bundle") / "bundles"
+    res = CliRunner().invoke(main, ["build", str(SITE), "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    return out
+
+
+def _tables(bundle, prefix: str) -> dict:
+    return {name: bundle.table(f"{prefix}_{name}").to_pandas() for name in ("rp", "fp", "meta")}
+
+
+def test_build_writes_radio_tables_and_a_site_bundle(built):
+    for floor in ("F1", "F2"):
+        b = load_bundle(built / floor)
+        assert fingerprint_kinds(b) == ["wifi", "ble"]
+        db = FingerprintDB.from_tables(_tables(b, "wifi"))
+        assert db.kind == "wifi" and len(db) > 50 and db.cell_m == 1.0
+        fp = db.fp
+        # eq. 2: unbiased variance exists only where a reference point has >= 2 rows
+        assert fp.loc[fp["n"] < 2, "var_db2"].isna().all()
+        assert (fp.loc[fp["n"] >= 2, "var_db2"] >= 0).all()
+        assert ((fp["detection_rate"] > 0) & (fp["detection_rate"] <= 1)).all()
+        radio = b.manifest["metrics"]["radio"]
+        assert radio["wifi"]["reference_points"] == len(db)
+        devices = b.table("devices").to_pandas()
+        assert set(devices["device_model"]) == {"PBCM10", "SM-G9730"}
+    site = load_bundle(built / "_site")
+    assert site.manifest["kind"] == "site" and site.grid is None
+    fm = site.manifest["metrics"]["floor_model"]
+    assert fm["kind"] == "wifi" and fm["floors"] == ["F1", "F2"]
+    assert fm["cv_scan_accuracy"] >= 0.95 and fm["cv_folds"] == 5
+    assert site.has_table("wifi_dropped") and site.has_table("floor_coef")
+
+
+def test_device_table_matches_the_simulated_phone(built, sample_truth):
+    """The build's device table undoes the simulated distortion rssi = k_dev * ref + b_dev."""
+    dev = {d["model"]: d for d in sample_truth["devices"]} if "devices" in sample_truth else {}
+    table = load_bundle(built / "F1").table("devices").to_pandas().set_index("device_model")
+    assert table.loc["PBCM10", "method"] == "reference"
+    assert table.loc["PBCM10", "k"] == 1.0 and table.loc["PBCM10", "b"] == 0.0
+    if "SM-G9730" in dev:
+        k_dev, b_dev = dev["SM-G9730"]["rssi_k"], dev["SM-G9730"]["rssi_b"]
+        assert table.loc["SM-G9730", "k"] == pytest.approx(1 / k_dev, abs=0.05)
+        assert table.loc["SM-G9730", "b"] == pytest.approx(-b_dev / k_dev, abs=1.0)
+
+
+def test_localizer_positions_equal_the_mapping_matcher(built, wifi_obs):
+    """Bundle tables -> numpy positioner gives the same fixes as mapping's default matcher."""
+    b = load_bundle(built / "F1")
+    pos = FingerprintPositioner.from_bundle(b, "wifi")
+    db = FingerprintDB.from_tables(_tables(b, "wifi"))
+    obs = wifi_obs["F1"]
+    obs = obs[obs["age_ms"] <= 2500]  # the matcher down-weights older rows; scans carry no age
+    scans = scan_set(obs)
+    want = default_matcher().fit(db).predict(scans)
+    rssi = np.full((len(scans), len(pos.aps)), np.nan)
+    idx = np.searchsorted(pos.aps, scans.aps)
+    known = (idx < len(pos.aps)) & (pos.aps[np.minimum(idx, len(pos.aps) - 1)] == scans.aps)
+    rssi[:, idx[known]] = scans.rssi_dbm[:, known]
+    got = pos.locate_matrix(rssi)
+    ok = np.isfinite(want.xy_m[:, 0])
+    assert ok.mean() > 0.99
+    np.testing.assert_allclose(got.xy_m[ok], want.xy_m[ok], atol=1e-6)
+    assert np.all(got.sigma_m[ok] >= 1.0)
+
+
+def test_localizer_floor_model_equals_the_fitted_one(built, wifi_obs):
+    site = load_bundle(built / "_site")
+    clf = FloorClassifier.from_bundle(site)
+    tables = {n: site.table(f"floor_{n}").to_pandas() for n in ("coef", "intercept", "meta")}
+    model = FloorModel.from_tables(tables)
+    for floor, obs in wifi_obs.items():
+        s = scan_set(obs)
+        want = model.predict(s)
+        rssi = np.full((len(s), len(clf.aps)), np.nan)
+        common, i_s, i_c = np.intersect1d(s.aps, clf.aps, return_indices=True)
+        rssi[:, i_c] = s.rssi_dbm[:, i_s]
+        lp = clf.log_proba(rssi)
+        got = np.where(np.isfinite(lp).all(1), clf.floors[np.argmax(np.nan_to_num(lp, nan=-1e9),
+                                                                      axis=1)], "")
+        assert (got == want).all()
+        assert (want == floor).mean() >= 0.95
+
+
+def test_scan_without_known_transmitter_gives_no_fix(built):
+    pos = FingerprintPositioner.from_bundle(load_bundle(built / "F1"), "wifi")
+    unknown = RadioScan(0, np.array(["02:00:00:00:00:01"]), np.array([-50.0]))
+    assert pos.locate(unknown) is None
+    assert pos.likelihood(unknown, np.zeros(3), np.zeros(3)) is None
+    fixes = pos.locate_scans([unknown, RadioScan(1, pos.aps[:3], np.array([-60.0, -70, -80]))])
+    assert np.isnan(fixes.xy_m[0]).all() and np.isfinite(fixes.xy_m[1]).all()
+    assert fixes.n_known.tolist() == [0, 3]
+    with pytest.raises(Exception, match="k > 0"):
+        pos.with_calibration(0.0, 1.0)
+
+
+def test_unknown_phone_is_calibrated_online(built):
+    b = load_bundle(built / "F1")
+    pos = FingerprintPositioner.from_bundle(b, "wifi")
+    # scans at three reference points, reported on a weaker scale: rssi = 0.85 * ref - 8
+    scans = []
+    for i in range(0, 40, 5):
+        heard = np.flatnonzero(np.isfinite(pos.mean_dbm[i]))
+        scans.append(RadioScan(i, pos.aps[heard], 0.85 * pos.mean_dbm[i, heard] - 8.0))
+    cal, how = radio_for_walk(b, "Unknown-Phone", scans)
+    assert how.startswith("online")
+    assert cal.rssi_k * 0.85 == pytest.approx(1.0, abs=0.05)
+    assert cal.rssi_k * -8.0 + cal.rssi_b == pytest.approx(0.0, abs=1.5)
+    known, how = radio_for_walk(b, "SM-G9730", scans)
+    assert how.startswith("device table")
+
+
+def _rows(text: str) -> list[dict]:
+    lines = [ln for ln in text.splitlines() if "," in ln]
+    return list(csv.DictReader(io.StringIO("\n".join(lines))))
+
+
+def test_floor_command_per_scan_and_per_walk(built):
+    runner = CliRunner()
+    for floor in ("F1", "F2"):
+        res = runner.invoke(main, ["floor", str(built), str(SITE / floor / "path_data_files")])
+        assert res.exit_code == 0, res.output
+        rows = _rows(res.stdout)
+        walks = [r for r in rows if r["level"] == "walk"]
+        scans = [r for r in rows if r["level"] == "scan"]
+        # F1 has a walk without any Wi-Fi (like one real walk): floor unknown, said so
+        assert len(walks) == 6
+        assert all(r["floor"] == (floor if int(r["n_known"]) else "") for r in walks)
+        assert sum(r["floor"] == floor for r in walks) == (5 if floor == "F1" else 6)
+        assert np.mean([r["floor"] == floor for r in scans]) >= 0.95
+        assert all(r["recorded_floor"] == floor for r in rows)
+    bad = runner.invoke(main, ["floor", str(built / "F1"), str(SITE / "F1" / "path_data_files")])
+    assert bad.exit_code != 0 and "not a site bundle" in bad.output
+
+
+def test_wifi_locate_command(built, tmp_path):
+    runner = CliRunner()
+    res = runner.invoke(main, ["wifi-locate", str(built), str(SITE / "F2" / "path_data_files")])
+    assert res.exit_code == 0, res.output
+    rows = _rows(res.stdout)
+    assert rows and {"x_m", "y_m", "sigma_m", "n_known", "error_m"} <= set(rows[0])
+    err = np.array([float(r["error_m"]) for r in rows if r["error_m"]])
+    assert len(err) > 100 and np.median(err) < 3.0  # walks the map was built from
+    assert "device table (SM-G9730" in res.stderr
+    ble = runner.invoke(main, ["wifi-locate", "--kind", "ble", str(built / "F2"),
+                               str(SITE / "F2" / "path_data_files")])
+    assert ble.exit_code == 0, ble.output
+    assert len(_rows(ble.stdout)) > 10
+    given = runner.invoke(main, ["wifi-locate", "--calibration", "1.1,x", str(built / "F2"),
+                                 str(SITE / "F2" / "path_data_files")])
+    assert given.exit_code == 2 and "K,B" in given.output
+
+
+def test_walk_without_wifi(built, tmp_path):
+    """The sample's walk with no Wi-Fi rows (one real walk has none): clear message."""
+    walk = SITE / "F1" / "path_data_files" / "641189778a6ffd7aae963f2c.txt.gz"
+    runner = CliRunner()
+    res = runner.invoke(main, ["wifi-locate", str(built), str(walk)])
+    assert res.exit_code == 0 and "no wifi scans" in res.stderr
+    res = runner.invoke(main, ["floor", str(built), str(walk)])
+    assert res.exit_code == 0 and "floor unknown" in res.stderr
+    assert [r["floor"] for r in _rows(res.stdout) if r["level"] == "walk"] == [""]
+
+
+def test_site_without_wifi_builds_without_radio_tables(tmp_path):
+    """A floor folder whose walks carry no Wi-Fi and no BLE: bundles without radio tables."""
+    floor = tmp_path / "site" / "F1"
+    shutil.copytree(SITE / "F1", floor, ignore=shutil.ignore_patterns("path_data_files"))
+    (floor / "path_data_files").mkdir()
+    for src in sorted((SITE / "F1" / "path_data_files").iterdir())[:3]:
+        opener = gzip.open if src.suffix == ".gz" else open
+        with opener(src, "rt", encoding="utf-8") as fh:
+            lines = [ln for ln in fh if "TYPE_WIFI" not in ln and "TYPE_BEACON" not in ln]
+        (floor / "path_data_files" / src.name.replace(".gz", "")).write_text("".join(lines))
+    out = tmp_path / "out"
+    res = CliRunner().invoke(main, ["build", str(floor), "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "no floor model" in res.output
+    b = load_bundle(out / "F1")
+    assert fingerprint_kinds(b) == [] and b.manifest["metrics"]["radio"]["wifi"] is None
+    assert FloorClassifier.from_bundle(load_bundle(out / "_site")) is None
