@@ -12,12 +12,16 @@ Positions, per floor, leave-one-walk-out (``--folds 0``, default) or grouped k-f
   Euclidean distance in dBm, not heard = -100 dBm, rows of any age;
 - ``baseline 3s``: the same with rows older than 3 s dropped on both sides;
 - ``scans+sorensen`` (``--with-scans``): indoormap's matcher over raw scans (no grid);
-- ``default``: indoormap's default: 1 m reference-point grid, rows up to 6 s, Sorensen kNN on
-  powed RSSI (k = 5, 1/d^2), query rows older than 2.5 s down-weighted;
-- ``gaussian``: the probabilistic match on the same grid.
+- ``default``: what ``indoormap build`` ships, rebuilt per fold from the training walks only
+  (:func:`mapping.radio_build.site_radio`: device table, AP selection over the three floors,
+  1 m reference points, Wi-Fi rows up to 6 s) matched as the localizer does (Sorensen kNN on
+  powed RSSI, k = 5, 1/d^2; query rows older than 2.5 s down-weighted);
+- ``gaussian``: the probabilistic match on the same reference points;
+- ``ble``: the shipped BLE fingerprints on held-out BLE windows (2 s), scored separately (BLE
+  windows are not Wi-Fi scans; the count differs).
 
-Floors: logistic regression on transmitter presence, grouped 10-fold by walk over the three
-floors: accuracy per scan, per 5-scan sequence and per walk.
+Floors: the shipped floor model (logistic regression on transmitter levels, fitted per fold on
+the training walks of all floors): accuracy per scan, per 5-scan sequence and per walk.
 
 Device calibration: every held-out walk's RSSI is mapped through ``0.85 * rssi - 8`` and,
 harsher, ``rssi - 12`` (phones that report weaker values). Without calibration the walk is
@@ -26,8 +30,8 @@ walk's first 8 scans (rows <= 3 s) and the whole walk is calibrated. Reported: m
 and its loss against the untransformed walks (target < 10 %), and how close the combined map
 (transform then calibration) comes to the identity.
 
-Runtime: leave-one-walk-out over the three floors takes about 20 min on 2 cores
-(``--folds 10``: about 2 min).
+Runtime on 2 cores: ``--folds 10`` about 4 min; leave-one-walk-out (305 folds, the floor
+model then measured by 10-fold) about 60 min.
 """
 
 from __future__ import annotations
@@ -42,11 +46,12 @@ import pandas as pd
 
 from localize.rssi_calibration import estimate_rssi_calibration
 from mapping.fingerprints import build_fingerprints
-from mapping.floor_model import cross_validate_floor_model
 from mapping.matching import GaussianMatch, WeightedKNN, align_scans, default_matcher
-from mapping.radio_scans import ScanSet, scan_set, wifi_observations
+from mapping.radio_build import RadioParams, calibrated, site_observations, site_radio
+from mapping.radio_scans import ScanSet, scan_set
 from survey.ingest import ingest
-from survey.process_store import process_store, processed_table
+from survey.process_store import process_store
+from survey.store import SurveyStore
 
 REPO = Path(__file__).resolve().parents[1]
 SITE = REPO.parent / "shared" / "ilc" / "site1"
@@ -88,48 +93,91 @@ def calibrated_walk(scans: ScanSet, db) -> tuple[ScanSet, float, float]:
     return scans.transformed(cal.k, cal.b), cal.k, cal.b
 
 
-def floor_positions(obs: pd.DataFrame, folds: int, with_scans: bool
-                    ) -> tuple[dict[str, list], list]:
-    walks = np.unique(obs["trace_id"].to_numpy().astype(str))
+def fold_groups(walks: np.ndarray, folds: int) -> list[list[str]]:
     if folds and folds < len(walks):
         rng = np.random.default_rng(0)
         fold_of = dict(zip(rng.permutation(walks), np.arange(len(walks)) % folds))
-        groups = [[w for w in walks if fold_of[w] == k] for k in range(folds)]
-    else:
-        groups = [[w] for w in walks]
-    trace = obs["trace_id"].to_numpy().astype(str)
-    out: dict[str, list] = {}
-    cal_kb = []
-    fresh = obs["age_ms"].to_numpy() <= 3000
-    for held in groups:
-        test = np.isin(trace, held)
-        train, test_obs = obs[~test], obs[test]
-        scans = scan_set(test_obs)
-        scans3 = scan_set(obs[test & fresh])
-        raw = build_fingerprints(train, cell_m=0, max_age_ms=None)
-        raw3 = build_fingerprints(train, cell_m=0, max_age_ms=3000)
-        grid = build_fingerprints(train)
-        plain = WeightedKNN(5, weight_power=0, metric="euclidean", representation="dbm")
-        out.setdefault("baseline", []).append(errors(plain, raw, scans))
-        out.setdefault("baseline 3s", []).append(errors(plain, raw3, scans3))
-        if with_scans:
-            out.setdefault("scans+sorensen", []).append(
-                errors(default_matcher(), build_fingerprints(train, cell_m=0), scans))
-        knn = default_matcher().fit(grid)
-        out.setdefault("default", []).append(errors(knn, grid, scans))
-        out.setdefault("gaussian", []).append(errors(GaussianMatch(), grid, scans))
-        for walk in held:  # device transforms, per walk
-            one = scans.subset(scans.scans["trace_id"].to_numpy().astype(str) == walk)
-            if len(one) == 0:
+        return [[w for w in walks if fold_of[w] == k] for k in range(folds)]
+    return [[w] for w in walks]
+
+
+def evaluate(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: list[str],
+             folds: int, with_scans: bool, with_floors: bool
+             ) -> tuple[dict[tuple[str, str], list], list, dict]:
+    """Errors per (floor, method), calibration results, floor predictions."""
+    wifi, ble = obs["wifi"], obs["ble"]
+    walks = np.unique(wifi["trace_id"].to_numpy().astype(str))
+    out: dict[tuple[str, str], list] = {}
+    cal_kb: list = []
+    floor_rows: dict[str, list] = {"truth": [], "scan": [], "seq": [], "walk_truth": [],
+                                   "walk": []}
+    params = RadioParams(floor_model=with_floors, floor_cv_folds=0)
+    w_trace = wifi["trace_id"].to_numpy().astype(str)
+    b_trace = ble["trace_id"].to_numpy().astype(str)
+    groups = fold_groups(walks, folds)
+    t0 = time.time()
+    for i, held in enumerate(groups):
+        w_test, b_test = np.isin(w_trace, held), np.isin(b_trace, held)
+        radio = site_radio({"wifi": wifi[~w_test], "ble": ble[~b_test]}, device_of, floors,
+                           params=params)
+        test_cal = calibrated(wifi[w_test], device_of, radio.devices)
+        for f in floors:
+            on_f = wifi["floor"].to_numpy() == f
+            train_raw = wifi[~w_test & on_f]
+            test_f = test_cal[test_cal["floor"].to_numpy() == f]
+            if len(test_f) == 0:
                 continue
-            for tk, tb in TRANSFORMS:
-                moved = one.transformed(tk, tb)
-                tag = f"k={tk:g},b={tb:g}"
-                out.setdefault(f"{tag} untreated", []).append(errors(knn, grid, moved))
-                fixed, k, b = calibrated_walk(moved, grid)
-                cal_kb.append((tag, k * tk, k * tb + b))
-                out.setdefault(f"{tag} calibrated", []).append(errors(knn, grid, fixed))
-    return out, cal_kb
+            scans = scan_set(test_f)
+            raw_test = wifi[w_test & on_f]
+            scans3 = scan_set(raw_test[raw_test["age_ms"] <= 3000])
+            plain = WeightedKNN(5, weight_power=0, metric="euclidean", representation="dbm")
+            out.setdefault((f, "baseline"), []).append(
+                errors(plain, build_fingerprints(train_raw, cell_m=0, max_age_ms=None),
+                       scan_set(raw_test)))
+            out.setdefault((f, "baseline 3s"), []).append(
+                errors(plain, build_fingerprints(train_raw, cell_m=0, max_age_ms=3000), scans3))
+            if with_scans:
+                out.setdefault((f, "scans+sorensen"), []).append(
+                    errors(default_matcher(), build_fingerprints(train_raw, cell_m=0), scans))
+            grid = radio.fingerprints[(f, "wifi")]
+            knn = default_matcher().fit(grid)
+            out.setdefault((f, "default"), []).append(errors(knn, grid, scans))
+            out.setdefault((f, "gaussian"), []).append(errors(GaussianMatch(), grid, scans))
+            if (f, "ble") in radio.fingerprints:
+                bt = ble[b_test & (ble["floor"].to_numpy() == f)]
+                if len(bt):
+                    bdb = radio.fingerprints[(f, "ble")]
+                    bt = bt[bt["ap"].isin(set(bdb.aps.tolist()))]
+                    if len(bt):
+                        out.setdefault((f, "ble"), []).append(
+                            errors(default_matcher(), bdb, scan_set(bt)))
+            for walk in held:  # device transforms, per walk
+                one = scans.subset(scans.scans["trace_id"].to_numpy().astype(str) == walk)
+                if len(one) == 0:
+                    continue
+                for tk, tb in TRANSFORMS:
+                    moved = one.transformed(tk, tb)
+                    tag = f"k={tk:g},b={tb:g}"
+                    out.setdefault((f, f"{tag} untreated"), []).append(errors(knn, grid, moved))
+                    fixed, k, b = calibrated_walk(moved, grid)
+                    cal_kb.append((tag, k * tk, k * tb + b))
+                    out.setdefault((f, f"{tag} calibrated"), []).append(
+                        errors(knn, grid, fixed))
+        if radio.floor_model is not None:
+            model = radio.floor_model
+            s = scan_set(test_cal)
+            truth = test_cal.groupby("scan_id", sort=True)["floor"].first().to_numpy()
+            floor_rows["truth"].append(truth)
+            floor_rows["scan"].append(model.predict(s))
+            floor_rows["seq"].append(model.predict_sequence(s, 5))
+            w = model.predict_walks(s)
+            wt = test_cal.groupby("trace_id")["floor"].first()
+            floor_rows["walk"].append(w.to_numpy())
+            floor_rows["walk_truth"].append(wt.reindex(w.index).to_numpy())
+        if (i + 1) % max(1, len(groups) // 10) == 0:
+            print(f"  fold {i + 1}/{len(groups)} ({time.time() - t0:.0f} s)", file=sys.stderr,
+                  flush=True)
+    return out, cal_kb, floor_rows
 
 
 def main() -> int:
@@ -145,21 +193,21 @@ def main() -> int:
         print(f"skipped: {SITE} not available")
         return 0
     prepare_store(args.store, floors)
-    obs = {f: wifi_observations(processed_table(args.store, "wifi", floor=f)) for f in floors}
+    store = SurveyStore.open(args.store)
+    obs = {k: site_observations(store, None, floors, k) for k in ("wifi", "ble")}
+    device_of = store.catalog().set_index("trace_id")["device_model"].astype(str)
     split = "leave-one-walk-out" if args.folds == 0 else f"grouped {args.folds}-fold by walk"
 
     t = time.time()
+    out, kb_all, fl = evaluate(obs, device_of, floors, args.folds, args.with_scans,
+                               with_floors=args.folds != 0)
     print(f"\nWi-Fi position error (m), {split}; truth = processed scan positions")
     print(f"{'floor':6} {'method':26} {'median':>7} {'p80':>7} {'mean':>7} {'scans':>6}")
     pooled: dict[str, list] = {}
-    kb_all = []
-    for f in floors:
-        out, kb = floor_positions(obs[f], args.folds, args.with_scans)
-        kb_all += kb
-        for name, parts in out.items():
-            e = np.concatenate(parts)
-            pooled.setdefault(name, []).append(e)
-            print(f"{f:6} {name:26} {row(e)}", flush=True)
+    for (f, name), parts in out.items():
+        e = np.concatenate(parts)
+        pooled.setdefault(name, []).append(e)
+        print(f"{f:6} {name:26} {row(e)}", flush=True)
     for name, parts in pooled.items():
         print(f"{'all':6} {name:26} {row(np.concatenate(parts))}")
     med = {n: stats(np.concatenate(p))[0] for n, p in pooled.items()}
@@ -174,19 +222,24 @@ def main() -> int:
             print(f"  {name:26} {med[name]:.2f} m  loss {100 * (med[name] / base - 1):+.1f} %")
         part = kb[kb["tag"] == tag]
         at70 = part["slope"] * -70 + part["offset"] + 70
+        iqr = part["slope"].quantile(.75) - part["slope"].quantile(.25)
         print(f"  {'':26} combined map after calibration: slope median "
-              f"{part['slope'].median():.3f} (IQR {part['slope'].quantile(.75) - part['slope'].quantile(.25):.3f}), "
-              f"error at -70 dBm median {at70.median():+.2f} dB (IQR "
-              f"{at70.quantile(.75) - at70.quantile(.25):.2f}); ideal 1, 0")
+              f"{part['slope'].median():.3f} (IQR {iqr:.3f}), error at -70 dBm median "
+              f"{at70.median():+.2f} dB (IQR {at70.quantile(.75) - at70.quantile(.25):.2f}); "
+              "ideal 1, 0")
     print(f"(positions and calibration: {time.time() - t:.0f} s)")
 
-    t = time.time()
-    cv = cross_validate_floor_model(obs, folds=10)
-    print(f"\nFloor ({', '.join(floors)}), grouped {cv.folds}-fold by walk: per scan "
-          f"{100 * cv.scan_accuracy:.2f} % of {cv.n_scans}, per {cv.window}-scan sequence "
-          f"{100 * cv.sequence_accuracy:.2f} %, per walk {100 * cv.walk_accuracy:.2f} % of "
-          f"{cv.n_walks} ({time.time() - t:.0f} s)")
-    print(cv.confusion.to_string())
+    if not fl["truth"]:  # leave-one-walk-out: the floor model by 10-fold
+        t = time.time()
+        _, _, fl = evaluate(obs, device_of, floors, 10, False, with_floors=True)
+        print(f"(floor model by grouped 10-fold: {time.time() - t:.0f} s)")
+    truth, scan, seq = (np.concatenate(fl[k]) for k in ("truth", "scan", "seq"))
+    walk, walk_truth = np.concatenate(fl["walk"]), np.concatenate(fl["walk_truth"])
+    print(f"\nFloor ({', '.join(floors)}), shipped floor model, walks held out: per scan "
+          f"{100 * (scan == truth).mean():.2f} % of {len(truth)}, per 5-scan sequence "
+          f"{100 * (seq == truth).mean():.2f} %, per walk {100 * (walk == walk_truth).mean():.2f} "
+          f"% of {len(walk)}")
+    print(pd.crosstab(pd.Series(truth, name="floor"), pd.Series(scan, name="pred")).to_string())
     return 0
 
 

@@ -187,10 +187,11 @@ class FingerprintPositioner:
         calibration applied unless ``calibrated=False``."""
         out = np.full((len(scans), len(self.aps)), np.nan)
         for i, scan in enumerate(scans):
-            if scan is None or len(scan) == 0:
+            keys = [] if scan is None else np.asarray(scan.keys).astype(str).tolist()
+            if not keys:
                 continue
-            idx = np.fromiter((self._index.get(k, -1) for k in scan.keys.tolist()),
-                              dtype=np.int64, count=len(scan))
+            idx = np.fromiter((self._index.get(k, -1) for k in keys), dtype=np.int64,
+                              count=len(keys))
             known = idx >= 0
             out[i, idx[known]] = np.asarray(scan.rssi_dbm, dtype=np.float64)[known]
         if calibrated and (self.rssi_k != 1.0 or self.rssi_b != 0.0):

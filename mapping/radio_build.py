@@ -41,7 +41,8 @@ from .fingerprints import DEFAULT_CELL_M, FingerprintDB, build_fingerprints
 from .floor_model import FloorModel, fit_floor_model
 from .radio_scans import ble_observations, wifi_observations
 
-__all__ = ["KINDS", "RadioParams", "SiteRadio", "build_site_radio", "site_observations"]
+__all__ = ["KINDS", "RadioParams", "SiteRadio", "build_site_radio", "calibrated", "site_observations",
+           "site_radio"]
 
 KINDS = ("wifi", "ble")
 
@@ -55,6 +56,7 @@ class RadioParams:
     select_aps: bool = True
     ap_selection: APSelectionParams = field(default_factory=APSelectionParams)
     calibrate_devices: bool = True
+    floor_model: bool = True
     floor_cv_folds: int = 5
     seed: int = 0
 
@@ -176,11 +178,21 @@ class SiteRadio:
                              metrics=metrics)
 
 
-def _calibrated(obs: pd.DataFrame, device_of: pd.Series, devices: pd.DataFrame) -> pd.DataFrame:
-    k = obs["trace_id"].map(device_of).map(devices.set_index("device_model")["k"]).fillna(1.0)
-    b = obs["trace_id"].map(device_of).map(devices.set_index("device_model")["b"]).fillna(0.0)
+def calibrated(obs: pd.DataFrame, device_of: pd.Series, devices: pd.DataFrame) -> pd.DataFrame:
+    """``obs`` with every walk's RSSI mapped through its phone model's ``k, b`` (dBm); models
+    not in the device table are left as they are."""
+    table = devices.set_index("device_model")
+    if ((table["k"] == 1.0) & (table["b"] == 0.0)).all():
+        return obs
+    traces = pd.Series(pd.unique(obs["trace_id"]))
+    model = traces.map(device_of)
+    per_trace = pd.DataFrame({"k": model.map(table["k"]).fillna(1.0).to_numpy(),
+                              "b": model.map(table["b"]).fillna(0.0).to_numpy()},
+                             index=traces.to_numpy())
+    idx = per_trace.index.get_indexer(obs["trace_id"])
+    k, b = per_trace["k"].to_numpy()[idx], per_trace["b"].to_numpy()[idx]
     out = obs.copy()
-    out["rssi_dbm"] = k.to_numpy() * out["rssi_dbm"].to_numpy() + b.to_numpy()
+    out["rssi_dbm"] = k * out["rssi_dbm"].to_numpy() + b
     return out
 
 
@@ -189,15 +201,35 @@ def build_site_radio(store: SurveyStore | str, floors: Sequence[str], *,
                      progress: Callable[[str], None] | None = None) -> SiteRadio:
     """Device table, AP selection, fingerprints and floor model of a site's floors."""
     store = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
-    say = progress or (lambda msg: None)
     floors = [str(f) for f in floors]
     cat = store.traces(site)
     device_of = cat.set_index("trace_id")["device_model"].fillna("").astype(str)
     obs = {kind: site_observations(store, site, floors, kind,
                                    ble_window_ms=params.ble_window_ms) for kind in KINDS}
+    return site_radio(obs, device_of, floors, params=params, progress=progress)
+
+
+def site_radio(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: Sequence[str], *,
+               params: RadioParams = RadioParams(),
+               progress: Callable[[str], None] | None = None) -> SiteRadio:
+    """:func:`build_site_radio` on observation tables (pure computation).
+
+    Parameters
+    ----------
+    obs : dict
+        Kind (``wifi``, ``ble``) -> observation table over the site's floors with ``floor``
+        and ``ssid`` columns (:func:`site_observations`), rows of any age.
+    device_of : Series
+        Phone model per trace id.
+    floors : sequence of str
+        Floors bottom to top.
+    """
+    say = progress or (lambda msg: None)
+    floors = [str(f) for f in floors]
+    obs = dict(obs)
     notes: list[str] = []
     devices = pd.DataFrame({c: [] for c in DEVICE_TABLE_COLUMNS})
-    if len(obs["wifi"]) and params.calibrate_devices:
+    if len(obs.get("wifi", ())) and params.calibrate_devices:
         devices = calibrate_devices(obs["wifi"], device_of, floor_column="floor")
         fitted = devices[devices["method"] == "offline"]
         say("devices: reference " + str(devices["device_model"].iloc[0]) + "; "
@@ -206,12 +238,13 @@ def build_site_radio(store: SurveyStore | str, floors: Sequence[str], *,
     selections: dict[str, APSelection] = {}
     fingerprints: dict[tuple[str, str], FingerprintDB] = {}
     for kind in KINDS:
-        o = obs[kind]
-        if len(o) == 0:
+        o = obs.get(kind)
+        if o is None or len(o) == 0:
             notes.append(f"no {kind} rows on any floor")
+            obs[kind] = pd.DataFrame(columns=["floor"])
             continue
         if len(devices) and kind == "wifi":
-            o = _calibrated(o, device_of, devices)
+            o = calibrated(o, device_of, devices)
         if params.select_aps:
             ssid = o.drop_duplicates("ap").set_index("ap")["ssid"] if kind == "wifi" else None
             sel = select_aps(o, ssid=ssid, floor_column="floor", floor_order=floors,
@@ -232,7 +265,7 @@ def build_site_radio(store: SurveyStore | str, floors: Sequence[str], *,
                 notes.append(f"floor {floor}: no {kind} fingerprints ({err})")
         obs[kind] = o
     model, model_kind = None, ""
-    for kind in KINDS:  # Wi-Fi first, BLE for a site without Wi-Fi
+    for kind in KINDS if params.floor_model else ():  # Wi-Fi first, BLE without Wi-Fi
         by_floor = {f: obs[kind][obs[kind]["floor"] == f] for f in floors}
         if any(len(v) for v in by_floor.values()):
             model = fit_floor_model(by_floor, cv_folds=params.floor_cv_folds, seed=params.seed)

@@ -10,7 +10,7 @@ trace_id   str      walk the scan belongs to ("" when unknown)
 scan_id    int64    scan number, unique over the table
 t_ms       int64    scan time (Unix ms)
 x_m, y_m   float64  position of the scan in the map frame (m); NaN when unknown
-ap         str      transmitter: BSSID (Wi-Fi) or ``uuid:major:minor`` (BLE)
+ap         str      transmitter: BSSID (Wi-Fi) or ``uuid:major:minor@mac`` (BLE)
 rssi_dbm   float64  received signal strength (dBm)
 age_ms     float64  scan time minus the transmitter's last-seen time (ms; 0 for BLE)
 =========  =======  ==============================================================
@@ -30,6 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
+
+from localize.steps import ble_transmitter_ids
 
 from .errors import FingerprintError
 
@@ -125,7 +127,7 @@ def wifi_observations(rows: pd.DataFrame, *, max_age_ms: float | None = None,
     return _finish(frame)
 
 
-def ble_observations(rows: pd.DataFrame, *, window_ms: int = 2000, key_column: str = "key",
+def ble_observations(rows: pd.DataFrame, *, window_ms: int = 2000, key_column: str = "id",
                      rssi_range_dbm: tuple[float, float] = RSSI_RANGE_DBM,
                      invalid: str = "raise") -> pd.DataFrame:
     """Observation table of BLE sightings, grouped into windows that play the part of scans.
@@ -138,7 +140,9 @@ def ble_observations(rows: pd.DataFrame, *, window_ms: int = 2000, key_column: s
     window_ms : int
         Window length (ms). Windows start at each walk's first sighting.
     key_column : str
-        Transmitter id: ``"key"`` (``uuid:major:minor``, the default) or ``"mac"``.
+        Transmitter id: ``"id"`` (default: ``uuid:major:minor@mac``, see
+        :func:`localize.steps.ble_transmitter_ids`; needs ``key`` and, when present, ``mac``),
+        ``"key"`` (``uuid:major:minor`` alone) or ``"mac"``.
 
     Returns
     -------
@@ -149,17 +153,20 @@ def ble_observations(rows: pd.DataFrame, *, window_ms: int = 2000, key_column: s
     """
     if window_ms <= 0:
         raise FingerprintError(f"window_ms must be positive, got {window_ms}")
-    _need(rows, ("t_ms", "rssi_dbm", key_column), "BLE")
+    _need(rows, ("t_ms", "rssi_dbm", "key" if key_column == "id" else key_column), "BLE")
     if len(rows) == 0:
         return _empty()
     n = len(rows)
+    ids = (ble_transmitter_ids(rows["key"].to_numpy(), rows["mac"].fillna("").to_numpy()
+                               if "mac" in rows else None)
+           if key_column == "id" else rows[key_column].astype(str).str.lower().to_numpy())
     frame = pd.DataFrame({
         "trace_id": (rows["trace_id"].astype(str).to_numpy() if "trace_id" in rows
                      else np.full(n, "", dtype=object)),
         "t_ms": rows["t_ms"].to_numpy(np.int64),
         "x_m": rows["x_m"].to_numpy(np.float64) if "x_m" in rows else np.full(n, np.nan),
         "y_m": rows["y_m"].to_numpy(np.float64) if "y_m" in rows else np.full(n, np.nan),
-        "ap": rows[key_column].astype(str).str.lower().to_numpy(),
+        "ap": ids,
         "rssi_dbm": rows["rssi_dbm"].to_numpy(np.float64),
     })
     frame = frame[_check_rssi(frame["rssi_dbm"].to_numpy(), rssi_range_dbm, invalid, "BLE")]

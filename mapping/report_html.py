@@ -885,9 +885,34 @@ def _section_radio(result) -> str:
     if not radio.get("available"):
         out.append(f"<p>{_e(radio.get('reason', 'radio: not available'))}</p></section>")
         return "".join(out)
-    rows = [[_e(k), _num(v) if not isinstance(v, (dict, list)) else _e(json.dumps(v)[:200])]
-            for k, v in radio.items() if k not in ("available",)]
-    out.append(_table(["metric", "value"], rows))
+    rows = []
+    for kind, k in radio.get("kinds", {}).items():
+        if not k.get("available"):
+            rows.append([_e(kind), _e(k.get("reason", "")), "", "", "", "", ""])
+            continue
+        bound = k.get("bound_m") or {}
+        rows.append([_e(kind), _num(k.get("reference_points"), "{:.0f}"),
+                     _num(k.get("transmitters"), "{:.0f}"), _e(k.get("split", "no store")),
+                     _num(k.get("median_error_m")), _num(k.get("p80_error_m")),
+                     _num(bound.get("median"))])
+    out.append(_table(["kind", "reference points", "transmitters", "held-out split",
+                       "median error (m)", "p80 error (m)", "median bound (m)"], rows))
+    fm = radio.get("floor_model")
+    if fm:
+        def pct(v) -> str:
+            return "n/a" if v is None else f"{100 * v:.2f} %"
+
+        out.append(f"<p>Floor model ({_e(fm.get('kind', ''))}, site bundle): "
+                   f"{len(fm.get('floors', []))} floors, cross-validated accuracy per scan "
+                   f"{pct(fm.get('cv_scan_accuracy'))}, per walk "
+                   f"{pct(fm.get('cv_walk_accuracy'))}</p>")
+    else:
+        out.append(f"<p class='note'>{_e(radio.get('floor_note', 'no floor model'))}</p>")
+    out.append("<p class='note'>Errors: fingerprints rebuilt without the held-out walks, "
+               "against the processed scan positions (themselves about 1 m off the true path). "
+               "Bound: Cramer-Rao style, from the gradients of the mean RSSI fields; real "
+               "errors are larger (missed detections, kNN bias). The CDF is with the held-out "
+               "figures; the bound map with the predicted quality.</p>")
     out.append("</section>")
     return "".join(out)
 

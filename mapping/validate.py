@@ -25,11 +25,14 @@ Sections (``docs/validation.md`` explains each figure and threshold):
    ``1 / sqrt(sum_k |grad f_k|^2 / sigma_k^2)`` (m) over strength, horizontal and vertical,
    ``sigma_k`` being the held-out shape RMSE of that layer (map and observation noise together):
    the distance over which the field changes by one noise level. Large = magnetically flat.
-   Radio: a Cramer-Rao style bound when the fingerprint modules are available.
+   Radio: a Cramer-Rao style bound over the fingerprint map (section 7).
 5. **calibration**: per walk the magnetometer calibration decision; per session the levelling
    residual; per device the RSSI ``(k, b)`` when the bundle or the radio modules provide them.
 6. **data_quality**: bad / skipped lines per walk (store catalog), flagged legs by reason,
    waypoints outside the reachable area, walks skipped by processing and why.
+7. **radio**: held-out Wi-Fi/BLE positioning errors (rebuilt per fold from the training walks),
+   the site floor model's cross-validated accuracy, a Cramer-Rao style bound per cell
+   (:mod:`mapping.radio_validation`).
 
 Thresholds: :data:`DEFAULT_THRESHOLDS` (documented in :data:`THRESHOLD_DOCS`), overridden by a
 JSON file (:func:`load_thresholds`); ``None`` disables a check.
@@ -1159,24 +1162,20 @@ def data_quality_section(bundle: MapBundle, fd: FloorData, th: dict, params: Val
 
 
 # ----------------------------------------------------------------------------------------------
-# 7. radio (the fingerprint modules, when present)
+# 7. radio
 
-def radio_section(bundle: MapBundle, fd: FloorData | None, th: dict,
+def radio_section(bundle: MapBundle, store, fd: FloorData | None, th: dict,
                   findings: list[Finding], arrays: dict) -> dict:
-    """Wi-Fi/BLE held-out positioning and the radio bound, through the fingerprint modules
-    (``mapping.fingerprints``); ``{"available": False, "reason": ...}`` when they are absent."""
-    try:
-        from . import fingerprints
-    except ImportError as err:
-        return {"available": False, "reason": f"radio: not available ({err})"}
-    hook = getattr(fingerprints, "validation_summary", None)
-    if hook is None:
-        return {"available": False, "reason": "radio: not available (mapping.fingerprints has "
-                                              "no validation_summary hook yet)"}
-    try:
-        res = hook(bundle, fd)
-    except Exception as err:  # noqa: BLE001 - a radio failure must not hide the magnetic report
-        return {"available": False, "reason": f"radio: failed ({type(err).__name__}: {err})"}
+    """Wi-Fi/BLE held-out positioning, the site's floor accuracy and the radio bound
+    (:func:`mapping.radio_validation.radio_summary`); ``{"available": False, "reason": ...}``
+    when the bundle has no fingerprints."""
+    from .radio_validation import radio_summary
+
+    if not any(bundle.has_table(f"{k}_fp") for k in ("wifi", "ble")):
+        return {"available": False, "reason": "radio: the bundle has no Wi-Fi or BLE "
+                                              "fingerprints (a survey without radio rows)"}
+    floor = fd.floor if fd is not None else (bundle.manifest.get("floor_name") or "")
+    res = radio_summary(bundle, store, floor, fd.site if fd is not None else None)
     out = {"available": True, **{k: v for k, v in res.items() if k != "arrays"}}
     arrays.update(res.get("arrays", {}))
     t = th.get("radio_median_error_max_m")
@@ -1294,7 +1293,9 @@ def validate_bundle(bundle: MapBundle | str | Path, store=None, *,
     metrics["calibration"] = timed("calibration", lambda: calibration_section(b, fd, th,
                                                                              findings))
     if params.radio:
-        metrics["radio"] = timed("radio", lambda: radio_section(b, fd, th, findings, arrays))
+        say("radio")
+        metrics["radio"] = timed("radio", lambda: radio_section(b, store, fd, th, findings,
+                                                                arrays))
         if not metrics["radio"].get("available"):
             findings.append(Finding("radio", "info", metrics["radio"]["reason"], "radio"))
     metrics["timings_s"] = {**timings, "total": round(time.perf_counter() - t_start, 2)}

@@ -28,7 +28,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from localize.steps import RadioScan, StepSummaries, attitude_codes
+from localize.steps import RadioScan, StepSummaries, attitude_codes, ble_transmitter_ids
 from survey.attitude import AttitudeParams, classify_attitude
 from survey.errors import ProcessingError
 from survey.field_features import field_features
@@ -78,15 +78,18 @@ def scans_of(trace: Trace, max_age_ms: int = 3000) -> list[RadioScan]:
 
 def ble_scans_of(trace: Trace, window_ms: int = 2000) -> list[RadioScan]:
     """BLE sightings of a trace grouped into windows of ``window_ms`` from its first sighting
-    (one "scan" per window: mean RSSI per beacon key ``uuid:major:minor``, lower case), the
-    way :func:`mapping.radio_scans.ble_observations` groups survey rows. Time = the window's
-    last sighting (ms)."""
+    (one "scan" per window: mean RSSI per transmitter ``uuid:major:minor@mac``, see
+    :func:`localize.steps.ble_transmitter_ids`), the way
+    :func:`mapping.radio_scans.ble_observations` groups survey rows. Time = the window's last
+    sighting (ms)."""
     ble = trace.ble
     if ble is None or not len(ble):
         return []
     t = ble["t_ms"].to_numpy(np.int64)
     frame = pd.DataFrame({"win": (t - t.min()) // int(window_ms), "t_ms": t,
-                          "key": ble["key"].astype(str).str.lower().to_numpy(),
+                          "key": ble_transmitter_ids(
+                              ble["key"].to_numpy(),
+                              ble["mac"].fillna("").to_numpy() if "mac" in ble else None),
                           "rssi_dbm": ble["rssi_dbm"].to_numpy(np.float64)})
     out = []
     for _, g in frame.groupby("win", sort=True):

@@ -128,7 +128,7 @@ def test_tables_round_trip_and_bad_tables(wifi_obs):
 
 def test_ble_fingerprints_work_like_wifi(ble_obs):
     obs = ble_obs["F2"]
-    assert set(obs["ap"].str.count(":")) == {2}            # uuid:major:minor keys
+    assert obs["ap"].str.fullmatch(r"[^:]+:\d+:\d+@([0-9a-f]{2}:){5}[0-9a-f]{2}").all()  # key@mac
     errs, guess = [], []
     for held in walk_ids(obs):
         train, test = split_walks(obs, held)
@@ -149,15 +149,22 @@ def test_ble_fingerprints_on_real_beacon_rows(ilc_floor, tmp_path):
     from survey.ingest import ingest
     from survey.process_store import process_store, processed_table
 
-    files = sorted((ilc_floor / "path_data_files").glob("*.txt.gz"))[:12]
+    """Real beacons share uuid:major:minor keys (one key for most of them): keyed with their
+    MAC, held-out walks locate clearly better than the floor's centre."""
+    files = sorted((ilc_floor / "path_data_files").glob("*.txt*"))[:36]
     ingest(files, tmp_path / "s")
     process_store(tmp_path / "s")
-    ble = processed_table(tmp_path / "s", "ble")
-    obs = ble_observations(ble)
-    db = build_fingerprints(obs, kind="ble", cell_m=2.0)
-    assert len(db) > 10 and db.fp["ap"].str.count(":").eq(2).all()
-    res = default_matcher().fit(db).predict(scan_set(obs))
-    assert np.isfinite(res.xy_m).all()
+    obs = ble_observations(processed_table(tmp_path / "s", "ble"))
+    assert obs["ap"].str.contains("@").all()
+    walks = np.unique(obs["trace_id"])
+    held = np.isin(obs["trace_id"], walks[::3])
+    db = build_fingerprints(obs[~held], kind="ble")
+    scans = scan_set(obs[held], db.aps)
+    res = default_matcher().fit(db).predict(scans)
+    ok = np.isfinite(res.xy_m[:, 0])
+    err = np.linalg.norm(res.xy_m[ok] - scans.xy_m[ok], axis=1)
+    centre = np.linalg.norm(db.rp[["x_m", "y_m"]].mean().to_numpy() - scans.xy_m[ok], axis=1)
+    assert ok.mean() > 0.8 and np.median(err) < 0.5 * np.median(centre)
 
 
 def test_ble_window_groups_sightings():
@@ -167,5 +174,7 @@ def test_ble_window_groups_sightings():
     assert obs["scan_id"].tolist() == [0, 1]
     assert obs["rssi_dbm"].tolist() == [-70, -90]      # mean of -70, -80, -60
     assert obs["ap"].tolist() == ["u:1:2", "u:1:3"] and obs["x_m"].tolist() == [1.0, 3.0]
+    with_mac = ble_observations(rows.assign(mac=["AA:00:00:00:00:01"] * 2 + [""] * 2))
+    assert with_mac["ap"].tolist() == ["u:1:2", "u:1:2@aa:00:00:00:00:01", "u:1:3"]
     with pytest.raises(FingerprintError, match="window_ms must be positive"):
         ble_observations(rows, window_ms=0)

@@ -1,0 +1,211 @@
+"""The radio part of ``indoormap validate``: held-out Wi-Fi/BLE positioning, floor accuracy and a
+Cramer-Rao style bound over the bundle's fingerprint map.
+
+- **Held-out positioning**: the floor's walks from the survey store, leave-one-walk-out (grouped
+  ``folds``-fold by walk when the floor has more walks than ``max_lowo_walks``), fingerprints
+  rebuilt from the training walks with the bundle's own transmitters (after AP selection),
+  device table and cell size, matched with :func:`mapping.matching.default_matcher` -- the
+  same code as ``benchmarks/wifi_accuracy.py``. Errors against the processed scan positions.
+- **Floor accuracy**: the cross-validated accuracy stored in the site bundle (``_site`` beside
+  the floor bundle) when there is one; the floor model is a site-level product.
+- **Bound**: per cell the radio position bound ``sqrt(trace(J^-1))`` (m), with the Fisher
+  information ``J = sum_a grad(mu_a) grad(mu_a)^T / sigma_a^2`` of the mean RSSI fields
+  ``mu_a`` (dBm, Gaussian-smoothed from the reference points, ``smooth_m``) and ``sigma_a`` the
+  transmitter's median standard deviation at its reference points (at least ``min_sd_db``).
+  Only cells within ``smooth_m`` of a reference point get a value. A bound, not a prediction:
+  it ignores missed detections and the kNN's own bias, so real errors are larger.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+
+from localize.bundle import Grid, MapBundle
+
+from .fingerprints import FingerprintDB, build_fingerprints
+from .matching import default_matcher
+from .radio_scans import scan_set
+
+__all__ = ["RadioValidationParams", "radio_bound", "radio_summary"]
+
+
+@dataclass(frozen=True)
+class RadioValidationParams:
+    """Parameters of :func:`radio_summary` (m, dB)."""
+
+    max_lowo_walks: int = 60
+    folds: int = 10
+    bound_cell_m: float = 2.0
+    smooth_m: float = 2.0
+    min_sd_db: float = 3.0
+    seed: int = 0
+
+
+def _db_of(bundle: MapBundle, kind: str) -> FingerprintDB | None:
+    names = {n: f"{kind}_{n}" for n in ("rp", "fp", "meta")}
+    if not all(bundle.has_table(t) for t in names.values()):
+        return None
+    return FingerprintDB.from_tables({n: bundle.table(t).to_pandas() for n, t in names.items()})
+
+
+def radio_bound(db: FingerprintDB, grid: Grid, mask: NDArray[np.bool_], *,
+                cell_m: float = 2.0, smooth_m: float = 2.0, min_sd_db: float = 3.0
+                ) -> NDArray[np.float64]:
+    """Cramer-Rao style position bound (m) per cell of ``grid`` (see the module docstring);
+    NaN outside ``mask`` and far from reference points. Shape ``grid.shape``."""
+    step = max(1, int(round(cell_m / grid.cell_m)))
+    h, w = grid.shape
+    hc, wc = -(-h // step), -(-w // step)
+    cm = grid.cell_m * step
+    xc = grid.x0_m + (np.arange(wc) + 0.5) * cm
+    yc = grid.y0_m + (np.arange(hc) + 0.5) * cm
+    gx, gy = np.meshgrid(xc, yc)
+    cells = np.column_stack([gx.ravel(), gy.ravel()])
+    dense = db.dense()
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(dense.xy_m)
+    pairs = cKDTree(cells).sparse_distance_matrix(tree, 2.5 * smooth_m, output_type="coo_matrix")
+    from scipy import sparse
+
+    wgt = sparse.csr_matrix((np.exp(-pairs.data ** 2 / (2 * smooth_m ** 2)),
+                             (pairs.row, pairs.col)), shape=(len(cells), len(dense.xy_m)))
+    near = np.asarray(wgt.sum(axis=1)).ravel()
+    covered = near > np.exp(-0.5)  # within about one smoothing length of a reference point
+    jxx = np.zeros(len(cells))
+    jxy = np.zeros(len(cells))
+    jyy = np.zeros(len(cells))
+    sd = np.sqrt(np.nanmedian(np.where(np.isfinite(dense.var_db2), dense.var_db2, np.nan),
+                              axis=0)) if dense.var_db2.size else np.empty(0)
+    sd = np.maximum(np.nan_to_num(sd, nan=min_sd_db), min_sd_db)
+    for a0 in range(0, len(dense.aps), 256):
+        a1 = min(a0 + 256, len(dense.aps))
+        heard = np.isfinite(dense.mean_dbm[:, a0:a1])
+        mean = np.where(heard, dense.mean_dbm[:, a0:a1], 0.0)
+        num = wgt @ mean
+        den = wgt @ heard.astype(np.float64)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mu = np.where(den > 0.5, num / den, np.nan).reshape(hc, wc, a1 - a0)
+        dmy, dmx = np.gradient(mu, cm, axis=(0, 1))
+        dmx = np.nan_to_num(dmx.reshape(-1, a1 - a0)) / sd[a0:a1]
+        dmy = np.nan_to_num(dmy.reshape(-1, a1 - a0)) / sd[a0:a1]
+        jxx += (dmx * dmx).sum(axis=1)
+        jxy += (dmx * dmy).sum(axis=1)
+        jyy += (dmy * dmy).sum(axis=1)
+    det = jxx * jyy - jxy * jxy
+    with np.errstate(invalid="ignore", divide="ignore"):
+        bound = np.sqrt((jxx + jyy) / det)
+    bound = np.where(covered & np.isfinite(bound) & (det > 0), bound, np.nan).reshape(hc, wc)
+    full = np.repeat(np.repeat(bound, step, axis=0), step, axis=1)[:h, :w]
+    return np.where(mask, full, np.nan)
+
+
+def _heldout_errors(obs: pd.DataFrame, db: FingerprintDB, params: RadioValidationParams
+                    ) -> tuple[NDArray[np.float64], NDArray[np.float64], str]:
+    """Errors (m) and truth positions (S, 2) of held-out scans, and the split used."""
+    walks = np.unique(obs["trace_id"].to_numpy().astype(str))
+    if len(walks) > params.max_lowo_walks:
+        rng = np.random.default_rng(params.seed)
+        fold_of = dict(zip(rng.permutation(walks), np.arange(len(walks)) % params.folds))
+        groups = [[w for w in walks if fold_of[w] == k] for k in range(params.folds)]
+        split = f"grouped {params.folds}-fold by walk"
+    else:
+        groups = [[w] for w in walks]
+        split = "leave-one-walk-out"
+    trace = obs["trace_id"].to_numpy().astype(str)
+    errs, where = [], []
+    for held in groups:
+        test = np.isin(trace, held)
+        if not test.any() or test.all():
+            continue
+        train = build_fingerprints(obs[~test], kind=db.kind, cell_m=db.cell_m,
+                                   max_age_ms=db.max_age_ms)
+        scans = scan_set(obs[test])
+        res = default_matcher().fit(train).predict(scans)
+        errs.append(np.linalg.norm(res.xy_m - scans.xy_m, axis=1))
+        where.append(scans.xy_m)
+    if not errs:
+        return np.empty(0), np.empty((0, 2)), split
+    return np.concatenate(errs), np.concatenate(where), split
+
+
+def _site_floor_model(bundle: MapBundle) -> dict | None:
+    from localize.bundle import read_manifest
+
+    from .registry import SITE_BUNDLE
+
+    site = bundle.path.parent / SITE_BUNDLE
+    if not (site / "manifest.json").exists():
+        return None
+    m = read_manifest(site)
+    if m.get("kind") != "site" or m.get("site_id") != bundle.site_id:
+        return None
+    return (m.get("metrics") or {}).get("floor_model")
+
+
+def radio_summary(bundle: MapBundle, store, floor: str, site: str | None, *,
+                  params: RadioValidationParams = RadioValidationParams()) -> dict:
+    """The radio section's figures (JSON-able) plus ``arrays`` for the report's plots.
+
+    ``store``: the survey store the bundle was built from, or None (then only the bound and
+    the site's floor accuracy are reported).
+    """
+    from .radio_build import calibrated, site_observations
+
+    out: dict = {"kinds": {}, "arrays": {}}
+    fm = _site_floor_model(bundle)
+    out["floor_model"] = fm
+    out["floor_accuracy"] = None if fm is None else fm.get("cv_scan_accuracy")
+    if fm is None:
+        out["floor_note"] = "no site bundle (_site) beside this floor bundle: floor accuracy " \
+                            "not known"
+    first = None
+    for kind in ("wifi", "ble"):
+        db = _db_of(bundle, kind)
+        if db is None:
+            out["kinds"][kind] = {"available": False, "reason": f"the bundle has no {kind} "
+                                                                "fingerprints"}
+            continue
+        k_out: dict = {"available": True, "reference_points": len(db),
+                       "transmitters": int(len(db.aps)), "cell_m": db.cell_m}
+        bound = radio_bound(db, bundle.grid, np.asarray(bundle.mask, bool),
+                            cell_m=params.bound_cell_m, smooth_m=params.smooth_m,
+                            min_sd_db=params.min_sd_db)
+        fin = bound[np.isfinite(bound)]
+        k_out["bound_m"] = {"median": float(np.median(fin)) if fin.size else None,
+                            "p90": float(np.percentile(fin, 90)) if fin.size else None,
+                            "cells": int(fin.size)}
+        if store is not None:
+            obs = site_observations(store, site, [floor], kind)
+            if len(obs):
+                if kind == "wifi" and bundle.has_table("devices"):
+                    from survey.store import SurveyStore
+
+                    st = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
+                    dev = st.catalog().set_index("trace_id")["device_model"].astype(str)
+                    obs = calibrated(obs, dev, bundle.table("devices").to_pandas())
+                obs = obs[obs["ap"].isin(set(db.aps.tolist()))]
+                err, _, split = _heldout_errors(obs, db, params)
+                e = err[np.isfinite(err)]
+                if e.size:
+                    k_out.update(split=split, scans=int(e.size),
+                                 median_error_m=float(np.median(e)),
+                                 p80_error_m=float(np.percentile(e, 80)),
+                                 mean_error_m=float(e.mean()))
+                    out["arrays"][f"{kind}_errors_m"] = e
+        out["kinds"][kind] = k_out
+        if first is None:
+            first = kind
+            out["arrays"]["radio_bound_m"] = bound
+    if first is not None:
+        main = out["kinds"][first]
+        out["primary_kind"] = first
+        out["median_error_m"] = main.get("median_error_m")
+        out["p80_error_m"] = main.get("p80_error_m")
+        if f"{first}_errors_m" in out["arrays"]:
+            out["arrays"]["radio_errors_m"] = out["arrays"][f"{first}_errors_m"]
+    return out
