@@ -79,9 +79,13 @@ def radio_bound(db: FingerprintDB, grid: Grid, mask: NDArray[np.bool_], *,
     jxx = np.zeros(len(cells))
     jxy = np.zeros(len(cells))
     jyy = np.zeros(len(cells))
-    sd = np.sqrt(np.nanmedian(np.where(np.isfinite(dense.var_db2), dense.var_db2, np.nan),
-                              axis=0)) if dense.var_db2.size else np.empty(0)
-    sd = np.maximum(np.nan_to_num(sd, nan=min_sd_db), min_sd_db)
+    var = np.where(np.isfinite(dense.var_db2), dense.var_db2, np.inf)
+    known = np.isfinite(var).any(axis=0)
+    sd = np.full(len(dense.aps), min_sd_db)
+    if known.any():  # median over the reference points that have a variance
+        v = np.where(np.isinf(var[:, known]), np.nan, var[:, known])
+        sd[known] = np.sqrt(np.nanmedian(v, axis=0))
+    sd = np.maximum(sd, min_sd_db)
     for a0 in range(0, len(dense.aps), 256):
         a1 = min(a0 + 256, len(dense.aps))
         heard = np.isfinite(dense.mean_dbm[:, a0:a1])

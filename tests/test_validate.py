@@ -291,3 +291,41 @@ def test_params_are_recorded(reports):
     _, metrics, _ = reports["clean"]
     assert metrics["params"] == ValidateParams().to_dict()
     assert metrics["heldout"]["implementation"] == "mapping.holdout.leave_one_walk_out"
+
+
+def test_radio_section_reports_heldout_errors_and_bound(reports):
+    _, metrics, out = reports["clean"]
+    radio = metrics["radio"]
+    assert radio["available"] and radio["primary_kind"] == "wifi"
+    wifi = radio["kinds"]["wifi"]
+    assert wifi["split"] == "leave-one-walk-out" and wifi["scans"] > 50
+    assert 0 < wifi["median_error_m"] < 10 and wifi["p80_error_m"] >= wifi["median_error_m"]
+    assert wifi["bound_m"]["cells"] > 100 and 0 < wifi["bound_m"]["median"] < 10
+    assert radio["floor_accuracy"] is None and "no site bundle" in radio["floor_note"]
+    if HAS_MPL:
+        html = (out / "report.html").read_text()
+        assert "held-out split" in html and "leave-one-walk-out" in html
+
+
+def test_radio_bound_of_two_linear_fields():
+    """Two transmitters with orthogonal 2 dB/m gradients and 4 dB noise: J = diag(1/4, 1/4),
+    bound sqrt(trace(J^-1)) = sqrt(8) m in the interior."""
+    import pandas as pd
+
+    from localize.bundle import Grid
+    from mapping.fingerprints import FingerprintDB
+    from mapping.radio_validation import radio_bound
+
+    xs, ys = np.meshgrid(np.arange(0.5, 40), np.arange(0.5, 30))
+    xy = np.column_stack([xs.ravel(), ys.ravel()])
+    rp = pd.DataFrame({"rp_id": np.arange(len(xy)), "x_m": xy[:, 0], "y_m": xy[:, 1],
+                       "n_scans": 4})
+    fp = pd.concat([pd.DataFrame({"rp_id": rp["rp_id"], "ap": ap, "mean_dbm": -40 - 2 * xy[:, i],
+                                  "var_db2": 16.0, "n": 4, "detection_rate": 1.0})
+                    for i, ap in enumerate(["a", "b"])], ignore_index=True)
+    db = FingerprintDB("wifi", rp, fp, 1.0, None)
+    grid = Grid(0.0, 0.0, 0.5, 80, 60)
+    bound = radio_bound(db, grid, np.ones(grid.shape, bool), cell_m=2.0, smooth_m=2.0)
+    inner = bound[20:40, 20:60]
+    assert np.isfinite(inner).all()
+    np.testing.assert_allclose(inner, np.sqrt(8.0), rtol=0.05)
