@@ -47,8 +47,9 @@ import pandas as pd
 from localize.rssi_calibration import estimate_rssi_calibration
 from mapping.fingerprints import build_fingerprints
 from mapping.matching import GaussianMatch, WeightedKNN, align_scans, default_matcher
-from mapping.radio_build import RadioParams, calibrated, site_observations, site_radio
+from mapping.radio_build import RadioParams, site_observations
 from mapping.radio_scans import ScanSet, scan_set
+from mapping.radio_validation import heldout_radio, walk_folds
 from survey.ingest import ingest
 from survey.process_store import process_store
 from survey.store import SurveyStore
@@ -93,64 +94,45 @@ def calibrated_walk(scans: ScanSet, db) -> tuple[ScanSet, float, float]:
     return scans.transformed(cal.k, cal.b), cal.k, cal.b
 
 
-def fold_groups(walks: np.ndarray, folds: int) -> list[list[str]]:
-    if folds and folds < len(walks):
-        rng = np.random.default_rng(0)
-        fold_of = dict(zip(rng.permutation(walks), np.arange(len(walks)) % folds))
-        return [[w for w in walks if fold_of[w] == k] for k in range(folds)]
-    return [[w] for w in walks]
-
-
 def evaluate(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: list[str],
              folds: int, with_scans: bool, with_floors: bool
              ) -> tuple[dict[tuple[str, str], list], list, dict]:
     """Errors per (floor, method), calibration results, floor predictions."""
-    wifi, ble = obs["wifi"], obs["ble"]
-    walks = np.unique(wifi["trace_id"].to_numpy().astype(str))
+    wifi = obs["wifi"]
     out: dict[tuple[str, str], list] = {}
     cal_kb: list = []
     floor_rows: dict[str, list] = {"truth": [], "scan": [], "seq": [], "walk_truth": [],
                                    "walk": []}
-    params = RadioParams(floor_model=with_floors, floor_cv_folds=0)
     w_trace = wifi["trace_id"].to_numpy().astype(str)
-    b_trace = ble["trace_id"].to_numpy().astype(str)
-    groups = fold_groups(walks, folds)
+    groups = walk_folds(w_trace, folds)
     t0 = time.time()
-    for i, held in enumerate(groups):
-        w_test, b_test = np.isin(w_trace, held), np.isin(b_trace, held)
-        radio = site_radio({"wifi": wifi[~w_test], "ble": ble[~b_test]}, device_of, floors,
-                           params=params)
-        test_cal = calibrated(wifi[w_test], device_of, radio.devices)
+    done = [0]
+
+    def on_fold(held, radio, test_obs) -> None:
+        """The baselines and the extra measurements of one fold (``default`` and ``ble`` come
+        from :func:`mapping.radio_validation.heldout_radio`)."""
+        w_test = np.isin(w_trace, held)
+        test_cal = test_obs["wifi"]
         for f in floors:
             on_f = wifi["floor"].to_numpy() == f
-            train_raw = wifi[~w_test & on_f]
+            train_raw, raw_test = wifi[~w_test & on_f], wifi[w_test & on_f]
             test_f = test_cal[test_cal["floor"].to_numpy() == f]
             if len(test_f) == 0:
                 continue
             scans = scan_set(test_f)
-            raw_test = wifi[w_test & on_f]
-            scans3 = scan_set(raw_test[raw_test["age_ms"] <= 3000])
             plain = WeightedKNN(5, weight_power=0, metric="euclidean", representation="dbm")
             out.setdefault((f, "baseline"), []).append(
                 errors(plain, build_fingerprints(train_raw, cell_m=0, max_age_ms=None),
                        scan_set(raw_test)))
             out.setdefault((f, "baseline 3s"), []).append(
-                errors(plain, build_fingerprints(train_raw, cell_m=0, max_age_ms=3000), scans3))
+                errors(plain, build_fingerprints(train_raw, cell_m=0, max_age_ms=3000),
+                       scan_set(raw_test[raw_test["age_ms"] <= 3000])))
             if with_scans:
                 out.setdefault((f, "scans+sorensen"), []).append(
                     errors(default_matcher(), build_fingerprints(train_raw, cell_m=0), scans))
             grid = radio.fingerprints[(f, "wifi")]
             knn = default_matcher().fit(grid)
-            out.setdefault((f, "default"), []).append(errors(knn, grid, scans))
             out.setdefault((f, "gaussian"), []).append(errors(GaussianMatch(), grid, scans))
-            if (f, "ble") in radio.fingerprints:
-                bt = ble[b_test & (ble["floor"].to_numpy() == f)]
-                if len(bt):
-                    bdb = radio.fingerprints[(f, "ble")]
-                    bt = bt[bt["ap"].isin(set(bdb.aps.tolist()))]
-                    if len(bt):
-                        out.setdefault((f, "ble"), []).append(
-                            errors(default_matcher(), bdb, scan_set(bt)))
             for walk in held:  # device transforms, per walk
                 one = scans.subset(scans.scans["trace_id"].to_numpy().astype(str) == walk)
                 if len(one) == 0:
@@ -166,18 +148,29 @@ def evaluate(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: list[st
         if radio.floor_model is not None:
             model = radio.floor_model
             s = scan_set(test_cal)
-            truth = test_cal.groupby("scan_id", sort=True)["floor"].first().to_numpy()
-            floor_rows["truth"].append(truth)
+            floor_rows["truth"].append(test_cal.groupby("scan_id", sort=True)["floor"].first()
+                                       .to_numpy())
             floor_rows["scan"].append(model.predict(s))
             floor_rows["seq"].append(model.predict_sequence(s, 5))
             w = model.predict_walks(s)
-            wt = test_cal.groupby("trace_id")["floor"].first()
             floor_rows["walk"].append(w.to_numpy())
-            floor_rows["walk_truth"].append(wt.reindex(w.index).to_numpy())
-        if (i + 1) % max(1, len(groups) // 10) == 0:
-            print(f"  fold {i + 1}/{len(groups)} ({time.time() - t0:.0f} s)", file=sys.stderr,
+            floor_rows["walk_truth"].append(test_cal.groupby("trace_id")["floor"].first()
+                                            .reindex(w.index).to_numpy())
+        done[0] += 1
+        if done[0] % max(1, len(groups) // 10) == 0:
+            print(f"  fold {done[0]}/{len(groups)} ({time.time() - t0:.0f} s)", file=sys.stderr,
                   flush=True)
-    return out, cal_kb, floor_rows
+
+    params = RadioParams(floor_model=with_floors, floor_cv_folds=0)
+    shipped = heldout_radio(obs, device_of, floors, groups, params=params, on_fold=on_fold)
+    for (f, kind), err in shipped.items():
+        out[(f, "default" if kind == "wifi" else kind)] = [err]
+    return dict(sorted(out.items(), key=lambda kv: (kv[0][0], METHOD_ORDER.get(kv[0][1], 9)))), \
+        cal_kb, floor_rows
+
+
+METHOD_ORDER = {"baseline": 0, "baseline 3s": 1, "scans+sorensen": 2, "default": 3,
+                "gaussian": 4, "ble": 5}
 
 
 def main() -> int:

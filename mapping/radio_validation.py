@@ -1,11 +1,12 @@
 """The radio part of ``indoormap validate``: held-out Wi-Fi/BLE positioning, floor accuracy and a
 Cramer-Rao style bound over the bundle's fingerprint map.
 
-- **Held-out positioning**: the floor's walks from the survey store, leave-one-walk-out (grouped
-  ``folds``-fold by walk when the floor has more walks than ``max_lowo_walks``), fingerprints
-  rebuilt from the training walks with the bundle's own transmitters (after AP selection),
-  device table and cell size, matched with :func:`mapping.matching.default_matcher` -- the
-  same code as ``benchmarks/wifi_accuracy.py``. Errors against the processed scan positions.
+- **Held-out positioning** (:func:`heldout_radio`, also behind ``benchmarks/wifi_accuracy.py``):
+  the floor's walks from the survey store, leave-one-walk-out (grouped ``folds``-fold by walk
+  when the floor has more walks than ``max_lowo_walks``); per fold the radio maps are rebuilt
+  from the training walks as ``indoormap build`` does (device table, AP selection, reference
+  points; here over this floor only) and the held-out scans located with
+  :func:`mapping.matching.default_matcher`. Errors against the processed scan positions.
 - **Floor accuracy**: the cross-validated accuracy stored in the site bundle (``_site`` beside
   the floor bundle) when there is one; the floor model is a site-level product.
 - **Bound**: per cell the radio position bound ``sqrt(trace(J^-1))`` (m), with the Fisher
@@ -18,6 +19,7 @@ Cramer-Rao style bound over the bundle's fingerprint map.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,11 +28,12 @@ from numpy.typing import NDArray
 
 from localize.bundle import Grid, MapBundle
 
-from .fingerprints import FingerprintDB, build_fingerprints
+from .fingerprints import FingerprintDB
 from .matching import default_matcher
+from .radio_build import RadioParams
 from .radio_scans import scan_set
 
-__all__ = ["RadioValidationParams", "radio_bound", "radio_summary"]
+__all__ = ["RadioValidationParams", "heldout_radio", "radio_bound", "radio_summary", "walk_folds"]
 
 
 @dataclass(frozen=True)
@@ -108,33 +111,75 @@ def radio_bound(db: FingerprintDB, grid: Grid, mask: NDArray[np.bool_], *,
     return np.where(mask, full, np.nan)
 
 
-def _heldout_errors(obs: pd.DataFrame, db: FingerprintDB, params: RadioValidationParams
-                    ) -> tuple[NDArray[np.float64], NDArray[np.float64], str]:
-    """Errors (m) and truth positions (S, 2) of held-out scans, and the split used."""
-    walks = np.unique(obs["trace_id"].to_numpy().astype(str))
-    if len(walks) > params.max_lowo_walks:
-        rng = np.random.default_rng(params.seed)
-        fold_of = dict(zip(rng.permutation(walks), np.arange(len(walks)) % params.folds))
-        groups = [[w for w in walks if fold_of[w] == k] for k in range(params.folds)]
-        split = f"grouped {params.folds}-fold by walk"
-    else:
-        groups = [[w] for w in walks]
-        split = "leave-one-walk-out"
-    trace = obs["trace_id"].to_numpy().astype(str)
-    errs, where = [], []
-    for held in groups:
-        test = np.isin(trace, held)
-        if not test.any() or test.all():
-            continue
-        train = build_fingerprints(obs[~test], kind=db.kind, cell_m=db.cell_m,
-                                   max_age_ms=db.max_age_ms)
-        scans = scan_set(obs[test])
-        res = default_matcher().fit(train).predict(scans)
-        errs.append(np.linalg.norm(res.xy_m - scans.xy_m, axis=1))
-        where.append(scans.xy_m)
-    if not errs:
-        return np.empty(0), np.empty((0, 2)), split
-    return np.concatenate(errs), np.concatenate(where), split
+def walk_folds(walks, folds: int, seed: int = 0) -> list[list[str]]:
+    """Walk groups for held-out evaluation: one walk per group (``folds`` 0 or at least the
+    number of walks), else ``folds`` groups of walks shuffled with ``seed``."""
+    walks = np.unique(np.asarray(walks).astype(str))
+    if folds and folds < len(walks):
+        rng = np.random.default_rng(seed)
+        fold_of = dict(zip(rng.permutation(walks), np.arange(len(walks)) % folds))
+        return [[w for w in walks if fold_of[w] == k] for k in range(folds)]
+    return [[w] for w in walks]
+
+
+def heldout_radio(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: list[str],
+                  groups: list[list[str]], *, params: RadioParams | None = None,
+                  on_fold: Callable | None = None, progress: Callable[[str], None] | None = None
+                  ) -> dict[tuple[str, str], NDArray[np.float64]]:
+    """Held-out Wi-Fi/BLE position errors of the shipped pipeline (the one implementation
+    behind ``validate`` and ``benchmarks/wifi_accuracy.py``).
+
+    For every group of walks: the site's radio maps are rebuilt from the other walks
+    (:func:`mapping.radio_build.site_radio`: device table, AP selection, reference points),
+    the held-out walks' RSSI is mapped through the device table, and every held-out scan is
+    located with :func:`mapping.matching.default_matcher`.
+
+    Parameters
+    ----------
+    obs : dict
+        Kind -> observation table of the site's floors (:func:`site_observations`).
+    device_of : Series
+        Phone model per trace id.
+    floors : list of str
+    groups : list of list of str
+        Held-out walk groups (:func:`walk_folds`).
+    params : RadioParams, optional
+        Default: the build's, without the floor model.
+    on_fold : callable, optional
+        ``on_fold(held, radio, test_obs)`` after every fold (``test_obs``: kind -> the held-out
+        rows, device-calibrated), for extra measurements.
+
+    Returns
+    -------
+    dict
+        ``(floor, kind)`` -> errors (m) of the held-out scans against their processed
+        positions; NaN for scans without a known transmitter.
+    """
+    from .radio_build import calibrated, site_radio
+
+    params = params or RadioParams(floor_model=False, floor_cv_folds=0)
+    say = progress or (lambda msg: None)
+    trace = {k: o["trace_id"].to_numpy().astype(str) for k, o in obs.items()}
+    out: dict[tuple[str, str], list] = {}
+    for i, held in enumerate(groups):
+        test = {k: np.isin(trace[k], held) for k in obs}
+        radio = site_radio({k: o[~test[k]] for k, o in obs.items()}, device_of, floors,
+                           params=params)
+        test_obs = {k: calibrated(o[test[k]], device_of, radio.devices) if k == "wifi"
+                    and len(radio.devices) else o[test[k]] for k, o in obs.items()}
+        for (floor, kind), db in sorted(radio.fingerprints.items()):
+            t = test_obs[kind]
+            t = t[t["floor"].to_numpy() == floor]
+            if len(t) == 0:
+                continue
+            scans = scan_set(t)
+            res = default_matcher().fit(db).predict(scans)
+            out.setdefault((floor, kind), []).append(np.linalg.norm(res.xy_m - scans.xy_m,
+                                                                    axis=1))
+        if on_fold is not None:
+            on_fold(held, radio, test_obs)
+        say(f"radio fold {i + 1}/{len(groups)}")
+    return {key: np.concatenate(v) for key, v in out.items()}
 
 
 def _site_floor_model(bundle: MapBundle) -> dict | None:
@@ -158,9 +203,24 @@ def radio_summary(bundle: MapBundle, store, floor: str, site: str | None, *,
     ``store``: the survey store the bundle was built from, or None (then only the bound and
     the site's floor accuracy are reported).
     """
-    from .radio_build import calibrated, site_observations
+    from .radio_build import site_observations
 
     out: dict = {"kinds": {}, "arrays": {}}
+    errors, split = None, ""
+    if store is not None:
+        from survey.store import SurveyStore
+
+        st = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
+        obs = {k: site_observations(st, site, [floor], k) for k in ("wifi", "ble")}
+        walks = np.unique(np.concatenate([o["trace_id"].to_numpy().astype(str)
+                                          for o in obs.values() if len(o)] or [np.empty(0)]))
+        if len(walks) >= 2:
+            folds = 0 if len(walks) <= params.max_lowo_walks else params.folds
+            split = ("leave-one-walk-out" if folds == 0 else
+                     f"grouped {params.folds}-fold by walk")
+            device_of = st.catalog().set_index("trace_id")["device_model"].astype(str)
+            errors = heldout_radio({k: o for k, o in obs.items() if len(o)}, device_of, [floor],
+                                   walk_folds(walks, folds, params.seed))
     fm = _site_floor_model(bundle)
     out["floor_model"] = fm
     out["floor_accuracy"] = None if fm is None else fm.get("cv_scan_accuracy")
@@ -183,24 +243,15 @@ def radio_summary(bundle: MapBundle, store, floor: str, site: str | None, *,
         k_out["bound_m"] = {"median": float(np.median(fin)) if fin.size else None,
                             "p90": float(np.percentile(fin, 90)) if fin.size else None,
                             "cells": int(fin.size)}
-        if store is not None:
-            obs = site_observations(store, site, [floor], kind)
-            if len(obs):
-                if kind == "wifi" and bundle.has_table("devices"):
-                    from survey.store import SurveyStore
-
-                    st = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
-                    dev = st.catalog().set_index("trace_id")["device_model"].astype(str)
-                    obs = calibrated(obs, dev, bundle.table("devices").to_pandas())
-                obs = obs[obs["ap"].isin(set(db.aps.tolist()))]
-                err, _, split = _heldout_errors(obs, db, params)
-                e = err[np.isfinite(err)]
-                if e.size:
-                    k_out.update(split=split, scans=int(e.size),
-                                 median_error_m=float(np.median(e)),
-                                 p80_error_m=float(np.percentile(e, 80)),
-                                 mean_error_m=float(e.mean()))
-                    out["arrays"][f"{kind}_errors_m"] = e
+        if errors is not None and (floor, kind) in errors:
+            e = errors[(floor, kind)]
+            e = e[np.isfinite(e)]
+            if e.size:
+                k_out.update(split=split, scans=int(e.size),
+                             median_error_m=float(np.median(e)),
+                             p80_error_m=float(np.percentile(e, 80)),
+                             mean_error_m=float(e.mean()))
+                out["arrays"][f"{kind}_errors_m"] = e
         out["kinds"][kind] = k_out
         if first is None:
             first = kind

@@ -329,3 +329,29 @@ def test_radio_bound_of_two_linear_fields():
     inner = bound[20:40, 20:60]
     assert np.isfinite(inner).all()
     np.testing.assert_allclose(inner, np.sqrt(8.0), rtol=0.05)
+
+
+def test_metrics_json_radio_equals_heldout_radio(sites, reports):
+    """One implementation: validate's radio errors are mapping.radio_validation.heldout_radio's
+    (the function behind benchmarks/wifi_accuracy.py) on the same data."""
+    from mapping.radio_build import site_observations
+    from mapping.radio_validation import heldout_radio, walk_folds
+    from survey.store import SurveyStore
+
+    _, bundle, store = sites["clean"]
+    _, metrics, _ = reports["clean"]
+    st = SurveyStore.open(store)
+    floor = load_bundle(bundle).manifest["floor_name"]
+    obs = {k: site_observations(st, None, [floor], k) for k in ("wifi", "ble")}
+    obs = {k: o for k, o in obs.items() if len(o)}
+    device_of = st.catalog().set_index("trace_id")["device_model"].astype(str)
+    walks = np.concatenate([o["trace_id"].to_numpy().astype(str) for o in obs.values()])
+    err = heldout_radio(obs, device_of, [floor], walk_folds(walks, 0))
+    for kind, k in metrics["radio"]["kinds"].items():
+        if "median_error_m" not in k:
+            continue
+        e = err[(floor, kind)]
+        e = e[np.isfinite(e)]
+        assert k["scans"] == len(e)
+        assert k["median_error_m"] == pytest.approx(float(np.median(e)), rel=1e-12)
+        assert k["p80_error_m"] == pytest.approx(float(np.percentile(e, 80)), rel=1e-12)
