@@ -124,8 +124,8 @@ def walk_folds(walks, folds: int, seed: int = 0) -> list[list[str]]:
 
 def heldout_radio(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: list[str],
                   groups: list[list[str]], *, params: RadioParams | None = None,
-                  on_fold: Callable | None = None, progress: Callable[[str], None] | None = None
-                  ) -> dict[tuple[str, str], NDArray[np.float64]]:
+                  on_fold: Callable | None = None, progress: Callable[[str], None] | None = None,
+                  with_positions: bool = False) -> dict:
     """Held-out Wi-Fi/BLE position errors of the shipped pipeline (the one implementation
     behind ``validate`` and ``benchmarks/wifi_accuracy.py``).
 
@@ -153,7 +153,8 @@ def heldout_radio(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: li
     -------
     dict
         ``(floor, kind)`` -> errors (m) of the held-out scans against their processed
-        positions; NaN for scans without a known transmitter.
+        positions, NaN for scans without a known transmitter; with ``with_positions``
+        ``(errors, xy_m)``, ``xy_m`` (S, 2) the scans' processed positions (m).
     """
     from .radio_build import calibrated, site_radio
 
@@ -174,12 +175,15 @@ def heldout_radio(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: li
                 continue
             scans = scan_set(t)
             res = default_matcher().fit(db).predict(scans)
-            out.setdefault((floor, kind), []).append(np.linalg.norm(res.xy_m - scans.xy_m,
-                                                                    axis=1))
+            out.setdefault((floor, kind), []).append(
+                (np.linalg.norm(res.xy_m - scans.xy_m, axis=1), scans.xy_m))
         if on_fold is not None:
             on_fold(held, radio, test_obs)
         say(f"radio fold {i + 1}/{len(groups)}")
-    return {key: np.concatenate(v) for key, v in out.items()}
+    if with_positions:
+        return {key: (np.concatenate([e for e, _ in v]), np.concatenate([xy for _, xy in v]))
+                for key, v in out.items()}
+    return {key: np.concatenate([e for e, _ in v]) for key, v in out.items()}
 
 
 def _site_floor_model(bundle: MapBundle) -> dict | None:
@@ -220,7 +224,7 @@ def radio_summary(bundle: MapBundle, store, floor: str, site: str | None, *,
                      f"grouped {params.folds}-fold by walk")
             device_of = st.catalog().set_index("trace_id")["device_model"].astype(str)
             errors = heldout_radio({k: o for k, o in obs.items() if len(o)}, device_of, [floor],
-                                   walk_folds(walks, folds, params.seed))
+                                   walk_folds(walks, folds, params.seed), with_positions=True)
     fm = _site_floor_model(bundle)
     out["floor_model"] = fm
     out["floor_accuracy"] = None if fm is None else fm.get("cv_scan_accuracy")
@@ -244,7 +248,8 @@ def radio_summary(bundle: MapBundle, store, floor: str, site: str | None, *,
                             "p90": float(np.percentile(fin, 90)) if fin.size else None,
                             "cells": int(fin.size)}
         if errors is not None and (floor, kind) in errors:
-            e = errors[(floor, kind)]
+            e, xy = errors[(floor, kind)]
+            out["arrays"][f"{kind}_error_points"] = (xy[np.isfinite(e)], e[np.isfinite(e)])
             e = e[np.isfinite(e)]
             if e.size:
                 k_out.update(split=split, scans=int(e.size),

@@ -391,9 +391,17 @@ def fig_heldout_maps(result: ValidationResult, canvas: FloorCanvas) -> bytes | N
     a = result.arrays
     names = [n for n in ("strength", "vertical", "heading_offset")
              if f"heldout_rms_{n}" in a]
-    if not names:
+    radio = a.get("radio_error_map_m")
+    if not names and radio is None:
         return None
-    fig, axes = _panels(canvas, len(names), len(names), panel_w=5.0)
+    n = len(names) + (radio is not None)
+    fig, axes = _panels(canvas, n, n, panel_w=5.0)
+    if radio is not None:
+        canvas.base(axes[-1])
+        canvas.raster(axes[-1], radio, grid=result.report_grid, cmap="YlOrRd", vmin=0,
+                      vmax=10, label="median error (m)")
+        axes[-1].set_title(f"held-out radio error\n(median per {result.report_grid.cell_m:g} m "
+                           "cell)", fontsize=8.5)
     th = result.thresholds
     for ax, name in zip(axes, names):
         canvas.base(ax)

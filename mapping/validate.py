@@ -1165,7 +1165,7 @@ def data_quality_section(bundle: MapBundle, fd: FloorData, th: dict, params: Val
 # 7. radio
 
 def radio_section(bundle: MapBundle, store, fd: FloorData | None, th: dict,
-                  findings: list[Finding], arrays: dict) -> dict:
+                  findings: list[Finding], arrays: dict, rgrid: Grid | None = None) -> dict:
     """Wi-Fi/BLE held-out positioning, the site's floor accuracy and the radio bound
     (:func:`mapping.radio_validation.radio_summary`); ``{"available": False, "reason": ...}``
     when the bundle has no fingerprints."""
@@ -1177,7 +1177,19 @@ def radio_section(bundle: MapBundle, store, fd: FloorData | None, th: dict,
     floor = fd.floor if fd is not None else (bundle.manifest.get("floor_name") or "")
     res = radio_summary(bundle, store, floor, fd.site if fd is not None else None)
     out = {"available": True, **{k: v for k, v in res.items() if k != "arrays"}}
-    arrays.update(res.get("arrays", {}))
+    ra = res.get("arrays", {})
+    arrays.update({k: v for k, v in ra.items() if not k.endswith("_error_points")})
+    kind = res.get("primary_kind")
+    if f"{kind}_error_points" in ra:  # median held-out error per report cell
+        xy, err = ra[f"{kind}_error_points"]
+        rgrid = report_grid_of(bundle.grid, ValidateParams().report_cell_m if rgrid is None
+                               else rgrid.cell_m)
+        r, c, inside = rgrid.cell_of(xy[:, 0], xy[:, 1])
+        cells = pd.DataFrame({"cell": (r * rgrid.width + c)[inside], "e": err[inside]})
+        med = cells.groupby("cell")["e"].median()
+        emap = np.full(rgrid.width * rgrid.height, np.nan)
+        emap[med.index.to_numpy()] = med.to_numpy()
+        arrays["radio_error_map_m"] = emap.reshape(rgrid.shape)
     t = th.get("radio_median_error_max_m")
     v = out.get("median_error_m")
     if t is not None and v is not None and v > t:
@@ -1295,7 +1307,7 @@ def validate_bundle(bundle: MapBundle | str | Path, store=None, *,
     if params.radio:
         say("radio")
         metrics["radio"] = timed("radio", lambda: radio_section(b, store, fd, th, findings,
-                                                                arrays))
+                                                                arrays, rgrid))
         if not metrics["radio"].get("available"):
             findings.append(Finding("radio", "info", metrics["radio"]["reason"], "radio"))
     metrics["timings_s"] = {**timings, "total": round(time.perf_counter() - t_start, 2)}
