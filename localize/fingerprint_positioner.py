@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from localize.errors import LocalizationError
-from localize.radio_match import knn_positions, powed, sorensen_distances
+from localize.radio_match import knn_positions, powed, scan_rssi_matrix, sorensen_distances
 from localize.rssi_calibration import OnlineCalibration, estimate_rssi_calibration
 from localize.steps import RadioScan
 
@@ -185,15 +185,7 @@ class FingerprintPositioner:
                     ) -> NDArray[np.float64]:
         """RSSI of ``scans`` over :attr:`aps`, shape (S, A) (dBm; NaN = not heard), with the
         calibration applied unless ``calibrated=False``."""
-        out = np.full((len(scans), len(self.aps)), np.nan)
-        for i, scan in enumerate(scans):
-            keys = [] if scan is None else np.asarray(scan.keys).astype(str).tolist()
-            if not keys:
-                continue
-            idx = np.fromiter((self._index.get(k, -1) for k in keys), dtype=np.int64,
-                              count=len(keys))
-            known = idx >= 0
-            out[i, idx[known]] = np.asarray(scan.rssi_dbm, dtype=np.float64)[known]
+        out = scan_rssi_matrix(scans, self._index)
         if calibrated and (self.rssi_k != 1.0 or self.rssi_b != 0.0):
             out = self.rssi_k * out + self.rssi_b
         return out

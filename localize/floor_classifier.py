@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from localize.errors import LocalizationError
+from localize.radio_match import scan_rssi_matrix
 from localize.steps import RadioScan
 
 __all__ = ["FloorClassifier", "floor_log_proba", "level_features"]
@@ -99,16 +100,7 @@ class FloorClassifier:
 
     def scan_matrix(self, scans: Sequence[RadioScan | None]) -> NDArray[np.float64]:
         """RSSI of ``scans`` over :attr:`aps`, shape (S, A) (dBm; NaN = not heard)."""
-        out = np.full((len(scans), len(self.aps)), np.nan)
-        for i, scan in enumerate(scans):
-            keys = [] if scan is None else np.asarray(scan.keys).astype(str).tolist()
-            if not keys:
-                continue
-            idx = np.fromiter((self._index.get(k, -1) for k in keys), dtype=np.int64,
-                              count=len(keys))
-            known = idx >= 0
-            out[i, idx[known]] = np.asarray(scan.rssi_dbm, dtype=np.float64)[known]
-        return out
+        return scan_rssi_matrix(scans, self._index)
 
     def log_proba(self, rssi_dbm: ArrayLike) -> NDArray[np.float64]:
         """Log-probability per floor, shape (S, F), of scans as a matrix over :attr:`aps`."""

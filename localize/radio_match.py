@@ -17,9 +17,24 @@ import numpy as np
 from numpy.typing import NDArray
 
 __all__ = ["age_weights", "euclidean_distances", "gaussian_loglik", "knn_positions", "powed",
-           "sorensen_distances"]
+           "scan_rssi_matrix", "sorensen_distances"]
 
 FloatArray = NDArray[np.float64]
+
+
+def scan_rssi_matrix(scans, index: dict[str, int]) -> FloatArray:
+    """RSSI of scans (objects with ``keys`` and ``rssi_dbm``, e.g. ``RadioScan``; None allowed)
+    as a matrix over the transmitters of ``index`` (key -> column), shape (S, len(index))
+    (dBm; NaN = not heard, unknown keys ignored)."""
+    out = np.full((len(scans), len(index)), np.nan)
+    for i, scan in enumerate(scans):
+        keys = [] if scan is None else np.asarray(scan.keys).astype(str).tolist()
+        if not keys:
+            continue
+        idx = np.fromiter((index.get(k, -1) for k in keys), dtype=np.int64, count=len(keys))
+        known = idx >= 0
+        out[i, idx[known]] = np.asarray(scan.rssi_dbm, dtype=np.float64)[known]
+    return out
 
 
 def powed(rssi_dbm: FloatArray, floor_dbm: float = -100.0, beta: float = float(np.e)
