@@ -82,7 +82,7 @@ def systematic_resample(weights: ArrayLike, rng: np.random.Generator,
                                 "systematic_resample_rows for many")
     m = len(w)
     n = m if n is None else int(n)
-    cs = np.cumsum(w)
+    cs = np.cumsum(w / w.max())  # scaled: subnormal weights would round in u * total
     u = (rng.random() + np.arange(n)) / n
     idx = np.searchsorted(cs, u * cs[-1], side="right")
     last = int(np.flatnonzero(w > 0)[-1])  # rounding can push a draw past the last weight
@@ -118,7 +118,7 @@ def systematic_resample_rows(weights: ArrayLike, rng: np.random.Generator,
         w = w[None, :]
     u_rows, n = w.shape
     m = n if n_out is None else int(n_out)
-    cs = np.cumsum(w, axis=1)
+    cs = np.cumsum(w / w.max(axis=1, keepdims=True), axis=1)  # no subnormal totals
     scaled = cs * (m / cs[:, -1:])
     below = np.ceil(scaled - rng.random((u_rows, 1)))
     np.clip(below, 0, m, out=below)

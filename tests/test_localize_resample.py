@@ -110,3 +110,13 @@ def test_effective_sample_size():
     assert effective_sample_size(np.ones(10)) == pytest.approx(10.0)
     assert effective_sample_size(np.array([0.0, 5.0, 0.0])) == pytest.approx(1.0)
     assert np.allclose(effective_sample_size(np.array([[1.0, 1.0], [1.0, 0.0]])), [2.0, 1.0])
+
+
+def test_subnormal_weights_resample_in_proportion():
+    """Found by hypothesis: weights of 5e-324 (subnormal) rounded in ``u * total``."""
+    w = np.array([5e-324, 5e-324, 0.0, 0.0, 0.0, 0.0])
+    for seed in range(20):
+        idx = systematic_resample(w, np.random.default_rng(seed))
+        _check_counts(w, idx, len(w))
+        rows = systematic_resample_rows(w[None, :], np.random.default_rng(seed))
+        _check_counts(w, np.sort(rows[0]), len(w))
