@@ -40,6 +40,22 @@ def _open_maps(path: Path):
     return SiteMaps([b for b in subs if b.manifest.get("kind") != "site"], floor_model=model)
 
 
+_POSITIONERS: dict[tuple[str, str], object] = {}
+
+
+def _positioner(bundle, kind: str):
+    """The bundle's ``kind`` positioner, built once per bundle id (bundles are content-addressed,
+    so the cache cannot go stale) rather than once per walk."""
+    from localize.fingerprint_positioner import FingerprintPositioner
+
+    key = (bundle.bundle_id, kind)
+    if key not in _POSITIONERS:
+        if len(_POSITIONERS) >= 16:
+            _POSITIONERS.clear()
+        _POSITIONERS[key] = FingerprintPositioner.from_bundle(bundle, kind)
+    return _POSITIONERS[key]
+
+
 def radio_for_walk(bundle, device_model: str | None, scans, *, kind: str | None = None
                    ) -> tuple[object | None, str]:
     """The bundle's Wi-Fi (else BLE, or ``kind``) positioner, calibrated for the walk's phone,
@@ -50,11 +66,8 @@ def radio_for_walk(bundle, device_model: str | None, scans, *, kind: str | None 
     :data:`ONLINE_CALIBRATION_SCANS` scans of ``scans`` (same kind). Returns ``(None, "")``
     when the bundle has no fingerprints of that kind.
     """
-    from localize.fingerprint_positioner import FingerprintPositioner
-
     pos, kind = next(((p, k) for k in ([kind] if kind else ["wifi", "ble"])
-                      if (p := FingerprintPositioner.from_bundle(bundle, k)) is not None),
-                     (None, ""))
+                      if (p := _positioner(bundle, k)) is not None), (None, ""))
     if pos is None:
         return None, ""
     known = pos.for_device(bundle, device_model or "") if kind == "wifi" else None

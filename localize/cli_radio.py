@@ -78,9 +78,10 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
         trace = read_trace(f)
         recorded = trace.header.floor_name or ""
         scans = _scans(trace, kind, SCAN_MAX_AGE_MS["floor"])
-        lp = model.log_proba(model.scan_matrix(scans))
+        rssi = model.scan_matrix(scans)
+        lp = model.log_proba(rssi)
         ok = np.isfinite(lp).all(axis=1)
-        n_known = np.isfinite(model.scan_matrix(scans)).sum(axis=1)
+        n_known = np.isfinite(rssi).sum(axis=1)
         for i, scan in enumerate(scans):
             lo = max(0, i - window + 1)
             seq = lp[lo:i + 1][ok[lo:i + 1]]
@@ -118,11 +119,18 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
                         calibration: str) -> None:
     """Wi-Fi (or BLE) position per scan (CSV) from the fingerprints of BUNDLE (a floor bundle
     or a folder of bundles: the walk's floor, else the site floor model, picks one)."""
-    from localize.cli import _open_maps, _walks, radio_for_walk
-    from localize.fingerprint_positioner import FingerprintPositioner
+    from localize.cli import _open_maps, _positioner, _walks, radio_for_walk
     from survey.step_summaries import step_summaries, waypoints_of
     from survey.trace_reader import read_trace
 
+    given = None
+    if calibration not in ("auto", "none"):
+        try:
+            k, b = (float(v) for v in calibration.split(","))
+        except ValueError as err:
+            raise click.BadParameter(f"--calibration must be auto, none or K,B; got "
+                                     f"{calibration!r}") from err
+        given = (k, b)
     maps = _open_maps(bundle_path)
     rows = []
     for f in _walks(walks):
@@ -132,20 +140,15 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
             click.echo(f"{trace.trace_id}: no {kind} scans", err=True)
             continue
         bundle = maps.select(step_summaries(trace))
-        pos = FingerprintPositioner.from_bundle(bundle, kind)
+        pos = _positioner(bundle, kind)
         if pos is None:
             raise LocalizationError(f"{bundle.path}: no {kind} fingerprints in this bundle")
         if calibration == "auto":
             pos, how = radio_for_walk(bundle, trace.header.model, scans, kind=kind)
-        elif calibration == "none":
+        elif given is None:
             how = "none"
         else:
-            try:
-                k, b = (float(v) for v in calibration.split(","))
-            except ValueError as err:
-                raise click.BadParameter(f"--calibration must be auto, none or K,B; got "
-                                         f"{calibration!r}") from err
-            pos, how = pos.with_calibration(k, b), f"given k={k:g}, b={b:+g} dB"
+            pos, how = pos.with_calibration(*given), f"given k={given[0]:g}, b={given[1]:+g} dB"
         fixes = pos.locate_scans(scans)
         t = np.array([s.t_ms for s in scans], dtype=np.float64)
         t_wp, xy_wp = waypoints_of(trace)

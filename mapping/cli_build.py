@@ -20,10 +20,6 @@ from .radio_build import build_site_radio
 from .registry import SITE_BUNDLE, Registry
 
 
-def _walks_of(bundle_dir: Path) -> list[dict]:
-    return json.loads((bundle_dir / "manifest.json").read_text())["build"]["source_walks"]
-
-
 def _is_floor_dir(p: Path) -> bool:
     return (p / "geojson_map.json").exists()
 
@@ -100,9 +96,13 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
         registry = Registry(registry_dir) if registry_dir else None
         radio = build_site_radio(store, [f.name for f in floors], params=params.radio,
                                  progress=say)
+        site_id, site_build_time, site_walks = "", "", []
         for f in floors:
             content = build_floor(store, plans[f.name], floor=f.name, params=params,
                                   radio=radio, progress=say)
+            site_id = content.site_id
+            site_build_time = max(site_build_time, content.build["build_time"])
+            site_walks += content.build["source_walks"]
             bundle_id = write_bundle(targets[f.name], content, overwrite=overwrite)
             cov = content.metrics["coverage"]
             click.echo(f"{f.name}: bundle {bundle_id[:16]} -> {targets[f.name]} "
@@ -111,17 +111,16 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
             if registry:
                 entry = registry.publish(targets[f.name])
                 click.echo(f"  published as {content.site_id}/{f.name} #{entry['seq']}")
-        site_content = radio.site_content(content.site_id, build={
-            "build_time": content.build["build_time"], "seed": params.seed,
-            "source_walks": sorted((w for f in floors for w in _walks_of(targets[f.name])),
-                                   key=lambda w: w["trace_id"])})
-        site_id = write_bundle(site_target, site_content, overwrite=overwrite)
+        site_content = radio.site_content(site_id, build={
+            "build_time": site_build_time, "seed": params.seed,
+            "source_walks": sorted(site_walks, key=lambda w: w["trace_id"])})
+        site_bundle_id = write_bundle(site_target, site_content, overwrite=overwrite)
         fm = site_content.metrics["floor_model"]
         acc = ("no floor model (no radio rows)" if fm is None else
                f"floor model: {len(fm['floors'])} floors, cross-validated per scan "
                + ("n/a" if fm["cv_scan_accuracy"] is None else
                   f"{100 * fm['cv_scan_accuracy']:.2f} %"))
-        click.echo(f"site: bundle {site_id[:16]} -> {site_target} ({acc})")
+        click.echo(f"site: bundle {site_bundle_id[:16]} -> {site_target} ({acc})")
         if registry:
             entry = registry.publish(site_target)
             click.echo(f"  published as {site_content.site_id}/{SITE_BUNDLE} #{entry['seq']}")

@@ -39,7 +39,7 @@ from .device_calibration import DEVICE_TABLE_COLUMNS, calibrate_devices
 from .errors import FingerprintError
 from .fingerprints import DEFAULT_CELL_M, FingerprintDB, build_fingerprints
 from .floor_model import FloorModel, fit_floor_model
-from .radio_scans import ble_observations, wifi_observations
+from .radio_scans import OBS_COLUMNS, ble_observations, wifi_observations
 
 __all__ = ["KINDS", "RadioParams", "SiteRadio", "build_site_radio", "calibrated", "site_observations",
            "site_radio"]
@@ -92,8 +92,7 @@ def site_observations(store: SurveyStore, site: str | None, floors: Sequence[str
         obs["floor"] = floor
         parts.append(obs)
     if not parts:
-        return pd.DataFrame(columns=[*wifi_observations(pd.DataFrame(
-            {"scan_t_ms": [], "bssid": [], "rssi_dbm": []})).columns, "ssid", "floor"])
+        return pd.DataFrame(columns=[*OBS_COLUMNS, "ssid", "floor"])
     out = pd.concat(parts, ignore_index=True)
     # scan ids unique over the site (each floor numbered from 0)
     key = out["floor"].astype(str) + "\x00" + out["scan_id"].astype(str)

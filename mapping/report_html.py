@@ -687,12 +687,17 @@ def _section_coverage(result, canvas, figures) -> str:
     return "".join(out)
 
 
+def _needs_store(section_id: str, title: str) -> str:
+    """A section that cannot be written without the survey store."""
+    return (f"<section id='{section_id}'><h2>{title}</h2><p>Needs the survey store "
+            "(<code>--store</code>).</p></section>")
+
+
 def _section_consistency(result, canvas, figures) -> str:
     con = result.metrics.get("consistency")
-    out = ["<section id='consistency'><h2>2. Consistency (after levelling)</h2>"]
     if not con:
-        out.append("<p>Needs the survey store (<code>--store</code>).</p></section>")
-        return "".join(out)
+        return _needs_store("consistency", "2. Consistency (after levelling)")
+    out = ["<section id='consistency'><h2>2. Consistency (after levelling)</h2>"]
     out.append("<p class='note'>Each walk's field, levelled with the bundle's per-session "
                f"residuals, averaged per {con['report_cell_m']:g} m cell. A walk's offset is "
                "its median difference from the other walks in the cells they share; the "
@@ -722,10 +727,9 @@ def _section_consistency(result, canvas, figures) -> str:
 
 def _section_heldout(result, canvas, figures) -> str:
     ho = result.metrics.get("heldout")
-    out = ["<section id='heldout'><h2>3. Held-out accuracy (leave one walk out)</h2>"]
     if not ho:
-        out.append("<p>Needs the survey store (<code>--store</code>).</p></section>")
-        return "".join(out)
+        return _needs_store("heldout", "3. Held-out accuracy (leave one walk out)")
+    out = ["<section id='heldout'><h2>3. Held-out accuracy (leave one walk out)</h2>"]
     p = ho["params"]
     out.append(f"<p class='note'>{_e(ho['implementation'])} (the benchmark's implementation): "
                f"every walk predicted by the map of the others; levelling fitted in "
@@ -832,10 +836,9 @@ def _section_calibration(result) -> str:
 
 def _section_data_quality(result) -> str:
     dq = result.metrics.get("data_quality")
-    out = ["<section id='data-quality'><h2>6. Data quality</h2>"]
     if not dq:
-        out.append("<p>Needs the survey store (<code>--store</code>).</p></section>")
-        return "".join(out)
+        return _needs_store("data-quality", "6. Data quality")
+    out = ["<section id='data-quality'><h2>6. Data quality</h2>"]
     lt = dq["lines_total"]
     out.append(f"<p>{lt['n_lines']} lines in {len(dq['lines'])} traces: {lt['n_bad_lines']} "
                f"bad, {lt['n_skipped_lines']} skipped (undocumented record types), "

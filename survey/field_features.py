@@ -210,6 +210,15 @@ def _prepare(angle_deg: ArrayLike, weights: ArrayLike | None,
     return a, w
 
 
+def _resultant(angle_deg: ArrayLike, weights: ArrayLike | None, axis: int | None
+               ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Weighted sums ``(sum w cos a, sum w sin a, sum w)`` over ``axis`` (NaN angles ignored)."""
+    a, w = _prepare(angle_deg, weights, axis)
+    ax = 0 if axis is None else axis
+    r = np.radians(a)
+    return (w * np.cos(r)).sum(axis=ax), (w * np.sin(r)).sum(axis=ax), w.sum(axis=ax)
+
+
 def circular_resultant_length(angle_deg: ArrayLike, weights: ArrayLike | None = None,
                               axis: int | None = None) -> NDArray[np.float64] | float:
     """Mean resultant length R of angles (1 = all equal, ~0 = uniformly spread).
@@ -228,14 +237,9 @@ def circular_resultant_length(angle_deg: ArrayLike, weights: ArrayLike | None = 
     float or ndarray
         R in [0, 1]; NaN where no valid angle.
     """
-    a, w = _prepare(angle_deg, weights, axis)
-    ax = 0 if axis is None else axis
-    r = np.radians(a)
-    sw = w.sum(axis=ax)
+    c, s, sw = _resultant(angle_deg, weights, axis)
     with np.errstate(invalid="ignore", divide="ignore"):
-        c = (w * np.cos(r)).sum(axis=ax) / sw
-        s = (w * np.sin(r)).sum(axis=ax) / sw
-    out = np.where(sw > 0, np.hypot(c, s), np.nan)
+        out = np.where(sw > 0, np.hypot(c, s) / sw, np.nan)
     return float(out) if np.ndim(out) == 0 else out
 
 
@@ -258,12 +262,7 @@ def circular_mean_deg(angle_deg: ArrayLike, weights: ArrayLike | None = None,
         Mean direction in [0, 360); NaN where there is no valid angle or the resultant vanishes
         (e.g. two opposite angles), since the mean is then undefined.
     """
-    a, w = _prepare(angle_deg, weights, axis)
-    ax = 0 if axis is None else axis
-    r = np.radians(a)
-    c = (w * np.cos(r)).sum(axis=ax)
-    s = (w * np.sin(r)).sum(axis=ax)
-    sw = w.sum(axis=ax)
+    c, s, sw = _resultant(angle_deg, weights, axis)
     m = np.degrees(np.arctan2(s, c)) % 360.0
     m = np.where(m >= 360.0, 0.0, m)
     with np.errstate(invalid="ignore", divide="ignore"):
