@@ -20,17 +20,16 @@ Measured on this 2-core machine, 24 GB RAM (site1/F1; docs/reliability.md, "Reso
 limits")::
 
     scale  traces  text MB  wall s  peak RSS MB  last progress line before the peak
-        1     106      180    36.7          898  ble: kept 11 transmitters ... (floor model fit)
-       10    1060     1795   333.3         4713  ble: kept 285 transmitters ... (floor model fit)
-    peak RSS 10x / 1x: 5.25
+        1     106      180    33.6          641  F1: layer strength
+       10    1060     1795   314.0         2129  wifi: kept 2425 transmitters ...
+    peak RSS 10x / 1x: 3.32
 
-Memory grows with the floor. Per step (peak RSS, 1x -> 10x): processing (``process_store``,
-all of the store's sensor/Wi-Fi/BLE/waypoint tables loaded at once) 849 -> 4333 MB; the floor
-model fit (``mapping.floor_model``: dense scans x transmitters matrices, built even for a
-single floor) 903 -> 4753 MB; ``build_floor`` only 754 -> 1895 MB. In the 10x floor every walk
-has nine exact copies, so the radio steps keep more transmitters (no longer "rare") and the
-kernel bandwidth cross-validation picks 0.5 m instead of 3.0 m: the bundle is not a realistic
-one, only the memory and time are.
+(Before processing and the radio build read the store walk by walk: 898 and 4713 MB, 5.25x.)
+Processing now stays at about 580 MB at 10x; the 10x peak is the Wi-Fi AP selection and
+reference-point aggregation over the whole observation table (5.8 million rows).
+In the 10x floor every walk has nine exact copies, so the radio steps keep more transmitters
+(no longer "rare") and the kernel bandwidth cross-validation picks 0.5 m instead of 3.0 m:
+the bundle is not a realistic one, only the memory and time are.
 """
 
 from __future__ import annotations

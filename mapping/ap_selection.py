@@ -28,7 +28,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from .errors import FingerprintError
-from .radio_scans import OBS_COLUMNS
+from .radio_scans import OBS_COLUMNS, distinct_text
 
 __all__ = [
     "HOTSPOT_SSID",
@@ -194,7 +194,7 @@ def select_aps(obs: pd.DataFrame, *, ssid: Mapping[str, str] | pd.Series | None 
         raise FingerprintError(f"observation table lacks columns {missing}")
     if floor_column is not None and floor_column not in obs.columns:
         raise FingerprintError(f"observation table has no floor column {floor_column!r}")
-    aps = np.unique(obs["ap"].to_numpy().astype(str))
+    aps = distinct_text(obs["ap"])
     info = pd.DataFrame(index=pd.Index(aps, name="ap"))
     info["n_scans"] = obs.groupby("ap")["scan_id"].nunique()
     info["n_walks"] = obs.groupby("ap")["trace_id"].nunique()
@@ -218,7 +218,9 @@ def select_aps(obs: pd.DataFrame, *, ssid: Mapping[str, str] | pd.Series | None 
     if p.drop_locally_administered:
         flag(info["locally_administered"], "locally_administered", lambda a: "LAA bit")
 
+    present = [] if floor_column is None else distinct_text(obs[floor_column])
     groups = ([(None, obs)] if floor_column is None
+              else [(present[0], obs)] if len(present) == 1  # no copy of a one-floor table
               else list(obs.groupby(floor_column, sort=True)))
     for floor, part in groups:
         where = "" if floor is None else f" on {floor}"
@@ -235,8 +237,8 @@ def select_aps(obs: pd.DataFrame, *, ssid: Mapping[str, str] | pd.Series | None 
              lambda a, c=change, where=where: f"RSSI changed {c.at[a]:.0f} dB between "
                                               f"surveys{where}")
     if floor_column is not None:
-        order = list(floor_order) if floor_order is not None else sorted(
-            obs[floor_column].astype(str).unique())
+        order = (list(floor_order) if floor_order is not None
+                 else distinct_text(obs[floor_column]).tolist())
         rank = {f: i for i, f in enumerate(order)}
         strong = obs[obs["rssi_dbm"] >= p.far_floor_strong_dbm]
         idx = strong[floor_column].astype(str).map(rank)

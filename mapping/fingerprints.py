@@ -214,18 +214,20 @@ def build_fingerprints(obs: pd.DataFrame, *, kind: str = "wifi",
     missing = [c for c in OBS_COLUMNS if c not in obs.columns]
     if missing:
         raise FingerprintError(f"observation table lacks columns {missing}")
-    pos = obs[np.isfinite(obs["x_m"].to_numpy(np.float64))
-              & np.isfinite(obs["y_m"].to_numpy(np.float64))]
-    if len(pos) == 0:
+    # column arrays and masks, no copies of the table (it can hold millions of rows)
+    x_m, y_m = obs["x_m"].to_numpy(np.float64), obs["y_m"].to_numpy(np.float64)
+    scan_ids = obs["scan_id"].to_numpy(np.int64)
+    positioned = np.isfinite(x_m) & np.isfinite(y_m)
+    if not positioned.any():
         raise FingerprintError(f"no positioned {kind} scans: cannot build reference points "
                                f"(a floor without {kind} rows, or rows outside the walks)")
-    scans = pos.groupby("scan_id", sort=True)[["x_m", "y_m"]].first()
-    xy = scans.to_numpy(np.float64)
+    scan_index, first_row = np.unique(scan_ids[positioned], return_index=True)
+    xy = np.column_stack([x_m[positioned][first_row], y_m[positioned][first_row]])
     if cell_m > 0:
         cells = np.floor(xy / cell_m).astype(np.int64)
         _, rp_of_scan = np.unique(cells, axis=0, return_inverse=True)
     else:
-        rp_of_scan = np.arange(len(scans))
+        rp_of_scan = np.arange(len(xy))
     rp_of_scan = rp_of_scan.reshape(-1)
     rp = (pd.DataFrame({"rp_id": rp_of_scan, "x_m": xy[:, 0], "y_m": xy[:, 1]})
           .groupby("rp_id", sort=True)
@@ -233,15 +235,16 @@ def build_fingerprints(obs: pd.DataFrame, *, kind: str = "wifi",
           .reset_index())
     rp["rp_id"] = rp["rp_id"].astype(np.int64)
     rp["n_scans"] = rp["n_scans"].astype(np.int64)
-    rows = pos if max_age_ms is None else pos[pos["age_ms"].to_numpy() <= max_age_ms]
-    if len(rows) == 0:
+    use = positioned if max_age_ms is None else (
+        positioned & (obs["age_ms"].to_numpy(np.float64) <= max_age_ms))
+    if not use.any():
         raise FingerprintError(f"no {kind} rows younger than {max_age_ms} ms among "
-                               f"{len(scans)} positioned scans")
-    rp_of_row = rp_of_scan[np.searchsorted(scans.index.to_numpy(), rows["scan_id"].to_numpy())]
-    ap_code, ap_names = pd.factorize(rows["ap"].to_numpy(), sort=True)
+                               f"{len(xy)} positioned scans")
+    rp_of_row = rp_of_scan[np.searchsorted(scan_index, scan_ids[use])]
+    ap_code, ap_names = pd.factorize(obs["ap"].to_numpy()[use], sort=True)
     key = rp_of_row.astype(np.int64) * len(ap_names) + ap_code
     keys, inv = np.unique(key, return_inverse=True)
-    rssi = rows["rssi_dbm"].to_numpy(np.float64)
+    rssi = obs["rssi_dbm"].to_numpy(np.float64)[use]
     n = np.bincount(inv, minlength=len(keys))
     mean = np.bincount(inv, weights=rssi, minlength=len(keys)) / n
     ss = np.bincount(inv, weights=(rssi - mean[inv]) ** 2, minlength=len(keys))

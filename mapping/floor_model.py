@@ -31,12 +31,13 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
+from scipy import sparse
 
 from localize.floor_classifier import FloorClassifier, floor_log_proba, level_features
 
 from .errors import FingerprintError
 from .matching import align_scans
-from .radio_scans import OBS_COLUMNS, ScanSet, scan_set
+from .radio_scans import OBS_COLUMNS, ScanSet, distinct_text, scan_set
 
 __all__ = ["FloorCV", "FloorModel", "cross_validate_floor_model", "fit_floor_model"]
 
@@ -178,9 +179,10 @@ class FloorModel:
                    meta)
 
 
-def _scan_sets(obs_by_floor: Mapping[str, pd.DataFrame]
-               ) -> tuple[dict[str, ScanSet], list[str]]:
-    sets, skipped = {}, []
+def _floor_tables(obs_by_floor: Mapping[str, pd.DataFrame]
+                  ) -> tuple[dict[str, pd.DataFrame], list[str]]:
+    """The non-empty observation tables by floor (checked) and the floors without rows."""
+    tables, skipped = {}, []
     for floor, obs in obs_by_floor.items():
         missing = [c for c in OBS_COLUMNS if c not in obs.columns]
         if missing:
@@ -188,46 +190,54 @@ def _scan_sets(obs_by_floor: Mapping[str, pd.DataFrame]
         if len(obs) == 0:
             skipped.append(str(floor))
             continue
-        sets[str(floor)] = scan_set(obs)
-    if not sets:
+        tables[str(floor)] = obs
+    if not tables:
         raise FingerprintError("no floor has any scan: cannot fit a floor model")
-    return sets, skipped
+    return tables, skipped
 
 
-def _design(sets: Mapping[str, ScanSet], aps: NDArray[np.str_]
-            ) -> tuple[NDArray[np.float64], NDArray[np.str_], NDArray[np.str_], pd.DataFrame]:
-    xs, ys, meta = [], [], []
-    for floor, s in sets.items():
-        rssi, _ = align_scans(s, aps)
-        xs.append(level_features(rssi))
-        ys.append(np.full(len(s), floor, dtype=object))
-        meta.append(s.scans.assign(floor=floor))
-    return (np.concatenate(xs), np.concatenate(ys).astype(str),
-            pd.concat(meta, ignore_index=True)["trace_id"].to_numpy().astype(str),
-            pd.concat(meta, ignore_index=True))
+def _design(tables: Mapping[str, pd.DataFrame], aps: NDArray[np.str_]
+            ) -> tuple[sparse.csr_matrix, NDArray[np.str_], NDArray[np.str_]]:
+    """Level features (sparse, scans x ``aps``: a scan hears a few dozen of the site's
+    transmitters), floor label and walk of every scan of every floor. Built from the long
+    observation tables directly: memory grows with the rows, never with scans x transmitters."""
+    rows, cols, vals, ys, traces = [], [], [], [], []
+    n, ap_index = 0, pd.Index(aps)
+    for floor, obs in tables.items():
+        scan_idx, scan_ids = pd.factorize(obs["scan_id"], sort=True)
+        col = ap_index.get_indexer(obs["ap"])
+        level = level_features(obs["rssi_dbm"].to_numpy(np.float64))
+        keep = (col >= 0) & (level > 0)
+        rows.append(scan_idx[keep] + n)
+        cols.append(col[keep])
+        vals.append(level[keep])
+        ys.append(np.full(len(scan_ids), floor, dtype=object))
+        walk = np.empty(len(scan_ids), dtype=object)
+        walk[scan_idx] = obs["trace_id"].to_numpy()
+        traces.append(walk.astype(str))
+        n += len(scan_ids)
+    x = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                          shape=(n, len(aps)))
+    return x, np.concatenate(ys).astype(str), np.concatenate(traces)
 
 
-def _fit_arrays(x: NDArray[np.float64], y: NDArray[np.str_], c: float
+def _fit_arrays(x: sparse.csr_matrix, y: NDArray[np.str_], c: float
                 ) -> tuple[NDArray[np.str_], NDArray[np.float64], NDArray[np.float64]]:
-    floors = np.unique(y)
-    if len(floors) == 1:
-        return floors, np.zeros((1, x.shape[1])), np.zeros(1)
     from sklearn.linear_model import LogisticRegression
 
     model = LogisticRegression(C=c, max_iter=3000).fit(x, y)
     coef, intercept = model.coef_, model.intercept_
-    if len(floors) == 2:  # binary: sklearn keeps one row for the second class
+    if len(model.classes_) == 2:  # binary: sklearn keeps one row for the second class
         coef = np.vstack([-coef[0] / 2, coef[0] / 2])
         intercept = np.array([-intercept[0] / 2, intercept[0] / 2])
     return model.classes_.astype(str), coef.astype(np.float64), intercept.astype(np.float64)
 
 
-def _feature_aps(sets: Mapping[str, ScanSet], min_scans: int) -> NDArray[np.str_]:
-    counts: dict[str, int] = {}
-    for s in sets.values():
-        for ap, n in zip(s.aps, np.isfinite(s.rssi_dbm).sum(axis=0)):
-            counts[ap] = counts.get(ap, 0) + int(n)
-    return np.array(sorted(a for a, n in counts.items() if n >= min_scans), dtype=str)
+def _feature_aps(tables: Mapping[str, pd.DataFrame], min_scans: int) -> NDArray[np.str_]:
+    """Transmitters heard in at least ``min_scans`` scans (one observation row per scan and
+    transmitter), sorted."""
+    counts = pd.concat([o["ap"] for o in tables.values()]).value_counts()
+    return np.array(sorted(counts.index[counts >= min_scans]), dtype=str)
 
 
 def cross_validate_floor_model(obs_by_floor: Mapping[str, pd.DataFrame], *, folds: int = 5,
@@ -248,25 +258,23 @@ def cross_validate_floor_model(obs_by_floor: Mapping[str, pd.DataFrame], *, fold
     window : int
         Scans per sequence for ``sequence_accuracy``.
     """
-    sets, _ = _scan_sets(obs_by_floor)
-    walks = np.unique(np.concatenate([s.scans["trace_id"].to_numpy().astype(str)
-                                      for s in sets.values()]))
+    tables, _ = _floor_tables(obs_by_floor)
+    walks = distinct_text(pd.concat([o["trace_id"].drop_duplicates() for o in tables.values()]))
     folds = int(min(folds, len(walks)))
     if folds < 2:
         raise FingerprintError("cross-validation needs at least two walks")
     rng = np.random.default_rng(seed)
-    fold_of = dict(zip(rng.permutation(walks), np.arange(len(walks)) % folds))
+    fold_of = pd.Series(np.arange(len(walks)) % folds, index=rng.permutation(walks))
     scan_pred, seq_pred, truth, walk_rows = [], [], [], []
     for k in range(folds):
-        train = {f: s.subset(np.array([fold_of[t] != k for t in s.scans["trace_id"]], bool))
-                 for f, s in sets.items()}
-        test = {f: s.subset(np.array([fold_of[t] == k for t in s.scans["trace_id"]], bool))
-                for f, s in sets.items()}
-        train = {f: s for f, s in train.items() if len(s)}
+        held = {f: o["trace_id"].isin(fold_of.index[fold_of == k]).to_numpy()
+                for f, o in tables.items()}
+        train = {f: o[~held[f]] for f, o in tables.items() if (~held[f]).any()}
         model = _fit(train, c=c, min_scans=min_scans, skipped=[])
-        for floor, s in test.items():
-            if len(s) == 0:
+        for floor, o in tables.items():
+            if not held[floor].any():
                 continue
+            s = scan_set(o[held[floor]])
             scan_pred.append(model.predict(s))
             seq_pred.append(model.predict_sequence(s, window))
             truth.append(np.full(len(s), floor))
@@ -281,13 +289,19 @@ def cross_validate_floor_model(obs_by_floor: Mapping[str, pd.DataFrame], *, fold
                    window, confusion)
 
 
-def _fit(sets: Mapping[str, ScanSet], *, c: float, min_scans: int, skipped: list[str]
+def _fit(tables: Mapping[str, pd.DataFrame], *, c: float, min_scans: int, skipped: list[str]
          ) -> FloorModel:
-    aps = _feature_aps(sets, min_scans)
-    x, y, trace, _ = _design(sets, aps)
-    floors, coef, intercept = _fit_arrays(x, y, c)
-    meta = {"feature": "level", "c": float(c), "n_scans": len(y),
-            "n_walks": len(np.unique(trace)), "skipped_floors": list(skipped)}
+    aps = _feature_aps(tables, min_scans)
+    if len(tables) == 1:  # nothing to tell apart: no design matrix, no regression
+        (floor, obs), = tables.items()
+        floors, coef, intercept = np.array([floor]), np.zeros((1, len(aps))), np.zeros(1)
+        n_scans, walks = obs["scan_id"].nunique(), distinct_text(obs["trace_id"])
+    else:
+        x, y, walks = _design(tables, aps)
+        floors, coef, intercept = _fit_arrays(x, y, c)
+        n_scans = len(y)
+    meta = {"feature": "level", "c": float(c), "n_scans": int(n_scans),
+            "n_walks": len(np.unique(walks)), "skipped_floors": list(skipped)}
     return FloorModel(floors, aps, coef, intercept, meta)
 
 
@@ -312,12 +326,12 @@ def fit_floor_model(obs_by_floor: Mapping[str, pd.DataFrame], *, c: float = 1.0,
     FingerprintError
         No floor has a scan, or a table lacks columns.
     """
-    sets, skipped = _scan_sets(obs_by_floor)
-    model = _fit(sets, c=c, min_scans=min_scans, skipped=skipped)
+    tables, skipped = _floor_tables(obs_by_floor)
+    model = _fit(tables, c=c, min_scans=min_scans, skipped=skipped)
     meta = {**model.meta, "cv_folds": 0, "cv_scan_accuracy": np.nan,
             "cv_walk_accuracy": np.nan, "cv_sequence_accuracy": np.nan}
-    if cv_folds >= 2 and len(sets) >= 2:
-        cv = cross_validate_floor_model({f: obs_by_floor[f] for f in sets}, folds=cv_folds, c=c,
+    if cv_folds >= 2 and len(tables) >= 2:
+        cv = cross_validate_floor_model(tables, folds=cv_folds, c=c,
                                         min_scans=min_scans, window=window, seed=seed)
         meta.update(cv_folds=cv.folds, cv_scan_accuracy=cv.scan_accuracy,
                     cv_walk_accuracy=cv.walk_accuracy, cv_sequence_accuracy=cv.sequence_accuracy)

@@ -28,10 +28,11 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import pandas as pd
 import pyarrow as pa
+from numpy.typing import NDArray
 
 from survey.errors import ProcessingError
 from survey.store import SurveyStore
-from survey.process_store import processed_table
+from survey.process_store import processed_parts
 
 from .ap_selection import APSelection, APSelectionParams, select_aps
 from .bundle_writer import BundleContent
@@ -72,32 +73,54 @@ def site_observations(store: SurveyStore, site: str | None, floors: Sequence[str
                       *, ble_window_ms: int = 2000) -> pd.DataFrame:
     """Observation table (:mod:`mapping.radio_scans`) of ``kind`` over ``floors`` with a
     ``floor`` column and an ``ssid`` column (Wi-Fi; "" for BLE); rows of any age.
-    RSSI outside the phone range is dropped (counted by the reader's checks upstream)."""
-    parts = []
+    RSSI outside the phone range is dropped (counted by the reader's checks upstream).
+
+    Reads the processed rows walk by walk and keeps only each walk's observations, with the
+    text columns (``trace_id``, ``ap``, ``ssid``, ``floor``) as categoricals: about 60 bytes
+    per observation row, so memory grows with the observations only, never with the raw rows
+    and their text."""
+    parts, ssid_of, n_scans = [], {}, 0
+    codes = {"trace_id": {}, "ap": {}, "floor": {}}
     for floor in floors:
-        try:
-            rows = processed_table(store, kind, site=site, floor=floor)
-        except ProcessingError:
-            continue
-        if len(rows) == 0:
-            continue
-        if kind == "wifi":
-            obs = wifi_observations(rows, invalid="drop")
-            ssid = (rows.assign(ap=rows["bssid"].astype(str).str.lower())
-                    .drop_duplicates("ap").set_index("ap")["ssid"].astype(str))
-            obs["ssid"] = obs["ap"].map(ssid).fillna("").astype(str)
-        else:
-            obs = ble_observations(rows, window_ms=ble_window_ms, invalid="drop")
-            obs["ssid"] = ""
-        obs["floor"] = floor
-        parts.append(obs)
+        for r, rows in processed_parts(store, kind, site=site, floor=floor,
+                                       text_as_category=True):
+            if len(rows) == 0:
+                continue
+            rows.insert(0, "trace_id", r["trace_id"])
+            if kind == "wifi":
+                obs = wifi_observations(rows, invalid="drop")
+                first = rows.drop_duplicates("bssid")  # an AP's SSID: that of its first row
+                for bssid, ssid in zip(first["bssid"].astype(str).str.lower(), first["ssid"]):
+                    ssid_of.setdefault(bssid, str(ssid))
+            else:
+                obs = ble_observations(rows, window_ms=ble_window_ms, invalid="drop")
+            walk_scans = int(obs["scan_id"].max()) + 1 if len(obs) else 0  # numbered from 0
+            obs["scan_id"] += n_scans  # unique over the site
+            n_scans += walk_scans
+            obs["floor"] = floor
+            for col, table in codes.items():
+                obs[col] = _codes(obs[col], table)
+            parts.append(obs)
     if not parts:
         return pd.DataFrame(columns=[*OBS_COLUMNS, "ssid", "floor"])
     out = pd.concat(parts, ignore_index=True)
-    # scan ids unique over the site (each floor numbered from 0)
-    key = out["floor"].astype(str) + "\x00" + out["scan_id"].astype(str)
-    out["scan_id"] = pd.factorize(key, sort=False)[0].astype(np.int64)
-    return out
+    for col, table in codes.items():
+        out[col] = pd.Categorical.from_codes(out[col].to_numpy(), list(table))
+    if kind == "wifi":  # SSID of each row's AP, coded through the AP's code
+        ssid_code, ssids = pd.factorize(np.array([ssid_of.get(ap, "") for ap in codes["ap"]],
+                                                 dtype=object))
+        out["ssid"] = pd.Categorical.from_codes(ssid_code[out["ap"].cat.codes.to_numpy()],
+                                                ssids)
+    else:
+        out["ssid"] = ""
+    return out[[*OBS_COLUMNS, "ssid", "floor"]]
+
+
+def _codes(values: pd.Series, table: dict[str, int]) -> NDArray[np.int32]:
+    """Integer codes of ``values`` in ``table`` (new values appended to it)."""
+    idx, uniques = pd.factorize(values)
+    lookup = np.array([table.setdefault(str(u), len(table)) for u in uniques], dtype=np.int32)
+    return lookup[idx]
 
 
 @dataclass
@@ -177,6 +200,14 @@ class SiteRadio:
                              metrics=metrics)
 
 
+def _by_floor(obs: pd.DataFrame, floors: Sequence[str]) -> dict[str, pd.DataFrame]:
+    """Rows of each floor (no copy when one floor has them all)."""
+    present = pd.unique(obs["floor"]) if len(obs) else []
+    if len(present) == 1:
+        return {f: obs if f == present[0] else obs.iloc[:0] for f in floors}
+    return {f: obs[obs["floor"] == f] for f in floors}
+
+
 def calibrated(obs: pd.DataFrame, device_of: pd.Series, devices: pd.DataFrame) -> pd.DataFrame:
     """``obs`` with every walk's RSSI mapped through its phone model's ``k, b`` (dBm); models
     not in the device table are left as they are."""
@@ -203,9 +234,10 @@ def build_site_radio(store: SurveyStore | str, floors: Sequence[str], *,
     floors = [str(f) for f in floors]
     cat = store.traces(site)
     device_of = cat.set_index("trace_id")["device_model"].fillna("").astype(str)
-    obs = {kind: site_observations(store, site, floors, kind,
-                                   ble_window_ms=params.ble_window_ms) for kind in KINDS}
-    return site_radio(obs, device_of, floors, params=params, progress=progress)
+    # no local name for the tables: site_radio may free each one once it has filtered it
+    return site_radio({kind: site_observations(store, site, floors, kind,
+                                               ble_window_ms=params.ble_window_ms)
+                       for kind in KINDS}, device_of, floors, params=params, progress=progress)
 
 
 def site_radio(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: Sequence[str], *,
@@ -252,8 +284,7 @@ def site_radio(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: Seque
             o = o[o["ap"].isin(set(sel.kept.tolist()))]
             say(f"{kind}: kept {len(sel.kept)} transmitters, dropped {len(sel.dropped)} "
                 f"{sel.summary()}")
-        for floor in floors:
-            part = o[o["floor"] == floor]
+        for floor, part in _by_floor(o, floors).items():
             if len(part) == 0:
                 notes.append(f"floor {floor}: no {kind} rows")
                 continue
@@ -265,7 +296,7 @@ def site_radio(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: Seque
         obs[kind] = o
     model, model_kind = None, ""
     for kind in KINDS if params.floor_model else ():  # Wi-Fi first, BLE without Wi-Fi
-        by_floor = {f: obs[kind][obs[kind]["floor"] == f] for f in floors}
+        by_floor = _by_floor(obs[kind], floors)
         if any(len(v) for v in by_floor.values()):
             model = fit_floor_model(by_floor, cv_folds=params.floor_cv_folds, seed=params.seed)
             model_kind = kind

@@ -25,6 +25,7 @@ in one scan keeps its freshest row (the reader's rule).
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,7 +36,8 @@ from localize.steps import ble_transmitter_ids
 
 from .errors import FingerprintError
 
-__all__ = ["OBS_COLUMNS", "ScanSet", "ble_observations", "scan_set", "wifi_observations"]
+__all__ = ["OBS_COLUMNS", "ScanSet", "ble_observations", "distinct_text", "scan_set",
+           "wifi_observations"]
 
 OBS_COLUMNS = ("trace_id", "scan_id", "t_ms", "x_m", "y_m", "ap", "rssi_dbm", "age_ms")
 RSSI_RANGE_DBM = (-127.0, 0.0)
@@ -78,6 +80,20 @@ def _empty() -> pd.DataFrame:
                          "age_ms": pd.Series([], dtype=np.float64)})
 
 
+def distinct_text(values: pd.Series | NDArray) -> NDArray[np.str_]:
+    """Sorted distinct values of a text column (object, string or categorical) as a numpy str
+    array, without converting every row (a column can hold millions of rows)."""
+    return np.unique(np.asarray(pd.unique(pd.Series(values)), dtype=object).astype(str))
+
+
+def _shared_lower(ids: pd.Series) -> NDArray[np.object_]:
+    """Lower-case ids as an object array whose equal entries are one (interned) string:
+    8 bytes per row instead of a string object per row."""
+    codes, uniques = pd.factorize(ids.astype(str))
+    lower = np.array([sys.intern(u.lower()) for u in uniques], dtype=object)
+    return lower[codes]
+
+
 def wifi_observations(rows: pd.DataFrame, *, max_age_ms: float | None = None,
                       rssi_range_dbm: tuple[float, float] = RSSI_RANGE_DBM,
                       invalid: str = "raise") -> pd.DataFrame:
@@ -114,7 +130,7 @@ def wifi_observations(rows: pd.DataFrame, *, max_age_ms: float | None = None,
         "t_ms": rows["scan_t_ms"].to_numpy(np.int64),
         "x_m": rows["x_m"].to_numpy(np.float64) if "x_m" in rows else np.full(n, np.nan),
         "y_m": rows["y_m"].to_numpy(np.float64) if "y_m" in rows else np.full(n, np.nan),
-        "ap": rows["bssid"].astype(str).str.lower().to_numpy(),
+        "ap": _shared_lower(rows["bssid"]),
         "rssi_dbm": rows["rssi_dbm"].to_numpy(np.float64),
         "age_ms": np.nan_to_num(age, nan=0.0),
     })
@@ -235,14 +251,14 @@ def scan_set(obs: pd.DataFrame, aps: NDArray[np.str_] | list[str] | None = None)
         kept with an all-NaN row and ``n_aps = 0`` (matchers return NaN for it).
     """
     _need(obs, OBS_COLUMNS, "observation")
-    aps = (np.unique(obs["ap"].to_numpy().astype(str)) if aps is None
+    aps = (distinct_text(obs["ap"]) if aps is None
            else np.unique(np.asarray(aps).astype(str)))
     scans = (obs.groupby("scan_id", sort=True)
              .agg(trace_id=("trace_id", "first"), t_ms=("t_ms", "first"),
                   x_m=("x_m", "first"), y_m=("y_m", "first"))
              .reset_index())
     s_idx = np.searchsorted(scans["scan_id"].to_numpy(), obs["scan_id"].to_numpy())
-    a_idx = pd.Index(aps).get_indexer(obs["ap"].to_numpy().astype(str))
+    a_idx = pd.Index(aps).get_indexer(obs["ap"])
     known = a_idx >= 0
     rssi = np.full((len(scans), len(aps)), np.nan)
     age = np.full((len(scans), len(aps)), np.nan)

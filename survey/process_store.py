@@ -18,12 +18,13 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
 import pyarrow as pa
+import pyarrow.parquet as pq
 
 from .errors import ProcessingError
 from .magcal import MagCalResult, fit_ellipsoid
@@ -32,6 +33,7 @@ from .process import ProcessedWalk, ProcessParams, calibration_sessions, process
 from .publish import atomic_write_bytes, crash_point, fsync_dir
 from .store import SurveyStore, _arrow_column, _parquet_bytes, part_path
 
+_MAG_COLUMNS = ["stream", "t_ms", "x", "y", "z", "bx", "by", "bz"]
 PROCESSED_TABLES = ("samples", "steps", "legs", "wifi", "ble")
 PROCESSED_CATALOG_COLUMNS = ("trace_id", "sha256", "site", "floor", "params_sha256", "status",
                              "reason", "session", "summary_json")
@@ -43,24 +45,6 @@ class ProcessReport:
     skipped: dict[str, str] = field(default_factory=dict)
     unchanged: list[str] = field(default_factory=list)
     sessions: dict[str, dict] = field(default_factory=dict)
-
-
-def _by_trace(frame: pd.DataFrame) -> dict[str, pd.DataFrame]:
-    """Rows of a store table split by trace id (every catalog trace has an entry)."""
-    groups = {tid: frame.iloc[idx].reset_index(drop=True)
-              for tid, idx in frame.groupby("trace_id", sort=False).indices.items()}
-    return _Missing(groups, frame.iloc[:0])
-
-
-class _Missing(dict):
-    """A dict that answers an empty frame for traces without rows (e.g. no Wi-Fi at all)."""
-
-    def __init__(self, data: dict, empty: pd.DataFrame) -> None:
-        super().__init__(data)
-        self.empty = empty
-
-    def __missing__(self, key):
-        return self.empty
 
 
 def params_sha256(params: ProcessParams) -> str:
@@ -75,17 +59,15 @@ def _position_rows(rows: pd.DataFrame, t_col: str, walk: ProcessedWalk) -> pd.Da
     return out
 
 
-def session_fits(sensors_of: dict[str, pd.DataFrame], catalog: pd.DataFrame,
-                 max_samples: int = 20000, seed: int = 0
-                 ) -> tuple[dict[str, str], dict[str, MagCalResult]]:
-    """Session key of every walk and an ellipsoid fit pooled over each session's raw samples.
-
-    ``sensors_of`` maps trace id to that walk's sensor rows."""
+def session_fits(store: SurveyStore, catalog: pd.DataFrame, max_samples: int = 20000,
+                 seed: int = 0) -> tuple[dict[str, str], dict[str, MagCalResult]]:
+    """Session key of every walk of ``catalog`` and an ellipsoid fit pooled over each
+    session's raw samples. Reads the magnetometer columns walk by walk."""
     rng = np.random.default_rng(seed)
     raw_of: dict[str, np.ndarray] = {}
     biases = []
     for row in catalog.itertuples(index=False):
-        sensors = sensors_of[row.trace_id]
+        sensors = store.part("sensors", row, columns=_MAG_COLUMNS)
         biases.append(reported_bias(sensors))
         unc = sensors[sensors["stream"] == "magnetic_field_uncalibrated"]
         raw_of[row.trace_id] = unc[["x", "y", "z"]].to_numpy(np.float64)
@@ -126,9 +108,7 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
     report = ProcessReport()
     if not len(cat):
         return report
-    tables = {name: _by_trace(store.table(name, site=site, floor=floor))
-              for name in ("sensors", "waypoints", "wifi", "ble")}
-    sessions, fits = session_fits(tables["sensors"], cat)
+    sessions, fits = session_fits(store, cat)
     report.sessions = {k: {"status": f.status, "reason": f.reason,
                            "hard_iron_ut": np.round(f.hard_iron_ut, 2).tolist(),
                            "coverage": round(float(f.coverage), 3)} for k, f in fits.items()}
@@ -145,13 +125,14 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
                 if progress:
                     progress(i + 1, len(cat))
                 continue
-            sensors = tables["sensors"][row.trace_id]
-            waypoints = tables["waypoints"][row.trace_id]
+            # one walk at a time: memory is bounded by the largest walk, not by the store
+            tables = {name: store.part(name, row) for name in ("sensors", "waypoints", "wifi",
+                                                              "ble")}
             key = sessions.get(row.trace_id, "")
             base = {"trace_id": row.trace_id, "sha256": row.sha256, "site": row.site,
                     "floor": row.floor, "params_sha256": psha, "session": key}
             try:
-                walk = process_walk(row.trace_id, sensors, waypoints, params,
+                walk = process_walk(row.trace_id, tables["sensors"], tables["waypoints"], params,
                                     reachable=(reachable or {}).get((row.site, row.floor)),
                                     session_fit=fits.get(key))
             except ProcessingError as err:
@@ -160,8 +141,8 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
                                  "summary_json": "{}"})
                 continue
             outputs = {"samples": walk.samples, "steps": walk.steps, "legs": walk.legs,
-                      "wifi": _position_rows(tables["wifi"][row.trace_id], "scan_t_ms", walk),
-                      "ble": _position_rows(tables["ble"][row.trace_id], "t_ms", walk)}
+                      "wifi": _position_rows(tables["wifi"], "scan_t_ms", walk),
+                      "ble": _position_rows(tables["ble"], "t_ms", walk)}
             walk.summary["n_wifi_rows_positioned"] = len(outputs["wifi"])
             walk.summary["n_ble_rows_positioned"] = len(outputs["ble"])
             walk.summary["session"] = key
@@ -220,9 +201,13 @@ def processed_catalog(store: SurveyStore | str) -> pd.DataFrame:
     return cat
 
 
-def processed_table(store: SurveyStore | str, name: str, *, site: str | None = None,
-                    floor: str | None = None) -> pd.DataFrame:
-    """One processed table over the walks that processed ``ok``, with a ``trace_id`` column."""
+def processed_parts(store: SurveyStore | str, name: str, *, site: str | None = None,
+                    floor: str | None = None, text_as_category: bool = False
+                    ) -> Iterator[tuple[pd.Series, pd.DataFrame]]:
+    """One processed table walk by walk: ``(processed catalog row, rows)`` for every walk of
+    the selection that processed ``ok``. Lets callers reduce each walk before the next is read,
+    so memory is bounded by what they keep, not by the floor. ``text_as_category``: text
+    columns come as pandas categoricals (no Python string per row)."""
     if name not in PROCESSED_TABLES:
         raise ProcessingError(f"unknown processed table {name!r}; expected {PROCESSED_TABLES}")
     store = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
@@ -232,11 +217,23 @@ def processed_table(store: SurveyStore | str, name: str, *, site: str | None = N
         cat = cat[cat["site"] == site]
     if floor is not None:
         cat = cat[cat["floor"] == floor]
+    for _, r in cat.iterrows():
+        path = store.root / "processed" / part_path(name, r["site"], r["floor"], r["trace_id"],
+                                                    r["sha256"])
+        text = None
+        if text_as_category:
+            schema = pq.read_schema(path)
+            text = [f.name for f in schema if pa.types.is_string(f.type)
+                    or pa.types.is_large_string(f.type)]
+        yield r, pq.read_table(path, read_dictionary=text).to_pandas()
+
+
+def processed_table(store: SurveyStore | str, name: str, *, site: str | None = None,
+                    floor: str | None = None) -> pd.DataFrame:
+    """One processed table over the walks that processed ``ok``, with a ``trace_id`` column."""
     frames = []
-    for r in cat.itertuples(index=False):
-        frame = pd.read_parquet(store.root / "processed" / part_path(name, r.site, r.floor,
-                                                                     r.trace_id, r.sha256))
-        frame.insert(0, "trace_id", r.trace_id)
+    for r, frame in processed_parts(store, name, site=site, floor=floor):
+        frame.insert(0, "trace_id", r["trace_id"])
         frames.append(frame)
     if not frames:
         raise ProcessingError(f"no processed walks for site={site!r} floor={floor!r}")

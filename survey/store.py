@@ -139,6 +139,12 @@ def _arrow_column(col: pd.Series) -> pa.Array:
     return pa.array(col, from_pandas=True)  # nullable extension types (e.g. Int64)
 
 
+def _frame(table: pa.Table) -> pd.DataFrame:
+    frame = table.to_pandas()
+    frame["trace_id"] = frame["trace_id"].astype("str")
+    return frame
+
+
 def write_parts(root: Path, trace: Trace, row: dict) -> None:
     """Write a trace's part files into the store, each atomically and fsynced; their folders
     are fsynced by the commit that makes them live. Idempotent."""
@@ -227,19 +233,28 @@ class SurveyStore:
         cat = self.traces(site, floor)
         if trace_ids is not None:
             cat = cat[cat["trace_id"].isin(list(trace_ids))]
-        parts = []
-        for row in cat.itertuples(index=False):
-            path = self.root / part_path(name, row.site, row.floor, row.trace_id, row.sha256)
-            try:
-                parts.append(pq.read_table(path))
-            except (OSError, pa.ArrowException) as err:
-                raise StoreError(f"{path}: missing or unreadable part file ({err})") from err
+        parts = [self._read_part(name, row) for row in cat.itertuples(index=False)]
         if not parts:
             raise StoreError(f"{self.root}: no traces match site={site!r} floor={floor!r}")
-        table = pa.concat_tables(parts, promote_options="permissive")
-        frame = table.to_pandas()
-        frame["trace_id"] = frame["trace_id"].astype("str")
-        return frame
+        return _frame(pa.concat_tables(parts, promote_options="permissive"))
+
+    def part(self, name: str, row, columns: list[str] | None = None) -> pd.DataFrame:
+        """Rows of one table for one trace, ``row`` being its catalog row (a named tuple or
+        mapping with ``site``, ``floor``, ``trace_id``, ``sha256``), in time order. Reading walk
+        by walk keeps memory bounded by the largest walk, not by the store."""
+        if name not in TABLES:
+            raise StoreError(f"unknown table {name!r}; expected one of {TABLES}")
+        return _frame(self._read_part(name, row, columns))
+
+    def _read_part(self, name: str, row, columns: list[str] | None = None) -> pa.Table:
+        get = row.get if isinstance(row, dict) else lambda k: getattr(row, k)
+        path = self.root / part_path(name, get("site"), get("floor"), get("trace_id"),
+                                     get("sha256"))
+        try:
+            return pq.read_table(path, columns=None if columns is None
+                                 else ["trace_id", *[c for c in columns if c != "trace_id"]])
+        except (OSError, pa.ArrowException) as err:
+            raise StoreError(f"{path}: missing or unreadable part file ({err})") from err
 
     # ---- writing ----------------------------------------------------------------------------
 
