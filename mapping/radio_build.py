@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 
 from survey.errors import ProcessingError
 from survey.store import SurveyStore
-from survey.process_store import processed_parts
+from survey.process_store import processed_catalog, processed_parts
 
 from .ap_selection import APSelection, APSelectionParams, select_aps
 from .bundle_writer import BundleContent
@@ -81,6 +81,10 @@ def site_observations(store: SurveyStore, site: str | None, floors: Sequence[str
     and their text."""
     parts, ssid_of, n_scans = [], {}, 0
     codes = {"trace_id": {}, "ap": {}, "floor": {}}
+    try:
+        processed_catalog(store)
+    except ProcessingError:  # never processed: no rows
+        floors = []
     for floor in floors:
         for r, rows in processed_parts(store, kind, site=site, floor=floor,
                                        text_as_category=True):
