@@ -49,8 +49,8 @@ def test_offline_calibration_recovers_simulated_phone(wifi_obs, device_of, sampl
 
 def test_offline_fit_with_too_few_pairs_is_the_identity(wifi_obs, device_of):
     obs = wifi_obs["F2"]
-    ref = obs[obs["trace_id"].map(device_of) == "PBCM10"]
-    far = obs[obs["trace_id"].map(device_of) == "SM-G9730"].assign(x_m=1e4)  # never co-located
+    ref = obs[obs["trace_id"].map(device_of) == "SIM-A1"]
+    far = obs[obs["trace_id"].map(device_of) == "SIM-B2"].assign(x_m=1e4)  # never co-located
     cal = fit_device_calibration(far, ref, device_model="far")
     assert (cal.k, cal.b, cal.method, cal.n_pairs) == (1.0, 0.0, "too_few_pairs", 0)
     assert cal.apply(np.array([-60.0, np.nan]))[0] == -60.0
@@ -67,7 +67,7 @@ def test_rma_is_exact_without_noise_and_robust_to_outliers():
 def test_online_calibration_undoes_a_known_transform(wifi_obs, device_of):
     slopes, offsets = [], []
     for obs in wifi_obs.values():
-        obs = obs[obs["trace_id"].map(device_of) == "PBCM10"]
+        obs = obs[obs["trace_id"].map(device_of) == "SIM-A1"]
         for walk in sorted(obs["trace_id"].unique()):
             db = build_fingerprints(obs[obs["trace_id"] != walk]).dense()
             scans = scan_set(obs[(obs["trace_id"] == walk) & (obs["age_ms"] <= 3000)])
@@ -84,10 +84,10 @@ def test_online_calibration_undoes_a_known_transform(wifi_obs, device_of):
 def test_online_calibration_of_the_simulated_phone(wifi_obs, device_of, sample_truth):
     obs = wifi_obs["F2"]
     model = obs["trace_id"].map(device_of)
-    db = build_fingerprints(obs[model == "PBCM10"]).dense()
-    dev = next(d for d in sample_truth["devices"] if d["model"] == "SM-G9730")
+    db = build_fingerprints(obs[model == "SIM-A1"]).dense()
+    dev = next(d for d in sample_truth["devices"] if d["model"] == "SIM-B2")
     k_true, b_true = 1.0 / dev["rssi_k"], -dev["rssi_b"] / dev["rssi_k"]
-    for walk in sorted(obs.loc[model == "SM-G9730", "trace_id"].unique()):
+    for walk in sorted(obs.loc[model == "SIM-B2", "trace_id"].unique()):
         scans = scan_set(obs[(obs["trace_id"] == walk) & (obs["age_ms"] <= 3000)])
         rssi, _ = align_scans(scans.subset(np.arange(len(scans)) < 8), db.aps)
         cal = estimate_rssi_calibration(rssi, db.mean_dbm, db.var_db2)
@@ -103,9 +103,9 @@ def test_online_calibration_without_usable_scans_is_the_identity():
 
 
 def test_unknown_device_model_is_named(wifi_obs, device_of):
-    table = pd.DataFrame([{"device_model": "PBCM10", "k": 1.0, "b": 0.0, "n_pairs": 0,
+    table = pd.DataFrame([{"device_model": "SIM-A1", "k": 1.0, "b": 0.0, "n_pairs": 0,
                            "residual_sd_db": 0.0, "method": "reference"}])
-    with pytest.raises(FingerprintError, match=r"unknown device model 'Pixel 9'.*PBCM10.*online"):
+    with pytest.raises(FingerprintError, match=r"unknown device model 'Pixel 9'.*SIM-A1.*online"):
         lookup_calibration(table, "Pixel 9")
     assert lookup_calibration(table, "Pixel 9", unknown="identity").method == "identity"
     with pytest.raises(FingerprintError, match="no device model for traces"):

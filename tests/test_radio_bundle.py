@@ -53,7 +53,7 @@ def test_build_writes_radio_tables_and_a_site_bundle(built):
         radio = b.manifest["metrics"]["radio"]
         assert radio["wifi"]["reference_points"] == len(db)
         devices = b.table("devices").to_pandas()
-        assert set(devices["device_model"]) == {"PBCM10", "SM-G9730"}
+        assert set(devices["device_model"]) == {"SIM-A1", "SIM-B2"}
     site = load_bundle(built / "_site")
     assert site.manifest["kind"] == "site" and site.grid is None
     fm = site.manifest["metrics"]["floor_model"]
@@ -66,12 +66,12 @@ def test_device_table_matches_the_simulated_phone(built, sample_truth):
     """The build's device table undoes the simulated distortion rssi = k_dev * ref + b_dev."""
     dev = {d["model"]: d for d in sample_truth["devices"]} if "devices" in sample_truth else {}
     table = load_bundle(built / "F1").table("devices").to_pandas().set_index("device_model")
-    assert table.loc["PBCM10", "method"] == "reference"
-    assert table.loc["PBCM10", "k"] == 1.0 and table.loc["PBCM10", "b"] == 0.0
-    if "SM-G9730" in dev:
-        k_dev, b_dev = dev["SM-G9730"]["rssi_k"], dev["SM-G9730"]["rssi_b"]
-        assert table.loc["SM-G9730", "k"] == pytest.approx(1 / k_dev, abs=0.05)
-        assert table.loc["SM-G9730", "b"] == pytest.approx(-b_dev / k_dev, abs=1.0)
+    assert table.loc["SIM-A1", "method"] == "reference"
+    assert table.loc["SIM-A1", "k"] == 1.0 and table.loc["SIM-A1", "b"] == 0.0
+    if "SIM-B2" in dev:
+        k_dev, b_dev = dev["SIM-B2"]["rssi_k"], dev["SIM-B2"]["rssi_b"]
+        assert table.loc["SIM-B2", "k"] == pytest.approx(1 / k_dev, abs=0.05)
+        assert table.loc["SIM-B2", "b"] == pytest.approx(-b_dev / k_dev, abs=1.0)
 
 
 def test_localizer_positions_equal_the_mapping_matcher(built, wifi_obs):
@@ -136,7 +136,7 @@ def test_unknown_phone_is_calibrated_online(built):
     assert how.startswith("online")
     assert cal.rssi_k * 0.85 == pytest.approx(1.0, abs=0.05)
     assert cal.rssi_k * -8.0 + cal.rssi_b == pytest.approx(0.0, abs=1.5)
-    known, how = radio_for_walk(b, "SM-G9730", scans)
+    known, how = radio_for_walk(b, "SIM-B2", scans)
     assert how.startswith("device table")
 
 
@@ -171,7 +171,7 @@ def test_wifi_locate_command(built, tmp_path):
     assert rows and {"x_m", "y_m", "sigma_m", "n_known", "error_m"} <= set(rows[0])
     err = np.array([float(r["error_m"]) for r in rows if r["error_m"]])
     assert len(err) > 100 and np.median(err) < 3.0  # walks the map was built from
-    assert "device table (SM-G9730" in res.stderr
+    assert "device table (SIM-B2" in res.stderr
     ble = runner.invoke(main, ["wifi-locate", "--kind", "ble", str(built / "F2"),
                                str(SITE / "F2" / "path_data_files")])
     assert ble.exit_code == 0, ble.output

@@ -19,7 +19,7 @@ from survey.sim.devices import (
 )
 from survey.sim.rng import child_rng
 
-REF, OTHER = "OPPO PBCM10", "samsung SM-G9730"
+REF, OTHER = "SimPhone SIM-A1", "SimPhone SIM-B2"
 
 
 @pytest.fixture

@@ -63,7 +63,7 @@ def test_path_loss_and_fixed_shadowing(radio):
 
 def test_wifi_scans(radio):
     _, env, kins = radio
-    dev = make_device("dev1", DEVICE_MODELS["samsung SM-G9730"], False, child_rng(32))
+    dev = make_device("dev1", DEVICE_MODELS["SimPhone SIM-B2"], False, child_rng(32))
     rows = [simulate_wifi(env, k, 0, dev, child_rng(33, i)) for i, k in enumerate(kins)]
     for k, w in zip(kins, rows):
         scans = np.unique(w["scan_t_ms"])

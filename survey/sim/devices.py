@@ -98,28 +98,29 @@ class DeviceModel:
         return self.sensors[2].resolution
 
 
-#: Phone models the simulator knows; the first is the real data's phone.
+#: Phone models the simulator knows: invented names and sensor descriptions (no real phone's
+#: header is reproduced), with resolutions and noise levels typical of phone IMUs. The first
+#: plays the survey's reference phone.
 DEVICE_MODELS: dict[str, DeviceModel] = {m.key: m for m in (
-    DeviceModel("OPPO", "PBCM10", "8.1.0", "27", _imu(
-        ("BMI160 Accelerometer", "BOSCH", "2062600", 0.0023956299, 0.18, 39.22661),
-        ("BMI160 Gyroscope", "BOSCH", "2062600", 0.0010681152, 0.9, 34.906586),
-        ("AK09911 Magnetometer", "AKM", "1", 0.5996704, 2.4, 4911.9995)),
+    DeviceModel("SimPhone", "SIM-A1", "8.1.0", "27", _imu(
+        ("SimA accelerometer", "indoormap-sim", "1", 0.0024, 0.2, 39.2),
+        ("SimA gyroscope", "indoormap-sim", "1", 0.0011, 0.9, 34.9),
+        ("SimA magnetometer", "indoormap-sim", "1", 0.6, 2.4, 4900.0)),
         mag_noise_ut=0.7),
-    DeviceModel("samsung", "SM-G9730", "10", "29", _imu(
-        ("LSM6DSO Acceleration Sensor", "STMicroelectronics", "15932", 0.0023928226, 0.25,
-         78.4532),
-        ("LSM6DSO Gyroscope Sensor", "STMicroelectronics", "1", 0.0012217305, 6.1, 17.453293),
-        ("AK09918C Magnetic field Sensor", "Asahi Kasei Microdevices", "1", 0.06, 6.0, 4900.0)),
+    DeviceModel("SimPhone", "SIM-B2", "10", "29", _imu(
+        ("SimB accelerometer", "indoormap-sim", "2", 0.0024, 0.25, 78.4),
+        ("SimB gyroscope", "indoormap-sim", "2", 0.0012, 6.0, 17.5),
+        ("SimB magnetometer", "indoormap-sim", "2", 0.06, 6.0, 4900.0)),
         accel_noise_mps2=0.04, gyro_noise_rps=0.003, mag_noise_ut=0.6),
-    DeviceModel("Xiaomi", "MI 9", "10", "29", _imu(
-        ("lsm6dso Accelerometer Non-wakeup", "st", "142874", 0.0047884034, 0.17, 78.4532),
-        ("lsm6dso Gyroscope Non-wakeup", "st", "142874", 0.0012217305, 0.485, 34.905556),
-        ("ak0991x Magnetometer Non-wakeup", "akm", "146979", 0.15, 1.1, 4912.0)),
+    DeviceModel("SimPhone", "SIM-C3", "10", "29", _imu(
+        ("SimC accelerometer", "indoormap-sim", "3", 0.0048, 0.17, 78.4),
+        ("SimC gyroscope", "indoormap-sim", "3", 0.0012, 0.5, 34.9),
+        ("SimC magnetometer", "indoormap-sim", "3", 0.15, 1.1, 4900.0)),
         accel_noise_mps2=0.06, gyro_noise_rps=0.005, mag_noise_ut=0.9),
-    DeviceModel("HUAWEI", "ELE-AL00", "10", "29", _imu(
-        ("accelerometer-lsm6dsm", "st", "1", 0.0011971008, 0.23, 78.4532),
-        ("gyroscope-lsm6dsm", "st", "1", 0.0012217305, 6.1, 34.906586),
-        ("akm-akm09918", "akm", "1", 0.15, 6.0, 4912.0)),
+    DeviceModel("SimPhone", "SIM-D4", "10", "29", _imu(
+        ("SimD accelerometer", "indoormap-sim", "4", 0.0012, 0.23, 78.4),
+        ("SimD gyroscope", "indoormap-sim", "4", 0.0012, 6.0, 34.9),
+        ("SimD magnetometer", "indoormap-sim", "4", 0.15, 6.0, 4900.0)),
         accel_noise_mps2=0.05, gyro_noise_rps=0.004, mag_noise_ut=0.8),
 )}
 

@@ -121,7 +121,7 @@ class SiteParams:
     click_spacing_m: float = 4.0
     walks_per_floor: int = 6
     walk_duration_s: tuple[float, float] = (40.0, 60.0)
-    devices: tuple[str, ...] = ("OPPO PBCM10", "samsung SM-G9730")
+    devices: tuple[str, ...] = ("SimPhone SIM-A1", "SimPhone SIM-B2")
     sessions_per_device: int = 2
     holding_modes: tuple[tuple[str, float], ...] = (("flat_forward", 1.0),)
     walks_without_wifi: int = 1
@@ -188,7 +188,7 @@ PRESETS: dict[str, SiteParams] = {
         height_m=50.0, ew_corridor_widths_m=(6.0, 3.0, 2.5, 1.2),
         ns_corridor_widths_m=(5.0, 2.5, 3.0, 1.2, 2.5, 4.0), walks_per_floor=16,
         walk_duration_s=(60.0, 120.0),
-        devices=("OPPO PBCM10", "samsung SM-G9730", "Xiaomi MI 9"), sessions_per_device=4,
+        devices=("SimPhone SIM-A1", "SimPhone SIM-B2", "SimPhone SIM-C3"), sessions_per_device=4,
         holding_modes=(("flat_forward", 0.9), ("upward_not_flat", 0.05), ("swinging", 0.05)),
         walks_without_wifi=1,
         radio=RadioParams(n_aps_per_floor=100, n_beacons_per_floor=16,
