@@ -28,7 +28,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from .errors import FingerprintError
-from .radio_scans import OBS_COLUMNS, distinct_text
+from .radio_scans import OBS_COLUMNS, distinct_text, split_by
 
 __all__ = [
     "HOTSPOT_SSID",
@@ -218,10 +218,8 @@ def select_aps(obs: pd.DataFrame, *, ssid: Mapping[str, str] | pd.Series | None 
     if p.drop_locally_administered:
         flag(info["locally_administered"], "locally_administered", lambda a: "LAA bit")
 
-    present = [] if floor_column is None else distinct_text(obs[floor_column])
     groups = ([(None, obs)] if floor_column is None
-              else [(present[0], obs)] if len(present) == 1  # no copy of a one-floor table
-              else list(obs.groupby(floor_column, sort=True)))
+              else list(split_by(obs, floor_column).items()))
     for floor, part in groups:
         where = "" if floor is None else f" on {floor}"
         fl = _flatness(part, p.flat_cell_m).reindex(info.index)

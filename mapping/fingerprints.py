@@ -31,7 +31,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from .errors import FingerprintError
-from .radio_scans import OBS_COLUMNS
+from .radio_scans import OBS_COLUMNS, distinct_text
 
 __all__ = [
     "DEFAULT_CELL_M",
@@ -101,7 +101,7 @@ class FingerprintDB:
     @property
     def aps(self) -> NDArray[np.str_]:
         """Transmitters heard anywhere, sorted."""
-        return np.sort(pd.unique(self.fp["ap"].to_numpy()).astype(str))
+        return distinct_text(self.fp["ap"])
 
     def __len__(self) -> int:
         return len(self.rp)

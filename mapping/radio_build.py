@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 
 from survey.errors import ProcessingError
 from survey.store import SurveyStore
-from survey.process_store import processed_catalog, processed_parts
+from survey.process_store import processed_part, processed_walks
 
 from .ap_selection import APSelection, APSelectionParams, select_aps
 from .bundle_writer import BundleContent
@@ -40,7 +40,7 @@ from .device_calibration import DEVICE_TABLE_COLUMNS, calibrate_devices
 from .errors import FingerprintError
 from .fingerprints import DEFAULT_CELL_M, FingerprintDB, build_fingerprints
 from .floor_model import FloorModel, fit_floor_model
-from .radio_scans import OBS_COLUMNS, ble_observations, wifi_observations
+from .radio_scans import OBS_COLUMNS, ble_observations, split_by, wifi_observations
 
 __all__ = ["KINDS", "RadioParams", "SiteRadio", "build_site_radio", "calibrated", "site_observations",
            "site_radio"]
@@ -82,12 +82,12 @@ def site_observations(store: SurveyStore, site: str | None, floors: Sequence[str
     parts, ssid_of, n_scans = [], {}, 0
     codes = {"trace_id": {}, "ap": {}, "floor": {}}
     try:
-        processed_catalog(store)
+        walks = processed_walks(store, site=site)
     except ProcessingError:  # never processed: no rows
-        floors = []
+        walks = pd.DataFrame(columns=["floor"])
     for floor in floors:
-        for r, rows in processed_parts(store, kind, site=site, floor=floor,
-                                       text_as_category=True):
+        for _, r in walks[walks["floor"] == floor].iterrows():
+            rows = processed_part(store, kind, r, text_as_category=True)
             if len(rows) == 0:
                 continue
             rows.insert(0, "trace_id", r["trace_id"])
@@ -204,14 +204,6 @@ class SiteRadio:
                              metrics=metrics)
 
 
-def _by_floor(obs: pd.DataFrame, floors: Sequence[str]) -> dict[str, pd.DataFrame]:
-    """Rows of each floor (no copy when one floor has them all)."""
-    present = pd.unique(obs["floor"]) if len(obs) else []
-    if len(present) == 1:
-        return {f: obs if f == present[0] else obs.iloc[:0] for f in floors}
-    return {f: obs[obs["floor"] == f] for f in floors}
-
-
 def calibrated(obs: pd.DataFrame, device_of: pd.Series, devices: pd.DataFrame) -> pd.DataFrame:
     """``obs`` with every walk's RSSI mapped through its phone model's ``k, b`` (dBm); models
     not in the device table are left as they are."""
@@ -288,7 +280,9 @@ def site_radio(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: Seque
             o = o[o["ap"].isin(set(sel.kept.tolist()))]
             say(f"{kind}: kept {len(sel.kept)} transmitters, dropped {len(sel.dropped)} "
                 f"{sel.summary()}")
-        for floor, part in _by_floor(o, floors).items():
+        by_floor = split_by(o, "floor")
+        for floor in floors:
+            part = by_floor.get(floor, o.iloc[:0])
             if len(part) == 0:
                 notes.append(f"floor {floor}: no {kind} rows")
                 continue
@@ -300,7 +294,8 @@ def site_radio(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: Seque
         obs[kind] = o
     model, model_kind = None, ""
     for kind in KINDS if params.floor_model else ():  # Wi-Fi first, BLE without Wi-Fi
-        by_floor = _by_floor(obs[kind], floors)
+        by_floor = split_by(obs[kind], "floor")
+        by_floor = {f: by_floor.get(f, obs[kind].iloc[:0]) for f in floors}
         if any(len(v) for v in by_floor.values()):
             model = fit_floor_model(by_floor, cv_folds=params.floor_cv_folds, seed=params.seed)
             model_kind = kind

@@ -25,7 +25,6 @@ in one scan keeps its freshest row (the reader's rule).
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,7 +36,7 @@ from localize.steps import ble_transmitter_ids
 from .errors import FingerprintError
 
 __all__ = ["OBS_COLUMNS", "ScanSet", "ble_observations", "distinct_text", "scan_set",
-           "wifi_observations"]
+           "split_by", "wifi_observations"]
 
 OBS_COLUMNS = ("trace_id", "scan_id", "t_ms", "x_m", "y_m", "ap", "rssi_dbm", "age_ms")
 RSSI_RANGE_DBM = (-127.0, 0.0)
@@ -86,12 +85,19 @@ def distinct_text(values: pd.Series | NDArray) -> NDArray[np.str_]:
     return np.unique(np.asarray(pd.unique(pd.Series(values)), dtype=object).astype(str))
 
 
-def _shared_lower(ids: pd.Series) -> NDArray[np.object_]:
-    """Lower-case ids as an object array whose equal entries are one (interned) string:
-    8 bytes per row instead of a string object per row."""
-    codes, uniques = pd.factorize(ids.astype(str))
-    lower = np.array([sys.intern(u.lower()) for u in uniques], dtype=object)
-    return lower[codes]
+def split_by(obs: pd.DataFrame, column: str) -> dict[str, pd.DataFrame]:
+    """Rows of each distinct value of ``column`` (sorted); the table itself, not a copy, when
+    it holds one value only (the common one-floor site, millions of rows)."""
+    values = distinct_text(obs[column]) if len(obs) else []
+    if len(values) == 1:
+        return {values[0]: obs}
+    return {v: obs[obs[column] == v] for v in values}
+
+
+def _lower_ids(ids: pd.Series) -> NDArray[np.object_]:
+    """Lower-case ids, each distinct id lower-cased once (cheap on categorical columns)."""
+    codes, uniques = pd.factorize(ids)
+    return np.array([str(u).lower() for u in uniques], dtype=object)[codes]
 
 
 def wifi_observations(rows: pd.DataFrame, *, max_age_ms: float | None = None,
@@ -130,7 +136,7 @@ def wifi_observations(rows: pd.DataFrame, *, max_age_ms: float | None = None,
         "t_ms": rows["scan_t_ms"].to_numpy(np.int64),
         "x_m": rows["x_m"].to_numpy(np.float64) if "x_m" in rows else np.full(n, np.nan),
         "y_m": rows["y_m"].to_numpy(np.float64) if "y_m" in rows else np.full(n, np.nan),
-        "ap": _shared_lower(rows["bssid"]),
+        "ap": _lower_ids(rows["bssid"]),
         "rssi_dbm": rows["rssi_dbm"].to_numpy(np.float64),
         "age_ms": np.nan_to_num(age, nan=0.0),
     })

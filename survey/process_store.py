@@ -18,12 +18,13 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from .errors import ProcessingError
@@ -201,39 +202,45 @@ def processed_catalog(store: SurveyStore | str) -> pd.DataFrame:
     return cat
 
 
-def processed_parts(store: SurveyStore | str, name: str, *, site: str | None = None,
-                    floor: str | None = None, text_as_category: bool = False
-                    ) -> Iterator[tuple[pd.Series, pd.DataFrame]]:
-    """One processed table walk by walk: ``(processed catalog row, rows)`` for every walk of
-    the selection that processed ``ok``. Lets callers reduce each walk before the next is read,
-    so memory is bounded by what they keep, not by the floor. ``text_as_category``: text
-    columns come as pandas categoricals (no Python string per row)."""
-    if name not in PROCESSED_TABLES:
-        raise ProcessingError(f"unknown processed table {name!r}; expected {PROCESSED_TABLES}")
-    store = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
+def processed_walks(store: SurveyStore | str, *, site: str | None = None,
+                    floor: str | None = None) -> pd.DataFrame:
+    """Processed catalog rows (:func:`processed_catalog`) of the walks of the selection that
+    processed ``ok``."""
     cat = processed_catalog(store)
     cat = cat[cat["status"] == "ok"]
     if site is not None:
         cat = cat[cat["site"] == site]
     if floor is not None:
         cat = cat[cat["floor"] == floor]
-    for _, r in cat.iterrows():
-        path = store.root / "processed" / part_path(name, r["site"], r["floor"], r["trace_id"],
-                                                    r["sha256"])
-        text = None
-        if text_as_category:
-            schema = pq.read_schema(path)
-            text = [f.name for f in schema if pa.types.is_string(f.type)
-                    or pa.types.is_large_string(f.type)]
-        yield r, pq.read_table(path, read_dictionary=text).to_pandas()
+    return cat.reset_index(drop=True)
+
+
+def processed_part(store: SurveyStore | str, name: str, walk: pd.Series, *,
+                   text_as_category: bool = False) -> pd.DataFrame:
+    """One processed table of one walk (``walk``: a row of :func:`processed_walks`). Reading
+    walk by walk lets callers reduce each walk before the next is read, so memory is bounded
+    by what they keep, not by the floor. ``text_as_category``: text columns come as pandas
+    categoricals (no Python string per row)."""
+    if name not in PROCESSED_TABLES:
+        raise ProcessingError(f"unknown processed table {name!r}; expected {PROCESSED_TABLES}")
+    store = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
+    table = pq.read_table(store.root / "processed" / part_path(
+        name, walk["site"], walk["floor"], walk["trace_id"], walk["sha256"]))
+    if text_as_category:
+        for i, f in enumerate(table.schema):
+            if pa.types.is_string(f.type) or pa.types.is_large_string(f.type):
+                table = table.set_column(i, f.name, pc.dictionary_encode(table.column(i)))
+    return table.to_pandas()
 
 
 def processed_table(store: SurveyStore | str, name: str, *, site: str | None = None,
                     floor: str | None = None) -> pd.DataFrame:
     """One processed table over the walks that processed ``ok``, with a ``trace_id`` column."""
+    store = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
     frames = []
-    for r, frame in processed_parts(store, name, site=site, floor=floor):
-        frame.insert(0, "trace_id", r["trace_id"])
+    for _, walk in processed_walks(store, site=site, floor=floor).iterrows():
+        frame = processed_part(store, name, walk)
+        frame.insert(0, "trace_id", walk["trace_id"])
         frames.append(frame)
     if not frames:
         raise ProcessingError(f"no processed walks for site={site!r} floor={floor!r}")
