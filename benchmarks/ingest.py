@@ -28,11 +28,9 @@ paths = json.loads(sys.argv[1]); mode = sys.argv[2]; out = sys.argv[3]
 from plain_reader import read_plain
 if mode != "plain":
     from survey.ingest import ingest
-    from survey.trace_reader import iter_traces
-    from survey.line_scan import scan_lines
-    import numpy as np
-    scan_lines(np.frombuffer(b"1\tTYPE_WIFI\n" + bytes(64), np.uint8), 12, ["TYPE_WIFI"],
-               np.zeros(1, np.int64))
+    from survey.trace_reader import iter_traces, parse_trace_bytes
+    parse_trace_bytes(b"1\tTYPE_ACCELEROMETER\t1.5\t2\t3\t3\n"
+                      b"2\tTYPE_WIFI\tap\tAA:BB:CC:DD:EE:FF\t-50\t2412\t1\n")
 t = time.perf_counter()
 if mode == "plain":
     for p in paths:

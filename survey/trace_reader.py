@@ -25,6 +25,8 @@ from __future__ import annotations
 import os
 import re
 from collections.abc import Iterable, Iterator, Sequence
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -58,13 +60,13 @@ from .trace_format import (
 )
 from .line_scan import TOKEN_WIDTH as _TOKEN_WIDTH
 from .line_scan import BAD_TIMESTAMP, BAD_TOKEN, BLANK, HEADER, NO_TAB, OTHER_TOKEN, \
-    ScanResult, scan_lines
+    ScanResult, best_of_runs, canonical_macs, scan_lines
 from .trace_header import parse_header
 
 #: How many ``file:line: reason`` messages a report keeps.
 MAX_MESSAGES = 20
 #: Text bytes parsed together by :func:`iter_traces` (bounds memory; larger files go alone).
-BATCH_BYTES = 16 * 1024**2
+BATCH_BYTES = 8 * 1024**2
 
 _INT_LIMIT = 2**53  # integers beyond this cannot be values of this format
 # Finite float64 values at or beyond this become infinite as float32 (round to nearest even).
@@ -96,6 +98,9 @@ _GROUP_OF_INDEX = np.array([0] * len(CALIBRATED_STREAMS) + [1] * len(UNCALIBRATE
                            + [2, 3, 4], dtype=np.int32)
 _GROUP_SPECS = [_SPECS["TYPE_ACCELEROMETER"], _SPECS["TYPE_ACCELEROMETER_UNCALIBRATED"],
                 _SPECS["TYPE_WIFI"], _SPECS["TYPE_BEACON"], _SPECS["TYPE_WAYPOINT"]]
+# All-numeric layouts are parsed during the line scan itself (plain spellings; see line_scan).
+_GROUP_LAYOUTS = [None if any(k == "s" for _, k in spec) else "".join(k for _, k in spec)
+                  for spec in _GROUP_SPECS]
 _STREAM_CODE_OF_TYPE = np.array([STREAM_NAMES.index(SENSOR_STREAMS[k]) if k in SENSOR_STREAMS
                                  else -1 for k in _TYPE_LIST], dtype=np.int16)
 # Row k keeps the first k bytes of a token window.
@@ -165,7 +170,7 @@ def _make_batch(texts: Sequence[bytes], paths: Sequence[str],
     n = sum(len(p) for p in pieces)
     # Zero padding after the text lets fixed-width byte windows run past the last line.
     buf = np.frombuffer(b"".join([*pieces, bytes(_TOKEN_WIDTH)]), dtype=np.uint8)
-    scan = scan_lines(buf, n, _TYPE_LIST, _GROUP_OF_INDEX)
+    scan = scan_lines(buf, n, _TYPE_LIST, _GROUP_OF_INDEX, _GROUP_LAYOUTS)
     file_start = np.cumsum([0] + [len(p) for p in pieces])
     first_line = np.searchsorted(scan.starts, file_start)
     file_of_line = np.searchsorted(file_start, scan.starts, side="right") - 1
@@ -261,38 +266,62 @@ def _is_type_name(name: str) -> bool:
 
 
 def _arrow_options(spec: list[tuple[str, str]]):
-    names = ["t_ms", "type"] + [c for c, _ in spec]
+    names = ["t_ms"] + [c for c, _ in spec]
     types = {"t_ms": pa.int64(), **{c: _ARROW_KIND[kind] for c, kind in spec}}
     return (
-        pacsv.ReadOptions(column_names=names, use_threads=True, block_size=1 << 24),
+        # One thread: iter_traces overlaps this stage of one batch with the rest of another.
+        pacsv.ReadOptions(column_names=names, use_threads=False, block_size=1 << 26),
         pacsv.ParseOptions(delimiter="\t", quote_char=False, double_quote=False,
                            escape_char=False, newlines_in_values=False,
                            ignore_empty_lines=False),
-        pacsv.ConvertOptions(column_types=types, include_columns=[n for n in names
-                                                                  if n != "type"],
-                             strings_can_be_null=False, quoted_strings_can_be_null=False,
+        pacsv.ConvertOptions(column_types=types, strings_can_be_null=False, quoted_strings_can_be_null=False,
                              null_values=[], check_utf8=True),
     )
 
 
-def _parse_block(block: np.ndarray, spec, glines: np.ndarray, bad: _Collector,
-                 what: str) -> dict[str, np.ndarray | pa.Array]:
-    """Parse lines sharing one layout. Returns columns (numpy; arrow for strings) and
-    ``gline`` (global line index), bad rows removed."""
-    keep = np.ones(len(glines), dtype=bool)
+def _read_block(block: np.ndarray, spec, n_rows: int) -> dict | None:
+    """Fast path: pyarrow's CSV parser reads a block of ``timestamp<TAB>values`` lines into
+    columns (numpy; arrow for strings), or ``None`` if some line defeats it. Thread-safe."""
     try:
         ro, po, co = _arrow_options(spec)
         table = pacsv.read_csv(pa.BufferReader(pa.py_buffer(block)), read_options=ro,
                                parse_options=po, convert_options=co)
-        if table.num_rows != len(glines):
-            raise ValueError("row count mismatch")
-        cols = {c: (table.column(c).combine_chunks() if kind == "s"
+        if table.num_rows != n_rows:
+            return None
+        return {c: (table.column(c).combine_chunks() if kind == "s"
                     else table.column(c).to_numpy()) for c, kind in [("t_ms", "i"), *spec]}
     except (pa.ArrowInvalid, UnicodeDecodeError, ValueError):
-        cols, keep, reasons, details = _parse_block_slow(block.tobytes(), spec)
+        return None
+
+
+def _parse_block(sc: ScanResult, g: int, cols: dict | None, bad: _Collector,
+                 what: str) -> dict[str, np.ndarray | pa.Array]:
+    """Columns of the lines of value-layout group ``g``, bad rows removed, plus ``gline``
+    (global line index). Lines the scan parsed come from it; the rest from ``cols``, the fast
+    path's result for the group's joined text, or, without it, from a line-by-line re-read."""
+    spec, glines, parsed = _GROUP_SPECS[g], sc.group_lines[g], sc.group_parsed[g]
+    rest = glines[~parsed]
+    keep = np.ones(len(rest), dtype=bool)
+    if len(rest) and cols is None:
+        names = np.asarray(_TYPE_LIST, dtype=object)[sc.type_idx[rest]]
+        cols, keep, reasons, details = _parse_block_slow(sc.group_bytes[g].tobytes(), spec, names)
         for reason in np.unique(reasons[~keep]):
             sel = ~keep & (reasons == reason)
-            bad.add(glines[sel], str(reason), details[sel])
+            bad.add(rest[sel], str(reason), details[sel])
+    if len(rest) < len(glines):  # merge the scan's rows with the rest, in line order
+        merged = {"t_ms": sc.group_t_ms[g]}
+        for j, (c, kind) in enumerate(spec):
+            values = sc.group_values[g][j]
+            if kind == "i":  # integers of at most 15 digits: exact in float64
+                values = np.where(parsed, values, 0).astype(np.int64) if len(rest) else \
+                    values.astype(np.int64)
+            merged[c] = values
+        keep_all = np.ones(len(glines), dtype=bool)
+        if len(rest):
+            for c in merged:
+                merged[c][~parsed] = cols[c]
+            keep_all[~parsed] = keep
+        cols, keep = merged, keep_all
     finite = keep.copy()
     for c, kind in spec:
         if kind == "f":
@@ -309,8 +338,10 @@ def _take(cols: dict, index: np.ndarray) -> dict:
             for c, v in cols.items()}
 
 
-def _parse_block_slow(block: bytes, spec):
-    """Line-by-line fallback: (columns, keep mask, reasons, details) for every line."""
+def _parse_block_slow(block: bytes, spec, type_names: np.ndarray):
+    """Line-by-line fallback: (columns, keep mask, reasons, details) for every line.
+
+    ``type_names`` holds each line's record type (the block's lines lack that field)."""
     raw_lines = block.split(b"\n")[:-1]
     n = len(raw_lines)
     out: dict[str, list] = {"t_ms": [0] * n}
@@ -327,13 +358,12 @@ def _parse_block_slow(block: bytes, spec):
             keep[i], reasons[i], details[i] = False, "invalid_utf8", "line is not valid UTF-8"
             continue
         fields = text.split("\t")
-        if len(fields) != len(spec) + 2:
+        if len(fields) != len(spec) + 1:
             keep[i], reasons[i] = False, "field_count"
-            name = fields[1] if len(fields) > 1 else "record"
-            details[i] = f"{name[:40]} needs {len(spec)} values, got {len(fields) - 2}"
+            details[i] = f"{type_names[i]} needs {len(spec)} values, got {len(fields) - 1}"
             continue
         out["t_ms"][i] = int(fields[0])
-        for (c, kind), value in zip(spec, fields[2:]):
+        for (c, kind), value in zip(spec, fields[1:]):
             if kind == "s":
                 out[c][i] = value
                 continue
@@ -342,7 +372,7 @@ def _parse_block_slow(block: bytes, spec):
             except ValueError:
                 keep[i], reasons[i] = False, "non_numeric"
                 expected = "a number" if kind == "f" else "an integer"
-                details[i] = (f"{fields[1][:40]}: field {c!r} expected {expected}, "
+                details[i] = (f"{type_names[i]}: field {c!r} expected {expected}, "
                               f"got {value[:30]!r}")
                 break
             # An integer too large for the format is flagged ``non_finite`` by the caller, as
@@ -382,10 +412,6 @@ def _float(value: str) -> float:
 # returns (rows per file as index ranges, arrays), so that tables are split with slices.
 
 
-_MAC_COLONS = np.array([2, 5, 8, 11, 14])
-_MAC_HEX = np.setdiff1d(np.arange(17), _MAC_COLONS)
-
-
 def normalize_bssids(raw: pa.Array) -> tuple[pa.Array, np.ndarray]:
     """Lower-case colon-separated MACs and a validity mask.
 
@@ -399,19 +425,9 @@ def normalize_bssids(raw: pa.Array) -> tuple[pa.Array, np.ndarray]:
                             offset=raw.offset * 4) if n else np.zeros(1, np.int32)
     data = np.frombuffer(raw.buffers()[2], dtype=np.uint8) if n and raw.buffers()[2] \
         else np.zeros(0, np.uint8)
-    lengths = np.diff(offsets)
-    fixed = lengths == 17
-    rows = np.zeros((n, 17), dtype=np.uint8)
-    if fixed.any():
-        idx = offsets[:-1][fixed, None] + np.arange(17)
-        rows[fixed] = data[idx]
-    upper = (rows >= 65) & (rows <= 70)  # A-F
-    rows = rows + (upper * 32).astype(np.uint8)
-    hexd = rows[:, _MAC_HEX]
-    ok = fixed & ((rows[:, _MAC_COLONS] == 58).all(axis=1)
-                  & (((hexd >= 48) & (hexd <= 57)) | ((hexd >= 97) & (hexd <= 102))).all(axis=1))
+    rows, ok = canonical_macs(offsets, data)
     out = pa.StringArray.from_buffers(n, pa.py_buffer((np.arange(n + 1) * 17).astype(np.int32)),
-                                      pa.py_buffer(rows.tobytes()))
+                                      pa.py_buffer(rows))
     valid = ok.copy()
     other = np.flatnonzero(~ok)
     if len(other):
@@ -426,6 +442,20 @@ def normalize_bssids(raw: pa.Array) -> tuple[pa.Array, np.ndarray]:
         merged[other] = np.asarray(rest.to_numpy(zero_copy_only=False), dtype=object)
         out = pa.array(merged, type=pa.string())
     return out, valid
+
+
+def _lex_order(*keys: np.ndarray) -> np.ndarray:
+    """Stable order of rows by integer ``keys`` (the first most significant), as
+    ``np.lexsort(keys[::-1])``; the keys are packed into one int64 when their ranges allow."""
+    lows = [int(k.min()) if len(k) else 0 for k in keys]
+    spans = [int(k.max()) - lo + 1 if len(k) else 1 for k, lo in zip(keys, lows)]
+    if np.prod([float(x) for x in spans]) >= 2.0**62:
+        return np.lexsort(keys[::-1])
+    packed = np.zeros(len(keys[0]), dtype=np.int64)
+    for k, lo, span in zip(keys, lows, spans):
+        packed *= span
+        packed += k.astype(np.int64, copy=False) - lo
+    return np.argsort(packed, kind="stable")
 
 
 def _file_ranges(file_sorted: np.ndarray, n_files: int) -> np.ndarray:
@@ -454,7 +484,9 @@ class _Tables:
     def count(self, cols: dict) -> np.ndarray:
         """Count kept records per file and type; returns the file of every row."""
         f = self.b.file_of_line[cols["gline"]]
-        np.add.at(self.records, (f, cols["type"]), 1)
+        n_types = self.records.shape[1]
+        self.records += np.bincount(f * n_types + cols["type"],
+                                    minlength=self.records.size).reshape(self.records.shape)
         return f
 
     def drop(self, name: str, files: np.ndarray) -> None:
@@ -486,7 +518,9 @@ class _Tables:
                for c in ("t_ms", "x", "y", "z", "bx", "by", "bz", "accuracy", "gline", "type")}
         files = self.count(cat)
         code = _STREAM_CODE_OF_TYPE[cat["type"]]
-        order = np.lexsort((cat["gline"], cat["t_ms"], code, files))
+        # Equal (file, stream, time) rows come from one block, in line order: a stable sort
+        # keeps the first line first.
+        order = _lex_order(files, code, cat["t_ms"])
         files, code, t = files[order], code[order], cat["t_ms"][order]
         dup = np.zeros(len(order), dtype=bool)
         dup[1:] = (files[1:] == files[:-1]) & (code[1:] == code[:-1]) & (t[1:] == t[:-1])
@@ -528,12 +562,11 @@ class _Tables:
         rank = np.argsort(np.argsort(dictionary, kind="stable"))
         bcode = rank[enc.indices.to_numpy(zero_copy_only=False)] if len(dictionary) else \
             np.zeros(0, dtype=np.int64)
-        # Per (file, scan, bssid) the freshest row first: latest last-seen, strongest RSSI.
-        order = np.lexsort((cols["gline"], -cols["rssi_dbm"], -cols["last_seen_ms"], bcode,
-                            cols["t_ms"], files))
+        # Per (file, scan, bssid) keep the freshest row: latest last-seen, then strongest
+        # RSSI, then first in file order (the sort is stable and rows are in file order).
+        order = _lex_order(files, cols["t_ms"], bcode)
         files, scan, bc = files[order], cols["t_ms"][order], bcode[order]
-        dup = np.zeros(len(order), dtype=bool)
-        dup[1:] = (files[1:] == files[:-1]) & (scan[1:] == scan[:-1]) & (bc[1:] == bc[:-1])
+        dup = best_of_runs(files, scan, bc, cols["last_seen_ms"][order], cols["rssi_dbm"][order])
         if dup.any():
             self.drop("duplicate_bssid_in_scan", files[dup])
             order, files, scan = order[~dup], files[~dup], scan[~dup]
@@ -561,7 +594,7 @@ class _Tables:
         if not keep.all():
             cols = _take(cols, np.flatnonzero(keep))
         files = self.count(cols)
-        order = np.lexsort((cols["gline"], cols["t_ms"], files))
+        order = _lex_order(files, cols["t_ms"])  # rows are in line order; the sort is stable
         files = files[order]
         take = pa.array(order, type=pa.int64())
         uuid = pc.utf8_lower(pc.utf8_trim_whitespace(cols["uuid"].take(take)))
@@ -582,7 +615,7 @@ class _Tables:
         if cols is None:
             return [empty_table(WAYPOINT_COLUMNS, WAYPOINT_DTYPES) for _ in range(self.n_files)]
         files = self.count(cols)
-        order = np.lexsort((cols["gline"], cols["t_ms"], files))
+        order = _lex_order(files, cols["t_ms"])  # rows are in line order; the sort is stable
         frame = pd.DataFrame({"t_ms": cols["t_ms"][order], "x_m": cols["x_m"][order],
                               "y_m": cols["y_m"][order]})
         return _split(frame, _file_ranges(files[order], self.n_files))
@@ -614,7 +647,24 @@ def parse_traces(texts: Sequence[bytes], paths: Sequence[str], *, strict: bool =
         One per text, in order.
     """
     notes = list(notes) if notes is not None else [None] * len(texts)
+    return _assemble(_prepare(texts, paths, notes), strict)
+
+
+def _prepare(texts: Sequence[bytes], paths: Sequence[str], notes: Sequence[str | None]
+             ) -> tuple[_Batch, list[str | None], dict[int, dict | None]]:
+    """First stage of :func:`parse_traces`, which holds the GIL very little (compiled scan,
+    pyarrow): the batch, and the fast-path columns of each group's unparsed lines."""
     b = _make_batch(texts, paths, notes)
+    sc = b.scan
+    fast = {g: _read_block(sc.group_bytes[g], _GROUP_SPECS[g], int((~sc.group_parsed[g]).sum()))
+            for g in range(len(_GROUP_SPECS)) if len(sc.group_bytes[g])}
+    return b, list(notes), fast
+
+
+def _assemble(prepared: tuple[_Batch, list[str | None], dict[int, dict | None]],
+              strict: bool) -> list[Trace]:
+    """Second stage of :func:`parse_traces`: checks, tables and reports per trace."""
+    b, notes, fast = prepared
     n_files = len(b.paths)
     bad = _Collector()
     kind = b.scan.kind
@@ -625,16 +675,16 @@ def parse_traces(texts: Sequence[bytes], paths: Sequence[str], *, strict: bool =
         bad.add(np.array([line]), "truncated", f"last line cut off ({notes[f]})")
 
     skipped = _classify_other(b, bad)
-    blocks: list[dict | None] = []
-    for g, spec in enumerate(_GROUP_SPECS):
-        sel = b.scan.group_lines[g]
+    sc = b.scan
+    blocks: list[dict | None] = [None] * len(_GROUP_SPECS)
+    for g in range(len(_GROUP_SPECS)):
+        sel = sc.group_lines[g]
         if not len(sel):
-            blocks.append(None)
             continue
-        what = "sensor record" if g < 2 else _TYPE_LIST[b.scan.type_idx[sel[0]]]
-        cols = _parse_block(b.scan.group_bytes[g], spec, sel, bad, what)
-        cols["type"] = b.scan.type_idx[cols["gline"]].astype(np.int32)
-        blocks.append(cols)
+        what = "sensor record" if g < 2 else _TYPE_LIST[sc.type_idx[sel[0]]]
+        cols = _parse_block(sc, g, fast.get(g), bad, what)
+        cols["type"] = sc.type_idx[cols["gline"]].astype(np.int32)
+        blocks[g] = cols
 
     tables = _Tables(b)
     sensors = tables.sensors(blocks[:2], bad)
@@ -736,17 +786,40 @@ def iter_traces(paths: Iterable[str | os.PathLike], *, strict: bool = False,
     In lenient mode a file that cannot be read at all (I/O error, over-size) is yielded as a
     :class:`ReadFailure` and reading goes on; in strict mode its error is raised.
     """
+    with ThreadPoolExecutor(max_workers=1) as stage:
+        pending: Future | None = None  # the batch being prepared
+        for item in _batches(paths, strict=strict, batch_bytes=batch_bytes, max_bytes=max_bytes):
+            if isinstance(item, ReadFailure):
+                if pending is not None:
+                    yield from _assemble(pending.result(), strict)
+                    pending = None
+                yield item
+                continue
+            ready, pending = pending, stage.submit(_prepare, *item)
+            if ready is not None:
+                yield from _assemble(ready.result(), strict)
+        if pending is not None:
+            yield from _assemble(pending.result(), strict)
+
+
+def _batches(paths: Iterable[str | os.PathLike], *, strict: bool, batch_bytes: int,
+             max_bytes: int) -> Iterator[tuple[list[bytes], list[str], list[str | None]]
+                                         | ReadFailure]:
+    """Texts (with paths and notes) grouped into batches of about ``batch_bytes``, in path
+    order, and :class:`ReadFailure` for unreadable files (lenient mode)."""
     texts: list[bytes] = []
     names: list[str] = []
     notes: list[str | None] = []
     size = 0
-    for p in paths:
+    for p, read in _read_ahead(paths, strict=strict, max_bytes=max_bytes,
+                               ahead_bytes=batch_bytes // 2):
         try:
-            data, note = read_trace_bytes(p, strict=strict, max_bytes=max_bytes)
+            data, note = read.result()
         except SurveyFormatError as err:
             if strict:
                 raise
-            yield from _flush(texts, names, notes, strict)
+            if texts:
+                yield texts, names, notes
             texts, names, notes, size = [], [], [], 0
             yield ReadFailure(str(p), err)
             continue
@@ -755,14 +828,34 @@ def iter_traces(paths: Iterable[str | os.PathLike], *, strict: bool = False,
         notes.append(note)
         size += len(data)
         if size >= batch_bytes:
-            yield from _flush(texts, names, notes, strict)
+            yield texts, names, notes
             texts, names, notes, size = [], [], [], 0
-    yield from _flush(texts, names, notes, strict)
-
-
-def _flush(texts, names, notes, strict) -> Iterator[Trace]:
     if texts:
-        yield from parse_traces(texts, names, strict=strict, notes=notes)
+        yield texts, names, notes
+
+
+def _read_ahead(paths: Iterable[str | os.PathLike], *, strict: bool, max_bytes: int,
+                ahead_bytes: int) -> Iterator[tuple[str | os.PathLike, Future]]:
+    """(path, future of :func:`read_trace_bytes`) in path order, read in a background thread
+    (gunzip releases the GIL, so it overlaps parsing) up to ``ahead_bytes`` of files (on
+    disk) ahead of the consumer."""
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        window: deque[tuple[str | os.PathLike, Future, int]] = deque()
+        pending = 0
+        for p in paths:
+            try:
+                size = os.stat(p).st_size
+            except OSError:
+                size = 0  # read_trace_bytes reports it
+            window.append((p, pool.submit(read_trace_bytes, p, strict=strict,
+                                          max_bytes=max_bytes), size))
+            pending += size
+            while len(window) > 1 and pending > ahead_bytes:
+                q, read, size = window.popleft()
+                pending -= size
+                yield q, read
+        for q, read, _ in window:
+            yield q, read
 
 
 __all__ = ["read_trace", "parse_trace_bytes", "parse_traces", "iter_traces", "ReadFailure",
