@@ -20,13 +20,13 @@ Measured on this 2-core machine, 24 GB RAM (site1/F1; docs/reliability.md, "Reso
 limits")::
 
     scale  traces  text MB  wall s  peak RSS MB  last progress line before the peak
-        1     106      180    33.6          641  F1: layer strength
-       10    1060     1795   314.0         2129  wifi: kept 2425 transmitters ...
-    peak RSS 10x / 1x: 3.32
+        1     106      180    31.5          623  F1: levelled 5 of 6 sessions
+       10    1060     1795   275.6         1781  F1: kernel bandwidth 0.5 m chosen by 5-fold ...
+    peak RSS 10x / 1x: 2.86
 
-(Before processing and the radio build read the store walk by walk: 898 and 4713 MB, 5.25x.)
-Processing now stays at about 580 MB at 10x; the 10x peak is the Wi-Fi AP selection and
-reference-point aggregation over the whole observation table (5.8 million rows).
+(Session 2: 898 and 4713 MB, 5.25x; session 3, walk-by-walk reads: 641 and 2129 MB, 3.32x.)
+The radio build of the 10x floor peaks at about 1.3 GB since its steps work on integer codes
+without table copies; the 10x peak is now the magnetic layers over 2.0 million samples.
 In the 10x floor every walk has nine exact copies, so the radio steps keep more transmitters
 (no longer "rare") and the kernel bandwidth cross-validation picks 0.5 m instead of 3.0 m:
 the bundle is not a realistic one, only the memory and time are.

@@ -28,7 +28,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from .errors import FingerprintError
-from .radio_scans import OBS_COLUMNS, distinct_text, split_by
+from .radio_scans import OBS_COLUMNS, distinct_text, split_by, text_codes
 
 __all__ = [
     "HOTSPOT_SSID",
@@ -98,72 +98,138 @@ def is_locally_administered(mac: Sequence[str] | NDArray[np.str_]) -> NDArray[np
     return (first & 0x02) != 0
 
 
-def _peak_spread(obs: pd.DataFrame, strong_dbm: float, min_walks: int) -> pd.Series:
+def _peak_spread(obs: pd.DataFrame, aps: NDArray[np.str_], strong_dbm: float,
+                 min_walks: int) -> pd.Series:
     """Per AP: median distance (m) of the per-walk strongest positions from their median point,
     over walks whose strongest reading is at least ``strong_dbm`` (NaN with fewer walks)."""
-    pos = obs[np.isfinite(obs["x_m"]) & np.isfinite(obs["y_m"])]
-    if len(pos) == 0:
+    ok = _positioned(obs)
+    ap = _rows(pd.Series(text_codes(obs["ap"], aps)), ok, np.int64)
+    walk_code, walks = pd.factorize(obs["trace_id"])  # by code: no row-wise text
+    walk = walk_code if ok.all() else walk_code[ok]
+    rssi = _rows(obs["rssi_dbm"], ok, np.float64)
+    valid = (ap >= 0) & (walk >= 0)
+    if not valid.any():
         return pd.Series(dtype=np.float64)
-    peak = pos.loc[pos.groupby(["ap", "trace_id"], sort=False)["rssi_dbm"].idxmax()]
-    peak = peak[peak["rssi_dbm"] >= strong_dbm]
-    count = peak.groupby("ap")["trace_id"].size()
-    peak = peak[peak["ap"].isin(count[count >= min_walks].index)]
+    key_code, keys = pd.factorize(np.where(valid, ap * len(walks) + walk, -1))
+    best = np.full(len(keys), -np.inf)
+    np.maximum.at(best, key_code, rssi)
+    rows = np.flatnonzero(valid & (rssi == best[key_code]))
+    _, first = np.unique(key_code[rows], return_index=True)  # each (AP, walk)'s first peak row
+    peak = rows[first]
+    peak = peak[rssi[peak] >= strong_dbm]
+    peak_ap = ap[peak]
+    count = np.bincount(peak_ap, minlength=len(aps))
+    peak = peak[count[peak_ap] >= min_walks]
     if len(peak) == 0:
         return pd.Series(dtype=np.float64)
-    centre = peak.groupby("ap")[["x_m", "y_m"]].transform("median")
-    dist = np.hypot(peak["x_m"] - centre["x_m"], peak["y_m"] - centre["y_m"])
-    return dist.groupby(peak["ap"]).median()
+    xy = pd.DataFrame({"x_m": _rows(obs["x_m"], ok, np.float64)[peak],
+                       "y_m": _rows(obs["y_m"], ok, np.float64)[peak]})
+    by_ap = xy.groupby(ap[peak])
+    centre = by_ap.transform("median")
+    dist = pd.Series(np.hypot(xy["x_m"] - centre["x_m"], xy["y_m"] - centre["y_m"]))
+    spread = dist.groupby(ap[peak]).median()
+    return pd.Series(spread.to_numpy(), index=aps[spread.index.to_numpy()])
 
 
-def _survey_change(obs: pd.DataFrame, cell_m: float, strong_dbm: float, min_cells: int,
-                   min_scans: int) -> pd.Series:
+def _survey_change(obs: pd.DataFrame, aps: NDArray[np.str_], cell_m: float, strong_dbm: float,
+                   min_cells: int, min_scans: int) -> pd.Series:
     """Per AP: median |RSSI difference| (dB) between two surveys (UTC days) over the cells
     where both surveys have at least ``min_scans`` scans and either heard it at least
     ``strong_dbm`` ("not heard in any of those scans" = -100 dBm; NaN with fewer than
-    ``min_cells`` such cells). A moved AP is loud where it used to be silent."""
-    pos = obs[np.isfinite(obs["x_m"]) & np.isfinite(obs["y_m"])]
-    if len(pos) == 0:
+    ``min_cells`` such cells). A moved AP is loud where it used to be silent.
+
+    Works on integer codes (AP, day, cell, scan), never on a copy of the table."""
+    ok = _positioned(obs)
+    if not ok.any():
         return pd.Series(dtype=np.float64)
-    day = (pos["t_ms"] // 86_400_000).to_numpy()
-    if len(np.unique(day)) < 2:
+    day_code, days = pd.factorize(_rows(obs["t_ms"], ok, np.int64) // 86_400_000, sort=True)
+    if len(days) < 2:
         return pd.Series(dtype=np.float64)
-    cell = (np.floor(pos["x_m"] / cell_m).astype(np.int64) * 1_000_003
-            + np.floor(pos["y_m"] / cell_m).astype(np.int64)).to_numpy()
-    scans = pd.Series(pos["scan_id"].to_numpy()).groupby([day, cell]).nunique()
-    good = scans[scans >= min_scans]
-    means = pos.groupby([pos["ap"].to_numpy(), day, cell])["rssi_dbm"].mean()
-    days = np.unique(good.index.get_level_values(0))
+    cell_code, cells = pd.factorize(_cell_keys(obs, ok, cell_m))
+    n_cells, n_dc = len(cells), len(days) * len(cells)
+    dc = day_code * n_cells + cell_code  # (day, cell) of every row
+    scan_code, scans = pd.factorize(_rows(obs["scan_id"], ok, np.int64))
+    pairs = _distinct(dc * len(scans) + scan_code)  # distinct (day, cell, scan)
+    good = np.bincount(pairs // len(scans), minlength=n_dc).reshape(len(days), n_cells) \
+        >= min_scans
+    use = good.reshape(-1)[dc]
+    ap = _rows(pd.Series(text_codes(obs["ap"], aps)), ok, np.int64)
+    use &= ap >= 0
+    key_code, keys = pd.factorize(ap[use] * n_dc + dc[use])  # (AP, day, cell) means
+    mean = (np.bincount(key_code, weights=_rows(obs["rssi_dbm"], ok, np.float64)[use])
+            / np.bincount(key_code))
+    key_ap, key_day, key_cell = keys // n_dc, keys % n_dc // n_cells, keys % n_cells
     out: dict[str, float] = {}
-    for i, da in enumerate(days):
-        for db in days[i + 1:]:
-            common = np.intersect1d(good.loc[da].index.to_numpy(), good.loc[db].index.to_numpy())
-            if len(common) < min_cells:
+    for da in range(len(days)):
+        for db in range(da + 1, len(days)):
+            common = good[da] & good[db]
+            if common.sum() < min_cells:
                 continue
-            lv = means.index
-            part = means[lv.get_level_values(1).isin([da, db])
-                         & lv.get_level_values(2).isin(common)]
-            wide = part.unstack(level=1)
-            if da not in wide or db not in wide:
+            in_a = (key_day == da) & common[key_cell]
+            in_b = (key_day == db) & common[key_cell]
+            if not in_a.any() or not in_b.any():
                 continue
-            a, b = wide[da].fillna(-100.0), wide[db].fillna(-100.0)
-            diff = (a - b).abs()[np.maximum(a, b) >= strong_dbm]
-            stat = diff.groupby(level=0).agg(["median", "size"])
-            for ap, v in stat[stat["size"] >= min_cells]["median"].items():
-                out[ap] = max(out.get(ap, 0.0), float(v))
+            ka = key_ap[in_a] * n_cells + key_cell[in_a]  # (AP, cell)
+            kb = key_ap[in_b] * n_cells + key_cell[in_b]
+            union = np.union1d(ka, kb)  # (AP, cell) heard on either day
+            a, b = np.full(len(union), -100.0), np.full(len(union), -100.0)
+            a[np.searchsorted(union, ka)] = mean[in_a]
+            b[np.searchsorted(union, kb)] = mean[in_b]
+            strong = np.maximum(a, b) >= strong_dbm
+            diff = pd.Series(np.abs(a - b)[strong])
+            stat = diff.groupby(union[strong] // n_cells).agg(["median", "size"])
+            for a_idx, v in stat[stat["size"] >= min_cells]["median"].items():
+                name = str(aps[a_idx])
+                out[name] = max(out.get(name, 0.0), float(v))
     return pd.Series(out, dtype=np.float64)
 
 
-def _flatness(obs: pd.DataFrame, cell_m: float) -> pd.DataFrame:
+def _positioned(obs: pd.DataFrame) -> NDArray[np.bool_]:
+    return (np.isfinite(obs["x_m"].to_numpy(np.float64))
+            & np.isfinite(obs["y_m"].to_numpy(np.float64)))
+
+
+def _rows(column: pd.Series, ok: NDArray[np.bool_], dtype) -> NDArray:
+    """A column as an array, restricted to ``ok`` (no copy when every row is)."""
+    values = column.to_numpy(dtype)
+    return values if ok.all() else values[ok]
+
+
+def _cell_keys(obs: pd.DataFrame, ok: NDArray[np.bool_], cell_m: float) -> NDArray[np.int64]:
+    return (np.floor(_rows(obs["x_m"], ok, np.float64) / cell_m).astype(np.int64) * 1_000_003
+            + np.floor(_rows(obs["y_m"], ok, np.float64) / cell_m).astype(np.int64))
+
+
+def _distinct_per_ap(ap: NDArray[np.int64], values: pd.Series, n_aps: int) -> NDArray[np.int64]:
+    """Per AP code (0..n_aps-1; -1 = none): number of distinct non-missing ``values``."""
+    code, uniques = pd.factorize(values)
+    n = max(len(uniques), 1)
+    valid = (ap >= 0) & (code >= 0)
+    pairs = _distinct(ap[valid] * n + code[valid])
+    return np.bincount(pairs // n, minlength=n_aps)
+
+
+def _distinct(keys: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Sorted distinct values of an integer array, by sorting a copy: on millions of keys this
+    needs far less memory than hashing (``np.unique``/``pd.unique``)."""
+    k = np.sort(keys)
+    return k[np.concatenate(([True], k[1:] != k[:-1]))] if len(k) else k
+
+
+def _flatness(obs: pd.DataFrame, aps: NDArray[np.str_], cell_m: float) -> pd.DataFrame:
     """Per AP: share of cells (``cell_m``) where it is heard and the SD (dB) of its cell means."""
-    pos = obs[np.isfinite(obs["x_m"]) & np.isfinite(obs["y_m"])]
-    if len(pos) == 0:
+    ok = _positioned(obs)
+    ap = _rows(pd.Series(text_codes(obs["ap"], aps)), ok, np.int64)
+    if not ok.any() or not (ap >= 0).any():
         return pd.DataFrame(columns=["coverage", "std_db"], dtype=np.float64)
-    cell = (np.floor(pos["x_m"] / cell_m).astype(np.int64) * 1_000_003
-            + np.floor(pos["y_m"] / cell_m).astype(np.int64))
-    n_cells = cell.nunique()
-    means = pos.groupby([pos["ap"], cell])["rssi_dbm"].mean()
-    g = means.groupby(level=0)
-    return pd.DataFrame({"coverage": g.size() / n_cells, "std_db": g.std(ddof=0)})
+    cell_code, cells = pd.factorize(_cell_keys(obs, ok, cell_m))
+    valid = ap >= 0
+    key_code, keys = pd.factorize(ap[valid] * len(cells) + cell_code[valid])
+    mean = (np.bincount(key_code, weights=_rows(obs["rssi_dbm"], ok, np.float64)[valid])
+            / np.bincount(key_code))  # per (AP, cell)
+    means = pd.Series(mean).groupby(keys // len(cells))
+    out = pd.DataFrame({"coverage": means.size() / len(cells), "std_db": means.std(ddof=0)})
+    return out.set_axis(aps[out.index.to_numpy()], axis=0)
 
 
 def select_aps(obs: pd.DataFrame, *, ssid: Mapping[str, str] | pd.Series | None = None,
@@ -195,9 +261,10 @@ def select_aps(obs: pd.DataFrame, *, ssid: Mapping[str, str] | pd.Series | None 
     if floor_column is not None and floor_column not in obs.columns:
         raise FingerprintError(f"observation table has no floor column {floor_column!r}")
     aps = distinct_text(obs["ap"])
+    ap_code = text_codes(obs["ap"], aps)
     info = pd.DataFrame(index=pd.Index(aps, name="ap"))
-    info["n_scans"] = obs.groupby("ap")["scan_id"].nunique()
-    info["n_walks"] = obs.groupby("ap")["trace_id"].nunique()
+    info["n_scans"] = _distinct_per_ap(ap_code, obs["scan_id"], len(aps))
+    info["n_walks"] = _distinct_per_ap(ap_code, obs["trace_id"], len(aps))
     ssid_s = pd.Series(ssid, dtype=object) if ssid is not None else pd.Series(dtype=object)
     info["ssid"] = ssid_s.reindex(info.index).fillna("").astype(str)
     info["locally_administered"] = is_locally_administered(aps)
@@ -222,12 +289,13 @@ def select_aps(obs: pd.DataFrame, *, ssid: Mapping[str, str] | pd.Series | None 
               else list(split_by(obs, floor_column).items()))
     for floor, part in groups:
         where = "" if floor is None else f" on {floor}"
-        fl = _flatness(part, p.flat_cell_m).reindex(info.index)
+        fl = _flatness(part, aps, p.flat_cell_m).reindex(info.index)
         flag((fl["coverage"] >= p.flat_coverage) & (fl["std_db"] <= p.flat_std_db), "flat",
              lambda a, fl=fl, where=where: f"coverage {fl.at[a, 'coverage']:.2f}, "
                                            f"SD {fl.at[a, 'std_db']:.1f} dB{where}")
-        spread = _peak_spread(part, p.moving_strong_dbm, p.moving_min_walks).reindex(info.index)
-        change = _survey_change(part, p.flat_cell_m, p.moving_strong_dbm,
+        spread = _peak_spread(part, aps, p.moving_strong_dbm,
+                              p.moving_min_walks).reindex(info.index)
+        change = _survey_change(part, aps, p.flat_cell_m, p.moving_strong_dbm,
                                 p.moving_min_cells, p.moved_min_scans).reindex(info.index)
         flag(spread > p.moving_spread_m, "moving",
              lambda a, s=spread, where=where: f"walk peaks {s.at[a]:.0f} m apart{where}")
@@ -237,11 +305,12 @@ def select_aps(obs: pd.DataFrame, *, ssid: Mapping[str, str] | pd.Series | None 
     if floor_column is not None:
         order = (list(floor_order) if floor_order is not None
                  else distinct_text(obs[floor_column]).tolist())
-        rank = {f: i for i, f in enumerate(order)}
-        strong = obs[obs["rssi_dbm"] >= p.far_floor_strong_dbm]
-        idx = strong[floor_column].astype(str).map(rank)
-        span = idx.groupby(strong["ap"]).agg(["min", "max"])
-        gap = (span["max"] - span["min"]).reindex(info.index)
+        strong = obs["rssi_dbm"].to_numpy(np.float64) >= p.far_floor_strong_dbm
+        level = text_codes(obs[floor_column], np.asarray(order, dtype=str))[strong]
+        known = level >= 0  # floors missing from floor_order do not count
+        span = pd.Series(level[known]).groupby(ap_code[strong][known]).agg(["min", "max"])
+        gap = pd.Series((span["max"] - span["min"]).to_numpy(np.float64),
+                        index=aps[span.index.to_numpy()]).reindex(info.index)
         flag(gap >= p.far_floor_gap, "far_floors",
              lambda a: f"strong on floors {int(gap.at[a])} apart")
 

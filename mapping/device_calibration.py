@@ -223,21 +223,30 @@ def calibrate_devices(obs: pd.DataFrame, device_of: Mapping[str, str] | pd.Serie
         Columns :data:`DEVICE_TABLE_COLUMNS`, one row per model.
     """
     dev = pd.Series(device_of, dtype=object)
-    model = obs["trace_id"].map(dev)
-    if model.isna().any():
-        unknown = sorted(obs.loc[model.isna(), "trace_id"].unique())[:5]
+    # the model of each row through its walk's code: no row-wise text (millions of rows)
+    trace_code, traces = pd.factorize(obs["trace_id"], use_na_sentinel=False)
+    model_of_trace = pd.Series(np.asarray(traces, dtype=object)).map(dev)
+    if model_of_trace.isna().any():
+        unknown = sorted(map(str, np.asarray(traces, dtype=object)[model_of_trace.isna()]))[:5]
         raise FingerprintError(f"no device model for traces {unknown}")
-    scans = obs.groupby(model)["scan_id"].nunique()
+    code_of_trace, models = pd.factorize(model_of_trace.astype(str), sort=True)
+    model_code = code_of_trace[trace_code]
+    scan_code, scan_ids = pd.factorize(obs["scan_id"])
+    pairs = pd.unique(model_code * max(len(scan_ids), 1) + scan_code)
+    scans = pd.Series(np.bincount(pairs // max(len(scan_ids), 1), minlength=len(models)),
+                      index=np.asarray(models, dtype=str))
     if reference_model is None:
         reference_model = str(scans.sort_values(ascending=False, kind="stable").index[0])
     if reference_model not in scans.index:
         raise FingerprintError(f"reference model {reference_model!r} has no scans; models: "
                                f"{sorted(scans.index)}")
-    ref = obs[model == reference_model]
     rows = [DeviceCalibration(reference_model, 1.0, 0.0, 0, 0.0, "reference")]
-    for name in sorted(set(scans.index) - {reference_model}):
-        rows.append(fit_device_calibration(obs[model == name], ref, device_model=name,
-                                           floor_column=floor_column, **fit_kw))
+    others = sorted(set(scans.index) - {reference_model})
+    ref = obs[model_code == scans.index.get_loc(reference_model)] if others else None
+    for name in others:
+        rows.append(fit_device_calibration(obs[model_code == scans.index.get_loc(name)], ref,
+                                           device_model=name, floor_column=floor_column,
+                                           **fit_kw))
     return pd.DataFrame([{c: getattr(r, c) for c in DEVICE_TABLE_COLUMNS} for r in rows])
 
 

@@ -31,7 +31,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from .errors import FingerprintError
-from .radio_scans import OBS_COLUMNS, distinct_text
+from .radio_scans import OBS_COLUMNS, distinct_text, text_codes
 
 __all__ = [
     "DEFAULT_CELL_M",
@@ -241,8 +241,10 @@ def build_fingerprints(obs: pd.DataFrame, *, kind: str = "wifi",
         raise FingerprintError(f"no {kind} rows younger than {max_age_ms} ms among "
                                f"{len(xy)} positioned scans")
     rp_of_row = rp_of_scan[np.searchsorted(scan_index, scan_ids[use])]
-    ap_code, ap_names = pd.factorize(obs["ap"].to_numpy()[use], sort=True)
-    key = rp_of_row.astype(np.int64) * len(ap_names) + ap_code
+    # AP codes in name order, looked up per distinct AP (a row-wise text array of millions of
+    # rows would cost hundreds of MB)
+    ap_names = distinct_text(obs["ap"])
+    key = rp_of_row.astype(np.int64) * len(ap_names) + text_codes(obs["ap"], ap_names)[use]
     keys, inv = np.unique(key, return_inverse=True)
     rssi = obs["rssi_dbm"].to_numpy(np.float64)[use]
     n = np.bincount(inv, minlength=len(keys))

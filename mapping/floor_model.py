@@ -37,7 +37,7 @@ from localize.floor_classifier import FloorClassifier, floor_log_proba, level_fe
 
 from .errors import FingerprintError
 from .matching import align_scans
-from .radio_scans import OBS_COLUMNS, ScanSet, distinct_text, scan_set
+from .radio_scans import OBS_COLUMNS, ScanSet, distinct_text, scan_set, text_codes
 
 __all__ = ["FloorCV", "FloorModel", "cross_validate_floor_model", "fit_floor_model"]
 
@@ -202,10 +202,10 @@ def _design(tables: Mapping[str, pd.DataFrame], aps: NDArray[np.str_]
     transmitters), floor label and walk of every scan of every floor. Built from the long
     observation tables directly: memory grows with the rows, never with scans x transmitters."""
     rows, cols, vals, ys, traces = [], [], [], [], []
-    n, ap_index = 0, pd.Index(aps)
+    n = 0
     for floor, obs in tables.items():
         scan_idx, scan_ids = pd.factorize(obs["scan_id"], sort=True)
-        col = ap_index.get_indexer(obs["ap"])
+        col = text_codes(obs["ap"], aps)  # per distinct AP, not per row
         level = level_features(obs["rssi_dbm"].to_numpy(np.float64))
         keep = (col >= 0) & (level > 0)
         rows.append(scan_idx[keep] + n)
@@ -213,7 +213,8 @@ def _design(tables: Mapping[str, pd.DataFrame], aps: NDArray[np.str_]
         vals.append(level[keep])
         ys.append(np.full(len(scan_ids), floor, dtype=object))
         walk = np.empty(len(scan_ids), dtype=object)
-        walk[scan_idx] = obs["trace_id"].to_numpy()
+        walk_code, walk_names = pd.factorize(obs["trace_id"], use_na_sentinel=False)
+        walk[scan_idx] = np.asarray(walk_names, dtype=object)[walk_code]
         traces.append(walk.astype(str))
         n += len(scan_ids)
     x = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),

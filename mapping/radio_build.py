@@ -79,7 +79,9 @@ def site_observations(store: SurveyStore, site: str | None, floors: Sequence[str
     text columns (``trace_id``, ``ap``, ``ssid``, ``floor``) as categoricals: about 60 bytes
     per observation row, so memory grows with the observations only, never with the raw rows
     and their text."""
-    parts, ssid_of, n_scans = [], {}, 0
+    columns = (*OBS_COLUMNS, "floor")
+    parts: dict[str, list[np.ndarray]] = {c: [] for c in columns}  # per column, per walk
+    ssid_of, n_scans = {}, 0
     codes = {"trace_id": {}, "ap": {}, "floor": {}}
     try:
         walks = processed_walks(store, site=site)
@@ -104,20 +106,23 @@ def site_observations(store: SurveyStore, site: str | None, floors: Sequence[str
             obs["floor"] = floor
             for col, table in codes.items():
                 obs[col] = _codes(obs[col], table)
-            parts.append(obs)
-    if not parts:
+            for col in columns:
+                parts[col].append(obs[col].to_numpy())
+    if not parts["scan_id"]:
         return pd.DataFrame(columns=[*OBS_COLUMNS, "ssid", "floor"])
-    out = pd.concat(parts, ignore_index=True)
-    for col, table in codes.items():
-        out[col] = pd.Categorical.from_codes(out[col].to_numpy(), list(table))
-    if kind == "wifi":  # SSID of each row's AP, coded through the AP's code
-        ssid_code, ssids = pd.factorize(np.array([ssid_of.get(ap, "") for ap in codes["ap"]],
-                                                 dtype=object))
-        out["ssid"] = pd.Categorical.from_codes(ssid_code[out["ap"].cat.codes.to_numpy()],
-                                                ssids)
-    else:
-        out["ssid"] = ""
-    return out[[*OBS_COLUMNS, "ssid", "floor"]]
+    # One column at a time, each column's walk pieces freed as soon as it is joined: the peak
+    # is the table plus one column, not twice the table.
+    data = {}
+    for col in columns:
+        joined = np.concatenate(parts.pop(col))
+        data[col] = (pd.Categorical.from_codes(joined, list(codes[col])) if col in codes
+                     else joined)
+    # SSID of each row's AP (Wi-Fi), coded through the AP's code
+    ssid_code, ssids = pd.factorize(np.array([ssid_of.get(ap, "") for ap in codes["ap"]],
+                                             dtype=object))
+    data["ssid"] = pd.Categorical.from_codes(ssid_code[data["ap"].codes], ssids)
+    data["floor"] = data.pop("floor")
+    return pd.DataFrame(data, copy=False)
 
 
 def _codes(values: pd.Series, table: dict[str, int]) -> NDArray[np.int32]:
@@ -217,9 +222,7 @@ def calibrated(obs: pd.DataFrame, device_of: pd.Series, devices: pd.DataFrame) -
                              index=traces.to_numpy())
     idx = per_trace.index.get_indexer(obs["trace_id"])
     k, b = per_trace["k"].to_numpy()[idx], per_trace["b"].to_numpy()[idx]
-    out = obs.copy()
-    out["rssi_dbm"] = k * out["rssi_dbm"].to_numpy() + b
-    return out
+    return obs.assign(rssi_dbm=k * obs["rssi_dbm"].to_numpy() + b)  # other columns shared
 
 
 def build_site_radio(store: SurveyStore | str, floors: Sequence[str], *,
@@ -265,7 +268,7 @@ def site_radio(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: Seque
     selections: dict[str, APSelection] = {}
     fingerprints: dict[tuple[str, str], FingerprintDB] = {}
     for kind in KINDS:
-        o = obs.get(kind)
+        o = obs.pop(kind, None)  # the only reference: each filtered table replaces its input
         if o is None or len(o) == 0:
             notes.append(f"no {kind} rows on any floor")
             obs[kind] = pd.DataFrame(columns=["floor"])

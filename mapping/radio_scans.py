@@ -36,7 +36,7 @@ from localize.steps import ble_transmitter_ids
 from .errors import FingerprintError
 
 __all__ = ["OBS_COLUMNS", "ScanSet", "ble_observations", "distinct_text", "scan_set",
-           "split_by", "wifi_observations"]
+           "split_by", "text_codes", "wifi_observations"]
 
 OBS_COLUMNS = ("trace_id", "scan_id", "t_ms", "x_m", "y_m", "ap", "rssi_dbm", "age_ms")
 RSSI_RANGE_DBM = (-127.0, 0.0)
@@ -83,6 +83,14 @@ def distinct_text(values: pd.Series | NDArray) -> NDArray[np.str_]:
     """Sorted distinct values of a text column (object, string or categorical) as a numpy str
     array, without converting every row (a column can hold millions of rows)."""
     return np.unique(np.asarray(pd.unique(pd.Series(values)), dtype=object).astype(str))
+
+
+def text_codes(values: pd.Series | NDArray, names: NDArray[np.str_]) -> NDArray[np.int64]:
+    """Index of each row's text in ``names`` (-1 where absent or missing), looked up once per
+    distinct value (cheap on categorical columns of millions of rows)."""
+    codes, uniques = pd.factorize(pd.Series(values))
+    lookup = pd.Index(np.asarray(names)).get_indexer(np.asarray(uniques, dtype=object).astype(str))
+    return np.where(codes >= 0, lookup[codes], -1)
 
 
 def split_by(obs: pd.DataFrame, column: str) -> dict[str, pd.DataFrame]:

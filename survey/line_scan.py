@@ -1,11 +1,11 @@
 """Compiled loops of the trace reader: lines, their kind and record type, and per-layout blocks;
 MAC canonicalisation; duplicate picking.
 
-The line scan is the hot loop of the trace reader, compiled with numba (``cache=True``: compiled once per
-installation). A first pass finds the line ends (eight bytes per test); a second checks each
-line's timestamp field, matches its record-type token against the documented names, and copies
-the lines of each value layout ("group") into that group's own buffer without the type field,
-ready for pyarrow's CSV parser.
+The line scan is the hot loop of the trace reader, compiled with numba (``cache=True``: compiled
+once per installation). A first pass finds the line ends (eight bytes per test); a second checks
+each line's timestamp field, matches its record-type token against the documented names, parses
+the all-numeric layouts (plain decimal spellings) in place, and copies every other line into its
+value layout's ("group's") own buffer without the type field, ready for pyarrow's CSV parser.
 """
 
 from __future__ import annotations

@@ -274,8 +274,8 @@ def _arrow_options(spec: list[tuple[str, str]]):
         pacsv.ParseOptions(delimiter="\t", quote_char=False, double_quote=False,
                            escape_char=False, newlines_in_values=False,
                            ignore_empty_lines=False),
-        pacsv.ConvertOptions(column_types=types, strings_can_be_null=False, quoted_strings_can_be_null=False,
-                             null_values=[], check_utf8=True),
+        pacsv.ConvertOptions(column_types=types, strings_can_be_null=False,
+                             quoted_strings_can_be_null=False, null_values=[], check_utf8=True),
     )
 
 
