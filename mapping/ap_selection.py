@@ -15,6 +15,9 @@ A locally administered MAC (bit 1 of the first octet) is *reported* (column
 ``locally_administered``) but is not a reason by default: on site1 65 % of the BSSIDs are
 locally administered virtual APs of the mall's own routers (``intime_*``), so the bit alone says
 nothing about mobility (``drop_locally_administered=True`` makes it a reason).
+
+Rows without a position or with a non-finite RSSI are left out of the spatial rules. The rules
+work on integer codes of the text columns, never on copies of the table or row-wise text.
 """
 
 from __future__ import annotations
@@ -107,15 +110,16 @@ def _peak_spread(obs: pd.DataFrame, aps: NDArray[np.str_], strong_dbm: float,
     walk_code, walks = pd.factorize(obs["trace_id"])  # by code: no row-wise text
     walk = walk_code if ok.all() else walk_code[ok]
     rssi = _rows(obs["rssi_dbm"], ok, np.float64)
-    valid = (ap >= 0) & (walk >= 0)
+    valid = (ap >= 0) & (walk >= 0) & np.isfinite(rssi)
     if not valid.any():
         return pd.Series(dtype=np.float64)
-    key_code, keys = pd.factorize(np.where(valid, ap * len(walks) + walk, -1))
+    rows = np.flatnonzero(valid)
+    key_code, keys = pd.factorize(ap[rows] * len(walks) + walk[rows])  # (AP, walk)
     best = np.full(len(keys), -np.inf)
-    np.maximum.at(best, key_code, rssi)
-    rows = np.flatnonzero(valid & (rssi == best[key_code]))
-    _, first = np.unique(key_code[rows], return_index=True)  # each (AP, walk)'s first peak row
-    peak = rows[first]
+    np.maximum.at(best, key_code, rssi[rows])
+    at_best = np.flatnonzero(rssi[rows] == best[key_code])
+    _, first = np.unique(key_code[at_best], return_index=True)  # each one's first peak row
+    peak = rows[at_best[first]]
     peak = peak[rssi[peak] >= strong_dbm]
     peak_ap = ap[peak]
     count = np.bincount(peak_ap, minlength=len(aps))
@@ -154,10 +158,10 @@ def _survey_change(obs: pd.DataFrame, aps: NDArray[np.str_], cell_m: float, stro
         >= min_scans
     use = good.reshape(-1)[dc]
     ap = _rows(pd.Series(text_codes(obs["ap"], aps)), ok, np.int64)
-    use &= ap >= 0
+    rssi = _rows(obs["rssi_dbm"], ok, np.float64)
+    use &= (ap >= 0) & np.isfinite(rssi)
     key_code, keys = pd.factorize(ap[use] * n_dc + dc[use])  # (AP, day, cell) means
-    mean = (np.bincount(key_code, weights=_rows(obs["rssi_dbm"], ok, np.float64)[use])
-            / np.bincount(key_code))
+    mean = np.bincount(key_code, weights=rssi[use]) / np.bincount(key_code)
     key_ap, key_day, key_cell = keys // n_dc, keys % n_dc // n_cells, keys % n_cells
     out: dict[str, float] = {}
     for da in range(len(days)):
@@ -223,10 +227,10 @@ def _flatness(obs: pd.DataFrame, aps: NDArray[np.str_], cell_m: float) -> pd.Dat
     if not ok.any() or not (ap >= 0).any():
         return pd.DataFrame(columns=["coverage", "std_db"], dtype=np.float64)
     cell_code, cells = pd.factorize(_cell_keys(obs, ok, cell_m))
-    valid = ap >= 0
+    rssi = _rows(obs["rssi_dbm"], ok, np.float64)
+    valid = (ap >= 0) & np.isfinite(rssi)
     key_code, keys = pd.factorize(ap[valid] * len(cells) + cell_code[valid])
-    mean = (np.bincount(key_code, weights=_rows(obs["rssi_dbm"], ok, np.float64)[valid])
-            / np.bincount(key_code))  # per (AP, cell)
+    mean = np.bincount(key_code, weights=rssi[valid]) / np.bincount(key_code)  # (AP, cell)
     means = pd.Series(mean).groupby(keys // len(cells))
     out = pd.DataFrame({"coverage": means.size() / len(cells), "std_db": means.std(ddof=0)})
     return out.set_axis(aps[out.index.to_numpy()], axis=0)
@@ -305,9 +309,11 @@ def select_aps(obs: pd.DataFrame, *, ssid: Mapping[str, str] | pd.Series | None 
     if floor_column is not None:
         order = (list(floor_order) if floor_order is not None
                  else distinct_text(obs[floor_column]).tolist())
+        rank = {str(f): i for i, f in enumerate(order)}  # a repeated name: its last place
         strong = obs["rssi_dbm"].to_numpy(np.float64) >= p.far_floor_strong_dbm
-        level = text_codes(obs[floor_column], np.asarray(order, dtype=str))[strong]
-        known = level >= 0  # floors missing from floor_order do not count
+        level = np.append(np.fromiter(rank.values(), np.int64, len(rank)), -1)[
+            text_codes(obs[floor_column], np.array(list(rank), dtype=str))][strong]
+        known = (level >= 0) & (ap_code[strong] >= 0)  # floors not in floor_order do not count
         span = pd.Series(level[known]).groupby(ap_code[strong][known]).agg(["min", "max"])
         gap = pd.Series((span["max"] - span["min"]).to_numpy(np.float64),
                         index=aps[span.index.to_numpy()]).reindex(info.index)

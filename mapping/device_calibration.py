@@ -211,7 +211,8 @@ def calibrate_devices(obs: pd.DataFrame, device_of: Mapping[str, str] | pd.Serie
     device_of : mapping or Series
         Device model per trace id (the store catalog's ``device_model``).
     reference_model : str, optional
-        The reference survey device; default: the model with the most scans.
+        The reference survey device; default: the model with the most scans (on a tie, the
+        first by name).
     floor_column : str, optional
         Floor column when ``obs`` spans several floors.
     **fit_kw

@@ -90,7 +90,7 @@ def text_codes(values: pd.Series | NDArray, names: NDArray[np.str_]) -> NDArray[
     distinct value (cheap on categorical columns of millions of rows)."""
     codes, uniques = pd.factorize(pd.Series(values))
     lookup = pd.Index(np.asarray(names)).get_indexer(np.asarray(uniques, dtype=object).astype(str))
-    return np.where(codes >= 0, lookup[codes], -1)
+    return np.append(lookup, -1)[codes]  # code -1 (missing) -> -1
 
 
 def split_by(obs: pd.DataFrame, column: str) -> dict[str, pd.DataFrame]:

@@ -786,9 +786,18 @@ def iter_traces(paths: Iterable[str | os.PathLike], *, strict: bool = False,
     In lenient mode a file that cannot be read at all (I/O error, over-size) is yielded as a
     :class:`ReadFailure` and reading goes on; in strict mode its error is raised.
     """
+    batches = _batches(paths, strict=strict, batch_bytes=batch_bytes, max_bytes=max_bytes)
     with ThreadPoolExecutor(max_workers=1) as stage:
         pending: Future | None = None  # the batch being prepared
-        for item in _batches(paths, strict=strict, batch_bytes=batch_bytes, max_bytes=max_bytes):
+        while True:
+            try:
+                item = next(batches)
+            except StopIteration:
+                break
+            except SurveyFormatError:  # strict: a file that cannot be read; earlier files first
+                if pending is not None:
+                    yield from _assemble(pending.result(), strict)
+                raise
             if isinstance(item, ReadFailure):
                 if pending is not None:
                     yield from _assemble(pending.result(), strict)

@@ -87,3 +87,14 @@ def test_without_floors_or_ssids_the_rules_needing_them_are_skipped():
     assert "00:00:00:00:00:04" not in reasons and "00:00:00:00:00:06" not in reasons
     with pytest.raises(FingerprintError, match="no floor column"):
         select_aps(obs, floor_column="level")
+
+
+def test_missing_floor_and_rssi_values_do_not_break_selection():
+    obs, ssid = _survey()
+    obs["rssi_dbm"] = obs["rssi_dbm"].astype(float)
+    obs.loc[obs.index[::50], "rssi_dbm"] = np.nan  # invalid rows are left out
+    sel = select_aps(obs, ssid=ssid, floor_column="floor", floor_order=["F1", "F2", "F3", "F4"])
+    assert "00:00:00:00:00:07" in set(sel.dropped["ap"])  # the moved AP is still found
+    obs["floor"] = np.nan  # no floor known: no floor-gap rule, no crash
+    sel = select_aps(obs, ssid=ssid, floor_column="floor")
+    assert not any("far_floors" in r for r in sel.dropped["reason"])

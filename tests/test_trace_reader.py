@@ -198,6 +198,24 @@ def test_iter_traces_batches_match_single_reads(tmp_path):
         assert single.report == t.report
 
 
+def test_iter_traces_strict_reports_the_first_problem_in_path_order(tmp_path):
+    """Batches are prepared one ahead; in strict mode the earlier files still come first."""
+    good = [write_trace(tmp_path / f"a{i}.txt", small_trace(n=40, seed=i, trace_id=f"a{i}"))
+            for i in range(3)]
+    big = tmp_path / "z_big.txt"
+    big.write_bytes(b"1\tTYPE_WAYPOINT\t1\t2\n" * 5000)
+    cap = max(p.stat().st_size for p in good) + 1
+    seen = []
+    with pytest.raises(SurveyFormatError, match="z_big.txt.*limit"):
+        for t in iter_traces([*good, big], strict=True, batch_bytes=1, max_bytes=cap):
+            seen.append(t.trace_id)
+    assert seen == ["a0", "a1", "a2"]
+    bad = tmp_path / "a1.txt"
+    bad.write_text(bad.read_text() + "5\tTYPE_WAYPOINT\tx\t2\n")
+    with pytest.raises(SurveyFormatError, match="a1.txt:.*expected a number"):
+        list(iter_traces([*good, big], strict=True, batch_bytes=1, max_bytes=cap * 2))
+
+
 def test_real_floor_every_line_accounted(ilc_floor):
     """Store-independent check on the real traces: our counts per record type equal a plain
     count of the lines, and no line is unaccounted for."""
