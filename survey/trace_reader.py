@@ -1,11 +1,14 @@
 """Fast reader for survey traces (``.txt`` and ``.txt.gz``), see ``docs/trace_format.md``.
 
 The reader is columnar and works on batches of files at once: the texts of several traces are
-concatenated, split into lines with numpy, every line's record type is classified in bulk from the
-positions of its first two tabs, and all lines with the same value layout (calibrated sensors,
-uncalibrated sensors, Wi-Fi, beacons, waypoints) are handed to pyarrow's multi-threaded CSV parser
-as one block. Only a block that fails this fast path (a non-numeric value, a wrong field count, a
-stray carriage return, invalid UTF-8) is re-read line by line to find the bad lines.
+concatenated and scanned by a compiled pass (:mod:`survey.line_scan`) that splits lines,
+classifies every line's record type and parses the all-numeric records (sensors, waypoints) in
+plain decimal spelling on the spot; the other lines of each value layout (Wi-Fi, beacons, and
+numeric lines in any other spelling) are handed to pyarrow's CSV parser as one block. Only a
+block that fails this fast path (a non-numeric value, a wrong field count, a stray carriage
+return, invalid UTF-8) is re-read line by line to find the bad lines. :func:`iter_traces`
+overlaps the scan of one batch with the table building of the previous one (threads; the scan
+and pyarrow release the GIL) and inflates files ahead in a third thread.
 
 Every line ends up in exactly one count of its trace's :class:`~survey.trace_format.ParseReport`:
 header, blank, parsed record (per type), skipped undocumented type, or bad line (per reason).
