@@ -101,67 +101,87 @@ def is_locally_administered(mac: Sequence[str] | NDArray[np.str_]) -> NDArray[np
     return (first & 0x02) != 0
 
 
-def _peak_spread(obs: pd.DataFrame, aps: NDArray[np.str_], strong_dbm: float,
+@dataclass(frozen=True)
+class _Positioned:
+    """The positioned rows of an observation table as integer-coded arrays, taken once per
+    floor and shared by the spatial rules (views of the table's columns when every row is
+    positioned: no copy of the table, no row-wise text).
+
+    ``ap`` indexes the AP list (-1: none), ``walk`` the table's walks (-1: none)."""
+
+    ap: NDArray[np.int64]
+    walk: NDArray[np.int64]
+    n_walks: int
+    x_m: NDArray[np.float64]
+    y_m: NDArray[np.float64]
+    rssi_dbm: NDArray[np.float64]
+    t_ms: NDArray[np.int64]
+    scan_id: NDArray[np.int64]
+
+    @classmethod
+    def of(cls, obs: pd.DataFrame, aps: NDArray[np.str_]) -> _Positioned:
+        x, y = obs["x_m"].to_numpy(np.float64), obs["y_m"].to_numpy(np.float64)
+        ok = np.isfinite(x) & np.isfinite(y)
+        rows = slice(None) if ok.all() else ok
+        walk, walks = pd.factorize(obs["trace_id"])
+        return cls(text_codes(obs["ap"], aps)[rows], walk[rows], len(walks), x[rows], y[rows],
+                   obs["rssi_dbm"].to_numpy(np.float64)[rows],
+                   obs["t_ms"].to_numpy(np.int64)[rows],
+                   obs["scan_id"].to_numpy(np.int64)[rows])
+
+    def cells(self, cell_m: float) -> NDArray[np.int64]:
+        """Square cell (``cell_m``) of every row as one integer key."""
+        return (np.floor(self.x_m / cell_m).astype(np.int64) * 1_000_003
+                + np.floor(self.y_m / cell_m).astype(np.int64))
+
+
+def _peak_spread(pos: _Positioned, aps: NDArray[np.str_], strong_dbm: float,
                  min_walks: int) -> pd.Series:
     """Per AP: median distance (m) of the per-walk strongest positions from their median point,
     over walks whose strongest reading is at least ``strong_dbm`` (NaN with fewer walks)."""
-    ok = _positioned(obs)
-    ap = _rows(pd.Series(text_codes(obs["ap"], aps)), ok, np.int64)
-    walk_code, walks = pd.factorize(obs["trace_id"])  # by code: no row-wise text
-    walk = walk_code if ok.all() else walk_code[ok]
-    rssi = _rows(obs["rssi_dbm"], ok, np.float64)
-    valid = (ap >= 0) & (walk >= 0) & np.isfinite(rssi)
-    if not valid.any():
+    ap, rssi = pos.ap, pos.rssi_dbm
+    rows = np.flatnonzero((ap >= 0) & (pos.walk >= 0) & np.isfinite(rssi))
+    if not len(rows):
         return pd.Series(dtype=np.float64)
-    rows = np.flatnonzero(valid)
-    key_code, keys = pd.factorize(ap[rows] * len(walks) + walk[rows])  # (AP, walk)
+    key_code, keys = pd.factorize(ap[rows] * pos.n_walks + pos.walk[rows])  # (AP, walk)
     best = np.full(len(keys), -np.inf)
     np.maximum.at(best, key_code, rssi[rows])
     at_best = np.flatnonzero(rssi[rows] == best[key_code])
     _, first = np.unique(key_code[at_best], return_index=True)  # each one's first peak row
     peak = rows[at_best[first]]
     peak = peak[rssi[peak] >= strong_dbm]
-    peak_ap = ap[peak]
-    count = np.bincount(peak_ap, minlength=len(aps))
-    peak = peak[count[peak_ap] >= min_walks]
+    count = np.bincount(ap[peak], minlength=len(aps))
+    peak = peak[count[ap[peak]] >= min_walks]
     if len(peak) == 0:
         return pd.Series(dtype=np.float64)
-    xy = pd.DataFrame({"x_m": _rows(obs["x_m"], ok, np.float64)[peak],
-                       "y_m": _rows(obs["y_m"], ok, np.float64)[peak]})
-    by_ap = xy.groupby(ap[peak])
-    centre = by_ap.transform("median")
+    xy = pd.DataFrame({"x_m": pos.x_m[peak], "y_m": pos.y_m[peak]})
+    centre = xy.groupby(ap[peak]).transform("median")
     dist = pd.Series(np.hypot(xy["x_m"] - centre["x_m"], xy["y_m"] - centre["y_m"]))
     spread = dist.groupby(ap[peak]).median()
     return pd.Series(spread.to_numpy(), index=aps[spread.index.to_numpy()])
 
 
-def _survey_change(obs: pd.DataFrame, aps: NDArray[np.str_], cell_m: float, strong_dbm: float,
+def _survey_change(pos: _Positioned, aps: NDArray[np.str_], cell_m: float, strong_dbm: float,
                    min_cells: int, min_scans: int) -> pd.Series:
     """Per AP: median |RSSI difference| (dB) between two surveys (UTC days) over the cells
     where both surveys have at least ``min_scans`` scans and either heard it at least
     ``strong_dbm`` ("not heard in any of those scans" = -100 dBm; NaN with fewer than
-    ``min_cells`` such cells). A moved AP is loud where it used to be silent.
-
-    Works on integer codes (AP, day, cell, scan), never on a copy of the table."""
-    ok = _positioned(obs)
-    if not ok.any():
+    ``min_cells`` such cells). A moved AP is loud where it used to be silent."""
+    if not len(pos.ap):
         return pd.Series(dtype=np.float64)
-    day_code, days = pd.factorize(_rows(obs["t_ms"], ok, np.int64) // 86_400_000, sort=True)
+    day_code, days = pd.factorize(pos.t_ms // 86_400_000, sort=True)
     if len(days) < 2:
         return pd.Series(dtype=np.float64)
-    cell_code, cells = pd.factorize(_cell_keys(obs, ok, cell_m))
+    cell_code, cells = pd.factorize(pos.cells(cell_m))
     n_cells, n_dc = len(cells), len(days) * len(cells)
     dc = day_code * n_cells + cell_code  # (day, cell) of every row
-    scan_code, scans = pd.factorize(_rows(obs["scan_id"], ok, np.int64))
+    scan_code, scans = pd.factorize(pos.scan_id)
     pairs = _distinct(dc * len(scans) + scan_code)  # distinct (day, cell, scan)
     good = np.bincount(pairs // len(scans), minlength=n_dc).reshape(len(days), n_cells) \
         >= min_scans
-    use = good.reshape(-1)[dc]
-    ap = _rows(pd.Series(text_codes(obs["ap"], aps)), ok, np.int64)
-    rssi = _rows(obs["rssi_dbm"], ok, np.float64)
-    use &= (ap >= 0) & np.isfinite(rssi)
-    key_code, keys = pd.factorize(ap[use] * n_dc + dc[use])  # (AP, day, cell) means
-    mean = np.bincount(key_code, weights=rssi[use]) / np.bincount(key_code)
+    use = good.reshape(-1)[dc] & (pos.ap >= 0) & np.isfinite(pos.rssi_dbm)
+    key_code, keys = pd.factorize(pos.ap[use] * n_dc + dc[use])  # (AP, day, cell) means
+    mean = np.bincount(key_code, weights=pos.rssi_dbm[use]) / np.bincount(key_code)
     key_ap, key_day, key_cell = keys // n_dc, keys % n_dc // n_cells, keys % n_cells
     out: dict[str, float] = {}
     for da in range(len(days)):
@@ -188,22 +208,6 @@ def _survey_change(obs: pd.DataFrame, aps: NDArray[np.str_], cell_m: float, stro
     return pd.Series(out, dtype=np.float64)
 
 
-def _positioned(obs: pd.DataFrame) -> NDArray[np.bool_]:
-    return (np.isfinite(obs["x_m"].to_numpy(np.float64))
-            & np.isfinite(obs["y_m"].to_numpy(np.float64)))
-
-
-def _rows(column: pd.Series, ok: NDArray[np.bool_], dtype) -> NDArray:
-    """A column as an array, restricted to ``ok`` (no copy when every row is)."""
-    values = column.to_numpy(dtype)
-    return values if ok.all() else values[ok]
-
-
-def _cell_keys(obs: pd.DataFrame, ok: NDArray[np.bool_], cell_m: float) -> NDArray[np.int64]:
-    return (np.floor(_rows(obs["x_m"], ok, np.float64) / cell_m).astype(np.int64) * 1_000_003
-            + np.floor(_rows(obs["y_m"], ok, np.float64) / cell_m).astype(np.int64))
-
-
 def _distinct_per_ap(ap: NDArray[np.int64], values: pd.Series, n_aps: int) -> NDArray[np.int64]:
     """Per AP code (0..n_aps-1; -1 = none): number of distinct non-missing ``values``."""
     code, uniques = pd.factorize(values)
@@ -220,18 +224,15 @@ def _distinct(keys: NDArray[np.int64]) -> NDArray[np.int64]:
     return k[np.concatenate(([True], k[1:] != k[:-1]))] if len(k) else k
 
 
-def _flatness(obs: pd.DataFrame, aps: NDArray[np.str_], cell_m: float) -> pd.DataFrame:
+def _flatness(pos: _Positioned, aps: NDArray[np.str_], cell_m: float) -> pd.DataFrame:
     """Per AP: share of cells (``cell_m``) where it is heard and the SD (dB) of its cell means."""
-    ok = _positioned(obs)
-    ap = _rows(pd.Series(text_codes(obs["ap"], aps)), ok, np.int64)
-    if not ok.any() or not (ap >= 0).any():
+    valid = (pos.ap >= 0) & np.isfinite(pos.rssi_dbm)
+    if not valid.any():
         return pd.DataFrame(columns=["coverage", "std_db"], dtype=np.float64)
-    cell_code, cells = pd.factorize(_cell_keys(obs, ok, cell_m))
-    rssi = _rows(obs["rssi_dbm"], ok, np.float64)
-    valid = (ap >= 0) & np.isfinite(rssi)
-    key_code, keys = pd.factorize(ap[valid] * len(cells) + cell_code[valid])
-    mean = np.bincount(key_code, weights=rssi[valid]) / np.bincount(key_code)  # (AP, cell)
-    means = pd.Series(mean).groupby(keys // len(cells))
+    cell_code, cells = pd.factorize(pos.cells(cell_m))
+    key_code, keys = pd.factorize(pos.ap[valid] * len(cells) + cell_code[valid])
+    mean = np.bincount(key_code, weights=pos.rssi_dbm[valid]) / np.bincount(key_code)
+    means = pd.Series(mean).groupby(keys // len(cells))  # per AP, over its cells
     out = pd.DataFrame({"coverage": means.size() / len(cells), "std_db": means.std(ddof=0)})
     return out.set_axis(aps[out.index.to_numpy()], axis=0)
 
@@ -293,13 +294,14 @@ def select_aps(obs: pd.DataFrame, *, ssid: Mapping[str, str] | pd.Series | None 
               else list(split_by(obs, floor_column).items()))
     for floor, part in groups:
         where = "" if floor is None else f" on {floor}"
-        fl = _flatness(part, aps, p.flat_cell_m).reindex(info.index)
+        pos = _Positioned.of(part, aps)
+        fl = _flatness(pos, aps, p.flat_cell_m).reindex(info.index)
         flag((fl["coverage"] >= p.flat_coverage) & (fl["std_db"] <= p.flat_std_db), "flat",
              lambda a, fl=fl, where=where: f"coverage {fl.at[a, 'coverage']:.2f}, "
                                            f"SD {fl.at[a, 'std_db']:.1f} dB{where}")
-        spread = _peak_spread(part, aps, p.moving_strong_dbm,
+        spread = _peak_spread(pos, aps, p.moving_strong_dbm,
                               p.moving_min_walks).reindex(info.index)
-        change = _survey_change(part, aps, p.flat_cell_m, p.moving_strong_dbm,
+        change = _survey_change(pos, aps, p.flat_cell_m, p.moving_strong_dbm,
                                 p.moving_min_cells, p.moved_min_scans).reindex(info.index)
         flag(spread > p.moving_spread_m, "moving",
              lambda a, s=spread, where=where: f"walk peaks {s.at[a]:.0f} m apart{where}")

@@ -65,6 +65,17 @@ FLOAT, INT = 0, 1
 
 
 @numba.njit(cache=True, nogil=True)
+def _digits(buf, p, e, m):  # pragma: no cover - compiled
+    """Append the decimal digits from ``buf[p:e]`` to ``m``: (m, digits read, next position)."""
+    n = 0
+    while p < e and 48 <= buf[p] <= 57:
+        m = m * 10 + (buf[p] - 48)
+        n += 1
+        p += 1
+    return m, n, p
+
+
+@numba.njit(cache=True, nogil=True)
 def _parse_numbers(buf, p, e, kinds, values, r):  # pragma: no cover - compiled
     """Parse ``<TAB>value`` fields from ``buf[p:e]`` into ``values[:, r]`` (float64) by ``kinds``.
 
@@ -82,23 +93,14 @@ def _parse_numbers(buf, p, e, kinds, values, r):  # pragma: no cover - compiled
         neg = p < e and buf[p] == 45  # '-'
         if neg:
             p += 1
-        m = 0
-        digits = 0
+        m, digits, p = _digits(buf, p, e, 0)
         frac = 0
-        while p < e and 48 <= buf[p] <= 57:
-            m = m * 10 + (buf[p] - 48)
-            digits += 1
-            p += 1
         if digits == 0:
             return False
         if p < e and buf[p] == 46:  # '.'
             if kinds[c] == INT:
                 return False
-            p += 1
-            while p < e and 48 <= buf[p] <= 57:
-                m = m * 10 + (buf[p] - 48)
-                frac += 1
-                p += 1
+            m, frac, p = _digits(buf, p + 1, e, m)
             if frac == 0:
                 return False
         if p < e and buf[p] != 9 or digits + frac > 15:
