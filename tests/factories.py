@@ -40,7 +40,7 @@ def small_trace(n: int = 50, seed: int = 0, trace_id: str = "walk0001") -> Trace
     wifi["age_ms"] = wifi["scan_t_ms"] - wifi["last_seen_ms"]
     wifi = wifi.astype({"ssid": "str", "bssid": "str"})
     ble = pd.DataFrame({
-        "t_ms": t[::10], "uuid": "fda50693-a4e2-4fb1-afcf-c6eb07647825",
+        "t_ms": t[::10], "uuid": "0a1b2c3d-4e5f-4a6b-8c7d-9e0f1a2b3c4d",
         "major": np.int32(10), "minor": np.arange(len(t[::10]), dtype=np.int32),
         "tx_power_dbm": np.int16(-59), "rssi_dbm": np.int16(-70),
         "distance_m": np.round(rng.uniform(0.5, 20, len(t[::10])), 3),

@@ -75,10 +75,10 @@ def test_duplicate_bssid_in_scan_keeps_freshest_then_strongest():
 
 
 def test_ble_key_and_normalisation():
-    line = ("5\tTYPE_BEACON\tFDA50693-A4E2-4FB1-AFCF-C6EB07647825\t10\t7\t-59\t-70\t1.5\t"
+    line = ("5\tTYPE_BEACON\t0A1B2C3D-4E5F-4A6B-8C7D-9E0F1A2B3C4D\t10\t7\t-59\t-70\t1.5\t"
             "E0:78:A3:3D:B5:D6\t5")
     b = parse_trace_bytes(line.encode()).ble
-    assert b["key"][0] == "fda50693-a4e2-4fb1-afcf-c6eb07647825:10:7"
+    assert b["key"][0] == "0a1b2c3d-4e5f-4a6b-8c7d-9e0f1a2b3c4d:10:7"
     assert b["mac"][0] == "e0:78:a3:3d:b5:d6"
 
 

@@ -206,7 +206,7 @@ def make_beacons(plans: list[Floorplan], params: RadioParams, seed: int,
     """iBeacons at shop fronts plus other BLE advertisers, per floor."""
     site_uuid = "-".join(rng.bytes(16).hex().upper()[a:b]
                          for a, b in ((0, 8), (8, 12), (12, 16), (16, 20), (20, 32)))
-    foreign_uuid = "616C6970-6179-626F-7869-626561636F6A"
+    foreign_uuid = "5A1E0B7C-3D2F-4E6A-9B81-C0FFEE5117E5"  # invented: another operator's beacons
     out: list[Beacon] = []
     minor = 0
     for plan in plans:
