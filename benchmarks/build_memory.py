@@ -20,13 +20,14 @@ Measured on this 2-core machine, 24 GB RAM (site1/F1; docs/reliability.md, "Reso
 limits")::
 
     scale  traces  text MB  wall s  peak RSS MB  last progress line before the peak
-        1     106      180    31.5          623  F1: levelled 5 of 6 sessions
-       10    1060     1795   275.6         1781  F1: kernel bandwidth 0.5 m chosen by 5-fold ...
-    peak RSS 10x / 1x: 2.86
+        1     106      180    34.1          554  F1: levelled 5 of 6 sessions
+       10    1060     1795   268.0         1206  devices: reference PBCM10; no other model fitted
+    peak RSS 10x / 1x: 2.18
 
-(Session 2: 898 and 4713 MB, 5.25x; session 3, walk-by-walk reads: 641 and 2129 MB, 3.32x.)
-The radio build of the 10x floor peaks at about 1.3 GB since its steps work on integer codes
-without table copies; the 10x peak is now the magnetic layers over 2.0 million samples.
+(Session 2: 898 and 4713 MB, 5.25x; session 3, walk-by-walk reads: 641 and 2129 MB, 3.32x;
+session 4, radio steps on integer codes: 623 and 1781 MB, 2.86x.) The magnetic layers are now
+reduced walk by walk (``mapping.field_layers``; 537 MB on the 10x floor without radio); the
+10x peak is the radio build, which holds the observation table (5.8 million rows).
 In the 10x floor every walk has nine exact copies, so the radio steps keep more transmitters
 (no longer "rare") and the kernel bandwidth cross-validation picks 0.5 m instead of 3.0 m:
 the bundle is not a realistic one, only the memory and time are.

@@ -15,7 +15,6 @@ time interpolation between waypoints (real, as the ILC kNN baseline).
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import time
@@ -259,29 +258,6 @@ def builder_available() -> bool:
     return True
 
 
-@contextlib.contextmanager
-def _walks_excluded(exclude: set[str]):
-    """Make ``mapping.build.build_floor`` ignore some walks.
-
-    ``build_floor`` has no parameter for this (yet); its floor-sample reader is wrapped for the
-    duration so that the test walks of a fold never reach the map."""
-    import mapping.build as mb
-
-    original = mb.floor_samples
-
-    def filtered(store, site, floor):
-        samples, steps, pcat = original(store, site, floor)
-        return (samples[~samples["trace_id"].isin(exclude)],
-                steps[~steps["trace_id"].isin(exclude)],
-                pcat[~pcat["trace_id"].isin(exclude)])
-
-    mb.floor_samples = filtered
-    try:
-        yield
-    finally:
-        mb.floor_samples = original
-
-
 def processed_store(name: str, floor_dirs: list[Path], work: Path):
     """A survey store with the floors' traces ingested and processed (made once)."""
     from mapping.floorplan import read_floor_plan
@@ -317,9 +293,8 @@ def built_bundle(store, floor_dir: Path, exclude: set[str], work: Path, tag: str
     target = work / "bundles" / f"{tag}_{floor_dir.name}_built_{cell_m:g}_{key}"
     if not (target / "manifest.json").exists():
         plan = read_floor_plan(floor_dir)
-        with _walks_excluded(exclude):
-            content = build_floor(store, plan, floor=floor_dir.name,
-                                  params=BuildParams(cell_m=cell_m, build_time="bench"))
+        content = build_floor(store, plan, floor=floor_dir.name, exclude_walks=exclude,
+                              params=BuildParams(cell_m=cell_m, build_time="bench"))
         write_bundle(target, content, overwrite=True)
     return load_bundle(target)
 

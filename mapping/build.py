@@ -14,7 +14,7 @@ source walk, so rebuilding the same data gives the same bytes).
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import asdict, dataclass, field, replace
 from datetime import datetime, timezone
 
@@ -24,15 +24,17 @@ import pyarrow as pa
 
 from survey.errors import IndoormapError
 from survey.field_features import circular_median_deg, wrap_deg
+from survey.memory import release_free_memory
 from survey.process_store import processed_catalog, processed_table
 from survey.store import SurveyStore
 
 from .bundle_writer import BundleContent, Layer
 from .floorplan import FloorPlan
 from .grid import grid_for_extent, reachable_mask
+from .field_layers import FIELD_LAYERS, field_rasters, levelling_samples, reduce_field
 from .holdout import choose_bandwidth
 from .interpolate import RasterParams, raster
-from .levelling import LevellingParams, apply_session_residuals, fit_session_residuals
+from .levelling import LevellingParams, fit_session_residuals
 from .radio_build import RadioParams, SiteRadio, build_site_radio
 
 
@@ -64,13 +66,11 @@ def _time_text(ms: float) -> str:
     return datetime.fromtimestamp(ms / 1000.0, tz=timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
-def coverage(grid, mask, x_m, y_m, distances_m=(1.0, 2.0, 5.0)) -> dict[str, float]:
-    """Share of reachable cells within each distance of a survey sample."""
+def coverage(grid, mask, support, distances_m=(1.0, 2.0, 5.0)) -> dict[str, float]:
+    """Share of reachable cells within each distance of a survey sample (``support``: cells
+    holding a sample, bool of the grid's shape)."""
     from scipy import ndimage
 
-    row, col, inside = grid.cell_of(x_m, y_m)
-    support = np.zeros(grid.shape, dtype=bool)
-    support[row[inside], col[inside]] = True
     dist = ndimage.distance_transform_edt(~support) * grid.cell_m
     n = max(int(mask.sum()), 1)
     return {f"within_{d:g}m": float((mask & (dist <= d)).sum() / n) for d in distances_m}
@@ -78,8 +78,9 @@ def coverage(grid, mask, x_m, y_m, distances_m=(1.0, 2.0, 5.0)) -> dict[str, flo
 
 def build_bandwidth(samples: pd.DataFrame, field_enu: np.ndarray, grid, mask,
                     params: BuildParams) -> tuple[float, dict[float, float]]:
-    """The kernel bandwidth a build chooses: grouped cross-validation of the levelled strength
-    over walks (:func:`mapping.holdout.choose_bandwidth`). Benchmarks call this too."""
+    """The kernel bandwidth a build chooses, from the floor's samples in memory: grouped
+    cross-validation of the levelled strength over walks (:func:`mapping.holdout.choose_bandwidth`
+    on every 5th sample, the ones :func:`build_floor` takes walk by walk)."""
     return choose_bandwidth(grid, mask, samples["x_m"].to_numpy(), samples["y_m"].to_numpy(),
                             np.linalg.norm(field_enu, axis=1), samples["trace_id"].to_numpy(),
                             params.raster)
@@ -88,15 +89,9 @@ def build_bandwidth(samples: pd.DataFrame, field_enu: np.ndarray, grid, mask,
 def floor_samples(store: SurveyStore, site: str | None, floor: str) -> tuple[pd.DataFrame,
                                                                             pd.DataFrame,
                                                                             pd.DataFrame]:
-    """Processed samples and steps of a floor (with their session) and the walks' catalog."""
-    pcat = processed_catalog(store)
-    pcat = pcat[(pcat["floor"] == floor) & (pcat["status"] == "ok")]
-    if site is not None:
-        pcat = pcat[pcat["site"] == site]
-    if not len(pcat):
-        raise BuildError(f"{store.root}: no processed walks for floor {floor!r}"
-                         + (f" of site {site!r}" if site else "")
-                         + "; run `indoormap process` first")
+    """Processed samples and steps of a floor (with their session) and the walks' catalog, all
+    in memory (validation and benchmarks; the build reads walk by walk)."""
+    pcat = floor_walks(store, site, floor)
     sessions = dict(zip(pcat["trace_id"], pcat["session"]))
     samples = processed_table(store, "samples", site=site, floor=floor)
     steps = processed_table(store, "steps", site=site, floor=floor)
@@ -104,57 +99,75 @@ def floor_samples(store: SurveyStore, site: str | None, floor: str) -> tuple[pd.
     return samples, steps, pcat
 
 
+def floor_walks(store: SurveyStore, site: str | None, floor: str,
+                exclude_walks: Collection[str] = ()) -> pd.DataFrame:
+    """Processed-catalog rows of the floor's walks that processed ``ok``, minus
+    ``exclude_walks`` (trace ids); raises :class:`BuildError` when none is left."""
+    pcat = processed_catalog(store)
+    pcat = pcat[(pcat["floor"] == floor) & (pcat["status"] == "ok")
+                & ~pcat["trace_id"].isin(list(exclude_walks))]
+    if site is not None:
+        pcat = pcat[pcat["site"] == site]
+    if not len(pcat):
+        raise BuildError(f"{store.root}: no processed walks for floor {floor!r}"
+                         + (f" of site {site!r}" if site else "")
+                         + "; run `indoormap process` first")
+    return pcat.reset_index(drop=True)
+
+
 def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
                 site: str | None = None, params: BuildParams = BuildParams(),
-                radio: SiteRadio | None = None,
+                radio: SiteRadio | None = None, exclude_walks: Collection[str] = (),
                 progress: Callable[[str], None] | None = None) -> BundleContent:
     """Build the bundle content of one floor (write it with :func:`write_bundle`).
 
     ``radio``: the site's radio maps (:func:`mapping.radio_build.build_site_radio` over all its
     floors, so that the device table and AP selection see every floor); default: computed from
-    this floor alone when ``params.radio`` is set.
+    this floor alone when ``params.radio`` is set. ``exclude_walks``: trace ids left out of the
+    map (held-out evaluation; a ``radio`` passed in must leave them out too).
+
+    The samples are read walk by walk (:mod:`mapping.field_layers`), so memory is bounded by
+    the grid and the walks' cells, not by the number of samples.
     """
     store = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
     say = progress or (lambda msg: None)
-    samples, steps, pcat = floor_samples(store, site, floor)
+    pcat = floor_walks(store, site, floor, exclude_walks)
     cat = store.traces(site, floor).set_index("trace_id")
     grid = grid_for_extent(plan.width_m, plan.height_m, params.cell_m)
     mask = reachable_mask(grid, plan.reachable)
     if not mask.any():
         raise BuildError(f"floor {floor}: the reachable area is empty at {params.cell_m} m cells")
-    say(f"{floor}: {len(pcat)} walks, {len(samples)} samples")
+    say(f"{floor}: {len(pcat)} walks")
+    residuals = None
     if params.level:
-        residuals = fit_session_residuals(samples, params.levelling)
-        field_enu = apply_session_residuals(samples, residuals)
+        residuals = fit_session_residuals(
+            levelling_samples(store, pcat, params.levelling.subsample),
+            replace(params.levelling, subsample=1))
         say(f"{floor}: levelled {int((residuals['n_pairs'] > 0).sum())} of "
             f"{len(residuals)} sessions")
-    else:
+    field = reduce_field(store, pcat, grid, residuals,
+                         progress=lambda i, n: say(f"{floor}: read walk {i}/{n}")
+                         if i == n or i % 100 == 0 else None)
+    release_free_memory()  # the walks' freed buffers
+    say(f"{floor}: {field.n_samples} samples")
+    if residuals is None:
         residuals = pd.DataFrame(columns=["r_x_ut", "r_y_ut", "r_z_ut", "n_samples",
                                           "n_pairs"])
-        field_enu = samples[["mag_east_ut", "mag_north_ut", "mag_up_ut"]].to_numpy(np.float64)
-    e, n, u = field_enu.T
-    strength = np.sqrt(e * e + n * n + u * u)
-    x, y, walk = samples["x_m"].to_numpy(), samples["y_m"].to_numpy(), samples["trace_id"]
     raster_params, heading_params, bandwidth_scores = params.raster, params.heading_raster, {}
     if params.auto_bandwidth and params.raster.method == "kernel":
-        bw, bandwidth_scores = build_bandwidth(samples, field_enu, grid, mask, params)
+        bw, bandwidth_scores = choose_bandwidth(grid, mask, field.cv_x_m, field.cv_y_m,
+                                                field.cv_strength_ut, field.cv_walk,
+                                                params.raster, subsample=1)
         raster_params = replace(params.raster, bandwidth_m=bw)
         heading_params = replace(params.heading_raster, bandwidth_m=max(bw, 1.0))
         say(f"{floor}: kernel bandwidth {bw} m chosen by 5-fold cross-validation over walks")
-    values = {
-        "strength": (strength, "uT", "scalar", "field strength"),
-        "horizontal": (np.hypot(e, n), "uT", "scalar", "horizontal component"),
-        "vertical": (u, "uT", "scalar", "vertical component (up positive)"),
-        "azimuth": (np.mod(np.degrees(np.arctan2(e, n)), 360.0), "deg", "angle",
-                    "direction of the horizontal field, clockwise from map north"),
-        "polar": (np.degrees(np.arccos(np.clip(u / np.maximum(strength, 1e-9), -1, 1))), "deg",
-                  "angle", "angle between the field and up"),
-    }
     layers = {}
-    for name, (v, unit, kind, desc) in values.items():
-        vals, std = raster(grid, mask, x, y, v, walk, raster_params, angle=kind == "angle")
+    for name, (vals, std) in field_rasters(grid, mask, field, raster_params).items():
+        unit, kind, desc = FIELD_LAYERS[name]
         layers[name] = Layer(vals, std, unit, kind, desc)
-        say(f"{floor}: layer {name}")
+    say(f"{floor}: layers {', '.join(layers)}")
+    steps = processed_table(store, "steps", site=site, floor=floor)
+    steps = steps[steps["trace_id"].isin(pcat["trace_id"])]
     st = steps[np.isfinite(steps["heading_offset_deg"])]
     walk_median = st.groupby("trace_id")["heading_offset_deg"].apply(
         lambda a: circular_median_deg(a.to_numpy()))
@@ -175,17 +188,17 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
     end_ms = float(cat.loc[walks["trace_id"], "end_ms"].max())
     build_time = params.build_time or _time_text(end_ms)
     first = cat.loc[walks["trace_id"].iloc[0]]
-    metrics = {"coverage": coverage(grid, mask, x, y), "n_walks": int(len(walks)),
+    metrics = {"coverage": coverage(grid, mask, field.support), "n_walks": int(len(walks)),
                "bandwidth_m": raster_params.bandwidth_m,
                "bandwidth_cv_shape_rmse_ut": {str(k): v for k, v in bandwidth_scores.items()},
-               "n_samples": int(len(samples)), "heading_offset_floor_median_deg": global_offset}
+               "n_samples": field.n_samples, "heading_offset_floor_median_deg": global_offset}
     tables = {"source_walks": pa.Table.from_pandas(walks, preserve_index=False),
               "levelling": pa.Table.from_pandas(lev.astype({"session": "str"}),
                                                 preserve_index=False)}
     if params.radio is not None:
         if radio is None:
             radio = build_site_radio(store, [floor], site=site, params=params.radio,
-                                     progress=say)
+                                     exclude_walks=exclude_walks, progress=say)
         tables.update(radio.floor_tables(floor))
         metrics["radio"] = radio.floor_metrics(floor)
     return BundleContent(

@@ -179,8 +179,14 @@ def raster(grid: Grid, mask: NDArray[np.bool_], x_m: NDArray, y_m: NDArray, valu
     for comp in (np.sin(rad), np.cos(rad)):
         w, cell, mean = walk_cell_means(grid, x_m, y_m, comp, walk_code)
         parts.append(raster_from_stats(grid, mask, cell_stats(grid, cell, mean), params)[0])
-    s, c = parts
-    r = np.hypot(s, c)
-    ang = np.mod(np.degrees(np.arctan2(s, c)), 360.0).astype(np.float32)
+    return angle_raster(*parts)
+
+
+def angle_raster(sin_raster: NDArray, cos_raster: NDArray
+                 ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """Angle (deg in [0, 360)) and circular spread (deg) from interpolated unit-vector
+    components (same shape; NaN where there is no data)."""
+    r = np.hypot(sin_raster, cos_raster)
+    ang = np.mod(np.degrees(np.arctan2(sin_raster, cos_raster)), 360.0).astype(np.float32)
     spread = np.degrees(np.sqrt(np.maximum(-2 * np.log(np.clip(r, 1e-6, 1.0)), 0)))
     return ang, spread.astype(np.float32)

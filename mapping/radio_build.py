@@ -22,7 +22,7 @@ A floor without any row of a kind simply has no tables of that kind (reported in
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -31,6 +31,7 @@ import pyarrow as pa
 from numpy.typing import NDArray
 
 from survey.errors import ProcessingError
+from survey.memory import release_free_memory
 from survey.store import SurveyStore
 from survey.process_store import processed_part, processed_walks
 
@@ -70,10 +71,12 @@ def _table(frame: pd.DataFrame) -> pa.Table:
 
 
 def site_observations(store: SurveyStore, site: str | None, floors: Sequence[str], kind: str,
-                      *, ble_window_ms: int = 2000) -> pd.DataFrame:
+                      *, ble_window_ms: int = 2000,
+                      exclude_walks: Collection[str] = ()) -> pd.DataFrame:
     """Observation table (:mod:`mapping.radio_scans`) of ``kind`` over ``floors`` with a
     ``floor`` column and an ``ssid`` column (Wi-Fi; "" for BLE); rows of any age.
     RSSI outside the phone range is dropped (counted by the reader's checks upstream).
+    Walks whose trace id is in ``exclude_walks`` are left out.
 
     Reads the processed rows walk by walk and keeps only each walk's observations, with the
     text columns (``trace_id``, ``ap``, ``ssid``, ``floor``) as categoricals: about 60 bytes
@@ -86,7 +89,8 @@ def site_observations(store: SurveyStore, site: str | None, floors: Sequence[str
     try:
         walks = processed_walks(store, site=site)
     except ProcessingError:  # never processed: no rows
-        walks = pd.DataFrame(columns=["floor"])
+        walks = pd.DataFrame(columns=["floor", "trace_id"])
+    walks = walks[~walks["trace_id"].isin(list(exclude_walks))]
     for floor in floors:
         for _, r in walks[walks["floor"] == floor].iterrows():
             rows = processed_part(store, kind, r, text_as_category=True)
@@ -122,7 +126,9 @@ def site_observations(store: SurveyStore, site: str | None, floors: Sequence[str
                                              dtype=object))
     data["ssid"] = pd.Categorical.from_codes(ssid_code[data["ap"].codes], ssids)
     data["floor"] = data.pop("floor")
-    return pd.DataFrame(data, copy=False)
+    table = pd.DataFrame(data, copy=False)
+    release_free_memory()  # the walks' freed buffers
+    return table
 
 
 def _codes(values: pd.Series, table: dict[str, int]) -> NDArray[np.int32]:
@@ -227,15 +233,18 @@ def calibrated(obs: pd.DataFrame, device_of: pd.Series, devices: pd.DataFrame) -
 
 def build_site_radio(store: SurveyStore | str, floors: Sequence[str], *,
                      site: str | None = None, params: RadioParams = RadioParams(),
+                     exclude_walks: Collection[str] = (),
                      progress: Callable[[str], None] | None = None) -> SiteRadio:
-    """Device table, AP selection, fingerprints and floor model of a site's floors."""
+    """Device table, AP selection, fingerprints and floor model of a site's floors, from all
+    their processed walks but ``exclude_walks`` (trace ids)."""
     store = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
     floors = [str(f) for f in floors]
     cat = store.traces(site)
     device_of = cat.set_index("trace_id")["device_model"].fillna("").astype(str)
     # no local name for the tables: site_radio may free each one once it has filtered it
     return site_radio({kind: site_observations(store, site, floors, kind,
-                                               ble_window_ms=params.ble_window_ms)
+                                               ble_window_ms=params.ble_window_ms,
+                                               exclude_walks=exclude_walks)
                        for kind in KINDS}, device_of, floors, params=params, progress=progress)
 
 

@@ -465,12 +465,11 @@ def coverage_section(bundle: MapBundle, fd: FloorData | None, th: dict, params: 
     else:
         s = fd.samples
         x, y = s["x_m"].to_numpy(), s["y_m"].to_numpy()
-        cov = coverage(g, mask, x, y)
-        out["euclidean"] = cov
-        out["source"] = "store samples"
         r, c, inside = g.cell_of(x, y)
         support = np.zeros(g.shape, dtype=bool)
         support[r[inside], c[inside]] = True
+        out["euclidean"] = coverage(g, mask, support)
+        out["source"] = "store samples"
         support &= mask
         geo = walking_distance(g, mask, support)
         arrays["walking_distance_m"] = geo

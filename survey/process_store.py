@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -216,16 +216,18 @@ def processed_walks(store: SurveyStore | str, *, site: str | None = None,
 
 
 def processed_part(store: SurveyStore | str, name: str, walk: pd.Series, *,
-                   text_as_category: bool = False) -> pd.DataFrame:
+                   text_as_category: bool = False,
+                   columns: Sequence[str] | None = None) -> pd.DataFrame:
     """One processed table of one walk (``walk``: a row of :func:`processed_walks`). Reading
     walk by walk lets callers reduce each walk before the next is read, so memory is bounded
     by what they keep, not by the floor. ``text_as_category``: text columns come as pandas
-    categoricals (no Python string per row)."""
+    categoricals (no Python string per row). ``columns``: read only these."""
     if name not in PROCESSED_TABLES:
         raise ProcessingError(f"unknown processed table {name!r}; expected {PROCESSED_TABLES}")
     store = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
     table = pq.read_table(store.root / "processed" / part_path(
-        name, walk["site"], walk["floor"], walk["trace_id"], walk["sha256"]))
+        name, walk["site"], walk["floor"], walk["trace_id"], walk["sha256"]),
+        columns=None if columns is None else list(columns))
     if text_as_category:
         for i, f in enumerate(table.schema):
             if pa.types.is_string(f.type) or pa.types.is_large_string(f.type):

@@ -19,6 +19,7 @@ from survey.field_features import wrap_deg
 from survey.ingest import ingest
 from survey.process_store import process_store
 from survey.sim.site import load_field
+from survey.store import SurveyStore
 
 SITE = Path(__file__).resolve().parents[1] / "data" / "sample_site"
 
@@ -71,6 +72,54 @@ def test_map_against_simulated_truth(store):
     dev = field.compass_deviation_deg(xx[sel], yy[sel])
     herr = wrap_deg(content.layers["heading_offset"].values[sel] + dev)
     assert np.nanmedian(np.abs(herr)) < 3.0
+
+
+def test_walk_by_walk_layers_equal_the_in_memory_rasters(store):
+    """The build reads walk by walk (mapping.field_layers); its layers and levelling must be
+    those of the whole floor's samples in one table, bit for bit."""
+    from dataclasses import replace
+
+    from mapping.build import build_bandwidth, floor_samples
+    from mapping.field_layers import FIELD_LAYERS, field_layer_values
+    from mapping.interpolate import raster
+    from mapping.levelling import apply_session_residuals, fit_session_residuals
+
+    plan = read_floor_plan(SITE / "F1")
+    params = BuildParams(radio=None, auto_bandwidth=False)
+    content = build_floor(store, plan, floor="F1", params=params)
+    samples, _, _ = floor_samples(SurveyStore.open(store), None, "F1")
+    residuals = fit_session_residuals(samples, params.levelling)
+    assert residuals["n_pairs"].sum() > 0  # the levelling is exercised
+    values = field_layer_values(apply_session_residuals(samples, residuals))
+    for name, (_, kind, _) in FIELD_LAYERS.items():
+        expect = raster(content.grid, content.mask, samples["x_m"].to_numpy(),
+                        samples["y_m"].to_numpy(), values[name], samples["trace_id"],
+                        params.raster, angle=kind == "angle")
+        np.testing.assert_array_equal(content.layers[name].values, expect[0], err_msg=name)
+        np.testing.assert_array_equal(content.layers[name].std, expect[1], err_msg=name)
+    assert content.metrics["n_samples"] == len(samples)
+    # the bandwidth the build picks equals the in-memory choice
+    auto = build_floor(store, plan, floor="F1", params=replace(params, auto_bandwidth=True))
+    bw, scores = build_bandwidth(samples, apply_session_residuals(samples, residuals),
+                                 content.grid, content.mask, params)
+    assert auto.metrics["bandwidth_m"] == bw
+    assert auto.metrics["bandwidth_cv_shape_rmse_ut"] == {str(k): v for k, v in scores.items()}
+
+
+def test_excluded_walks_stay_out_of_the_map(store):
+    plan = read_floor_plan(SITE / "F1")
+    full = build_floor(store, plan, floor="F1")
+    walks = [w["trace_id"] for w in full.build["source_walks"]]
+    held = set(walks[:2])
+    part = build_floor(store, plan, floor="F1", exclude_walks=held)
+    assert [w["trace_id"] for w in part.build["source_walks"]] == walks[2:]
+    assert part.metrics["n_samples"] < full.metrics["n_samples"]
+    assert not np.array_equal(part.layers["strength"].values, full.layers["strength"].values,
+                              equal_nan=True)
+    # the radio maps leave them out too
+    assert 0 < part.tables["wifi_rp"].num_rows < full.tables["wifi_rp"].num_rows
+    with pytest.raises(BuildError, match="no processed walks"):
+        build_floor(store, plan, floor="F1", exclude_walks=set(walks))
 
 
 def test_unknown_floor_is_a_clear_error(store):

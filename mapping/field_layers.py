@@ -1,0 +1,179 @@
+"""The magnetic layers of a floor from the processed store, read walk by walk.
+
+:func:`mapping.build.build_floor` never holds the floor's samples at once. It reads them twice,
+one walk at a time and only the columns it needs:
+
+1. :func:`levelling_samples`: every n-th sample (``LevellingParams.subsample``; 50 Hz is far
+   denser than the field varies), the input of the session levelling;
+2. :func:`reduce_field`: each walk's samples are levelled, turned into the layer values and
+   reduced to per-(walk, cell) means at once (:func:`mapping.interpolate.walk_cell_means`);
+   only those means, a support mask and every n-th sample's strength (for the bandwidth
+   cross-validation) are kept.
+
+Memory is then bounded by the grid, the walks' cell counts and the subsamples, not by the
+samples (a floor surveyed ten times over: see ``benchmarks/build_memory.py``). The rows are
+taken in the same order as from one concatenated table, so the layers equal those of
+:func:`mapping.interpolate.raster` on the whole floor's samples bit for bit.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+
+from localize.bundle import Grid
+from survey.process_store import processed_part
+from survey.store import SurveyStore
+
+from .interpolate import RasterParams, angle_raster, cell_stats, raster_from_stats, \
+    walk_cell_means
+from .levelling import apply_session_residuals
+
+__all__ = ["FIELD_LAYERS", "SAMPLE_COLUMNS", "FieldReduction", "field_layer_values",
+           "field_rasters", "levelling_samples", "reduce_field"]
+
+#: processed sample columns the magnetic layers need
+SAMPLE_COLUMNS = ("x_m", "y_m", "mag_east_ut", "mag_north_ut", "mag_up_ut",
+                  "q_w", "q_x", "q_y", "q_z")
+
+#: layer -> (unit, kind, description)
+FIELD_LAYERS = {
+    "strength": ("uT", "scalar", "field strength"),
+    "horizontal": ("uT", "scalar", "horizontal component"),
+    "vertical": ("uT", "scalar", "vertical component (up positive)"),
+    "azimuth": ("deg", "angle", "direction of the horizontal field, clockwise from map north"),
+    "polar": ("deg", "angle", "angle between the field and up"),
+}
+
+
+def field_layer_values(field_enu: NDArray[np.float64]) -> dict[str, NDArray[np.float64]]:
+    """Per-sample values of :data:`FIELD_LAYERS` from the map-frame field (n, 3) (uT, east,
+    north, up): strength, horizontal, vertical (uT); azimuth, polar (deg)."""
+    e, n, u = np.asarray(field_enu, dtype=np.float64).T
+    strength = np.sqrt(e * e + n * n + u * u)
+    return {"strength": strength, "horizontal": np.hypot(e, n), "vertical": u,
+            "azimuth": np.mod(np.degrees(np.arctan2(e, n)), 360.0),
+            "polar": np.degrees(np.arccos(np.clip(u / np.maximum(strength, 1e-9), -1, 1)))}
+
+
+def _walk_samples(store: SurveyStore, walk: pd.Series) -> pd.DataFrame:
+    s = processed_part(store, "samples", walk, columns=SAMPLE_COLUMNS)
+    s.insert(0, "trace_id", walk["trace_id"])
+    s["session"] = walk["session"]
+    return s
+
+
+def levelling_samples(store: SurveyStore, walks: pd.DataFrame, subsample: int
+                      ) -> pd.DataFrame:
+    """Every ``subsample``-th sample of ``walks`` (processed-catalog rows, in order), counted
+    over the walks as if their tables were concatenated; columns ``trace_id``, ``session`` and
+    :data:`SAMPLE_COLUMNS`."""
+    parts, offset = [], 0
+    for _, walk in walks.iterrows():
+        s = _walk_samples(store, walk)
+        parts.append(s.iloc[(-offset) % subsample::subsample].copy())  # not a view of s
+        offset += len(s)
+    if not parts:
+        return pd.DataFrame(columns=["trace_id", *SAMPLE_COLUMNS, "session"])
+    return pd.concat(parts, ignore_index=True)
+
+
+@dataclass
+class FieldReduction:
+    """What the magnetic layers need of a floor's samples.
+
+    Attributes
+    ----------
+    walk_means : dict
+        Value -> (flat cell index, mean) per (walk, cell) pair, walks in trace-id order.
+        Values: the scalar layers and ``<angle>_sin``/``<angle>_cos`` of the angle layers.
+    support : ndarray of bool, shape grid.shape
+        Cells holding at least one sample.
+    n_samples : int
+    cv_x_m, cv_y_m, cv_strength_ut, cv_walk : ndarray
+        Every ``cv_subsample``-th sample (counted over the walks in catalog order): position
+        (m), levelled strength (uT), walk (rank of its trace id). The bandwidth
+        cross-validation's input.
+    """
+
+    walk_means: dict[str, tuple[NDArray[np.int64], NDArray[np.float64]]]
+    support: NDArray[np.bool_]
+    n_samples: int
+    cv_x_m: NDArray[np.float64]
+    cv_y_m: NDArray[np.float64]
+    cv_strength_ut: NDArray[np.float64]
+    cv_walk: NDArray[np.int64]
+
+
+def _per_walk_values(field_enu: NDArray[np.float64]) -> dict[str, NDArray[np.float64]]:
+    out = {}
+    for name, value in field_layer_values(field_enu).items():
+        if FIELD_LAYERS[name][1] == "angle":
+            rad = np.radians(value)
+            out[f"{name}_sin"], out[f"{name}_cos"] = np.sin(rad), np.cos(rad)
+        else:
+            out[name] = value
+    return out
+
+
+def reduce_field(store: SurveyStore, walks: pd.DataFrame, grid: Grid,
+                 residuals: pd.DataFrame | None, *, cv_subsample: int = 5,
+                 progress: Callable[[int, int], None] | None = None) -> FieldReduction:
+    """Read ``walks`` (processed-catalog rows with ``session``) one at a time, level each
+    (``residuals`` per session, see :func:`mapping.levelling.fit_session_residuals`; None =
+    not levelled) and reduce it to per-(walk, cell) means. ``progress(done, total)``."""
+    per_walk: dict[str, dict[str, tuple]] = {}
+    order = sorted(str(t) for t in walks["trace_id"])
+    rank = {t: i for i, t in enumerate(order)}
+    support = np.zeros(grid.shape, dtype=bool)
+    cv: list[tuple] = []
+    offset = 0
+    for i, (_, walk) in enumerate(walks.iterrows()):
+        s = _walk_samples(store, walk)
+        x, y = s["x_m"].to_numpy(np.float64), s["y_m"].to_numpy(np.float64)
+        field_enu = (apply_session_residuals(s, residuals) if residuals is not None else
+                     s[["mag_east_ut", "mag_north_ut", "mag_up_ut"]].to_numpy(np.float64))
+        values = _per_walk_values(field_enu)
+        code = np.zeros(len(s), dtype=np.int64)
+        per_walk[str(walk["trace_id"])] = {
+            name: walk_cell_means(grid, x, y, v, code)[1:] for name, v in values.items()}
+        row, col, inside = grid.cell_of(x, y)
+        support[row[inside], col[inside]] = True
+        take = slice((-offset) % cv_subsample, None, cv_subsample)
+        cv.append((x[take], y[take], values["strength"][take],
+                   np.full(len(x[take]), rank[str(walk["trace_id"])], dtype=np.int64)))
+        offset += len(s)
+        if progress is not None:
+            progress(i + 1, len(walks))
+    names = list(_per_walk_values(np.zeros((0, 3))))
+    walk_means = {}
+    for name in names:
+        cells = [per_walk[t][name][0] for t in order]
+        means = [per_walk[t][name][1] for t in order]
+        walk_means[name] = (np.concatenate(cells) if cells else np.zeros(0, np.int64),
+                            np.concatenate(means) if means else np.zeros(0))
+    if cv:
+        cx, cy, cs, cw = (np.concatenate(part) for part in zip(*cv))
+    else:
+        cx, cy, cs, cw = np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0, dtype=np.int64)
+    return FieldReduction(walk_means, support, offset, cx, cy, cs, cw)
+
+
+def field_rasters(grid: Grid, mask: NDArray[np.bool_], reduction: FieldReduction,
+                  params: RasterParams) -> dict[str, tuple[NDArray[np.float32],
+                                                           NDArray[np.float32]]]:
+    """(values, uncertainty) rasters of :data:`FIELD_LAYERS`, as
+    :func:`mapping.interpolate.raster` makes them from the samples."""
+    def one(name: str):
+        cell, mean = reduction.walk_means[name]
+        return raster_from_stats(grid, mask, cell_stats(grid, cell, mean), params)
+
+    out = {}
+    for name, (_, kind, _) in FIELD_LAYERS.items():
+        out[name] = (angle_raster(one(f"{name}_sin")[0], one(f"{name}_cos")[0])
+                     if kind == "angle" else one(name))
+    return out
