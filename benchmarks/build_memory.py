@@ -26,7 +26,7 @@ limits")::
 
 (Session 2: 898 and 4713 MB, 5.25x; session 3, walk-by-walk reads: 641 and 2129 MB, 3.32x;
 session 4, radio steps on integer codes: 623 and 1781 MB, 2.86x.) The magnetic layers are now
-reduced walk by walk (``mapping.field_layers``; 537 MB on the 10x floor without radio); the
+reduced walk by walk (``mapping.field_layers``; 523 MB on the 10x floor without radio); the
 10x peak is the radio build, which holds the observation table (5.8 million rows).
 In the 10x floor every walk has nine exact copies, so the radio steps keep more transmitters
 (no longer "rare") and the kernel bandwidth cross-validation picks 0.5 m instead of 3.0 m:

@@ -289,7 +289,8 @@ def built_bundle(store, floor_dir: Path, exclude: set[str], work: Path, tag: str
     from mapping.bundle_writer import write_bundle
     from mapping.floorplan import read_floor_plan
 
-    key = hashlib.sha256(",".join(sorted(exclude)).encode()).hexdigest()[:12]
+    # "v2": bundles since build_floor(exclude_walks=...) also leave the walks out of the radio
+    key = hashlib.sha256(("v2," + ",".join(sorted(exclude))).encode()).hexdigest()[:12]
     target = work / "bundles" / f"{tag}_{floor_dir.name}_built_{cell_m:g}_{key}"
     if not (target / "manifest.json").exists():
         plan = read_floor_plan(floor_dir)

@@ -31,7 +31,8 @@ from survey.store import SurveyStore
 from .bundle_writer import BundleContent, Layer
 from .floorplan import FloorPlan
 from .grid import grid_for_extent, reachable_mask
-from .field_layers import FIELD_LAYERS, field_rasters, levelling_samples, reduce_field
+from .field_layers import FIELD_LAYERS, field_rasters, floor_steps, levelling_samples, \
+    reduce_field
 from .holdout import choose_bandwidth
 from .interpolate import RasterParams, raster
 from .levelling import LevellingParams, fit_session_residuals
@@ -103,15 +104,19 @@ def floor_walks(store: SurveyStore, site: str | None, floor: str,
                 exclude_walks: Collection[str] = ()) -> pd.DataFrame:
     """Processed-catalog rows of the floor's walks that processed ``ok``, minus
     ``exclude_walks`` (trace ids); raises :class:`BuildError` when none is left."""
+    if isinstance(exclude_walks, str):
+        raise TypeError("exclude_walks is a collection of trace ids, not one string")
     pcat = processed_catalog(store)
-    pcat = pcat[(pcat["floor"] == floor) & (pcat["status"] == "ok")
-                & ~pcat["trace_id"].isin(list(exclude_walks))]
+    pcat = pcat[(pcat["floor"] == floor) & (pcat["status"] == "ok")]
     if site is not None:
         pcat = pcat[pcat["site"] == site]
+    where = f"floor {floor!r}" + (f" of site {site!r}" if site else "")
     if not len(pcat):
-        raise BuildError(f"{store.root}: no processed walks for floor {floor!r}"
-                         + (f" of site {site!r}" if site else "")
-                         + "; run `indoormap process` first")
+        raise BuildError(f"{store.root}: no processed walks for {where}; run "
+                         "`indoormap process` first")
+    pcat = pcat[~pcat["trace_id"].isin(list(exclude_walks))]
+    if not len(pcat):
+        raise BuildError(f"{store.root}: all {where}'s processed walks are excluded")
     return pcat.reset_index(drop=True)
 
 
@@ -126,8 +131,9 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
     this floor alone when ``params.radio`` is set. ``exclude_walks``: trace ids left out of the
     map (held-out evaluation; a ``radio`` passed in must leave them out too).
 
-    The samples are read walk by walk (:mod:`mapping.field_layers`), so memory is bounded by
-    the grid and the walks' cells, not by the number of samples.
+    The samples are read walk by walk (:mod:`mapping.field_layers`): memory grows with the
+    grid, the walks' cells, the steps and two subsamples (every 5th sample), never with the
+    whole samples table.
     """
     store = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
     say = progress or (lambda msg: None)
@@ -145,29 +151,28 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
             replace(params.levelling, subsample=1))
         say(f"{floor}: levelled {int((residuals['n_pairs'] > 0).sum())} of "
             f"{len(residuals)} sessions")
-    field = reduce_field(store, pcat, grid, residuals,
+    reduction = reduce_field(store, pcat, grid, residuals,
                          progress=lambda i, n: say(f"{floor}: read walk {i}/{n}")
                          if i == n or i % 100 == 0 else None)
     release_free_memory()  # the walks' freed buffers
-    say(f"{floor}: {field.n_samples} samples")
+    say(f"{floor}: {reduction.n_samples} samples")
     if residuals is None:
         residuals = pd.DataFrame(columns=["r_x_ut", "r_y_ut", "r_z_ut", "n_samples",
                                           "n_pairs"])
     raster_params, heading_params, bandwidth_scores = params.raster, params.heading_raster, {}
     if params.auto_bandwidth and params.raster.method == "kernel":
-        bw, bandwidth_scores = choose_bandwidth(grid, mask, field.cv_x_m, field.cv_y_m,
-                                                field.cv_strength_ut, field.cv_walk,
-                                                params.raster, subsample=1)
+        bw, bandwidth_scores = choose_bandwidth(grid, mask, reduction.cv_x_m,
+                                                reduction.cv_y_m, reduction.cv_strength_ut,
+                                                reduction.cv_walk, params.raster, subsample=1)
         raster_params = replace(params.raster, bandwidth_m=bw)
         heading_params = replace(params.heading_raster, bandwidth_m=max(bw, 1.0))
         say(f"{floor}: kernel bandwidth {bw} m chosen by 5-fold cross-validation over walks")
     layers = {}
-    for name, (vals, std) in field_rasters(grid, mask, field, raster_params).items():
+    for name, (vals, std) in field_rasters(grid, mask, reduction, raster_params).items():
         unit, kind, desc = FIELD_LAYERS[name]
         layers[name] = Layer(vals, std, unit, kind, desc)
     say(f"{floor}: layers {', '.join(layers)}")
-    steps = processed_table(store, "steps", site=site, floor=floor)
-    steps = steps[steps["trace_id"].isin(pcat["trace_id"])]
+    steps = floor_steps(store, pcat)
     st = steps[np.isfinite(steps["heading_offset_deg"])]
     walk_median = st.groupby("trace_id")["heading_offset_deg"].apply(
         lambda a: circular_median_deg(a.to_numpy()))
@@ -188,10 +193,10 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
     end_ms = float(cat.loc[walks["trace_id"], "end_ms"].max())
     build_time = params.build_time or _time_text(end_ms)
     first = cat.loc[walks["trace_id"].iloc[0]]
-    metrics = {"coverage": coverage(grid, mask, field.support), "n_walks": int(len(walks)),
+    metrics = {"coverage": coverage(grid, mask, reduction.support), "n_walks": int(len(walks)),
                "bandwidth_m": raster_params.bandwidth_m,
                "bandwidth_cv_shape_rmse_ut": {str(k): v for k, v in bandwidth_scores.items()},
-               "n_samples": field.n_samples, "heading_offset_floor_median_deg": global_offset}
+               "n_samples": reduction.n_samples, "heading_offset_floor_median_deg": global_offset}
     tables = {"source_walks": pa.Table.from_pandas(walks, preserve_index=False),
               "levelling": pa.Table.from_pandas(lev.astype({"session": "str"}),
                                                 preserve_index=False)}

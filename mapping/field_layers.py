@@ -29,13 +29,17 @@ from localize.bundle import Grid
 from survey.process_store import processed_part
 from survey.store import SurveyStore
 
+from .holdout import BANDWIDTH_SUBSAMPLE
 from .interpolate import RasterParams, angle_raster, cell_stats, raster_from_stats, \
     walk_cell_means
 from .levelling import apply_session_residuals
 
-__all__ = ["FIELD_LAYERS", "SAMPLE_COLUMNS", "FieldReduction", "field_layer_values",
-           "field_rasters", "levelling_samples", "reduce_field"]
+__all__ = ["FIELD_LAYERS", "SAMPLE_COLUMNS", "STEP_COLUMNS", "FieldReduction",
+           "field_layer_values", "field_rasters", "floor_steps", "levelling_samples",
+           "reduce_field"]
 
+#: processed step columns the heading-offset layer needs
+STEP_COLUMNS = ("x_m", "y_m", "heading_offset_deg", "heading_offset_local_deg")
 #: processed sample columns the magnetic layers need
 SAMPLE_COLUMNS = ("x_m", "y_m", "mag_east_ut", "mag_north_ut", "mag_up_ut",
                   "q_w", "q_x", "q_y", "q_z")
@@ -82,6 +86,17 @@ def levelling_samples(store: SurveyStore, walks: pd.DataFrame, subsample: int
     return pd.concat(parts, ignore_index=True)
 
 
+def floor_steps(store: SurveyStore, walks: pd.DataFrame) -> pd.DataFrame:
+    """The steps of ``walks`` (processed-catalog rows): ``trace_id`` and
+    :data:`STEP_COLUMNS`."""
+    parts = []
+    for _, walk in walks.iterrows():
+        st = processed_part(store, "steps", walk, columns=STEP_COLUMNS)
+        st.insert(0, "trace_id", walk["trace_id"])
+        parts.append(st)
+    return pd.concat(parts, ignore_index=True)
+
+
 @dataclass
 class FieldReduction:
     """What the magnetic layers need of a floor's samples.
@@ -121,7 +136,8 @@ def _per_walk_values(field_enu: NDArray[np.float64]) -> dict[str, NDArray[np.flo
 
 
 def reduce_field(store: SurveyStore, walks: pd.DataFrame, grid: Grid,
-                 residuals: pd.DataFrame | None, *, cv_subsample: int = 5,
+                 residuals: pd.DataFrame | None, *,
+                 cv_subsample: int = BANDWIDTH_SUBSAMPLE,
                  progress: Callable[[int, int], None] | None = None) -> FieldReduction:
     """Read ``walks`` (processed-catalog rows with ``session``) one at a time, level each
     (``residuals`` per session, see :func:`mapping.levelling.fit_session_residuals`; None =
@@ -144,7 +160,7 @@ def reduce_field(store: SurveyStore, walks: pd.DataFrame, grid: Grid,
         row, col, inside = grid.cell_of(x, y)
         support[row[inside], col[inside]] = True
         take = slice((-offset) % cv_subsample, None, cv_subsample)
-        cv.append((x[take], y[take], values["strength"][take],
+        cv.append((x[take].copy(), y[take].copy(), values["strength"][take].copy(),  # not views
                    np.full(len(x[take]), rank[str(walk["trace_id"])], dtype=np.int64)))
         offset += len(s)
         if progress is not None:

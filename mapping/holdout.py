@@ -246,12 +246,14 @@ def default_pipelines(raster: RasterParams = RasterParams()) -> list[Pipeline]:
 
 
 BANDWIDTH_CANDIDATES_M = (0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0)
+#: the bandwidth cross-validation uses every n-th sample (the build takes the same ones)
+BANDWIDTH_SUBSAMPLE = 5
 
 
 def choose_bandwidth(grid: Grid, mask: NDArray[np.bool_], x: NDArray, y: NDArray,
                      values: NDArray, walk: NDArray, base: RasterParams, *,
                      candidates=BANDWIDTH_CANDIDATES_M, folds: int = 5,
-                     subsample: int = 5) -> tuple[float, dict[float, float]]:
+                     subsample: int = BANDWIDTH_SUBSAMPLE) -> tuple[float, dict[float, float]]:
     """Kernel bandwidth (m) with the lowest grouped k-fold shape RMSE (folds of whole walks).
 
     The best smoothing depends on how well the survey was positioned (sub-metre on clean

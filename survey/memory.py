@@ -11,33 +11,32 @@ by 760 MB after reading it; a trim gives back 360 MB.
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import sys
+from functools import cache
 
 __all__ = ["release_free_memory"]
 
 
-def _libc_trim():
+@cache
+def _malloc_trim():
+    """glibc's ``malloc_trim``, or None (not Linux, or a libc without it, e.g. musl)."""
     if not sys.platform.startswith("linux"):
         return None
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        return libc.malloc_trim
-    except (OSError, AttributeError):  # not glibc (e.g. musl): nothing to trim
+        trim = ctypes.CDLL("libc.so.6").malloc_trim
+    except (OSError, AttributeError):
         return None
-
-
-_TRIM = _libc_trim()
+    trim.argtypes = [ctypes.c_size_t]
+    trim.restype = ctypes.c_int
+    return trim
 
 
 def release_free_memory() -> None:
     """Give freed heap memory back to the OS (glibc ``malloc_trim``, Arrow's pool). Harmless
     where neither applies."""
-    try:
-        import pyarrow as pa
+    import pyarrow as pa
 
-        pa.default_memory_pool().release_unused()
-    except ImportError:  # pragma: no cover - pyarrow is a dependency
-        pass
-    if _TRIM is not None:
-        _TRIM(0)
+    pa.default_memory_pool().release_unused()
+    trim = _malloc_trim()
+    if trim is not None:
+        trim(0)

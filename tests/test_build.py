@@ -98,6 +98,18 @@ def test_walk_by_walk_layers_equal_the_in_memory_rasters(store):
         np.testing.assert_array_equal(content.layers[name].values, expect[0], err_msg=name)
         np.testing.assert_array_equal(content.layers[name].std, expect[1], err_msg=name)
     assert content.metrics["n_samples"] == len(samples)
+    # the means come in trace-id order whatever order the walks are read in
+    from mapping.build import floor_walks
+    from mapping.field_layers import reduce_field
+
+    st = SurveyStore.open(store)
+    walks = floor_walks(st, None, "F1")
+    forward = reduce_field(st, walks, content.grid, residuals)
+    backward = reduce_field(st, walks.iloc[::-1], content.grid, residuals)
+    for name, (cell, mean) in forward.walk_means.items():
+        np.testing.assert_array_equal(backward.walk_means[name][0], cell)
+        np.testing.assert_array_equal(backward.walk_means[name][1], mean)
+    assert np.array_equal(np.unique(backward.cv_walk), np.arange(len(walks)))
     # the bandwidth the build picks equals the in-memory choice
     auto = build_floor(store, plan, floor="F1", params=replace(params, auto_bandwidth=True))
     bw, scores = build_bandwidth(samples, apply_session_residuals(samples, residuals),
@@ -118,8 +130,17 @@ def test_excluded_walks_stay_out_of_the_map(store):
                               equal_nan=True)
     # the radio maps leave them out too
     assert 0 < part.tables["wifi_rp"].num_rows < full.tables["wifi_rp"].num_rows
-    with pytest.raises(BuildError, match="no processed walks"):
+    with pytest.raises(BuildError, match="processed walks are excluded"):
         build_floor(store, plan, floor="F1", exclude_walks=set(walks))
+    with pytest.raises(TypeError, match="collection of trace ids"):
+        build_floor(store, plan, floor="F1", exclude_walks=walks[0])
+
+
+def test_release_free_memory_runs_twice():
+    from survey.memory import release_free_memory
+
+    release_free_memory()
+    release_free_memory()
 
 
 def test_unknown_floor_is_a_clear_error(store):
