@@ -3,9 +3,10 @@
     python benchmarks/build_time.py [FLOOR_DIR]
 
 Default ``../shared/ilc/site1/F1`` (skips without it; pass ``data/sample_site/F1`` for the
-sample). Runs ``indoormap build FLOOR_DIR -o OUT`` twice in fresh processes (ingest, process,
-level, interpolate, write) and prints the wall time of each and whether the two bundles have
-identical bytes. The target for site1/F1 on this 2-core machine is under 60 s.
+sample, after ``indoormap simulate data/sample_site``). Runs ``indoormap build FLOOR_DIR -o
+OUT`` twice in fresh processes (ingest, process, level, interpolate, write) and prints the
+wall time of each and whether the two bundles have identical bytes. The target for site1/F1
+on this 2-core machine is under 60 s.
 """
 
 from __future__ import annotations

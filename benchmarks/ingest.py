@@ -3,7 +3,7 @@
     python benchmarks/ingest.py [FOLDER ...] [--repeat 3]
 
 Default input: ``../shared/ilc/site1/F1`` when present, else the simulated sample in
-``data/sample_site``. Every measurement runs in a fresh subprocess (so peak memory is its own),
+``data/sample_site`` (simulated there when missing). Every measurement runs in a fresh subprocess (so peak memory is its own),
 on the same files, in this one run; the table reports MB/s of trace text (after gunzip), the
 ratio to the plain reader, and peak resident memory. Best of ``--repeat`` runs.
 
@@ -97,7 +97,12 @@ def main() -> int:
     args = ap.parse_args()
     folders = [Path(f) for f in args.folders]
     if not folders:
-        folders = [SHARED_F1] if SHARED_F1.exists() else [REPO / "data" / "sample_site"]
+        if SHARED_F1.exists():
+            folders = [SHARED_F1]
+        else:
+            from survey.sim.site import ensure_sample_site
+
+            folders = [ensure_sample_site(REPO / "data" / "sample_site")]
     paths = sorted(str(p) for f in folders for p in f.rglob("*")
                    if p.name.endswith((".txt", ".txt.gz")))
     if not paths:

@@ -1,4 +1,7 @@
-"""Shared fixtures. Tests that need ``../shared`` skip cleanly when it is absent."""
+"""Shared fixtures. Tests that need ``../shared`` skip cleanly when it is absent.
+
+The simulated sample site the tests read (``data/sample_site``) is generated, not tracked: it is
+simulated here, before any test module is collected, when it is missing (~8 s, once)."""
 
 from __future__ import annotations
 
@@ -7,9 +10,11 @@ from pathlib import Path
 import pytest
 
 from factories import small_trace
+from survey.sim.site import ensure_sample_site
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_ILC = REPO.parent / "shared" / "ilc"
+ensure_sample_site(REPO / "data" / "sample_site")
 
 
 @pytest.fixture

@@ -48,6 +48,7 @@ import numpy as np
 import pandas as pd
 
 from survey.errors import SurveyFormatError
+from survey.sim.site import ensure_sample_site
 from survey.trace_format import (
     BLE_COLUMNS,
     BLE_DTYPES,
@@ -70,7 +71,8 @@ from survey.trace_writer import write_trace
 from survey.walkline import is_walk_plan, read_walk_plan
 
 REPO = Path(__file__).resolve().parents[1]
-SAMPLE_TRACES = sorted((REPO / "data" / "sample_site").glob("*/path_data_files/*.txt.gz"))
+SAMPLE_TRACES = sorted(ensure_sample_site(REPO / "data" / "sample_site")
+                       .glob("*/path_data_files/*.txt.gz"))
 CORRUPT_DIR = REPO / "tests" / "data" / "corrupt"
 
 BAD_REASONS = {"no_type", "bad_timestamp", "unknown_record", "field_count", "non_numeric",

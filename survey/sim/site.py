@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..errors import SimulationError
+from ..errors import PublishError, SimulationError
 from ..publish import atomic_directory, atomic_write_bytes
 from ..trace_format import WIFI_COLUMNS, WIFI_DTYPES, empty_table
 from ..trace_writer import write_trace
@@ -485,6 +485,21 @@ def simulate_site(params: SiteParams, out_dir: str | Path, *,
     return SimulatedSite(out_dir=out_dir, params=params, site_id=site_id,
                          floors=tuple(fl.plan.name for fl in floors), walks=tuple(infos),
                          n_files=n_files, n_bytes=n_bytes)
+
+
+def ensure_sample_site(out_dir: str | Path) -> Path:
+    """The ``sample`` preset site (seed 7) at ``out_dir``, simulated there unless it is already
+    (the repository's ``data/sample_site``, which is generated, not tracked; ~8 s). Publication
+    is atomic, so a present ``truth/site.json`` means a complete site; a concurrent caller
+    that publishes first wins."""
+    out_dir = Path(out_dir)
+    if not (out_dir / "truth" / "site.json").exists():
+        try:
+            simulate_site(PRESETS["sample"], out_dir)
+        except PublishError:
+            if not (out_dir / "truth" / "site.json").exists():
+                raise
+    return out_dir
 
 
 def load_field(site_json: dict, floor: str) -> MagneticField:
