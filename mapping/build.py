@@ -87,17 +87,13 @@ def build_bandwidth(samples: pd.DataFrame, field_enu: np.ndarray, grid, mask,
                             params.raster)
 
 
-def floor_samples(store: SurveyStore, site: str | None, floor: str) -> tuple[pd.DataFrame,
-                                                                            pd.DataFrame,
-                                                                            pd.DataFrame]:
-    """Processed samples and steps of a floor (with their session) and the walks' catalog, all
-    in memory (validation and benchmarks; the build reads walk by walk)."""
+def floor_samples(store: SurveyStore, site: str | None, floor: str) -> pd.DataFrame:
+    """Processed samples of a floor with their session, all in memory (validation and
+    benchmarks; the build reads walk by walk)."""
     pcat = floor_walks(store, site, floor)
-    sessions = dict(zip(pcat["trace_id"], pcat["session"]))
     samples = processed_table(store, "samples", site=site, floor=floor)
-    steps = processed_table(store, "steps", site=site, floor=floor)
-    samples["session"] = samples["trace_id"].map(sessions)
-    return samples, steps, pcat
+    samples["session"] = samples["trace_id"].map(dict(zip(pcat["trace_id"], pcat["session"])))
+    return samples
 
 
 def floor_walks(store: SurveyStore, site: str | None, floor: str,

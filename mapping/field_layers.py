@@ -29,7 +29,7 @@ from localize.bundle import Grid
 from survey.process_store import processed_part
 from survey.store import SurveyStore
 
-from .holdout import BANDWIDTH_SUBSAMPLE
+from .holdout import BANDWIDTH_SUBSAMPLE, layer_values
 from .interpolate import RasterParams, angle_raster, cell_stats, raster_from_stats, \
     walk_cell_means
 from .levelling import apply_session_residuals
@@ -56,12 +56,13 @@ FIELD_LAYERS = {
 
 def field_layer_values(field_enu: NDArray[np.float64]) -> dict[str, NDArray[np.float64]]:
     """Per-sample values of :data:`FIELD_LAYERS` from the map-frame field (n, 3) (uT, east,
-    north, up): strength, horizontal, vertical (uT); azimuth, polar (deg)."""
+    north, up): strength, horizontal, vertical (uT, :func:`mapping.holdout.layer_values`);
+    azimuth, polar (deg)."""
+    out = layer_values(field_enu)
     e, n, u = np.asarray(field_enu, dtype=np.float64).T
-    strength = np.sqrt(e * e + n * n + u * u)
-    return {"strength": strength, "horizontal": np.hypot(e, n), "vertical": u,
-            "azimuth": np.mod(np.degrees(np.arctan2(e, n)), 360.0),
-            "polar": np.degrees(np.arccos(np.clip(u / np.maximum(strength, 1e-9), -1, 1)))}
+    out["azimuth"] = np.mod(np.degrees(np.arctan2(e, n)), 360.0)
+    out["polar"] = np.degrees(np.arccos(np.clip(u / np.maximum(out["strength"], 1e-9), -1, 1)))
+    return out
 
 
 def _walk_samples(store: SurveyStore, walk: pd.Series) -> pd.DataFrame:
@@ -124,6 +125,11 @@ class FieldReduction:
     cv_walk: NDArray[np.int64]
 
 
+#: what is averaged per (walk, cell): the scalar layers, and the angle layers as unit vectors
+VALUE_NAMES = tuple(v for name, (_, kind, _) in FIELD_LAYERS.items()
+                    for v in ((f"{name}_sin", f"{name}_cos") if kind == "angle" else (name,)))
+
+
 def _per_walk_values(field_enu: NDArray[np.float64]) -> dict[str, NDArray[np.float64]]:
     out = {}
     for name, value in field_layer_values(field_enu).items():
@@ -165,13 +171,10 @@ def reduce_field(store: SurveyStore, walks: pd.DataFrame, grid: Grid,
         offset += len(s)
         if progress is not None:
             progress(i + 1, len(walks))
-    names = list(_per_walk_values(np.zeros((0, 3))))
-    walk_means = {}
-    for name in names:
-        cells = [per_walk[t][name][0] for t in order]
-        means = [per_walk[t][name][1] for t in order]
-        walk_means[name] = (np.concatenate(cells) if cells else np.zeros(0, np.int64),
-                            np.concatenate(means) if means else np.zeros(0))
+    walk_means = {
+        name: (np.concatenate([per_walk[t][name][0] for t in order] or [np.zeros(0, np.int64)]),
+               np.concatenate([per_walk[t][name][1] for t in order] or [np.zeros(0)]))
+        for name in VALUE_NAMES}
     if cv:
         cx, cy, cs, cw = (np.concatenate(part) for part in zip(*cv))
     else:

@@ -49,8 +49,10 @@ class Pipeline:
     constant: bool = False  # the map is the floor mean everywhere
 
 
-def layer_values(samples: pd.DataFrame, field_enu: NDArray) -> dict[str, NDArray]:
-    e, n, u = field_enu.T
+def layer_values(field_enu: NDArray) -> dict[str, NDArray]:
+    """Strength, horizontal and vertical component (uT) per sample of the map-frame field
+    (n, 3: east, north, up; uT)."""
+    e, n, u = np.asarray(field_enu, dtype=np.float64).T
     return {"strength": np.sqrt(e * e + n * n + u * u), "horizontal": np.hypot(e, n),
             "vertical": u}
 
@@ -174,7 +176,7 @@ def leave_one_walk_out(samples: pd.DataFrame, grid: Grid, mask: NDArray[np.bool_
             else:
                 field = raw_field
                 fold_walks = np.arange(len(walks))
-            values = layer_values(s, field)
+            values = layer_values(field)
             for layer in layers:
                 w, cell, mean = walk_cell_means(grid, x, y, values[layer], walk_code)
                 total = cell_stats(grid, cell, mean)
@@ -221,7 +223,7 @@ def floor_samples_with_baseline_positions(store, floor: str, site: str | None = 
 
     from .build import floor_samples
 
-    samples, _, _ = floor_samples(store, site, floor)
+    samples = floor_samples(store, site, floor)
     waypoints = store.table("waypoints", site=site, floor=floor)
     by_walk = waypoints.groupby("trace_id")
     tl = np.full((len(samples), 2), np.nan)

@@ -87,7 +87,7 @@ def test_walk_by_walk_layers_equal_the_in_memory_rasters(store):
     plan = read_floor_plan(SITE / "F1")
     params = BuildParams(radio=None, auto_bandwidth=False)
     content = build_floor(store, plan, floor="F1", params=params)
-    samples, _, _ = floor_samples(SurveyStore.open(store), None, "F1")
+    samples = floor_samples(SurveyStore.open(store), None, "F1")
     residuals = fit_session_residuals(samples, params.levelling)
     assert residuals["n_pairs"].sum() > 0  # the levelling is exercised
     values = field_layer_values(apply_session_residuals(samples, residuals))
