@@ -25,16 +25,19 @@ from __future__ import annotations
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
 from .errors import FingerprintError
-from .radio_scans import OBS_COLUMNS, distinct_text, split_by, text_codes
+from .radio_reduce import IntCodes, KeyedAggregate, TextCodes, walk_rows
+from .radio_scans import OBS_COLUMNS
 
 __all__ = [
     "HOTSPOT_SSID",
+    "APEvidence",
     "APSelection",
     "APSelectionParams",
     "is_locally_administered",
@@ -101,140 +104,283 @@ def is_locally_administered(mac: Sequence[str] | NDArray[np.str_]) -> NDArray[np
     return (first & 0x02) != 0
 
 
-@dataclass(frozen=True)
-class _Positioned:
-    """The positioned rows of an observation table as integer-coded arrays, taken once per
-    floor and shared by the spatial rules (views of the table's columns when every row is
-    positioned: no copy of the table, no row-wise text).
+def _cell_keys(x_m: NDArray[np.float64], y_m: NDArray[np.float64],
+               cell_m: float) -> NDArray[np.int64]:
+    """Square cell (``cell_m``) of every point as one integer key."""
+    return (np.floor(x_m / cell_m).astype(np.int64) * 1_000_003
+            + np.floor(y_m / cell_m).astype(np.int64))
 
-    ``ap`` indexes the AP list (-1: none), ``walk`` the table's walks (-1: none)."""
 
-    ap: NDArray[np.int64]
-    walk: NDArray[np.int64]
-    n_walks: int
-    x_m: NDArray[np.float64]
-    y_m: NDArray[np.float64]
-    rssi_dbm: NDArray[np.float64]
-    t_ms: NDArray[np.int64]
-    scan_id: NDArray[np.int64]
+class APEvidence:
+    """What :func:`select_aps` needs, reduced walk by walk.
 
-    @classmethod
-    def of(cls, obs: pd.DataFrame, aps: NDArray[np.str_]) -> _Positioned:
+    Per transmitter: scans and walks that heard it, floors where it was heard strongly; per
+    floor, survey day (UTC) and 5 m cell (``flat_cell_m``): its RSSI sum and count (``flat``
+    and ``moved``), and per walk the position of its strongest reading (``moving``). Memory
+    grows with transmitters x cells x days and transmitters x walks, never with the rows.
+
+    Add every walk once, whole (all its scans), with :meth:`add_walk`; then :meth:`select`.
+    ``compact_rows``: partial sums held before they are merged.
+    """
+
+    _BITS: ClassVar[dict[str, int]] = {"floor": 7, "ap": 22, "day": 10, "cell": 24}  # one int64
+
+    def __init__(self, params: APSelectionParams = APSelectionParams(), *,
+                 compact_rows: int = 1_000_000) -> None:
+        self.params = params
+        self.aps = TextCodes()
+        self.floors = TextCodes()
+        self.days = IntCodes()
+        self.cells = IntCodes()
+        self.by_floor: bool | None = None
+        def sums(*names: str) -> KeyedAggregate:
+            return KeyedAggregate({n: "sum" for n in names}, compact_rows=compact_rows)
+
+        self._per_ap = sums("n_scans", "n_walks")
+        self._strong = sums("n")  # key (floor, ap)
+        self._day_cell = sums("n")  # scans per (floor, day, cell)
+        self._change = sums("s", "n")  # RSSI sum and count per (floor, ap, day, cell)
+        self._peaks: dict[str, list[NDArray]] = {c: [] for c in ("floor", "ap", "rssi", "x_m",
+                                                                  "y_m")}
+
+    def _key(self, **codes: NDArray[np.int64] | int) -> NDArray[np.int64]:
+        """One int64 key of the given codes (in the order floor, ap, day, cell)."""
+        key = np.zeros(1, dtype=np.int64)
+        for name, bits in self._BITS.items():
+            key = (key << bits) | np.asarray(codes.get(name, 0), dtype=np.int64)
+        return key
+
+    def _part(self, key: NDArray[np.int64], name: str) -> NDArray[np.int64]:
+        """The code ``name`` of packed keys."""
+        shift = 0
+        for n, bits in reversed(self._BITS.items()):
+            if n == name:
+                return (key >> shift) & ((1 << bits) - 1)
+            shift += bits
+        raise KeyError(name)
+
+    def _check_sizes(self) -> None:
+        for name, codes in (("floor", self.floors), ("ap", self.aps), ("day", self.days),
+                            ("cell", self.cells)):
+            if len(codes) > 1 << self._BITS[name]:
+                raise FingerprintError(f"AP selection: more than {1 << self._BITS[name]} "
+                                       f"distinct {name} values")
+
+    def add_walk(self, obs: pd.DataFrame, *, floor_column: str | None = None) -> None:
+        """Add the observation rows of one walk (:mod:`mapping.radio_scans`)."""
+        missing = [c for c in OBS_COLUMNS if c not in obs.columns]
+        if missing:
+            raise FingerprintError(f"observation table lacks columns {missing}")
+        if floor_column is not None and floor_column not in obs.columns:
+            raise FingerprintError(f"observation table has no floor column {floor_column!r}")
+        if self.by_floor is None:
+            self.by_floor = floor_column is not None
+        elif self.by_floor != (floor_column is not None):
+            raise FingerprintError("add every walk with the same floor_column")
+        if len(obs) == 0:
+            return
+        ap = self.aps.codes(obs["ap"])
+        _, scan = np.unique(obs["scan_id"].to_numpy(np.int64), return_inverse=True)
+        scan = scan.reshape(-1)
+        pairs = np.unique(ap * (scan.max() + 1) + scan)  # distinct (AP, scan)
+        heard, n_scans = np.unique(pairs // (scan.max() + 1), return_counts=True)
+        self._per_ap.add(heard, n_scans=n_scans, n_walks=1)
+        floor = (np.zeros(len(obs), dtype=np.int64) if floor_column is None
+                 else self.floors.codes(obs[floor_column]))
+        if floor_column is None and not len(self.floors):
+            self.floors.codes(np.array([""]))
+        self._check_sizes()
+        p = self.params
+        rssi = obs["rssi_dbm"].to_numpy(np.float64)
+        with np.errstate(invalid="ignore"):
+            strong = rssi >= p.far_floor_strong_dbm
+        self._strong.add(np.unique(self._key(floor=floor[strong], ap=ap[strong])), n=1)
         x, y = obs["x_m"].to_numpy(np.float64), obs["y_m"].to_numpy(np.float64)
         ok = np.isfinite(x) & np.isfinite(y)
-        rows = slice(None) if ok.all() else ok
-        walk, walks = pd.factorize(obs["trace_id"])
-        return cls(text_codes(obs["ap"], aps)[rows], walk[rows], len(walks), x[rows], y[rows],
-                   obs["rssi_dbm"].to_numpy(np.float64)[rows],
-                   obs["t_ms"].to_numpy(np.int64)[rows],
-                   obs["scan_id"].to_numpy(np.int64)[rows])
+        if not ok.any():
+            return
+        floor, ap, rssi, x, y, scan = floor[ok], ap[ok], rssi[ok], x[ok], y[ok], scan[ok]
+        cell = self.cells.codes(_cell_keys(x, y, p.flat_cell_m))
+        day = self.days.codes(obs["t_ms"].to_numpy(np.int64)[ok] // 86_400_000)
+        self._check_sizes()
+        places, place = np.unique(self._key(floor=floor, day=day, cell=cell),
+                                  return_inverse=True)
+        n_scan = scan.max() + 1
+        place_scans = np.unique(place.reshape(-1) * n_scan + scan)  # distinct (place, scan)
+        counts = np.bincount(place_scans // n_scan, minlength=len(places))
+        self._day_cell.add(places, n=counts)
+        valid = np.isfinite(rssi)
+        keys, inv = np.unique(self._key(floor=floor[valid], ap=ap[valid], day=day[valid],
+                                        cell=cell[valid]), return_inverse=True)
+        inv = inv.reshape(-1)
+        self._change.add(keys, s=np.bincount(inv, weights=rssi[valid], minlength=len(keys)),
+                         n=np.bincount(inv, minlength=len(keys)))
+        # the first of each (floor, transmitter)'s strongest readings in this walk
+        fa = self._key(floor=floor[valid], ap=ap[valid])
+        order = np.lexsort((np.arange(len(fa)), -rssi[valid], fa))
+        first = order[np.r_[True, fa[order][1:] != fa[order][:-1]]]
+        for name, values in (("floor", floor[valid]), ("ap", ap[valid]), ("rssi", rssi[valid]),
+                             ("x_m", x[valid]), ("y_m", y[valid])):
+            self._peaks[name].append(values[first])
 
-    def cells(self, cell_m: float) -> NDArray[np.int64]:
-        """Square cell (``cell_m``) of every row as one integer key."""
-        return (np.floor(self.x_m / cell_m).astype(np.int64) * 1_000_003
-                + np.floor(self.y_m / cell_m).astype(np.int64))
+    def select(self, *, ssid: Mapping[str, str] | pd.Series | None = None,
+               floor_order: Sequence[str] | None = None) -> APSelection:
+        """The selection over every walk added (see :func:`select_aps` for the arguments)."""
+        p = self.params
+        names = self.aps.names()
+        rank = self.aps.sorted_rank()
+        aps = np.empty(len(names), dtype=names.dtype)
+        aps[rank] = names
+
+        def by_name(frame: pd.DataFrame, column: str) -> pd.Series:
+            """Values of ``column`` per transmitter (index: AP code -> name)."""
+            return pd.Series(frame[column].to_numpy(), index=aps[rank[frame.index.to_numpy()]])
+
+        info = pd.DataFrame(index=pd.Index(aps, name="ap"))
+        ap_codes, per_ap = self._per_ap.result()
+        per_ap = pd.DataFrame(per_ap, index=ap_codes)
+        for col in ("n_scans", "n_walks"):
+            info[col] = by_name(per_ap, col).reindex(info.index).fillna(0).astype(np.int64)
+        ssid_s = pd.Series(ssid, dtype=object) if ssid is not None else pd.Series(dtype=object)
+        info["ssid"] = ssid_s.reindex(info.index).fillna("").astype(str)
+        info["locally_administered"] = is_locally_administered(aps)
+        reasons: dict[str, list[str]] = {a: [] for a in aps}
+        details: dict[str, list[str]] = {a: [] for a in aps}
+
+        def flag(mask: pd.Series, reason: str, text) -> None:
+            for a in mask[mask].index:
+                reasons[a].append(reason)
+                details[a].append(text(a))
+
+        flag((info["n_scans"] < p.min_scans) | (info["n_walks"] < p.min_walks), "rare",
+             lambda a: f"{info.at[a, 'n_scans']} scans/{info.at[a, 'n_walks']} walks")
+        if ssid is not None:
+            flag(info["ssid"].map(lambda s: bool(HOTSPOT_SSID.search(s))), "hotspot_ssid",
+                 lambda a: f"ssid {info.at[a, 'ssid']!r}")
+        if p.drop_locally_administered:
+            flag(info["locally_administered"], "locally_administered", lambda a: "LAA bit")
+
+        floor_names = self.floors.names()
+        change_keys, change = self._change.result()
+        place_keys, place = self._day_cell.result()
+        change_floor, place_floor = (self._part(k, "floor") for k in (change_keys, place_keys))
+        day_of = self.days.values()  # UTC day number per day code
+        peaks = pd.DataFrame({n: np.concatenate(v) if v else np.zeros(0)
+                              for n, v in self._peaks.items()})
+        for f in np.argsort(floor_names, kind="stable"):
+            where = f" on {floor_names[f]}" if self.by_floor else ""
+            on_f = change_floor == f
+            ch = pd.DataFrame({c: self._part(change_keys[on_f], c) for c in ("ap", "cell")})
+            ch["day"] = day_of[self._part(change_keys[on_f], "day")]
+            ch["mean"] = change["s"][on_f] / change["n"][on_f]
+            ch["s"], ch["n"] = change["s"][on_f], change["n"][on_f]
+            pl = pd.DataFrame({"day": day_of[self._part(place_keys[place_floor == f], "day")],
+                               "cell": self._part(place_keys[place_floor == f], "cell"),
+                               "n": place["n"][place_floor == f]})
+            fl = _flatness(pl["cell"].nunique(), ch)
+            fl = pd.DataFrame({c: by_name(fl, c) for c in fl.columns}).reindex(info.index)
+            flag((fl["coverage"] >= p.flat_coverage) & (fl["std_db"] <= p.flat_std_db), "flat",
+                 lambda a, fl=fl, where=where: f"coverage {fl.at[a, 'coverage']:.2f}, "
+                                               f"SD {fl.at[a, 'std_db']:.1f} dB{where}")
+            spread = _peak_spread(peaks[peaks["floor"].to_numpy() == f], p.moving_strong_dbm,
+                                  p.moving_min_walks)
+            spread = by_name(spread.to_frame("v"), "v").reindex(info.index)
+            change_db = _survey_change(pl, ch, p.moving_strong_dbm, p.moving_min_cells,
+                                       p.moved_min_scans)
+            change_db = by_name(change_db.to_frame("v"), "v").reindex(info.index)
+            flag(spread > p.moving_spread_m, "moving",
+                 lambda a, s=spread, where=where: f"walk peaks {s.at[a]:.0f} m apart{where}")
+            flag(change_db > p.moved_change_db, "moved",
+                 lambda a, c=change_db, where=where: f"RSSI changed {c.at[a]:.0f} dB between "
+                                                     f"surveys{where}")
+        if self.by_floor:
+            order = (list(floor_order) if floor_order is not None
+                     else np.sort(floor_names).tolist())
+            level_of = {str(f): i for i, f in enumerate(order)}  # a repeated name: last place
+            strong, _ = self._strong.result()
+            level = np.array([level_of.get(str(n), -1) for n in floor_names],
+                             dtype=np.int64)[self._part(strong, "floor")]
+            known = level >= 0  # floors not in floor_order do not count
+            span = pd.Series(level[known]).groupby(self._part(strong, "ap")[known]).agg(
+                ["min", "max"])
+            gap = by_name((span["max"] - span["min"]).astype(np.float64).to_frame("v"),
+                          "v").reindex(info.index)
+            flag(gap >= p.far_floor_gap, "far_floors",
+                 lambda a: f"strong on floors {int(gap.at[a])} apart")
+
+        for a in aps:  # one reason once, in first-seen order
+            reasons[a] = list(dict.fromkeys(reasons[a]))
+        dropped_aps = [a for a in aps if reasons[a]]
+        dropped = pd.DataFrame({
+            "ap": pd.Series(dropped_aps, dtype=str),
+            "ssid": info.loc[dropped_aps, "ssid"].to_numpy(dtype=str),
+            "reason": [";".join(reasons[a]) for a in dropped_aps],
+            "detail": ["; ".join(details[a]) for a in dropped_aps],
+            "n_scans": info.loc[dropped_aps, "n_scans"].to_numpy(np.int64),
+            "n_walks": info.loc[dropped_aps, "n_walks"].to_numpy(np.int64),
+            "locally_administered": info.loc[dropped_aps, "locally_administered"].to_numpy(bool),
+        })
+        kept = np.array([a for a in aps if not reasons[a]], dtype=str)
+        return APSelection(kept, dropped)
 
 
-def _peak_spread(pos: _Positioned, aps: NDArray[np.str_], strong_dbm: float,
-                 min_walks: int) -> pd.Series:
-    """Per AP: median distance (m) of the per-walk strongest positions from their median point,
-    over walks whose strongest reading is at least ``strong_dbm`` (NaN with fewer walks)."""
-    ap, rssi = pos.ap, pos.rssi_dbm
-    rows = np.flatnonzero((ap >= 0) & (pos.walk >= 0) & np.isfinite(rssi))
-    if not len(rows):
+def _flatness(n_cells: int, change: pd.DataFrame) -> pd.DataFrame:
+    """Per AP code: share of the floor's ``n_cells`` cells where it is heard and the SD (dB)
+    of its cell means (``change``: RSSI sum ``s`` and count ``n`` per (AP, day, cell))."""
+    if len(change) == 0:
+        return pd.DataFrame({"coverage": [], "std_db": []}, dtype=np.float64)
+    per_cell = change.groupby(["ap", "cell"], sort=False)[["s", "n"]].sum()
+    means = (per_cell["s"] / per_cell["n"]).groupby(level="ap")
+    return pd.DataFrame({"coverage": means.size() / n_cells, "std_db": means.std(ddof=0)})
+
+
+def _peak_spread(peaks: pd.DataFrame, strong_dbm: float, min_walks: int) -> pd.Series:
+    """Per AP code: median distance (m) of the per-walk strongest positions (``peaks``: one
+    row per (AP, walk)) from their median point, over walks whose strongest reading is at least
+    ``strong_dbm`` (APs with fewer such walks are left out)."""
+    peaks = peaks[peaks["rssi"].to_numpy(np.float64) >= strong_dbm]
+    peaks = peaks[peaks.groupby("ap")["ap"].transform("size").to_numpy() >= min_walks]
+    if len(peaks) == 0:
         return pd.Series(dtype=np.float64)
-    key_code, keys = pd.factorize(ap[rows] * pos.n_walks + pos.walk[rows])  # (AP, walk)
-    best = np.full(len(keys), -np.inf)
-    np.maximum.at(best, key_code, rssi[rows])
-    at_best = np.flatnonzero(rssi[rows] == best[key_code])
-    _, first = np.unique(key_code[at_best], return_index=True)  # each one's first peak row
-    peak = rows[at_best[first]]
-    peak = peak[rssi[peak] >= strong_dbm]
-    count = np.bincount(ap[peak], minlength=len(aps))
-    peak = peak[count[ap[peak]] >= min_walks]
-    if len(peak) == 0:
-        return pd.Series(dtype=np.float64)
-    xy = pd.DataFrame({"x_m": pos.x_m[peak], "y_m": pos.y_m[peak]})
-    centre = xy.groupby(ap[peak]).transform("median")
-    dist = pd.Series(np.hypot(xy["x_m"] - centre["x_m"], xy["y_m"] - centre["y_m"]))
-    spread = dist.groupby(ap[peak]).median()
-    return pd.Series(spread.to_numpy(), index=aps[spread.index.to_numpy()])
+    xy = peaks[["x_m", "y_m"]].astype(np.float64)
+    ap = peaks["ap"].to_numpy()
+    centre = xy.groupby(ap).transform("median")
+    dist = pd.Series(np.hypot(xy["x_m"] - centre["x_m"], xy["y_m"] - centre["y_m"]).to_numpy())
+    return dist.groupby(ap).median()
 
 
-def _survey_change(pos: _Positioned, aps: NDArray[np.str_], cell_m: float, strong_dbm: float,
+def _survey_change(day_cell: pd.DataFrame, change: pd.DataFrame, strong_dbm: float,
                    min_cells: int, min_scans: int) -> pd.Series:
-    """Per AP: median |RSSI difference| (dB) between two surveys (UTC days) over the cells
+    """Per AP code: median |RSSI difference| (dB) between two surveys (UTC days) over the cells
     where both surveys have at least ``min_scans`` scans and either heard it at least
-    ``strong_dbm`` ("not heard in any of those scans" = -100 dBm; NaN with fewer than
-    ``min_cells`` such cells). A moved AP is loud where it used to be silent."""
-    if not len(pos.ap):
-        return pd.Series(dtype=np.float64)
-    day_code, days = pd.factorize(pos.t_ms // 86_400_000, sort=True)
+    ``strong_dbm`` ("not heard in any of those scans" = -100 dBm; left out with fewer than
+    ``min_cells`` such cells). A moved AP is loud where it used to be silent.
+
+    ``day_cell``: scans ``n`` per (day, cell); ``change``: mean RSSI ``mean`` per (AP, day,
+    cell)."""
+    days = np.unique(day_cell["day"].to_numpy())
     if len(days) < 2:
         return pd.Series(dtype=np.float64)
-    cell_code, cells = pd.factorize(pos.cells(cell_m))
-    n_cells, n_dc = len(cells), len(days) * len(cells)
-    dc = day_code * n_cells + cell_code  # (day, cell) of every row
-    scan_code, scans = pd.factorize(pos.scan_id)
-    pairs = _distinct(dc * len(scans) + scan_code)  # distinct (day, cell, scan)
-    good = np.bincount(pairs // len(scans), minlength=n_dc).reshape(len(days), n_cells) \
-        >= min_scans
-    use = good.reshape(-1)[dc] & (pos.ap >= 0) & np.isfinite(pos.rssi_dbm)
-    key_code, keys = pd.factorize(pos.ap[use] * n_dc + dc[use])  # (AP, day, cell) means
-    mean = np.bincount(key_code, weights=pos.rssi_dbm[use]) / np.bincount(key_code)
-    key_ap, key_day, key_cell = keys // n_dc, keys % n_dc // n_cells, keys % n_cells
-    out: dict[str, float] = {}
-    for da in range(len(days)):
-        for db in range(da + 1, len(days)):
-            common = good[da] & good[db]
-            if common.sum() < min_cells:
+    enough = day_cell[day_cell["n"].to_numpy() >= min_scans]
+    good = {d: np.sort(enough["cell"].to_numpy()[enough["day"].to_numpy() == d]) for d in days}
+    mean = change[["ap", "cell", "day", "mean"]]
+    out: dict[int, float] = {}
+    for i, da in enumerate(days):
+        for db in days[i + 1:]:
+            common = np.intersect1d(good[da], good[db], assume_unique=True)
+            if len(common) < min_cells:
                 continue
-            in_a = (key_day == da) & common[key_cell]
-            in_b = (key_day == db) & common[key_cell]
-            if not in_a.any() or not in_b.any():
+            sides = [mean[(mean["day"].to_numpy() == d) & np.isin(mean["cell"].to_numpy(), common)]
+                     .set_index(["ap", "cell"])["mean"] for d in (da, db)]
+            if not len(sides[0]) or not len(sides[1]):
                 continue
-            ka = key_ap[in_a] * n_cells + key_cell[in_a]  # (AP, cell)
-            kb = key_ap[in_b] * n_cells + key_cell[in_b]
-            union = np.union1d(ka, kb)  # (AP, cell) heard on either day
-            a, b = np.full(len(union), -100.0), np.full(len(union), -100.0)
-            a[np.searchsorted(union, ka)] = mean[in_a]
-            b[np.searchsorted(union, kb)] = mean[in_b]
-            strong = np.maximum(a, b) >= strong_dbm
-            diff = pd.Series(np.abs(a - b)[strong])
-            stat = diff.groupby(union[strong] // n_cells).agg(["median", "size"])
-            for a_idx, v in stat[stat["size"] >= min_cells]["median"].items():
-                name = str(aps[a_idx])
-                out[name] = max(out.get(name, 0.0), float(v))
+            both = pd.concat(sides, axis=1, keys=["a", "b"]).fillna(-100.0)
+            both = both[np.maximum(both["a"], both["b"]) >= strong_dbm]
+            diff = (both["a"] - both["b"]).abs()
+            stat = diff.groupby(level="ap").agg(["median", "size"])
+            for ap, v in stat[stat["size"] >= min_cells]["median"].items():
+                out[int(ap)] = max(out.get(int(ap), 0.0), float(v))
     return pd.Series(out, dtype=np.float64)
-
-
-def _distinct_per_ap(ap: NDArray[np.int64], values: pd.Series, n_aps: int) -> NDArray[np.int64]:
-    """Per AP code (0..n_aps-1; -1 = none): number of distinct non-missing ``values``."""
-    code, uniques = pd.factorize(values)
-    n = max(len(uniques), 1)
-    valid = (ap >= 0) & (code >= 0)
-    pairs = _distinct(ap[valid] * n + code[valid])
-    return np.bincount(pairs // n, minlength=n_aps)
-
-
-def _distinct(keys: NDArray[np.int64]) -> NDArray[np.int64]:
-    """Sorted distinct values of an integer array, by sorting a copy: on millions of keys this
-    needs far less memory than hashing (``np.unique``/``pd.unique``)."""
-    k = np.sort(keys)
-    return k[np.concatenate(([True], k[1:] != k[:-1]))] if len(k) else k
-
-
-def _flatness(pos: _Positioned, aps: NDArray[np.str_], cell_m: float) -> pd.DataFrame:
-    """Per AP: share of cells (``cell_m``) where it is heard and the SD (dB) of its cell means."""
-    valid = (pos.ap >= 0) & np.isfinite(pos.rssi_dbm)
-    if not valid.any():
-        return pd.DataFrame(columns=["coverage", "std_db"], dtype=np.float64)
-    cell_code, cells = pd.factorize(pos.cells(cell_m))
-    key_code, keys = pd.factorize(pos.ap[valid] * len(cells) + cell_code[valid])
-    mean = np.bincount(key_code, weights=pos.rssi_dbm[valid]) / np.bincount(key_code)
-    means = pd.Series(mean).groupby(keys // len(cells))  # per AP, over its cells
-    out = pd.DataFrame({"coverage": means.size() / len(cells), "std_db": means.std(ddof=0)})
-    return out.set_axis(aps[out.index.to_numpy()], axis=0)
 
 
 def select_aps(obs: pd.DataFrame, *, ssid: Mapping[str, str] | pd.Series | None = None,
@@ -260,79 +406,10 @@ def select_aps(obs: pd.DataFrame, *, ssid: Mapping[str, str] | pd.Series | None 
     -------
     APSelection
     """
-    missing = [c for c in OBS_COLUMNS if c not in obs.columns]
-    if missing:
-        raise FingerprintError(f"observation table lacks columns {missing}")
-    if floor_column is not None and floor_column not in obs.columns:
-        raise FingerprintError(f"observation table has no floor column {floor_column!r}")
-    aps = distinct_text(obs["ap"])
-    ap_code = text_codes(obs["ap"], aps)
-    info = pd.DataFrame(index=pd.Index(aps, name="ap"))
-    info["n_scans"] = _distinct_per_ap(ap_code, obs["scan_id"], len(aps))
-    info["n_walks"] = _distinct_per_ap(ap_code, obs["trace_id"], len(aps))
-    ssid_s = pd.Series(ssid, dtype=object) if ssid is not None else pd.Series(dtype=object)
-    info["ssid"] = ssid_s.reindex(info.index).fillna("").astype(str)
-    info["locally_administered"] = is_locally_administered(aps)
-    reasons: dict[str, list[str]] = {a: [] for a in aps}
-    details: dict[str, list[str]] = {a: [] for a in aps}
+    evidence = APEvidence(params)
+    if len(obs) == 0:
+        evidence.add_walk(obs, floor_column=floor_column)  # checks the columns
+    for rows in walk_rows(obs):
+        evidence.add_walk(obs.iloc[rows], floor_column=floor_column)
+    return evidence.select(ssid=ssid, floor_order=floor_order)
 
-    def flag(mask: pd.Series, reason: str, text) -> None:
-        for a in mask[mask].index:
-            reasons[a].append(reason)
-            details[a].append(text(a))
-
-    p = params
-    flag((info["n_scans"] < p.min_scans) | (info["n_walks"] < p.min_walks), "rare",
-         lambda a: f"{info.at[a, 'n_scans']} scans/{info.at[a, 'n_walks']} walks")
-    if ssid is not None:
-        flag(info["ssid"].map(lambda s: bool(HOTSPOT_SSID.search(s))), "hotspot_ssid",
-             lambda a: f"ssid {info.at[a, 'ssid']!r}")
-    if p.drop_locally_administered:
-        flag(info["locally_administered"], "locally_administered", lambda a: "LAA bit")
-
-    groups = ([(None, obs)] if floor_column is None
-              else list(split_by(obs, floor_column).items()))
-    for floor, part in groups:
-        where = "" if floor is None else f" on {floor}"
-        pos = _Positioned.of(part, aps)
-        fl = _flatness(pos, aps, p.flat_cell_m).reindex(info.index)
-        flag((fl["coverage"] >= p.flat_coverage) & (fl["std_db"] <= p.flat_std_db), "flat",
-             lambda a, fl=fl, where=where: f"coverage {fl.at[a, 'coverage']:.2f}, "
-                                           f"SD {fl.at[a, 'std_db']:.1f} dB{where}")
-        spread = _peak_spread(pos, aps, p.moving_strong_dbm,
-                              p.moving_min_walks).reindex(info.index)
-        change = _survey_change(pos, aps, p.flat_cell_m, p.moving_strong_dbm,
-                                p.moving_min_cells, p.moved_min_scans).reindex(info.index)
-        flag(spread > p.moving_spread_m, "moving",
-             lambda a, s=spread, where=where: f"walk peaks {s.at[a]:.0f} m apart{where}")
-        flag(change > p.moved_change_db, "moved",
-             lambda a, c=change, where=where: f"RSSI changed {c.at[a]:.0f} dB between "
-                                              f"surveys{where}")
-    if floor_column is not None:
-        order = (list(floor_order) if floor_order is not None
-                 else distinct_text(obs[floor_column]).tolist())
-        rank = {str(f): i for i, f in enumerate(order)}  # a repeated name: its last place
-        strong = obs["rssi_dbm"].to_numpy(np.float64) >= p.far_floor_strong_dbm
-        level = np.append(np.fromiter(rank.values(), np.int64, len(rank)), -1)[
-            text_codes(obs[floor_column], np.array(list(rank), dtype=str))][strong]
-        known = (level >= 0) & (ap_code[strong] >= 0)  # floors not in floor_order do not count
-        span = pd.Series(level[known]).groupby(ap_code[strong][known]).agg(["min", "max"])
-        gap = pd.Series((span["max"] - span["min"]).to_numpy(np.float64),
-                        index=aps[span.index.to_numpy()]).reindex(info.index)
-        flag(gap >= p.far_floor_gap, "far_floors",
-             lambda a: f"strong on floors {int(gap.at[a])} apart")
-
-    for a in aps:  # one reason once, in first-seen order
-        reasons[a] = list(dict.fromkeys(reasons[a]))
-    dropped_aps = [a for a in aps if reasons[a]]
-    dropped = pd.DataFrame({
-        "ap": pd.Series(dropped_aps, dtype=str),
-        "ssid": info.loc[dropped_aps, "ssid"].to_numpy(dtype=str),
-        "reason": [";".join(reasons[a]) for a in dropped_aps],
-        "detail": ["; ".join(details[a]) for a in dropped_aps],
-        "n_scans": info.loc[dropped_aps, "n_scans"].to_numpy(np.int64),
-        "n_walks": info.loc[dropped_aps, "n_walks"].to_numpy(np.int64),
-        "locally_administered": info.loc[dropped_aps, "locally_administered"].to_numpy(bool),
-    })
-    kept = np.array([a for a in aps if not reasons[a]], dtype=str)
-    return APSelection(kept, dropped)

@@ -31,13 +31,15 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from .errors import FingerprintError
-from .radio_scans import OBS_COLUMNS, distinct_text, text_codes
+from .radio_reduce import IntCodes, KeyedAggregate, TextCodes
+from .radio_scans import OBS_COLUMNS, distinct_text
 
 __all__ = [
     "DEFAULT_CELL_M",
     "DEFAULT_MAX_AGE_MS",
     "DenseFingerprints",
     "FingerprintDB",
+    "FingerprintSums",
     "build_fingerprints",
 ]
 
@@ -205,59 +207,117 @@ def build_fingerprints(obs: pd.DataFrame, *, kind: str = "wifi",
         Missing columns, an unknown kind, a negative cell size, no positioned scan, or no row
         left after the age filter (e.g. a floor without any Wi-Fi).
     """
-    if kind not in DEFAULT_MAX_AGE_MS:
-        raise FingerprintError(f"kind must be one of {sorted(DEFAULT_MAX_AGE_MS)}, not {kind!r}")
-    if not cell_m >= 0:
-        raise FingerprintError(f"cell_m must be >= 0, got {cell_m}")
-    if isinstance(max_age_ms, str):
-        max_age_ms = DEFAULT_MAX_AGE_MS[kind]
-    missing = [c for c in OBS_COLUMNS if c not in obs.columns]
-    if missing:
-        raise FingerprintError(f"observation table lacks columns {missing}")
-    # column arrays and masks, no copies of the table (it can hold millions of rows)
-    x_m, y_m = obs["x_m"].to_numpy(np.float64), obs["y_m"].to_numpy(np.float64)
-    scan_ids = obs["scan_id"].to_numpy(np.int64)
-    positioned = np.isfinite(x_m) & np.isfinite(y_m)
-    if not positioned.any():
-        raise FingerprintError(f"no positioned {kind} scans: cannot build reference points "
-                               f"(a floor without {kind} rows, or rows outside the walks)")
-    scan_index, first_row = np.unique(scan_ids[positioned], return_index=True)
-    xy = np.column_stack([x_m[positioned][first_row], y_m[positioned][first_row]])
-    if cell_m > 0:
-        cells = np.floor(xy / cell_m).astype(np.int64)
-        _, rp_of_scan = np.unique(cells, axis=0, return_inverse=True)
-    else:
-        rp_of_scan = np.arange(len(xy))
-    rp_of_scan = rp_of_scan.reshape(-1)
-    rp = (pd.DataFrame({"rp_id": rp_of_scan, "x_m": xy[:, 0], "y_m": xy[:, 1]})
-          .groupby("rp_id", sort=True)
-          .agg(x_m=("x_m", "mean"), y_m=("y_m", "mean"), n_scans=("x_m", "size"))
-          .reset_index())
-    rp["rp_id"] = rp["rp_id"].astype(np.int64)
-    rp["n_scans"] = rp["n_scans"].astype(np.int64)
-    use = positioned if max_age_ms is None else (
-        positioned & (obs["age_ms"].to_numpy(np.float64) <= max_age_ms))
-    if not use.any():
-        raise FingerprintError(f"no {kind} rows younger than {max_age_ms} ms among "
-                               f"{len(xy)} positioned scans")
-    rp_of_row = rp_of_scan[np.searchsorted(scan_index, scan_ids[use])]
-    # AP codes in name order, looked up per distinct AP (a row-wise text array of millions of
-    # rows would cost hundreds of MB)
-    ap_names = distinct_text(obs["ap"])
-    key = rp_of_row.astype(np.int64) * len(ap_names) + text_codes(obs["ap"], ap_names)[use]
-    keys, inv = np.unique(key, return_inverse=True)
-    rssi = obs["rssi_dbm"].to_numpy(np.float64)[use]
-    n = np.bincount(inv, minlength=len(keys))
-    mean = np.bincount(inv, weights=rssi, minlength=len(keys)) / n
-    ss = np.bincount(inv, weights=(rssi - mean[inv]) ** 2, minlength=len(keys))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        var = np.where(n > 1, ss / (n - 1), np.nan)  # eq. 2, unbiased
-    rp_ids = (keys // len(ap_names)).astype(np.int64)
-    n_scans = rp["n_scans"].to_numpy()[np.searchsorted(rp["rp_id"].to_numpy(), rp_ids)]
-    stats = pd.DataFrame({"rp_id": rp_ids,
-                          "ap": np.asarray(ap_names, dtype=object)[keys % len(ap_names)],
-                          "mean_dbm": mean, "var_db2": var, "n": n.astype(np.int64),
-                          "detection_rate": np.minimum(n / n_scans, 1.0)})
-    stats["ap"] = stats["ap"].astype(str)
-    return FingerprintDB(kind, rp[list(RP_COLUMNS)], stats[list(FP_COLUMNS)], float(cell_m),
-                         None if max_age_ms is None else float(max_age_ms))
+    sums = FingerprintSums(kind=kind, cell_m=cell_m, max_age_ms=max_age_ms)
+    sums.add(obs)
+    return sums.result()
+
+
+_SHIFT_DBM = -70.0
+"""RSSI sums are taken of ``rssi - _SHIFT_DBM``: squares stay small, variances exact to
+~1e-10 dB^2."""
+
+
+class FingerprintSums:
+    """A fingerprint database built from observation rows added in parts (whole scans at a
+    time, e.g. walk by walk): per reference-point cell the scans' position sums and count, per
+    (cell, transmitter) the count, sum and sum of squares of RSSI. Memory grows with cells x
+    transmitters, never with the rows. Arguments as :func:`build_fingerprints`;
+    ``compact_rows``: partial sums held before they are merged."""
+
+    def __init__(self, *, kind: str = "wifi", cell_m: float = DEFAULT_CELL_M,
+                 max_age_ms: float | None | str = "default",
+                 compact_rows: int = 1_000_000) -> None:
+        if kind not in DEFAULT_MAX_AGE_MS:
+            raise FingerprintError(f"kind must be one of {sorted(DEFAULT_MAX_AGE_MS)}, "
+                                   f"not {kind!r}")
+        if not cell_m >= 0:
+            raise FingerprintError(f"cell_m must be >= 0, got {cell_m}")
+        self.kind, self.cell_m = kind, float(cell_m)
+        self.max_age_ms = DEFAULT_MAX_AGE_MS[kind] if isinstance(max_age_ms, str) else max_age_ms
+        self.aps = TextCodes()
+        self.cells = IntCodes()  # reference-point cells (scan ids with cell_m = 0)
+        self._rp = KeyedAggregate({"sx": "sum", "sy": "sum", "n_scans": "sum"},
+                                  compact_rows=compact_rows)  # per cell
+        self._fp = KeyedAggregate({"n": "sum", "s": "sum", "q": "sum"},
+                                  compact_rows=compact_rows)  # per (cell, AP)
+        self._rows_used = 0
+
+    def add(self, obs: pd.DataFrame) -> None:
+        """Add observation rows (every scan with all its rows in one call). Scans without a
+        position are ignored."""
+        missing = [c for c in OBS_COLUMNS if c not in obs.columns]
+        if missing:
+            raise FingerprintError(f"observation table lacks columns {missing}")
+        x_m, y_m = obs["x_m"].to_numpy(np.float64), obs["y_m"].to_numpy(np.float64)
+        positioned = np.isfinite(x_m) & np.isfinite(y_m)
+        if not positioned.any():
+            return
+        scan_ids = obs["scan_id"].to_numpy(np.int64)[positioned]
+        scan_index, first_row = np.unique(scan_ids, return_index=True)
+        x, y = x_m[positioned][first_row], y_m[positioned][first_row]
+        if self.cell_m > 0:  # (cx, cy) as one key that sorts like the pair
+            cx = np.floor(x / self.cell_m).astype(np.int64) + (1 << 30)
+            cy = np.floor(y / self.cell_m).astype(np.int64) + (1 << 30)
+            if (cx < 0).any() or (cx >= 1 << 31).any() or (cy < 0).any() or (cy >= 1 << 31).any():
+                raise FingerprintError(f"positions beyond {self.cell_m * (1 << 30):.3g} m")
+            cell_key = (cx << 31) | cy
+        else:  # one reference point per scan
+            cell_key = scan_index
+        cells, cell_of_scan = np.unique(cell_key, return_inverse=True)
+        cell_of_scan = cell_of_scan.reshape(-1)
+        self._rp.add(cells, sx=np.bincount(cell_of_scan, weights=x, minlength=len(cells)),
+                     sy=np.bincount(cell_of_scan, weights=y, minlength=len(cells)),
+                     n_scans=np.bincount(cell_of_scan, minlength=len(cells)))
+        use = positioned if self.max_age_ms is None else (
+            positioned & (obs["age_ms"].to_numpy(np.float64) <= self.max_age_ms))
+        if not use.any():
+            return
+        code = self.cells.codes(cells)[cell_of_scan]  # dense code of each scan's cell
+        row_cell = code[np.searchsorted(scan_index, obs["scan_id"].to_numpy(np.int64)[use])]
+        keys, inv = np.unique((row_cell << 24) | self.aps.codes(obs["ap"])[use],
+                              return_inverse=True)
+        if len(self.aps) > 1 << 24:
+            raise FingerprintError("fingerprints: more than 16.7 M transmitters")
+        inv = inv.reshape(-1)
+        r = obs["rssi_dbm"].to_numpy(np.float64)[use] - _SHIFT_DBM
+        self._fp.add(keys, n=np.bincount(inv, minlength=len(keys)),
+                     s=np.bincount(inv, weights=r, minlength=len(keys)),
+                     q=np.bincount(inv, weights=r * r, minlength=len(keys)))
+        self._rows_used += int(use.sum())
+
+    def result(self) -> FingerprintDB:
+        """The database of every row added.
+
+        Raises
+        ------
+        FingerprintError
+            No positioned scan, or no row left after the age filter (e.g. a floor without any
+            Wi-Fi).
+        """
+        kind = self.kind
+        cells, rp = self._rp.result()  # sorted by cell: rp_id is the rank of the cell
+        if len(cells) == 0:
+            raise FingerprintError(f"no positioned {kind} scans: cannot build reference points "
+                                   f"(a floor without {kind} rows, or rows outside the walks)")
+        if self._rows_used == 0:
+            raise FingerprintError(f"no {kind} rows younger than {self.max_age_ms} ms among "
+                                   f"{int(rp['n_scans'].sum())} positioned scans")
+        n_scans = rp["n_scans"]
+        rp_table = pd.DataFrame({"rp_id": np.arange(len(cells), dtype=np.int64),
+                                 "x_m": rp["sx"] / n_scans, "y_m": rp["sy"] / n_scans,
+                                 "n_scans": n_scans})
+        keys, fp = self._fp.result()
+        rp_of_code = np.searchsorted(cells, self.cells.values())  # cell code -> rp_id
+        rp_ids = rp_of_code[keys >> 24]
+        ap = keys & ((1 << 24) - 1)
+        order = np.lexsort((self.aps.sorted_rank()[ap], rp_ids))  # by RP, then AP name
+        rp_ids, ap = rp_ids[order], ap[order]
+        n, s, q = fp["n"][order], fp["s"][order], fp["q"][order]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            var = np.where(n > 1, np.maximum(q - s * s / n, 0.0) / (n - 1), np.nan)  # eq. 2
+        stats = pd.DataFrame({"rp_id": rp_ids, "ap": self.aps.names()[ap].astype(object),
+                              "mean_dbm": s / n + _SHIFT_DBM, "var_db2": var, "n": n,
+                              "detection_rate": np.minimum(n / n_scans[rp_ids], 1.0)})
+        stats["ap"] = stats["ap"].astype(str)
+        return FingerprintDB(kind, rp_table, stats[list(FP_COLUMNS)], self.cell_m,
+                             None if self.max_age_ms is None else float(self.max_age_ms))

@@ -16,13 +16,20 @@ One pass over the processed Wi-Fi and BLE rows of every floor of a site:
    ``floor_coef``, ``floor_intercept`` and ``floor_meta`` tables, read by
    :class:`localize.floor_classifier.FloorClassifier`.
 
+The rows are reduced walk by walk (bounded memory, ``docs/reliability.md``): AP selection
+(:class:`~mapping.ap_selection.APEvidence`) and fingerprints
+(:class:`~mapping.fingerprints.FingerprintSums`) keep per-key sums, never the rows. The device
+fit and the floor model need rows: they use a deterministic sample of whole walks of at most
+``calibration_max_rows`` rows per phone model and ``floor_model_max_rows`` rows per floor
+(:func:`~mapping.radio_reduce.capped_walk_sample`; every walk when they fit, as on site1).
+
 A floor without any row of a kind simply has no tables of that kind (reported in
 ``metrics["radio"]``); a site without any radio row has no radio tables at all.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Collection, Sequence
+from collections.abc import Callable, Collection, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -32,34 +39,37 @@ from numpy.typing import NDArray
 
 from survey.errors import ProcessingError
 from survey.memory import release_free_memory
-from survey.store import SurveyStore
 from survey.process_store import processed_part, processed_walks
+from survey.store import SurveyStore
 
-from .ap_selection import APSelection, APSelectionParams, select_aps
+from .ap_selection import APEvidence, APSelection, APSelectionParams
 from .bundle_writer import BundleContent
 from .device_calibration import DEVICE_TABLE_COLUMNS, calibrate_devices
 from .errors import FingerprintError
-from .fingerprints import DEFAULT_CELL_M, FingerprintDB, build_fingerprints
+from .fingerprints import DEFAULT_CELL_M, FingerprintDB, FingerprintSums
 from .floor_model import FloorModel, fit_floor_model
-from .radio_scans import OBS_COLUMNS, ble_observations, split_by, wifi_observations
+from .radio_reduce import TextCodes, capped_walk_sample, walk_rows
+from .radio_scans import OBS_COLUMNS, ble_observations, wifi_observations
 
-__all__ = ["KINDS", "RadioParams", "SiteRadio", "build_site_radio", "calibrated", "site_observations",
-           "site_radio"]
+__all__ = ["KINDS", "RadioParams", "SiteRadio", "WalkSource", "build_site_radio", "calibrated",
+           "reduce_site_radio", "site_observations", "site_radio", "store_walks", "table_walks"]
 
 KINDS = ("wifi", "ble")
 
 
 @dataclass(frozen=True)
 class RadioParams:
-    """Radio-map parameters (m, ms)."""
+    """Radio-map parameters (m, ms, rows)."""
 
     cell_m: float = DEFAULT_CELL_M
     ble_window_ms: int = 2000
     select_aps: bool = True
     ap_selection: APSelectionParams = field(default_factory=APSelectionParams)
     calibrate_devices: bool = True
+    calibration_max_rows: int = 1_000_000
     floor_model: bool = True
     floor_cv_folds: int = 5
+    floor_model_max_rows: int = 750_000
     seed: int = 0
 
     def to_dict(self) -> dict:
@@ -70,6 +80,124 @@ def _table(frame: pd.DataFrame) -> pa.Table:
     return pa.Table.from_pandas(frame.reset_index(drop=True), preserve_index=False)
 
 
+WALK_COLUMNS = ("trace_id", "floor", "device_model", "rows_wifi", "rows_ble", "scans_wifi")
+
+
+@dataclass(frozen=True)
+class WalkSource:
+    """Where the radio build reads its observation rows, walk by walk.
+
+    Attributes
+    ----------
+    walks : DataFrame
+        One row per walk in reading order, columns :data:`WALK_COLUMNS` (rows and Wi-Fi scans
+        per walk may be estimates: they only size the samples and choose the reference phone).
+    read : callable
+        ``read(kind, walks)`` yields ``(walk, obs)`` for the rows of ``walks`` (a part of
+        :attr:`walks`) that have rows of ``kind``: ``obs`` is the walk's observation table
+        (:mod:`mapping.radio_scans`) with ``floor`` and ``ssid`` columns, scan ids unique over
+        the source.
+    """
+
+    walks: pd.DataFrame
+    read: Callable[[str, pd.DataFrame], Iterator[tuple[pd.Series, pd.DataFrame]]]
+
+
+def store_walks(store: SurveyStore, site: str | None, floors: Sequence[str], *,
+                ble_window_ms: int = 2000, exclude_walks: Collection[str] = ()) -> WalkSource:
+    """The processed walks of ``floors`` in a survey store (all but ``exclude_walks``), read
+    one at a time with their text columns as categoricals."""
+    try:
+        walks = processed_walks(store, site=site)
+    except ProcessingError:  # never processed: no rows
+        walks = pd.DataFrame(columns=["floor", "trace_id"])
+    walks = walks[~walks["trace_id"].isin(list(exclude_walks))]
+    walks = pd.concat([walks[walks["floor"] == f] for f in floors], ignore_index=True)
+    cat = store.traces(site).set_index("trace_id")
+    counts = {"device_model": "device_model", "rows_wifi": "n_wifi_rows",
+              "rows_ble": "n_ble_rows", "scans_wifi": "n_scans"}
+    for col, name in counts.items():
+        walks[col] = walks["trace_id"].map(cat[name]).to_numpy()
+    walks["device_model"] = walks["device_model"].fillna("").astype(str)
+    table = walks[list(WALK_COLUMNS)].copy()
+    offset = [0]  # scan ids unique over everything read from this source
+
+    def read(kind: str, chosen: pd.DataFrame) -> Iterator[tuple[pd.Series, pd.DataFrame]]:
+        for _, r in walks[walks["trace_id"].isin(chosen["trace_id"])].iterrows():
+            rows = processed_part(store, kind, r, text_as_category=True)
+            if len(rows) == 0:
+                continue
+            rows.insert(0, "trace_id", r["trace_id"])
+            if kind == "wifi":
+                obs = wifi_observations(rows, invalid="drop")
+                first = rows.drop_duplicates("bssid")  # an AP's SSID: that of its first row
+                ssid = pd.Series(first["ssid"].astype(str).to_numpy(),
+                                 index=first["bssid"].astype(str).str.lower().to_numpy())
+                obs["ssid"] = obs["ap"].map(ssid[~ssid.index.duplicated()]).fillna("")
+            else:
+                obs = ble_observations(rows, window_ms=ble_window_ms, invalid="drop")
+                obs["ssid"] = ""
+            del rows
+            if len(obs) == 0:
+                continue
+            obs["scan_id"] += offset[0]
+            offset[0] = int(obs["scan_id"].max()) + 1
+            obs["floor"] = r["floor"]
+            yield r[list(WALK_COLUMNS)], obs
+
+    return WalkSource(table, read)
+
+
+def table_walks(obs: Mapping[str, pd.DataFrame], device_of: Mapping[str, str] | pd.Series,
+                floors: Sequence[str]) -> WalkSource:
+    """The walks of observation tables in memory (kind -> table with ``floor`` and, for
+    Wi-Fi, ``ssid`` columns; :func:`site_observations`)."""
+    floors = [str(f) for f in floors]
+    device = pd.Series(device_of, dtype=object)
+    rows_of: dict[str, dict[str, NDArray[np.intp]]] = {}
+    parts = []
+    for kind in KINDS:
+        o = obs.get(kind)
+        if o is None or len(o) == 0:
+            rows_of[kind] = {}
+            continue
+        groups = walk_rows(o)
+        trace = o["trace_id"].to_numpy()
+        rows_of[kind] = {str(trace[g[0]]): g for g in groups}
+        scans = [len(np.unique(o["scan_id"].to_numpy()[g])) for g in groups]
+        parts.append(pd.DataFrame({"trace_id": [str(trace[g[0]]) for g in groups],
+                                   "floor": [str(o["floor"].iloc[g[0]]) for g in groups],
+                                   f"rows_{kind}": [len(g) for g in groups],
+                                   f"scans_{kind}": scans}))
+    walks = pd.DataFrame(columns=["trace_id", "floor"])
+    for part in parts:
+        walks = walks.merge(part, on=["trace_id", "floor"], how="outer", sort=False)
+    walks = pd.concat([walks[walks["floor"] == f] for f in floors], ignore_index=True)
+    for col in ("rows_wifi", "rows_ble", "scans_wifi"):
+        walks[col] = walks[col].fillna(0).astype(np.int64) if col in walks else 0
+    walks["device_model"] = walks["trace_id"].map(device).to_numpy()
+    table = walks[list(WALK_COLUMNS)]
+
+    def read(kind: str, chosen: pd.DataFrame) -> Iterator[tuple[pd.Series, pd.DataFrame]]:
+        o = obs.get(kind)
+        for _, w in chosen.iterrows():
+            rows = rows_of[kind].get(w["trace_id"])
+            if rows is not None:
+                part = o.iloc[rows]
+                yield w, part if "ssid" in part else part.assign(ssid="")
+
+    return WalkSource(table, read)
+
+
+def first_ssids(obs: pd.DataFrame, ssid_of: dict[str, str]) -> None:
+    """Record the SSID of each AP of ``obs`` not yet in ``ssid_of`` (its first row's)."""
+    code, aps = pd.factorize(obs["ap"])
+    _, first = np.unique(code, return_index=True)  # codes number APs by first appearance
+    ssids = obs["ssid"].to_numpy()[first]
+    for ap, ssid in zip(aps, ssids):
+        ssid_of.setdefault(str(ap), str(ssid))
+
+
 def site_observations(store: SurveyStore, site: str | None, floors: Sequence[str], kind: str,
                       *, ble_window_ms: int = 2000,
                       exclude_walks: Collection[str] = ()) -> pd.DataFrame:
@@ -78,40 +206,20 @@ def site_observations(store: SurveyStore, site: str | None, floors: Sequence[str
     RSSI outside the phone range is dropped (counted by the reader's checks upstream).
     Walks whose trace id is in ``exclude_walks`` are left out.
 
-    Reads the processed rows walk by walk and keeps only each walk's observations, with the
-    text columns (``trace_id``, ``ap``, ``ssid``, ``floor``) as categoricals: about 60 bytes
-    per observation row, so memory grows with the observations only, never with the raw rows
-    and their text."""
+    The whole table in memory (for evaluation; the build itself reduces walk by walk), with
+    the text columns (``trace_id``, ``ap``, ``ssid``, ``floor``) as categoricals: about 60
+    bytes per observation row."""
+    source = store_walks(store, site, floors, ble_window_ms=ble_window_ms,
+                         exclude_walks=exclude_walks)
     columns = (*OBS_COLUMNS, "floor")
     parts: dict[str, list[np.ndarray]] = {c: [] for c in columns}  # per column, per walk
-    ssid_of, n_scans = {}, 0
-    codes = {"trace_id": {}, "ap": {}, "floor": {}}
-    try:
-        walks = processed_walks(store, site=site)
-    except ProcessingError:  # never processed: no rows
-        walks = pd.DataFrame(columns=["floor", "trace_id"])
-    walks = walks[~walks["trace_id"].isin(list(exclude_walks))]
-    for floor in floors:
-        for _, r in walks[walks["floor"] == floor].iterrows():
-            rows = processed_part(store, kind, r, text_as_category=True)
-            if len(rows) == 0:
-                continue
-            rows.insert(0, "trace_id", r["trace_id"])
-            if kind == "wifi":
-                obs = wifi_observations(rows, invalid="drop")
-                first = rows.drop_duplicates("bssid")  # an AP's SSID: that of its first row
-                for bssid, ssid in zip(first["bssid"].astype(str).str.lower(), first["ssid"]):
-                    ssid_of.setdefault(bssid, str(ssid))
-            else:
-                obs = ble_observations(rows, window_ms=ble_window_ms, invalid="drop")
-            walk_scans = int(obs["scan_id"].max()) + 1 if len(obs) else 0  # numbered from 0
-            obs["scan_id"] += n_scans  # unique over the site
-            n_scans += walk_scans
-            obs["floor"] = floor
-            for col, table in codes.items():
-                obs[col] = _codes(obs[col], table)
-            for col in columns:
-                parts[col].append(obs[col].to_numpy())
+    codes = {c: TextCodes() for c in ("trace_id", "ap", "floor")}
+    ssid_of: dict[str, str] = {}
+    for _, obs in source.read(kind, source.walks):
+        for col in columns:
+            parts[col].append(codes[col].codes(obs[col]).astype(np.int32) if col in codes
+                              else obs[col].to_numpy())
+        first_ssids(obs, ssid_of)
     if not parts["scan_id"]:
         return pd.DataFrame(columns=[*OBS_COLUMNS, "ssid", "floor"])
     # One column at a time, each column's walk pieces freed as soon as it is joined: the peak
@@ -119,23 +227,16 @@ def site_observations(store: SurveyStore, site: str | None, floors: Sequence[str
     data = {}
     for col in columns:
         joined = np.concatenate(parts.pop(col))
-        data[col] = (pd.Categorical.from_codes(joined, list(codes[col])) if col in codes
+        data[col] = (pd.Categorical.from_codes(joined, codes[col].names()) if col in codes
                      else joined)
-    # SSID of each row's AP (Wi-Fi), coded through the AP's code
-    ssid_code, ssids = pd.factorize(np.array([ssid_of.get(ap, "") for ap in codes["ap"]],
+    # SSID of each row's AP (the first seen), coded through the AP's code
+    ssid_code, ssids = pd.factorize(np.array([ssid_of.get(ap, "") for ap in codes["ap"].names()],
                                              dtype=object))
     data["ssid"] = pd.Categorical.from_codes(ssid_code[data["ap"].codes], ssids)
     data["floor"] = data.pop("floor")
     table = pd.DataFrame(data, copy=False)
     release_free_memory()  # the walks' freed buffers
     return table
-
-
-def _codes(values: pd.Series, table: dict[str, int]) -> NDArray[np.int32]:
-    """Integer codes of ``values`` in ``table`` (new values appended to it)."""
-    idx, uniques = pd.factorize(values)
-    lookup = np.array([table.setdefault(str(u), len(table)) for u in uniques], dtype=np.int32)
-    return lookup[idx]
 
 
 @dataclass
@@ -236,22 +337,19 @@ def build_site_radio(store: SurveyStore | str, floors: Sequence[str], *,
                      exclude_walks: Collection[str] = (),
                      progress: Callable[[str], None] | None = None) -> SiteRadio:
     """Device table, AP selection, fingerprints and floor model of a site's floors, from all
-    their processed walks but ``exclude_walks`` (trace ids)."""
+    their processed walks but ``exclude_walks`` (trace ids), read walk by walk."""
     store = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
     floors = [str(f) for f in floors]
-    cat = store.traces(site)
-    device_of = cat.set_index("trace_id")["device_model"].fillna("").astype(str)
-    # no local name for the tables: site_radio may free each one once it has filtered it
-    return site_radio({kind: site_observations(store, site, floors, kind,
-                                               ble_window_ms=params.ble_window_ms,
-                                               exclude_walks=exclude_walks)
-                       for kind in KINDS}, device_of, floors, params=params, progress=progress)
+    device_of = store.traces(site).set_index("trace_id")["device_model"].fillna("").astype(str)
+    source = store_walks(store, site, floors, ble_window_ms=params.ble_window_ms,
+                         exclude_walks=exclude_walks)
+    return reduce_site_radio(source, device_of, floors, params=params, progress=progress)
 
 
 def site_radio(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: Sequence[str], *,
                params: RadioParams = RadioParams(),
                progress: Callable[[str], None] | None = None) -> SiteRadio:
-    """:func:`build_site_radio` on observation tables (pure computation).
+    """:func:`build_site_radio` on observation tables in memory (pure computation).
 
     Parameters
     ----------
@@ -263,51 +361,162 @@ def site_radio(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: Seque
     floors : sequence of str
         Floors bottom to top.
     """
+    return reduce_site_radio(table_walks(obs, device_of, floors), device_of, floors,
+                             params=params, progress=progress)
+
+
+def _device_table(source: WalkSource, device_of: pd.Series, params: RadioParams,
+                  say: Callable[[str], None]) -> pd.DataFrame:
+    """The device table (empty without Wi-Fi); with several phone models, fitted on a capped
+    sample of each model's walks."""
+    walks = source.walks[source.walks["rows_wifi"] > 0]
+    if not len(walks) or not params.calibrate_devices:
+        return pd.DataFrame({c: [] for c in DEVICE_TABLE_COLUMNS})
+    unknown = walks["trace_id"][walks["device_model"].isna()]
+    if len(unknown):
+        raise FingerprintError(f"no device model for traces {sorted(map(str, unknown))[:5]}")
+    models = walks.assign(device_model=walks["device_model"].astype(str))
+    scans = models.groupby("device_model", sort=True)["scans_wifi"].sum()
+    reference = str(scans.sort_values(ascending=False, kind="stable").index[0])
+    if len(scans) == 1:
+        devices = pd.DataFrame([{c: v for c, v in zip(
+            DEVICE_TABLE_COLUMNS, (reference, 1.0, 0.0, 0, 0.0, "reference"))}])
+    else:
+        sample: set[str] = set()
+        for _, part in models.groupby("device_model", sort=True):
+            sample |= capped_walk_sample(part.set_index("trace_id")["rows_wifi"],
+                                         params.calibration_max_rows, seed=params.seed)
+        obs = pd.concat([o for _, o in source.read("wifi", walks[walks["trace_id"].isin(sample)])],
+                        ignore_index=True)
+        devices = calibrate_devices(obs, device_of, reference_model=reference,
+                                    floor_column="floor")
+        del obs
+    fitted = devices[devices["method"] == "offline"]
+    say("devices: reference " + reference + "; "
+        + (", ".join(f"{r.device_model} k={r.k:.3f} b={r.b:+.1f} dB"
+                     for r in fitted.itertuples()) or "no other model fitted"))
+    return devices
+
+
+def _calibration_of(walks: pd.DataFrame, devices: pd.DataFrame) -> dict[str, tuple[float, float]]:
+    """``(k, b)`` per trace id whose model's calibration is not the identity."""
+    table = devices.set_index("device_model")
+    kb = {str(m): (float(r["k"]), float(r["b"])) for m, r in table.iterrows()
+          if (r["k"], r["b"]) != (1.0, 0.0)}
+    return {str(t): kb[str(m)] for t, m in zip(walks["trace_id"], walks["device_model"])
+            if str(m) in kb}
+
+
+class _SampleRows:
+    """Observation rows of the floor model's sample of walks, per floor, held compactly (text
+    as integer codes, no positions: about 32 bytes per row)."""
+
+    def __init__(self) -> None:
+        self.aps, self.traces = TextCodes(), TextCodes()
+        self.parts: dict[str, list[dict[str, NDArray]]] = {}
+
+    def add(self, floor: str, obs: pd.DataFrame) -> None:
+        self.parts.setdefault(floor, []).append({
+            "scan_id": obs["scan_id"].to_numpy(np.int64), "t_ms": obs["t_ms"].to_numpy(np.int64),
+            "rssi_dbm": obs["rssi_dbm"].to_numpy(np.float64),
+            "ap": self.aps.codes(obs["ap"]).astype(np.int32),
+            "trace_id": self.traces.codes(obs["trace_id"]).astype(np.int32)})
+
+    def tables(self, floors: Sequence[str], kept: set[str] | None) -> dict[str, pd.DataFrame]:
+        """Floor -> observation table (rows of transmitters in ``kept``; all when None),
+        positions and ages NaN."""
+        aps, traces = self.aps.names(), self.traces.names()
+        keep = (np.ones(len(aps), dtype=bool) if kept is None
+                else np.isin(aps, np.array(sorted(kept), dtype=str)))
+        out = {}
+        for floor in floors:
+            parts = self.parts.pop(floor, [])
+            if not parts:
+                out[floor] = pd.DataFrame(columns=list(OBS_COLUMNS))
+                continue
+            cols = {c: np.concatenate([p[c] for p in parts]) for c in parts[0]}
+            rows = keep[cols["ap"]]
+            cols = {c: v[rows] for c, v in cols.items()}
+            n = len(cols["ap"])
+            out[floor] = pd.DataFrame({
+                "trace_id": pd.Categorical.from_codes(cols["trace_id"], traces),
+                "scan_id": cols["scan_id"], "t_ms": cols["t_ms"],
+                "x_m": np.full(n, np.nan), "y_m": np.full(n, np.nan),
+                "ap": pd.Categorical.from_codes(cols["ap"], aps),
+                "rssi_dbm": cols["rssi_dbm"], "age_ms": np.full(n, np.nan)})
+        return out
+
+
+def reduce_site_radio(source: WalkSource, device_of: pd.Series, floors: Sequence[str], *,
+                      params: RadioParams = RadioParams(),
+                      progress: Callable[[str], None] | None = None) -> SiteRadio:
+    """The site's radio maps from its walks, read one at a time (module docstring)."""
     say = progress or (lambda msg: None)
     floors = [str(f) for f in floors]
-    obs = dict(obs)
     notes: list[str] = []
-    devices = pd.DataFrame({c: [] for c in DEVICE_TABLE_COLUMNS})
-    if len(obs.get("wifi", ())) and params.calibrate_devices:
-        devices = calibrate_devices(obs["wifi"], device_of, floor_column="floor")
-        fitted = devices[devices["method"] == "offline"]
-        say("devices: reference " + str(devices["device_model"].iloc[0]) + "; "
-            + (", ".join(f"{r.device_model} k={r.k:.3f} b={r.b:+.1f} dB"
-                         for r in fitted.itertuples()) or "no other model fitted"))
+    devices = _device_table(source, device_of, params, say)
+    kb_of = _calibration_of(source.walks, devices)
     selections: dict[str, APSelection] = {}
     fingerprints: dict[tuple[str, str], FingerprintDB] = {}
+    samples: dict[str, tuple[_SampleRows, set[str] | None]] = {}  # kind -> floor model rows
     for kind in KINDS:
-        o = obs.pop(kind, None)  # the only reference: each filtered table replaces its input
-        if o is None or len(o) == 0:
+        walks = source.walks[source.walks[f"rows_{kind}"] > 0]
+        evidence = APEvidence(params.ap_selection)
+        sums = {f: FingerprintSums(kind=kind, cell_m=params.cell_m) for f in floors}
+        sample: set[str] = set()
+        if params.floor_model:
+            for _, part in walks.groupby("floor", sort=False):
+                sample |= capped_walk_sample(part.set_index("trace_id")[f"rows_{kind}"],
+                                             params.floor_model_max_rows, seed=params.seed)
+        model_rows = _SampleRows()
+        ssid_of: dict[str, str] = {}
+        seen = set()
+        for i, (walk, obs) in enumerate(source.read(kind, walks), 1):
+            if i % 100 == 0:
+                say(f"{kind}: read walk {i}/{len(walks)}")
+            if walk["trace_id"] in kb_of and kind == "wifi":
+                k, b = kb_of[walk["trace_id"]]
+                obs = obs.assign(rssi_dbm=k * obs["rssi_dbm"].to_numpy() + b)
+            if kind == "wifi":
+                first_ssids(obs, ssid_of)
+            evidence.add_walk(obs, floor_column="floor")
+            sums[walk["floor"]].add(obs)
+            seen.add(walk["floor"])
+            if walk["trace_id"] in sample:
+                model_rows.add(walk["floor"], obs)
+        if not seen:
             notes.append(f"no {kind} rows on any floor")
-            obs[kind] = pd.DataFrame(columns=["floor"])
             continue
-        if len(devices) and kind == "wifi":
-            o = calibrated(o, device_of, devices)
+        kept = None
         if params.select_aps:
-            ssid = o.drop_duplicates("ap").set_index("ap")["ssid"] if kind == "wifi" else None
-            sel = select_aps(o, ssid=ssid, floor_column="floor", floor_order=floors,
-                             params=params.ap_selection)
+            sel = evidence.select(ssid=ssid_of if kind == "wifi" else None, floor_order=floors)
             selections[kind] = sel
-            o = o[o["ap"].isin(set(sel.kept.tolist()))]
+            kept = set(sel.kept.tolist())
             say(f"{kind}: kept {len(sel.kept)} transmitters, dropped {len(sel.dropped)} "
                 f"{sel.summary()}")
-        by_floor = split_by(o, "floor")
+        del evidence
         for floor in floors:
-            part = by_floor.get(floor, o.iloc[:0])
-            if len(part) == 0:
+            if floor not in seen:
                 notes.append(f"floor {floor}: no {kind} rows")
                 continue
             try:
-                fingerprints[(floor, kind)] = build_fingerprints(part, kind=kind,
-                                                                 cell_m=params.cell_m)
+                db = sums.pop(floor).result()
             except FingerprintError as err:
                 notes.append(f"floor {floor}: no {kind} fingerprints ({err})")
-        obs[kind] = o
+                continue
+            if kept is not None:
+                db = db.restricted(sorted(kept))
+            if len(db.fp) == 0:
+                notes.append(f"floor {floor}: no {kind} rows of kept transmitters")
+                continue
+            fingerprints[(floor, kind)] = db
+        samples[kind] = (model_rows, kept)
+        release_free_memory()  # the walks' freed buffers
     model, model_kind = None, ""
     for kind in KINDS if params.floor_model else ():  # Wi-Fi first, BLE without Wi-Fi
-        by_floor = split_by(obs[kind], "floor")
-        by_floor = {f: by_floor.get(f, obs[kind].iloc[:0]) for f in floors}
+        if kind not in samples:
+            continue
+        by_floor = samples[kind][0].tables(floors, samples[kind][1])
         if any(len(v) for v in by_floor.values()):
             model = fit_floor_model(by_floor, cv_folds=params.floor_cv_folds, seed=params.seed)
             model_kind = kind
