@@ -134,7 +134,7 @@ class APEvidence:
         self.cells = IntCodes()
         self.by_floor: bool | None = None
         def sums(*names: str) -> KeyedAggregate:
-            return KeyedAggregate({n: "sum" for n in names}, compact_rows=compact_rows)
+            return KeyedAggregate(names, compact_rows=compact_rows)
 
         self._per_ap = sums("n_scans", "n_walks")
         self._strong = sums("n")  # key (floor, ap)
@@ -180,6 +180,10 @@ class APEvidence:
         if len(obs) == 0:
             return
         ap = self.aps.codes(obs["ap"])
+        if (ap < 0).any():  # rows without a transmitter id say nothing
+            obs, ap = obs[ap >= 0], ap[ap >= 0]
+            if len(obs) == 0:
+                return
         _, scan = np.unique(obs["scan_id"].to_numpy(np.int64), return_inverse=True)
         scan = scan.reshape(-1)
         pairs = np.unique(ap * (scan.max() + 1) + scan)  # distinct (AP, scan)
@@ -190,6 +194,8 @@ class APEvidence:
         if floor_column is None and not len(self.floors):
             self.floors.codes(np.array([""]))
         self._check_sizes()
+        if (floor < 0).any():  # rows without a floor: no floor rule sees them
+            obs, ap, floor = obs[floor >= 0], ap[floor >= 0], floor[floor >= 0]
         p = self.params
         rssi = obs["rssi_dbm"].to_numpy(np.float64)
         with np.errstate(invalid="ignore"):
@@ -210,6 +216,8 @@ class APEvidence:
         counts = np.bincount(place_scans // n_scan, minlength=len(places))
         self._day_cell.add(places, n=counts)
         valid = np.isfinite(rssi)
+        if not valid.any():
+            return
         keys, inv = np.unique(self._key(floor=floor[valid], ap=ap[valid], day=day[valid],
                                         cell=cell[valid]), return_inverse=True)
         inv = inv.reshape(-1)

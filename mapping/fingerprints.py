@@ -236,9 +236,9 @@ class FingerprintSums:
         self.max_age_ms = DEFAULT_MAX_AGE_MS[kind] if isinstance(max_age_ms, str) else max_age_ms
         self.aps = TextCodes()
         self.cells = IntCodes()  # reference-point cells (scan ids with cell_m = 0)
-        self._rp = KeyedAggregate({"sx": "sum", "sy": "sum", "n_scans": "sum"},
+        self._rp = KeyedAggregate(("sx", "sy", "n_scans"),
                                   compact_rows=compact_rows)  # per cell
-        self._fp = KeyedAggregate({"n": "sum", "s": "sum", "q": "sum"},
+        self._fp = KeyedAggregate(("n", "s", "q"),
                                   compact_rows=compact_rows)  # per (cell, AP)
         self._rows_used = 0
 
@@ -268,14 +268,15 @@ class FingerprintSums:
         self._rp.add(cells, sx=np.bincount(cell_of_scan, weights=x, minlength=len(cells)),
                      sy=np.bincount(cell_of_scan, weights=y, minlength=len(cells)),
                      n_scans=np.bincount(cell_of_scan, minlength=len(cells)))
-        use = positioned if self.max_age_ms is None else (
-            positioned & (obs["age_ms"].to_numpy(np.float64) <= self.max_age_ms))
+        ap = self.aps.codes(obs["ap"])
+        use = positioned & (ap >= 0) & np.isfinite(obs["rssi_dbm"].to_numpy(np.float64))
+        if self.max_age_ms is not None:
+            use &= obs["age_ms"].to_numpy(np.float64) <= self.max_age_ms
         if not use.any():
             return
         code = self.cells.codes(cells)[cell_of_scan]  # dense code of each scan's cell
         row_cell = code[np.searchsorted(scan_index, obs["scan_id"].to_numpy(np.int64)[use])]
-        keys, inv = np.unique((row_cell << 24) | self.aps.codes(obs["ap"])[use],
-                              return_inverse=True)
+        keys, inv = np.unique((row_cell << 24) | ap[use], return_inverse=True)
         if len(self.aps) > 1 << 24:
             raise FingerprintError("fingerprints: more than 16.7 M transmitters")
         inv = inv.reshape(-1)

@@ -112,7 +112,8 @@ def store_walks(store: SurveyStore, site: str | None, floors: Sequence[str], *,
     except ProcessingError:  # never processed: no rows
         walks = pd.DataFrame(columns=["floor", "trace_id"])
     walks = walks[~walks["trace_id"].isin(list(exclude_walks))]
-    walks = pd.concat([walks[walks["floor"] == f] for f in floors], ignore_index=True)
+    walks = pd.concat([walks.iloc[:0]] + [walks[walks["floor"] == f] for f in floors],
+                      ignore_index=True)
     cat = store.traces(site).set_index("trace_id")
     counts = {"device_model": "device_model", "rows_wifi": "n_wifi_rows",
               "rows_ble": "n_ble_rows", "scans_wifi": "n_scans"}
@@ -172,7 +173,8 @@ def table_walks(obs: Mapping[str, pd.DataFrame], device_of: Mapping[str, str] | 
     walks = pd.DataFrame(columns=["trace_id", "floor"])
     for part in parts:
         walks = walks.merge(part, on=["trace_id", "floor"], how="outer", sort=False)
-    walks = pd.concat([walks[walks["floor"] == f] for f in floors], ignore_index=True)
+    walks = pd.concat([walks.iloc[:0]] + [walks[walks["floor"] == f] for f in floors],
+                      ignore_index=True)
     for col in ("rows_wifi", "rows_ble", "scans_wifi"):
         walks[col] = walks[col].fillna(0).astype(np.int64) if col in walks else 0
     walks["device_model"] = walks["trace_id"].map(device).to_numpy()
@@ -193,6 +195,7 @@ def first_ssids(obs: pd.DataFrame, ssid_of: dict[str, str]) -> None:
     """Record the SSID of each AP of ``obs`` not yet in ``ssid_of`` (its first row's)."""
     code, aps = pd.factorize(obs["ap"])
     _, first = np.unique(code, return_index=True)  # codes number APs by first appearance
+    first = first[code[first] >= 0]  # not the missing ids
     ssids = obs["ssid"].to_numpy()[first]
     for ap, ssid in zip(aps, ssids):
         ssid_of.setdefault(str(ap), str(ssid))
@@ -343,7 +346,9 @@ def build_site_radio(store: SurveyStore | str, floors: Sequence[str], *,
     device_of = store.traces(site).set_index("trace_id")["device_model"].fillna("").astype(str)
     source = store_walks(store, site, floors, ble_window_ms=params.ble_window_ms,
                          exclude_walks=exclude_walks)
-    return reduce_site_radio(source, device_of, floors, params=params, progress=progress)
+    radio = reduce_site_radio(source, device_of, floors, params=params, progress=progress)
+    release_free_memory()  # the floor model's rows and fit
+    return radio
 
 
 def site_radio(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: Sequence[str], *,
@@ -386,11 +391,12 @@ def _device_table(source: WalkSource, device_of: pd.Series, params: RadioParams,
         for _, part in models.groupby("device_model", sort=True):
             sample |= capped_walk_sample(part.set_index("trace_id")["rows_wifi"],
                                          params.calibration_max_rows, seed=params.seed)
-        obs = pd.concat([o for _, o in source.read("wifi", walks[walks["trace_id"].isin(sample)])],
-                        ignore_index=True)
-        devices = calibrate_devices(obs, device_of, reference_model=reference,
-                                    floor_column="floor")
-        del obs
+        parts = [o for _, o in source.read("wifi", walks[walks["trace_id"].isin(sample)])]
+        if not parts:  # no valid row after all
+            return pd.DataFrame({c: [] for c in DEVICE_TABLE_COLUMNS})
+        devices = calibrate_devices(pd.concat(parts, ignore_index=True), device_of,
+                                    reference_model=reference, floor_column="floor")
+        del parts
     fitted = devices[devices["method"] == "offline"]
     say("devices: reference " + reference + "; "
         + (", ".join(f"{r.device_model} k={r.k:.3f} b={r.b:+.1f} dB"
@@ -480,10 +486,16 @@ def reduce_site_radio(source: WalkSource, device_of: pd.Series, floors: Sequence
             if kind == "wifi":
                 first_ssids(obs, ssid_of)
             evidence.add_walk(obs, floor_column="floor")
-            sums[walk["floor"]].add(obs)
-            seen.add(walk["floor"])
-            if walk["trace_id"] in sample:
-                model_rows.add(walk["floor"], obs)
+            floor = obs["floor"].to_numpy()
+            one = bool((floor == walk["floor"]).all())  # else a walk on several floors
+            for f in ([walk["floor"]] if one else pd.unique(floor)):
+                if f not in sums:  # a floor not asked for
+                    continue
+                part = obs if one else obs[floor == f]
+                sums[f].add(part)
+                seen.add(f)
+                if walk["trace_id"] in sample:
+                    model_rows.add(f, part)
         if not seen:
             notes.append(f"no {kind} rows on any floor")
             continue

@@ -10,7 +10,7 @@ area and the transmitters), not with the rows of the survey.
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -31,11 +31,11 @@ class TextCodes:
         return len(self._code)
 
     def codes(self, values: pd.Series | NDArray) -> NDArray[np.int64]:
-        """Code of every value (new values get the next codes); one lookup per distinct
-        value, so a categorical column of millions of rows is cheap."""
-        idx, uniques = pd.factorize(pd.Series(values), use_na_sentinel=False)
-        lookup = np.array([self._code.setdefault(str(u), len(self._code)) for u in uniques],
-                          dtype=np.int64)
+        """Code of every value (new values get the next codes; -1 for a missing value); one
+        lookup per distinct value, so a categorical column of millions of rows is cheap."""
+        idx, uniques = pd.factorize(pd.Series(values))
+        lookup = np.array([self._code.setdefault(str(u), len(self._code)) for u in uniques]
+                          + [-1], dtype=np.int64)
         return lookup[idx]
 
     def names(self) -> NDArray[np.str_]:
@@ -51,7 +51,8 @@ class TextCodes:
 
 
 class IntCodes:
-    """Dense codes of integer values (e.g. cell keys), assigned in first-seen order."""
+    """Dense codes of integer values (e.g. cell keys), assigned in order of first addition
+    (sorted within one call)."""
 
     def __init__(self) -> None:
         self._code: dict[int, int] = {}
@@ -73,26 +74,23 @@ class IntCodes:
 
 
 class KeyedAggregate:
-    """Running aggregates (``sum``, ``min``, ``max``) per int64 key of rows added in batches.
+    """Running sums per int64 key of rows added in batches.
 
     Added arrays are kept until they hold ``compact_rows`` rows, then reduced to one row per
-    distinct key: memory is bounded by the distinct keys plus one batch. Sums depend on the
-    order rows are added in (floating point), never on anything else.
+    distinct key: memory is bounded by the distinct keys plus one batch. Float sums depend on
+    the order rows are added in, never on anything else; integer sums are exact (below 2**53).
 
     Parameters
     ----------
-    aggs : mapping
-        Value name -> ``"sum"``, ``"min"`` or ``"max"``.
+    names : sequence of str
+        The summed values.
     """
 
-    def __init__(self, aggs: Mapping[str, str], *, compact_rows: int = 1_000_000) -> None:
-        bad = {a for a in aggs.values()} - {"sum", "min", "max"}
-        if bad:
-            raise ValueError(f"unknown aggregations {sorted(bad)}")
-        self.aggs = dict(aggs)
+    def __init__(self, names: Sequence[str], *, compact_rows: int = 1_000_000) -> None:
+        self.names = list(names)
         self.compact_rows = int(compact_rows)
         self._keys: list[NDArray[np.int64]] = []
-        self._values: dict[str, list[NDArray]] = {v: [] for v in self.aggs}
+        self._values: dict[str, list[NDArray]] = {v: [] for v in self.names}
         self._pending = 0
         self._reduced = True  # the parts are one part with distinct keys
 
@@ -102,7 +100,7 @@ class KeyedAggregate:
         if len(keys) == 0:
             return
         self._keys.append(keys)
-        for name in self.aggs:
+        for name in self.names:
             v = np.asarray(values[name])
             self._values[name].append(np.broadcast_to(v, keys.shape).copy() if v.ndim == 0
                                       else v.reshape(-1))
@@ -118,27 +116,18 @@ class KeyedAggregate:
         keys, inv = np.unique(np.concatenate(self._keys), return_inverse=True)
         inv = inv.reshape(-1)
         self._keys = [keys]
-        for name, how in self.aggs.items():
+        for name in self.names:
             v = np.concatenate(self._values[name])
-            if how == "sum":
-                out = np.bincount(inv, weights=v, minlength=len(keys))
-                if v.dtype.kind in "iub":  # exact for counts below 2**53
-                    out = np.rint(out).astype(np.int64)
-            else:
-                floating = v.dtype.kind == "f"
-                info = np.iinfo(np.int64)
-                fill = ((np.inf if how == "min" else -np.inf) if floating
-                        else (info.max if how == "min" else info.min))
-                out = np.full(len(keys), fill, dtype=np.float64 if floating else np.int64)
-                (np.minimum if how == "min" else np.maximum).at(out, inv, v)
-            self._values[name] = [out]
+            out = np.bincount(inv, weights=v, minlength=len(keys))
+            self._values[name] = [np.rint(out).astype(np.int64) if v.dtype.kind in "iub"
+                                  else out]
         self._reduced = True
 
     def result(self) -> tuple[NDArray[np.int64], dict[str, NDArray]]:
-        """Sorted distinct keys and the aggregate of each value per key."""
+        """Sorted distinct keys and the sum of each value per key."""
         self._compact()
         if not self._keys:
-            return np.zeros(0, np.int64), {n: np.zeros(0) for n in self.aggs}
+            return np.zeros(0, np.int64), {n: np.zeros(0) for n in self.names}
         return self._keys[0], {n: v[0] for n, v in self._values.items()}
 
 
@@ -148,7 +137,8 @@ def capped_walk_sample(sizes: Mapping[str, int] | pd.Series, cap: int, *,
 
     Every walk gets a pseudo-random priority from its id and ``seed`` (sha256: the same walks
     are chosen on every machine and in any reading order); walks are taken by priority until
-    their ``sizes`` (rows) reach ``cap``. All walks when they fit.
+    their ``sizes`` (rows) reach ``cap`` (the last walk taken may pass it; a walk larger than
+    ``cap`` is taken alone). All walks when they fit.
     """
     sizes = pd.Series(sizes, dtype=np.int64)
     if sizes.sum() <= cap:

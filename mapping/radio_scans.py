@@ -36,7 +36,7 @@ from localize.steps import ble_transmitter_ids
 from .errors import FingerprintError
 
 __all__ = ["OBS_COLUMNS", "ScanSet", "ble_observations", "distinct_text", "scan_set",
-           "split_by", "text_codes", "wifi_observations"]
+           "text_codes", "wifi_observations"]
 
 OBS_COLUMNS = ("trace_id", "scan_id", "t_ms", "x_m", "y_m", "ap", "rssi_dbm", "age_ms")
 RSSI_RANGE_DBM = (-127.0, 0.0)
@@ -91,15 +91,6 @@ def text_codes(values: pd.Series | NDArray, names: NDArray[np.str_]) -> NDArray[
     codes, uniques = pd.factorize(pd.Series(values))
     lookup = pd.Index(np.asarray(names)).get_indexer(np.asarray(uniques, dtype=object).astype(str))
     return np.append(lookup, -1)[codes]  # code -1 (missing) -> -1
-
-
-def split_by(obs: pd.DataFrame, column: str) -> dict[str, pd.DataFrame]:
-    """Rows of each distinct value of ``column`` (sorted); the table itself, not a copy, when
-    it holds one value only (the common one-floor site, millions of rows)."""
-    values = distinct_text(obs[column]) if len(obs) else []
-    if len(values) == 1:
-        return {values[0]: obs}
-    return {v: obs[obs[column] == v] for v in values}
 
 
 def _lower_ids(ids: pd.Series) -> NDArray[np.object_]:

@@ -5,6 +5,8 @@ the floor model are capped, deterministic and still good enough."""
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -26,18 +28,17 @@ from survey.store import SurveyStore
 @pytest.mark.parametrize("compact_rows", [1, 7, 10**6])
 def test_keyed_aggregate_equals_a_group_by(compact_rows):
     rng = np.random.default_rng(3)
-    keys = rng.integers(0, 40, 500)
-    s, lo, hi = rng.normal(size=500), rng.integers(-9, 9, 500), rng.normal(size=500)
-    agg = KeyedAggregate({"s": "sum", "lo": "min", "hi": "max"}, compact_rows=compact_rows)
+    keys = rng.integers(-5, 40, 500)
+    s, n = rng.normal(size=500), rng.integers(0, 9, 500)
+    agg = KeyedAggregate(("s", "n"), compact_rows=compact_rows)
     for part in np.array_split(np.arange(500), 13):
-        agg.add(keys[part], s=s[part], lo=lo[part], hi=hi[part])
+        agg.add(keys[part], s=s[part], n=n[part])
     got_keys, got = agg.result()
-    want = pd.DataFrame({"k": keys, "s": s, "lo": lo, "hi": hi}).groupby("k").agg(
-        {"s": "sum", "lo": "min", "hi": "max"})
+    want = pd.DataFrame({"k": keys, "s": s, "n": n}).groupby("k").sum()
     assert got_keys.tolist() == want.index.tolist()
     assert np.allclose(got["s"], want["s"], atol=1e-12)
-    assert got["lo"].dtype.kind == "i" and got["lo"].tolist() == want["lo"].tolist()
-    assert got["hi"].tolist() == want["hi"].tolist()
+    assert got["n"].dtype.kind == "i" and got["n"].tolist() == want["n"].tolist()
+    assert KeyedAggregate(("s",)).result()[0].size == 0
 
 
 def test_capped_walk_sample_is_deterministic_and_capped():
@@ -46,8 +47,12 @@ def test_capped_walk_sample_is_deterministic_and_capped():
     chosen = capped_walk_sample(sizes, 2000, seed=1)
     assert chosen == capped_walk_sample(sizes.iloc[::-1], 2000, seed=1)  # any order
     assert chosen != capped_walk_sample(sizes, 2000, seed=2)
-    total = sizes[list(chosen)].sum()
-    assert total >= 2000 and total - sizes[list(chosen)].max() < 2000
+    # a prefix of the walks by priority that reaches the cap, not one walk more
+    prio = {w: hashlib.sha256(f"1:{w}".encode()).hexdigest() for w in sizes.index}
+    ordered = sorted(sizes.index, key=prio.get)
+    taken = ordered[:len(chosen)]
+    assert set(taken) == chosen
+    assert sizes[taken].sum() >= 2000 and sizes[taken[:-1]].sum() < 2000
 
 
 def _fingerprints(obs: pd.DataFrame, walks: list, compact_rows: int):
@@ -139,3 +144,37 @@ def test_capped_samples_keep_the_device_fit_and_the_floor_model(wifi_obs, device
     assert full.floor_model.meta["n_walks"] == n_walks
     assert 2 <= capped.floor_model.meta["n_walks"] < n_walks
     assert capped.floor_model.meta["cv_scan_accuracy"] >= 0.95
+
+
+def test_rows_without_ids_or_rssi_are_left_out():
+    """A walk whose RSSI is all NaN, rows without a transmitter or a floor: selected as if
+    those rows were not there."""
+    obs, ssid = _survey()
+    args = {"ssid": ssid, "floor_column": "floor", "floor_order": ["F1", "F2", "F3", "F4"]}
+    want = select_aps(obs, **args)
+    w1 = obs[obs["trace_id"] == "w1F1"].iloc[:60]  # without the rare transmitter
+    bad = w1.assign(trace_id="nan-walk", scan_id=w1["scan_id"] + 10**6, rssi_dbm=np.nan)
+    no_ap = obs.iloc[:50].assign(ap=None)
+    no_floor = w1.assign(floor=None, scan_id=w1["scan_id"] + 2 * 10**6, trace_id="no-floor")
+    got = select_aps(pd.concat([obs, bad, no_ap, no_floor], ignore_index=True), **args)
+    assert got.kept.tolist() == want.kept.tolist()
+    assert got.dropped["reason"].tolist() == want.dropped["reason"].tolist()
+    sums = FingerprintSums(kind="wifi", cell_m=2.0, max_age_ms=None)
+    sums.add(pd.concat([obs, no_ap], ignore_index=True))
+    assert "None" not in sums.result().fp["ap"].tolist()
+
+
+def test_a_walk_on_two_floors_feeds_each_floor(wifi_obs, device_of):  # noqa: F811
+    one, two = (o.assign(floor=f, ssid="") for f, o in wifi_obs.items())
+    two = two.assign(scan_id=two["scan_id"] + int(one["scan_id"].max()) + 1)
+    walk_a, walk_b = one["trace_id"].iloc[0], two["trace_id"].iloc[0]
+    device = pd.Series(device_of)
+    separate = site_radio({"wifi": pd.concat([one, two], ignore_index=True)}, device,
+                          ["F1", "F2"], params=RadioParams(floor_model=False))
+    merged = pd.concat([one, two.replace({"trace_id": {walk_b: walk_a}})], ignore_index=True)
+    device[walk_a] = device[walk_b] = device[walk_a]
+    joined = site_radio({"wifi": merged}, device, ["F1", "F2"],
+                        params=RadioParams(floor_model=False, calibrate_devices=False))
+    for floor in ("F1", "F2"):
+        assert (joined.fingerprints[(floor, "wifi")].rp["n_scans"].sum()
+                == separate.fingerprints[(floor, "wifi")].rp["n_scans"].sum())
