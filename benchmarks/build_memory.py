@@ -20,14 +20,16 @@ Measured on this 2-core machine, 24 GB RAM (site1/F1; docs/reliability.md, "Reso
 limits")::
 
     scale  traces  text MB  wall s  peak RSS MB  last progress line before the peak
-        1     106      180    34.1          554  F1: levelled 5 of 6 sessions
-       10    1060     1795   268.0         1206  devices: reference PBCM10; no other model fitted
-    peak RSS 10x / 1x: 2.18
+        1     106      180    27.5          570  site: bundle ... (the end of the build)
+       10    1060     1795   295.0          689  F1: 1060 walks
+    peak RSS 10x / 1x: 1.21
 
 (Session 2: 898 and 4713 MB, 5.25x; session 3, walk-by-walk reads: 641 and 2129 MB, 3.32x;
-session 4, radio steps on integer codes: 623 and 1781 MB, 2.86x.) The magnetic layers are now
-reduced walk by walk (``mapping.field_layers``; 523 MB on the 10x floor without radio); the
-10x peak is the radio build, which holds the observation table (5.8 million rows).
+session 4, radio steps on integer codes: 623 and 1781 MB, 2.86x; session 5, magnetic layers
+walk by walk: 554 and 1206 MB, 2.18x.) Session 6: the radio maps are reduced walk by walk too
+(``mapping.radio_reduce``; the radio part alone peaks at 405 MB on site1/F1 and 485 MB on the
+10x floor), so memory no longer grows with the survey; the 10x peak varies between runs
+(662-736 MB) with the heap left by the earlier phases.
 In the 10x floor every walk has nine exact copies, so the radio steps keep more transmitters
 (no longer "rare") and the kernel bandwidth cross-validation picks 0.5 m instead of 3.0 m:
 the bundle is not a realistic one, only the memory and time are.
