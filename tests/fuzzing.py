@@ -92,6 +92,18 @@ def sample_texts(limit: int | None = None) -> list[bytes]:
     return [gzip.decompress(p.read_bytes()) for p in SAMPLE_TRACES[:limit]]
 
 
+def damaged_sample_gzip(path: Path) -> Path:
+    """Write a damaged gzip trace to ``path``: the first 3,259 bytes of a sample trace's gzip
+    stream with byte 464 inverted, so that inflating stops after a short readable prefix
+    ("invalid distance too far back"). It replays the saved input that once leaked a damaged
+    file's messages into the next file of a batch; it is generated from the simulated sample,
+    never stored, because a stored one would be a trace in the ILC layout."""
+    data = bytearray(gzip.compress(sample_texts(1)[0], compresslevel=6, mtime=0)[:3259])
+    data[464] ^= 0xFF
+    path.write_bytes(bytes(data))
+    return path
+
+
 def sample_window(text: bytes, rng: random.Random, max_lines: int = 300) -> bytes:
     """Header lines plus a random run of consecutive lines of a real-format trace."""
     lines = text.split(b"\n")

@@ -6,7 +6,9 @@ files, walk plans and sensor CSVs: strict mode raises only ``SurveyFormatError``
 always returns, accounts for every line and keeps the documented tables; a text parses the same
 in a batch as alone. Mutators and checks: ``tests/fuzzing.py``.
 
-Every input that once made a check fail is kept in ``tests/data/corrupt/`` and replayed here.
+Every input that once made a check fail is replayed here: walk plans and CSVs kept in
+``tests/data/corrupt/``, trace texts in ``tests/corrupt_texts.py`` (byte strings, not trace files),
+and the damaged gzip trace generated from the simulated sample (``fuzzing.damaged_sample_gzip``).
 
 Longer runs, one command each::
 
@@ -22,7 +24,14 @@ import os
 from pathlib import Path
 
 import pytest
-from fuzzing import CORRUPT_DIR, check_corrupt_file, run_fuzz, save_failures
+from corrupt_texts import CORRUPT_TEXTS
+from fuzzing import (
+    CORRUPT_DIR,
+    check_corrupt_file,
+    damaged_sample_gzip,
+    run_fuzz,
+    save_failures,
+)
 
 #: Mutated inputs in the normal run (split: 50% trace texts, 7% gzip files, 43% walk-line).
 EXAMPLES = int(os.environ.get("INDOORMAP_FUZZ_EXAMPLES", "330"))
@@ -65,6 +74,24 @@ def test_replay_corrupt_inputs(path, tmp_path):
     assert not problems, "\n".join(problems)
 
 
+@pytest.mark.parametrize("name", sorted(CORRUPT_TEXTS))
+def test_replay_corrupt_texts(name, tmp_path):
+    """Trace texts that once crashed a reader (tests/corrupt_texts.py), replayed as files."""
+    path = tmp_path / f"{name}.txt"
+    path.write_bytes(CORRUPT_TEXTS[name])
+    problems = check_corrupt_file(path, tmp_path / "work")
+    assert not problems, "\n".join(problems)
+
+
+def test_replay_damaged_sample_gzip(tmp_path):
+    """The damaged gzip input that once leaked its messages into the next file of a batch,
+    generated from the simulated sample (see fuzzing.damaged_sample_gzip)."""
+    path = damaged_sample_gzip(tmp_path / "gz-messages-of-next-file.txt.gz")
+    problems = check_corrupt_file(path, tmp_path / "work")
+    assert not problems, "\n".join(problems)
+
+
 def test_corrupt_inputs_are_small():
     assert CORRUPT, "tests/data/corrupt is empty"
     assert all(p.stat().st_size <= 16_384 for p in CORRUPT)
+    assert len(CORRUPT_TEXTS) >= 13 and all(len(t) <= 16_384 for t in CORRUPT_TEXTS.values())
