@@ -322,17 +322,21 @@ class SiteRadio:
 def calibrated(obs: pd.DataFrame, device_of: pd.Series, devices: pd.DataFrame) -> pd.DataFrame:
     """``obs`` with every walk's RSSI mapped through its phone model's ``k, b`` (dBm); models
     not in the device table are left as they are."""
-    table = devices.set_index("device_model")
-    if ((table["k"] == 1.0) & (table["b"] == 0.0)).all():
-        return obs
     traces = pd.Series(pd.unique(obs["trace_id"]))
-    model = traces.map(device_of)
-    per_trace = pd.DataFrame({"k": model.map(table["k"]).fillna(1.0).to_numpy(),
-                              "b": model.map(table["b"]).fillna(0.0).to_numpy()},
-                             index=traces.to_numpy())
-    idx = per_trace.index.get_indexer(obs["trace_id"])
-    k, b = per_trace["k"].to_numpy()[idx], per_trace["b"].to_numpy()[idx]
-    return obs.assign(rssi_dbm=k * obs["rssi_dbm"].to_numpy() + b)  # other columns shared
+    walks = pd.DataFrame({"trace_id": traces, "device_model": traces.map(device_of)})
+    return _with_calibration(obs, _calibration_of(walks, devices))
+
+
+def _with_calibration(obs: pd.DataFrame, kb_of: Mapping[str, tuple[float, float]]
+                      ) -> pd.DataFrame:
+    """``obs`` with the RSSI of each walk in ``kb_of`` (trace id -> ``(k, b)``) mapped to
+    ``k * rssi + b`` (dBm); other columns shared."""
+    traces = pd.Index(np.asarray(pd.unique(obs["trace_id"]), dtype=object).astype(str))
+    if not any(t in kb_of for t in traces):
+        return obs
+    kb = np.array([kb_of.get(t, (1.0, 0.0)) for t in traces], dtype=np.float64)
+    idx = traces.get_indexer(np.asarray(obs["trace_id"], dtype=object).astype(str))
+    return obs.assign(rssi_dbm=kb[idx, 0] * obs["rssi_dbm"].to_numpy() + kb[idx, 1])
 
 
 def build_site_radio(store: SurveyStore | str, floors: Sequence[str], *,
@@ -480,10 +484,8 @@ def reduce_site_radio(source: WalkSource, device_of: pd.Series, floors: Sequence
         for i, (walk, obs) in enumerate(source.read(kind, walks), 1):
             if i % 100 == 0:
                 say(f"{kind}: read walk {i}/{len(walks)}")
-            if walk["trace_id"] in kb_of and kind == "wifi":
-                k, b = kb_of[walk["trace_id"]]
-                obs = obs.assign(rssi_dbm=k * obs["rssi_dbm"].to_numpy() + b)
             if kind == "wifi":
+                obs = _with_calibration(obs, kb_of)
                 first_ssids(obs, ssid_of)
             evidence.add_walk(obs, floor_column="floor")
             floor = obs["floor"].to_numpy()
