@@ -10,15 +10,18 @@
 2. Real traces ``../shared/ilc/site1`` F1-F3 (skipped when absent, or without the builder):
    maps built without the evaluated walks, errors at the recorded waypoints.
 
-Every walk starts from its first Wi-Fi fix (a kNN positioner over the other folds' scans;
-walks without Wi-Fi start at their first waypoint, counted), except ``pdr@wp0``: PDR with 0.7 m
-steps from the first waypoint, the ILC baseline. ``indoormap`` runs the default parameters;
+Every walk starts from its first Wi-Fi fix (``--radio bundle``, default: the fold bundle's
+fingerprints, as ``indoormap localize``; truth maps have none and use ``--radio knn``, a kNN over
+the other folds' scans; walks without Wi-Fi start at their first waypoint, counted), except
+``pdr@wp0``: PDR with 0.7 m steps from the first waypoint, the ILC baseline.
+``name[smoothed]`` rows are the same filter smoothed offline over the whole walk
+(:mod:`localize.smoothing`): not what a phone shows in real time. ``indoormap`` runs the default parameters;
 ``indoormap[paper]`` the papers' (W 3, K 70, T 0.05 on strength, azimuth and polar, radio for
 the start only, 300 particles); ``indoormap[weinberg]`` the Weinberg step model. Prints, per data set, floor and method, the
 error at the waypoints and (simulation) at every step: median, p80, mean (m).
 
 Usage: ``python benchmarks/localize_accuracy.py [--work DIR] [--methods a,b] [--skip-real]
-[--skip-sim] [--maps truth,built]``
+[--skip-sim] [--maps truth,built] [--radio bundle|knn]``
 """
 
 from __future__ import annotations
@@ -38,10 +41,10 @@ from localize_eval import (
     RunResult,
     builder_available,
     built_bundle,
+    fold_radio,
     folds_of,
     print_table,
     processed_store,
-    radio_for,
     real_walks,
     run_fold,
     sim_site,
@@ -52,15 +55,17 @@ from localize_eval import (
 from localize.params import FilterParams
 
 
-def run_floors(floors: dict, methods, params: FilterParams, label: str, steps: bool) -> None:
+def run_floors(floors: dict, methods, params: FilterParams, label: str, steps: bool,
+               radio: str = "bundle") -> None:
     """floors: name -> (walks, folds, bundle_of(fold index))."""
     pooled = RunResult()
     for floor, (walks, folds, bundle_of) in floors.items():
         t0 = time.time()
         res = RunResult()
         for i, test in enumerate(folds):
-            res.merge(run_fold(walks, test, bundle_of(i), methods, params, start="wifi",
-                               radio=radio_for(walks, set(test))))
+            bundle = bundle_of(i)
+            res.merge(run_fold(walks, test, bundle, methods, params, start="wifi",
+                               radio=fold_radio(radio, walks, test, bundle)))
         print_table(f"{label} {floor}: {len(walks)} walks, 5-fold by walk "
                     f"({time.time() - t0:.0f} s)", res, methods,
                     ("wp", "step") if steps else ("wp",))
@@ -78,6 +83,9 @@ def main(argv=None) -> None:
     ap.add_argument("--methods", default=",".join(ALL_METHODS))
     ap.add_argument("--maps", default="truth,built", help="simulation maps: truth, built")
     ap.add_argument("--params", default="{}", help="JSON FilterParams overrides")
+    ap.add_argument("--radio", default="bundle", choices=("bundle", "knn"),
+                    help="radio model: the bundle's Wi-Fi fingerprints (as indoormap localize; "
+                         "truth maps have none and use the kNN) or a kNN over training scans")
     ap.add_argument("--skip-sim", action="store_true")
     ap.add_argument("--skip-real", action="store_true")
     args = ap.parse_args(argv)
@@ -98,7 +106,8 @@ def main(argv=None) -> None:
             for f in names:
                 b = truth_bundle_of(site, f, args.work)
                 floors[f] = (data[f], folds_of(data[f]), lambda i, b=b: b)
-            run_floors(floors, methods, params, "SIMULATED site, truth maps,", steps=True)
+            run_floors(floors, methods, params, "SIMULATED site, truth maps,", steps=True,
+                       radio=args.radio)
         if "built" in kinds:
             if not builder_available():
                 print("\nSIMULATED site, built maps: skipped (mapping.build not available)")
@@ -111,7 +120,8 @@ def main(argv=None) -> None:
                                  lambda i, f=f, folds=folds: built_bundle(
                                      store, site / f, set(folds[i]), args.work, site.name))
                 run_floors(floors, methods, params,
-                           "SIMULATED site, maps built without the test walks,", steps=True)
+                           "SIMULATED site, maps built without the test walks,", steps=True,
+                           radio=args.radio)
 
     if args.skip_real:
         return
@@ -130,7 +140,7 @@ def main(argv=None) -> None:
         floors[fd.name] = (walks, folds, lambda i, fd=fd, folds=folds: built_bundle(
             store, fd, set(folds[i]), args.work, "ilc"))
     run_floors(floors, methods, params, "REAL traces site1, maps built without the test walks,",
-               steps=False)
+               steps=False, radio=args.radio)
 
 
 if __name__ == "__main__":

@@ -9,8 +9,10 @@ Two data sources:
   built from the other folds' walks.
 
 Folds are 5-fold by walk (a seeded permutation of the sorted trace ids). The radio positioner of
-a fold is a kNN over the training walks' scans, positioned by the simulator's truth (sim) or by
-time interpolation between waypoints (real, as the ILC kNN baseline).
+a fold is the fold bundle's Wi-Fi fingerprints (:func:`fold_radio`, what ``indoormap localize``
+uses), or a kNN over the training walks' scans, positioned by the simulator's truth (sim) or by
+time interpolation between waypoints (real, as the ILC kNN baseline), for bundles without
+fingerprints (truth maps) or on request.
 """
 
 from __future__ import annotations
@@ -38,20 +40,23 @@ SHARED_SITE = REPO.parent / "shared" / "ilc" / "site1"
 
 #: Methods in table order; "pdr@wp0" is PDR from the first waypoint (the ILC baseline);
 #: "name[variant]" runs a method with other parameters (:data:`VARIANTS`).
-ALL_METHODS = ("indoormap", "indoormap[paper]", "indoormap[weinberg]", "pf_no_mag",
-               "magpp_gaussian", "magicol_dtw", "pdr", "pdr@wp0", "radio")
+ALL_METHODS = ("indoormap", "indoormap[smoothed]", "indoormap[paper]", "indoormap[weinberg]",
+               "pf_no_mag", "pf_no_mag[smoothed]", "magpp_gaussian", "magicol_dtw", "pdr",
+               "pdr@wp0", "radio")
 
 
-def _variant(name: str, params: FilterParams) -> tuple[str, FilterParams]:
-    """Method and parameters of a table row name."""
+def _variant(name: str, params: FilterParams) -> tuple[str, FilterParams, bool]:
+    """Method, parameters and whether to smooth (offline) of a table row name."""
     if "[" not in name:
-        return name, params
+        return name, params, False
     base, variant = name[:-1].split("[")
     if variant == "paper":
-        return base, FilterParams.paper_params()
+        return base, FilterParams.paper_params(), False
     if variant == "weinberg":
         return base, replace(params, step_model="weinberg", genome_a_mean=0.38,
-                             genome_a_sd=0.03)
+                             genome_a_sd=0.03), False
+    if variant == "smoothed":
+        return base, params, True
     raise ValueError(f"unknown variant {variant!r}")
 
 
@@ -231,6 +236,21 @@ def folds_of(walks: list[EvalWalk], k: int = 5, seed: int = 0) -> list[list[str]
 RADIO_OPTIONS: dict = {"k": 5}
 
 
+def fold_radio(kind: str, walks: list[EvalWalk], test: list[str], bundle: MapBundle):
+    """The radio model of a fold: ``"bundle"``, the bundle's Wi-Fi fingerprints (what
+    ``indoormap localize`` uses; bundles without them, e.g. truth maps, fall back to the kNN),
+    or ``"knn"``, a kNN over the training walks' scans."""
+    if kind not in ("bundle", "knn"):
+        raise ValueError(f"radio must be 'bundle' or 'knn', got {kind!r}")
+    if kind == "bundle":
+        from localize.fingerprint_positioner import FingerprintPositioner
+
+        pos = FingerprintPositioner.from_bundle(bundle, "wifi")
+        if pos is not None:
+            return pos
+    return radio_for(walks, set(test))
+
+
 def radio_for(walks: list[EvalWalk], exclude: set[str]) -> KnnRadioPositioner | None:
     refs = [(s, xy) for w in walks if w.trace_id not in exclude for s, xy in w.radio_refs]
     if not refs:
@@ -289,8 +309,9 @@ def built_bundle(store, floor_dir: Path, exclude: set[str], work: Path, tag: str
     from mapping.bundle_writer import write_bundle
     from mapping.floorplan import read_floor_plan
 
-    # "v2": bundles since build_floor(exclude_walks=...) also leave the walks out of the radio
-    key = hashlib.sha256(("v2," + ",".join(sorted(exclude))).encode()).hexdigest()[:12]
+    # "v3": bundles with fingerprint tables (v2: build_floor(exclude_walks=...) also leaves the
+    # walks out of the radio)
+    key = hashlib.sha256(("v3," + ",".join(sorted(exclude))).encode()).hexdigest()[:12]
     target = work / "bundles" / f"{tag}_{floor_dir.name}_built_{cell_m:g}_{key}"
     if not (target / "manifest.json").exists():
         plan = read_floor_plan(floor_dir)
@@ -359,7 +380,7 @@ def run_fold(walks: list[EvalWalk], test_ids: list[str], bundle: MapBundle, meth
                 start_xy, t_start = wp0, float(w.wp_t[0])
                 res.notes.append(f"{w.trace_id}: no Wi-Fi fix, started at the first waypoint")
         for m in methods:
-            name, p = _variant(m, params)
+            name, p, smooth = _variant(m, params)
             s_xy, t0 = start_xy, t_start
             if m == "pdr@wp0":
                 name, s_xy, t0 = "pdr", wp0, float(w.wp_t[0])
@@ -374,7 +395,7 @@ def run_fold(walks: list[EvalWalk], test_ids: list[str], bundle: MapBundle, meth
                 t = time.process_time()
                 track = loc.run(w.steps, start_xy=s_xy,
                                 start_t_ms=t0 if t0 is not None and t0 < w.steps.t_ms[0]
-                                else None)
+                                else None, smooth=smooth)
                 res.add(m, track, w, time.process_time() - t)
             except LocalizationError as err:
                 res.notes.append(f"{w.trace_id} {m}: {err}")

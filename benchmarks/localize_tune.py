@@ -33,6 +33,7 @@ from localize_eval import (
     RunResult,
     builder_available,
     built_bundle,
+    fold_radio,
     folds_of,
     processed_store,
     radio_for,
@@ -113,8 +114,9 @@ def prepare(source: str, work: Path):
     for fd in floors:
         walks = real_walks(fd, work)
         folds = folds_of(walks)
-        data[fd.name] = (walks, folds, [(built_bundle(store, fd, set(f), work, "ilc"),
-                                         radio_for(walks, set(f))) for f in folds])
+        bundles = [built_bundle(store, fd, set(f), work, "ilc") for f in folds]
+        data[fd.name] = (walks, folds, [(b, fold_radio("bundle", walks, f, b))
+                                        for f, b in zip(folds, bundles)])
     return data
 
 

@@ -164,6 +164,14 @@ def _write_track(track, path: Path, fmt: str) -> Path:
     return target
 
 
+#: Methods that can smooth offline (particle filters, :mod:`localize.smoothing`).
+SMOOTHABLE = ("indoormap", "pf_no_mag", "magpp_gaussian", "magicol_dtw")
+
+
+def _row_name(method: str, smooth: bool) -> str:
+    return f"{method}+smoothed" if smooth else method
+
+
 def _params(particles: int | None):
     from localize.params import FilterParams
 
@@ -189,12 +197,19 @@ def _params(particles: int | None):
               show_default=True)
 @click.option("--plot/--no-plot", default=True, show_default=True,
               help="Trajectory PNG over the bundle mask (needs matplotlib).")
+@click.option("--smooth", is_flag=True,
+              help="Offline: positions from the whole walk, later steps included (particle "
+                   "filters only; default: the real-time filter estimates).")
 def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, method: str,
                      start: str, particles: int | None, seed: int, fmt: str,
-                     plot: bool) -> None:
+                     plot: bool, smooth: bool) -> None:
     """Localize survey walks (trace files or folders) on BUNDLE (a floor bundle or a folder
     of floor bundles): positions per step as Parquet/CSV and a trajectory plot."""
     from localize.baselines import make_localizer
+
+    if smooth and method not in SMOOTHABLE:
+        raise click.BadParameter(f"--smooth needs a particle filter ({', '.join(SMOOTHABLE)})"
+                                 f", not {method}")
     from survey.step_summaries import step_summaries, waypoints_of
     from survey.trace_reader import read_trace
 
@@ -207,9 +222,10 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
         radio = _radio_of(bundle, trace, steps)
         start_xy, how = _start(start, steps, trace, radio)
         loc = make_localizer(method, bundle, _params(particles), radio=radio, rng=seed)
-        track = loc.run(steps, start_xy=start_xy)
+        track = loc.run(steps, start_xy=start_xy, smooth=smooth)
         target = _write_track(track, out / trace.trace_id, fmt)
-        msg = (f"{trace.trace_id}: {len(track)} steps on {bundle.floor_id} "
+        msg = (f"{trace.trace_id}: {len(track)} {'smoothed ' if smooth else ''}steps on "
+               f"{bundle.floor_id} "
                f"({bundle.manifest.get('floor_name', '')}), start {how}, "
                f"{track.n_recoveries} recoveries -> {target}")
         if plot:
@@ -234,8 +250,12 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False, path_type=Path),
               default=None, help="Write the error CDFs as a PNG.")
+@click.option("--smooth", is_flag=True,
+              help="Also score every particle filter's offline smoothed track "
+                   "(rows '<method>+smoothed').")
 def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, start: str,
-                     particles: int | None, seed: int, plot_path: Path | None) -> None:
+                     particles: int | None, seed: int, plot_path: Path | None,
+                     smooth: bool) -> None:
     """Error at the waypoints of walks (median, p80, mean per method). The bundles should be
     built without these walks (a warning names walks the bundle was built from)."""
     from localize.baselines import METHODS, make_localizer
@@ -248,7 +268,8 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
     if unknown:
         raise click.BadParameter(f"unknown methods {unknown}; known: {sorted(METHODS)}")
     maps = _open_maps(bundle_path)
-    errors: dict[str, list[np.ndarray]] = {m: [] for m in names}
+    rows = [(m, False) for m in names] + [(m, True) for m in names if smooth and m in SMOOTHABLE]
+    errors: dict[str, list[np.ndarray]] = {_row_name(m, sm): [] for m, sm in rows}
     for f in _walks(walks):
         trace = read_trace(f)
         t_wp, xy_wp = waypoints_of(trace)
@@ -264,14 +285,14 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
                            "errors are optimistic", err=True)
         radio = _radio_of(bundle, trace, steps)
         start_xy, _ = _start(start, steps, trace, radio)
-        for m in names:
+        for m, sm in rows:
             loc = make_localizer(m, bundle, _params(particles), radio=radio, rng=seed)
-            track = loc.run(steps, start_xy=start_xy)
-            errors[m].append(waypoint_errors(track, t_wp, xy_wp))
-    click.echo(f"{'method':<16}{'n':>6}{'median':>9}{'p80':>9}{'mean':>9}  (m, at waypoints)")
-    for m in names:
-        s = summarize(np.concatenate(errors[m]) if errors[m] else np.empty(0))
-        click.echo(f"{m:<16}{s['n']:>6}{s['median']:>9.2f}{s['p80']:>9.2f}{s['mean']:>9.2f}")
+            track = loc.run(steps, start_xy=start_xy, smooth=sm)
+            errors[_row_name(m, sm)].append(waypoint_errors(track, t_wp, xy_wp))
+    click.echo(f"{'method':<20}{'n':>6}{'median':>9}{'p80':>9}{'mean':>9}  (m, at waypoints)")
+    for m, v in errors.items():
+        s = summarize(np.concatenate(v) if v else np.empty(0))
+        click.echo(f"{m:<20}{s['n']:>6}{s['median']:>9.2f}{s['p80']:>9.2f}{s['mean']:>9.2f}")
     if plot_path is not None:
         from localize.evaluate import plot_cdfs
 

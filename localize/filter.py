@@ -11,6 +11,8 @@ re-draws them around the last estimate with a growing spread (counted as a recov
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -27,6 +29,7 @@ from localize.particles import (
     needed_layers,
     resample,
 )
+from localize.smoothing import Genealogy
 from localize.stepper import StepInputs, advance
 from localize.steps import RadioScan, StepSummaries, StepSummary
 from localize.track import Estimate, Track
@@ -86,6 +89,7 @@ class BaseLocalizer:
             if fix is None:
                 raise LocalizationError("the radio model gives no fix for the start scan")
             x_m, y_m, sigma = fix
+        self._prepare_smoothing(False)  # streaming: real-time estimates only
         self._last = self._start_at(float(x_m), float(y_m), float(t_ms), sigma, half_width_m)
         return self._last
 
@@ -122,7 +126,8 @@ class BaseLocalizer:
         return None
 
     def run(self, steps: StepSummaries, start_xy: tuple[float, float] | None = None, *,
-            start_t_ms: float | None = None, half_width_m: float | None = None) -> Track:
+            start_t_ms: float | None = None, half_width_m: float | None = None,
+            smooth: bool = False) -> Track:
         """Localize a whole walk.
 
         Parameters
@@ -134,13 +139,18 @@ class BaseLocalizer:
             Time of the start (default half a second before the first step).
         half_width_m : float, optional
             ``delta`` of the start square (m).
+        smooth : bool
+            Offline: every position uses the whole walk, later steps included
+            (:mod:`localize.smoothing`; particle filters only). Default: the filter's
+            real-time estimates.
 
         Returns
         -------
         Track
-            One estimate per step.
+            One estimate per step (``info["smoothed"]`` says which kind).
         """
         self.check(steps)
+        self._prepare_smoothing(smooth)
         t0 = float(steps.t_ms[0]) - 500.0 if start_t_ms is None else float(start_t_ms)
         if start_xy is None:
             fix = self.first_fix(steps)
@@ -153,8 +163,18 @@ class BaseLocalizer:
                                    half_width_m)
         self._last = start
         est = [self.step(s) for s in steps]
-        return Track.from_estimates(start, est, method=self.method, trace_id=steps.trace_id,
-                                    floor_id=self.bundle.floor_id)
+        track = Track.from_estimates(start, est, method=self.method, trace_id=steps.trace_id,
+                                     floor_id=self.bundle.floor_id)
+        track.info["smoothed"] = bool(smooth)
+        return self._smoothed(track) if smooth else track
+
+    def _prepare_smoothing(self, smooth: bool) -> None:
+        if smooth:
+            raise LocalizationError(f"method {self.method} cannot smooth (particle filters "
+                                    "only)")
+
+    def _smoothed(self, track: Track) -> Track:
+        raise NotImplementedError
 
 
 class Localizer(BaseLocalizer):
@@ -199,6 +219,8 @@ class Localizer(BaseLocalizer):
         self.fmap = fmap
         self.needs_magnetometer = self.params.weight_mode != "none"
         self.state: ParticleState | None = None
+        self.genealogy: Genealogy | None = None
+        self._keep_genealogy = False
         self.n_recoveries = 0
         self._consecutive = np.zeros(1, dtype=np.int64)
 
@@ -210,7 +232,11 @@ class Localizer(BaseLocalizer):
             hw = max(hw, p.init_from_fix_scale * float(sigma))
         n0 = max(p.n_particles_start, p.n_particles)
         self.state = init_state(self.fmap, p, self.rng, np.array([[x, y]]), np.array([hw]),
-                                n=n0)
+                                n=n0, with_lineage=self._keep_genealogy)
+        self.genealogy = None
+        if self._keep_genealogy:
+            self.genealogy = Genealogy()
+            self.genealogy.record(self.state.x[0], self.state.y[0], None)
         self._steps_since_start = 0
         self.n_recoveries = 0
         self._consecutive = np.zeros(1, dtype=np.int64)
@@ -250,10 +276,23 @@ class Localizer(BaseLocalizer):
         if st.shape[1] > p.n_particles and (out.spread_m[0] < p.shrink_spread_m
                                            or self._steps_since_start >= p.shrink_after_steps):
             resample(st, self.rng, n_out=p.n_particles)
+        if self.genealogy is not None:
+            self.genealogy.record(st.x[0], st.y[0], st.lineage[0])
+            st.reset_lineage()
         self._last = Estimate(float(s.t_ms), float(out.x_m[0]), float(out.y_m[0]),
                               float(out.spread_m[0]), float(out.alive_fraction[0]), recovered,
                               self.bundle.floor_id)
         return self._last
+
+    def _prepare_smoothing(self, smooth: bool) -> None:
+        self._keep_genealogy = bool(smooth)
+
+    def _smoothed(self, track: Track) -> Track:
+        """``track`` with the genealogy's smoothed positions (the start stays as it was)."""
+        sx, sy, traced = self.genealogy.smoothed(self.state.w[0])
+        info = {**track.info, "smoothed_from_end": traced[1:]}
+        return replace(track, x_m=np.where(np.isfinite(sx[1:]), sx[1:], track.x_m),
+                       y_m=np.where(np.isfinite(sy[1:]), sy[1:], track.y_m), info=info)
 
     def _radio_step(self, st: ParticleState, scan: RadioScan) -> None:
         """Radio weight update and/or particle injection around the scan's fix."""

@@ -80,17 +80,23 @@ class ParticleState:
         Map uncertainty at the current position (features that use it).
     obs : dict name -> ndarray (span + smooth, u)
         Observed values of the last steps (per user).
+    lineage : ndarray (u, n)
+        Optional (``with_lineage``): the slot each particle descends from at the last time
+        the lineage was reset (-1 = drawn fresh since: injected or re-drawn), for smoothing
+        by genealogy (:mod:`localize.smoothing`).
     """
 
     _BASE = ("x", "y", "a", "b", "bias", "w", "off_s", "off_c")
     _PREV = ("prev_x", "prev_y")
 
     def __init__(self, u: int, n: int, layout: dict[str, tuple[int, int]], std_names=(),
-                 dtype=np.float64, with_prev: bool = False) -> None:
-        nb = len(self._BASE) + (2 if with_prev else 0)
+                 dtype=np.float64, with_prev: bool = False, with_lineage: bool = False
+                 ) -> None:
+        nb = len(self._BASE) + (2 if with_prev else 0) + (1 if with_lineage else 0)
         rows = nb + sum(v + t for v, t in layout.values()) + len(std_names)
         self.data = np.zeros((rows, u, n), dtype=dtype)
         self.has_prev = with_prev
+        self.has_lineage = with_lineage
         self._nbase = nb
         self._vals: dict[str, slice] = {}
         self._terms: dict[str, slice] = {}
@@ -123,6 +129,22 @@ class ParticleState:
         return {k: self.data[r] for k, r in self._std_rows.items()}
 
     @property
+    def lineage(self) -> NDArray:
+        if not self.has_lineage:
+            raise AttributeError("lineage: this state keeps no lineage")
+        return self.data[self._nbase - 1]
+
+    def reset_lineage(self) -> None:
+        """Every particle becomes its own ancestor (slot index)."""
+        if self.has_lineage:
+            self.lineage[...] = np.arange(self.shape[1])
+
+    def cut_lineage(self, rows, idx=slice(None)) -> None:
+        """Particles ``idx`` of user ``rows`` were drawn fresh: no ancestor."""
+        if self.has_lineage:
+            self.data[self._nbase - 1, rows, idx] = -1
+
+    @property
     def nbytes(self) -> int:
         return int(self.data.nbytes + sum(v.nbytes for v in self.obs.values()))
 
@@ -147,7 +169,7 @@ class ParticleState:
         """A copy holding only some users (same layout)."""
         sub = ParticleState.__new__(ParticleState)
         sub.data = self.data[:, rows]
-        sub.has_prev, sub._nbase = self.has_prev, self._nbase
+        sub.has_prev, sub.has_lineage, sub._nbase = self.has_prev, self.has_lineage, self._nbase
         sub._vals, sub._terms, sub._std_rows = self._vals, self._terms, self._std_rows
         sub.obs = {k: v[:, rows] for k, v in self.obs.items()}
         return sub
@@ -236,7 +258,7 @@ def scatter_init(fmap: FilterMap, rng: np.random.Generator, n: int, cx: float, c
 
 def init_state(fmap: FilterMap, params: FilterParams, rng: np.random.Generator,
                centers_xy: NDArray, half_widths_m: NDArray, dtype=np.float64,
-               n: int | None = None) -> ParticleState:
+               n: int | None = None, with_lineage: bool = False) -> ParticleState:
     """Particles of ``u`` users around their start positions, equal weights.
 
     Parameters
@@ -247,6 +269,8 @@ def init_state(fmap: FilterMap, params: FilterParams, rng: np.random.Generator,
         ``delta`` per user (m).
     n : int, optional
         Particles per user (default ``params.n_particles``).
+    with_lineage : bool
+        Keep each particle's ancestor slot (see :class:`ParticleState`).
     """
     centers_xy = np.asarray(centers_xy, dtype=np.float64).reshape(-1, 2)
     u, n = len(centers_xy), int(params.n_particles if n is None else n)
@@ -258,7 +282,8 @@ def init_state(fmap: FilterMap, params: FilterParams, rng: np.random.Generator,
     _, stds = needed_layers(params)
     st = ParticleState(u, n, feature_layout(params),
                        [f.name for f in FEATURES if f.layer in stds], dtype=dtype,
-                       with_prev=params.weight_mode == "dtw")
+                       with_prev=params.weight_mode == "dtw", with_lineage=with_lineage)
+    st.reset_lineage()
     a = rng.normal(params.genome_a_mean, params.genome_a_sd, (u, n))
     b = (params.step_length_nominal_m - a * params.step_feature_nominal
          + rng.normal(0.0, params.genome_b_sd, (u, n)))
@@ -505,6 +530,7 @@ def reinit_rows(st: ParticleState, fmap: FilterMap, params: FilterParams,
             st.prev_x[r], st.prev_y[r] = x, y
         st.w[r] = 1.0
         st.data[st.feature_rows(), r] = np.nan
+        st.cut_lineage(r)
     keys = _lookup_keys(fmap, params)
     if keys and len(rows):
         vals = fmap.sample_many(keys, st.x[rows], st.y[rows], vectors=("heading_offset",))
@@ -544,6 +570,7 @@ def inject(st: ParticleState, fmap: FilterMap, params: FilterParams, rng: np.ran
     if st.has_prev:
         st.prev_x[row, idx], st.prev_y[row, idx] = pts
     st.w[row, idx] = w_mean
+    st.cut_lineage(row, idx)
     keys = _lookup_keys(fmap, params)
     if keys:
         vals = fmap.sample_many(keys, pts[0], pts[1], vectors=("heading_offset",))

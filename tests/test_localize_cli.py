@@ -57,3 +57,21 @@ def test_evaluate_prints_errors_and_cdfs(truth_bundles, tmp_path):  # noqa: F811
     lines = {ln.split()[0]: ln.split() for ln in res.output.splitlines() if ln.strip()}
     assert float(lines["indoormap"][2]) < float(lines["pdr"][2])  # median error
     assert (tmp_path / "cdf.png").exists()
+
+
+def test_smooth_option(truth_bundles, tmp_path):  # noqa: F811
+    walk = min(F1_WALKS.glob("*.txt.gz"))
+    res = CliRunner().invoke(main, ["localize", str(truth_bundles["F1"]), str(walk), "-o",
+                                    str(tmp_path), "--particles", "150", "--no-plot",
+                                    "--format", "csv", "--smooth"])
+    assert res.exit_code == 0, res.output
+    assert "smoothed steps" in res.output
+    res = CliRunner().invoke(main, ["localize", str(truth_bundles["F1"]), str(walk), "-o",
+                                    str(tmp_path), "--method", "pdr", "--smooth"])
+    assert res.exit_code == 2 and "particle filter" in res.output
+    res = CliRunner().invoke(main, ["evaluate", str(truth_bundles["F1"]), str(walk),
+                                    "--methods", "indoormap,pdr", "--particles", "150",
+                                    "--smooth"])
+    assert res.exit_code == 0, res.output
+    rows = {ln.split()[0] for ln in res.output.splitlines() if ln.strip()}
+    assert {"indoormap", "indoormap+smoothed", "pdr"} <= rows and "pdr+smoothed" not in rows
