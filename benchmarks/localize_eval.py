@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from localize.baselines import make_localizer
+from localize.baselines import PARTICLE_FILTERS, make_localizer
 from localize.bundle import MapBundle, load_bundle
 from localize.errors import LocalizationError
 from localize.evaluate import step_errors, summarize, waypoint_errors
@@ -374,8 +374,8 @@ def run_fold(walks: list[EvalWalk], test_ids: list[str], bundle: MapBundle, meth
         elif start == "wifi":
             fix = None
             if radio is not None and w.steps.scans is not None:
-                fix = next((radio.locate(s) for s in w.steps.scans if s is not None
-                            and radio.locate(s) is not None), None)
+                fix = next((f for s in w.steps.scans if s is not None
+                            and (f := radio.locate(s)) is not None), None)
             if fix is None:
                 start_xy, t_start = wp0, float(w.wp_t[0])
                 res.notes.append(f"{w.trace_id}: no Wi-Fi fix, started at the first waypoint")
@@ -385,7 +385,7 @@ def run_fold(walks: list[EvalWalk], test_ids: list[str], bundle: MapBundle, meth
             if m == "pdr@wp0":
                 name, s_xy, t0 = "pdr", wp0, float(w.wp_t[0])
             try:
-                if name in ("indoormap", "pf_no_mag", "magpp_gaussian", "magicol_dtw"):
+                if name in PARTICLE_FILTERS:
                     if m not in fmaps:  # pack the layers once per fold and row
                         fmaps[m] = make_localizer(name, bundle, p, rng=seed).fmap
                     loc = make_localizer(name, bundle, p, radio=radio, rng=seed,

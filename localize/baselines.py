@@ -21,7 +21,7 @@ from localize.params import FilterParams
 from localize.steps import StepSummary
 from localize.track import Estimate
 
-__all__ = ["METHODS", "PdrLocalizer", "RadioOnlyLocalizer", "make_localizer"]
+__all__ = ["METHODS", "PARTICLE_FILTERS", "PdrLocalizer", "RadioOnlyLocalizer", "make_localizer"]
 
 
 class PdrLocalizer(BaseLocalizer):
@@ -100,6 +100,8 @@ METHODS: dict[str, str] = {
 
 _MODES = {"indoormap": "mass_centered", "pf_no_mag": "none", "magpp_gaussian": "gaussian",
           "magicol_dtw": "dtw"}
+#: The particle-filter methods (they can also smooth offline, :mod:`localize.smoothing`).
+PARTICLE_FILTERS = tuple(_MODES)
 
 
 def make_localizer(method: str, bundle: MapBundle, params: FilterParams | None = None, *,

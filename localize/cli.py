@@ -164,10 +164,6 @@ def _write_track(track, path: Path, fmt: str) -> Path:
     return target
 
 
-#: Methods that can smooth offline (particle filters, :mod:`localize.smoothing`).
-SMOOTHABLE = ("indoormap", "pf_no_mag", "magpp_gaussian", "magicol_dtw")
-
-
 def _row_name(method: str, smooth: bool) -> str:
     return f"{method}+smoothed" if smooth else method
 
@@ -205,11 +201,11 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
                      plot: bool, smooth: bool) -> None:
     """Localize survey walks (trace files or folders) on BUNDLE (a floor bundle or a folder
     of floor bundles): positions per step as Parquet/CSV and a trajectory plot."""
-    from localize.baselines import make_localizer
+    from localize.baselines import PARTICLE_FILTERS, make_localizer
 
-    if smooth and method not in SMOOTHABLE:
-        raise click.BadParameter(f"--smooth needs a particle filter ({', '.join(SMOOTHABLE)})"
-                                 f", not {method}")
+    if smooth and method not in PARTICLE_FILTERS:
+        raise click.BadParameter(f"--smooth needs a particle filter "
+                                 f"({', '.join(PARTICLE_FILTERS)}), not {method}")
     from survey.step_summaries import step_summaries, waypoints_of
     from survey.trace_reader import read_trace
 
@@ -258,7 +254,7 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
                      smooth: bool) -> None:
     """Error at the waypoints of walks (median, p80, mean per method). The bundles should be
     built without these walks (a warning names walks the bundle was built from)."""
-    from localize.baselines import METHODS, make_localizer
+    from localize.baselines import METHODS, PARTICLE_FILTERS, make_localizer
     from localize.evaluate import summarize, waypoint_errors
     from survey.step_summaries import step_summaries, waypoints_of
     from survey.trace_reader import read_trace
@@ -268,7 +264,8 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
     if unknown:
         raise click.BadParameter(f"unknown methods {unknown}; known: {sorted(METHODS)}")
     maps = _open_maps(bundle_path)
-    rows = [(m, False) for m in names] + [(m, True) for m in names if smooth and m in SMOOTHABLE]
+    rows = [(m, False) for m in names] + [(m, True) for m in names
+                                          if smooth and m in PARTICLE_FILTERS]
     errors: dict[str, list[np.ndarray]] = {_row_name(m, sm): [] for m, sm in rows}
     for f in _walks(walks):
         trace = read_trace(f)

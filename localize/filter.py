@@ -54,11 +54,14 @@ class BaseLocalizer:
     method = "base"
     #: Whether the method reads the magnetometer (walks without one are refused).
     needs_magnetometer = False
+    #: Whether :meth:`run` can smooth offline (particle filters).
+    can_smooth = False
 
     def __init__(self, bundle: MapBundle, *, radio=None) -> None:
         self.bundle = bundle
         self.radio = radio
         self._last: Estimate | None = None
+        self._keep_genealogy = False  # set by run(smooth=True) for the start to see
 
     # -- start ---------------------------------------------------------------------------
     def start(self, x_m: float | None = None, y_m: float | None = None, *, t_ms: float = 0.0,
@@ -89,7 +92,7 @@ class BaseLocalizer:
             if fix is None:
                 raise LocalizationError("the radio model gives no fix for the start scan")
             x_m, y_m, sigma = fix
-        self._prepare_smoothing(False)  # streaming: real-time estimates only
+        self._keep_genealogy = False  # streaming: real-time estimates only
         self._last = self._start_at(float(x_m), float(y_m), float(t_ms), sigma, half_width_m)
         return self._last
 
@@ -150,7 +153,10 @@ class BaseLocalizer:
             One estimate per step (``info["smoothed"]`` says which kind).
         """
         self.check(steps)
-        self._prepare_smoothing(smooth)
+        if smooth and not self.can_smooth:
+            raise LocalizationError(f"method {self.method} cannot smooth (particle filters "
+                                    "only)")
+        self._keep_genealogy = bool(smooth)
         t0 = float(steps.t_ms[0]) - 500.0 if start_t_ms is None else float(start_t_ms)
         if start_xy is None:
             fix = self.first_fix(steps)
@@ -167,11 +173,6 @@ class BaseLocalizer:
                                      floor_id=self.bundle.floor_id)
         track.info["smoothed"] = bool(smooth)
         return self._smoothed(track) if smooth else track
-
-    def _prepare_smoothing(self, smooth: bool) -> None:
-        if smooth:
-            raise LocalizationError(f"method {self.method} cannot smooth (particle filters "
-                                    "only)")
 
     def _smoothed(self, track: Track) -> Track:
         raise NotImplementedError
@@ -204,6 +205,7 @@ class Localizer(BaseLocalizer):
     """
 
     method = "indoormap"
+    can_smooth = True
 
     def __init__(self, bundle: MapBundle, params: FilterParams | None = None, *, radio=None,
                  rng: np.random.Generator | int | None = None, method: str | None = None,
@@ -220,7 +222,6 @@ class Localizer(BaseLocalizer):
         self.needs_magnetometer = self.params.weight_mode != "none"
         self.state: ParticleState | None = None
         self.genealogy: Genealogy | None = None
-        self._keep_genealogy = False
         self.n_recoveries = 0
         self._consecutive = np.zeros(1, dtype=np.int64)
 
@@ -283,9 +284,6 @@ class Localizer(BaseLocalizer):
                               float(out.spread_m[0]), float(out.alive_fraction[0]), recovered,
                               self.bundle.floor_id)
         return self._last
-
-    def _prepare_smoothing(self, smooth: bool) -> None:
-        self._keep_genealogy = bool(smooth)
 
     def _smoothed(self, track: Track) -> Track:
         """``track`` with the genealogy's smoothed positions (the start stays as it was)."""

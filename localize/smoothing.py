@@ -33,9 +33,6 @@ class Genealogy:
         self._y: list[NDArray[np.float64]] = []
         self._parents: list[NDArray[np.int64]] = []
 
-    def __len__(self) -> int:
-        return len(self._x)
-
     def record(self, x_m: NDArray, y_m: NDArray, parents: NDArray | None) -> None:
         """Positions (m, shape (n,)) of the particles now and their ancestors' slots (n,) in
         the previous record (None for the first record)."""
