@@ -15,7 +15,8 @@ Positions, per floor, leave-one-walk-out (``--folds 0``, default) or grouped k-f
 - ``default``: what ``indoormap build`` ships, rebuilt per fold from the training walks only
   (:func:`mapping.radio_build.site_radio`: device table, AP selection over the three floors,
   1 m reference points, Wi-Fi rows up to 6 s) matched as the localizer does (Sorensen kNN on
-  powed RSSI, k = 5, 1/d^2; query rows older than 2.5 s down-weighted);
+  powed RSSI, reference distances mixed with their 1 m neighbourhood's, k = 5, 1/d^4; query
+  rows older than 2.5 s down-weighted);
 - ``gaussian``: the probabilistic match on the same reference points;
 - ``ble``: the shipped BLE fingerprints on held-out BLE windows (2 s), scored separately (BLE
   windows are not Wi-Fi scans; the count differs).

@@ -5,8 +5,8 @@ the reference-point tables of :mod:`mapping.fingerprints` (``<kind>_rp``, ``<kin
 module turns them into the localizer's :class:`~localize.radio.RadioModel` with indoormap's
 default matcher (:func:`mapping.matching.default_matcher`, same kernels from
 :mod:`localize.radio_match`): Sorensen distance on the powed representation, references
-weighted by their detection rate, the k = 5 nearest reference points averaged with weights
-1/d^2.
+weighted by their detection rate, every reference point's distance mixed half and half with
+its 1 m neighbourhood's, the k = 5 nearest reference points averaged with weights 1/d^4.
 
 A phone whose RSSI scale differs from the survey device is handled by a linear map
 ``k * rssi + b`` applied to every scan first: from the bundle's device table when its model is
@@ -27,7 +27,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from localize.errors import LocalizationError
-from localize.radio_match import knn_positions, powed, scan_rssi_matrix, sorensen_distances
+from localize.radio_match import (
+    knn_positions,
+    powed,
+    reference_neighbours,
+    scan_rssi_matrix,
+    smoothed_distances,
+    sorensen_distances,
+)
 from localize.rssi_calibration import OnlineCalibration, estimate_rssi_calibration
 from localize.steps import RadioScan
 
@@ -83,6 +90,9 @@ class FingerprintPositioner:
         Neighbours averaged.
     weight_power : float
         Neighbour weights ``1 / distance ** weight_power``.
+    neighbour_mix, neighbour_sigma_m : float
+        Reference distances mixed with their neighbourhood's (Gaussian, m; see
+        :func:`localize.radio_match.smoothed_distances`; 0 = off).
     rssi_k, rssi_b : float
         Calibration ``k * rssi + b`` applied to every scan (dBm); identity by default.
     likelihood_sigma_m : float
@@ -95,7 +105,9 @@ class FingerprintPositioner:
     var_db2: NDArray[np.float64]
     detection_rate: NDArray[np.float64]
     k: int = 5
-    weight_power: float = 2.0
+    weight_power: float = 4.0
+    neighbour_mix: float = 0.5
+    neighbour_sigma_m: float = 1.0
     rssi_k: float = 1.0
     rssi_b: float = 0.0
     likelihood_sigma_m: float = 3.0
@@ -108,8 +120,13 @@ class FingerprintPositioner:
                                         f"{getattr(self, name).shape}, expected {shape}")
         if shape[0] == 0:
             raise LocalizationError("fingerprints: no reference point")
+        if not 0.0 <= self.neighbour_mix <= 1.0 or self.neighbour_sigma_m <= 0:
+            raise LocalizationError("fingerprints: neighbour_mix must lie in [0, 1] and "
+                                    "neighbour_sigma_m be positive")
         ref = powed(self.mean_dbm) * self.detection_rate
         object.__setattr__(self, "_ref", ref)
+        object.__setattr__(self, "_neighbours", reference_neighbours(
+            self.xy_m, self.neighbour_sigma_m) if self.neighbour_mix > 0 else None)
         object.__setattr__(self, "_index", {a: i for i, a in enumerate(self.aps.tolist())})
 
     # -- construction ------------------------------------------------------------------------
@@ -190,6 +207,13 @@ class FingerprintPositioner:
             out = self.rssi_k * out + self.rssi_b
         return out
 
+    def _distances(self, q: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Signal distances of powed scans ``q`` (S, A) to every reference point, (S, R)."""
+        d = sorensen_distances(q, self._ref)
+        if self._neighbours is None:
+            return d
+        return smoothed_distances(d, self._neighbours, self.neighbour_mix)
+
     def locate_matrix(self, rssi_dbm: ArrayLike) -> RadioFixes:
         """Positions of scans given as a matrix over :attr:`aps` (already calibrated)."""
         rssi = np.asarray(rssi_dbm, dtype=np.float64).reshape(-1, len(self.aps))
@@ -199,7 +223,7 @@ class FingerprintPositioner:
         q = powed(rssi)
         ok = q.sum(axis=1) > 0
         if ok.any():
-            d = sorensen_distances(q[ok], self._ref)
+            d = self._distances(q[ok])
             p, d_mean, nn = knn_positions(d, self.xy_m, self.k, self.weight_power)
             w = 1.0 / np.maximum(np.take_along_axis(d, nn, axis=1), 1e-9) ** self.weight_power
             spread2 = (((self.xy_m[nn] - p[:, None, :]) ** 2).sum(axis=2) * w).sum(axis=1) \
@@ -222,7 +246,7 @@ class FingerprintPositioner:
     def likelihood(self, scan: RadioScan, x_m: ArrayLike, y_m: ArrayLike
                    ) -> NDArray[np.float64] | None:
         """Radio likelihood at positions (m): a mixture of Gaussians (``likelihood_sigma_m``)
-        at the 2k nearest reference points, weighted 1/d^2. Keeps the alternatives of an
+        at the 2k nearest reference points, weighted ``1 / d ** weight_power``. Keeps the alternatives of an
         ambiguous scan for the particle filter. None when the scan hears no known transmitter.
         """
         if self.likelihood_sigma_m <= 0 or scan is None:
@@ -230,7 +254,7 @@ class FingerprintPositioner:
         q = powed(self.scan_matrix([scan]))
         if q.sum() <= 0:
             return None
-        d = sorensen_distances(q, self._ref)
+        d = self._distances(q)
         _, _, nn = knn_positions(d, self.xy_m, 2 * self.k, self.weight_power)
         nn = nn[0]
         w = 1.0 / np.maximum(d[0, nn], 1e-9) ** self.weight_power

@@ -13,11 +13,14 @@ the papers is here too, for the probabilistic matcher and the online RSSI calibr
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["age_weights", "euclidean_distances", "gaussian_loglik", "knn_positions", "powed",
-           "scan_rssi_matrix", "sorensen_distances"]
+__all__ = ["ReferenceNeighbours", "age_weights", "euclidean_distances", "gaussian_loglik",
+           "knn_positions", "powed", "reference_neighbours", "scan_rssi_matrix",
+           "smoothed_distances", "sorensen_distances"]
 
 FloatArray = NDArray[np.float64]
 
@@ -84,6 +87,55 @@ def euclidean_distances(q: FloatArray, r: FloatArray) -> FloatArray:
     r = np.asarray(r, dtype=np.float64)
     d2 = (q ** 2).sum(1)[:, None] + (r ** 2).sum(1)[None, :] - 2.0 * q @ r.T
     return np.sqrt(np.maximum(d2, 0.0))
+
+
+@dataclass(frozen=True)
+class ReferenceNeighbours:
+    """Gaussian weights between nearby reference points, row-normalised, in CSR layout: the
+    neighbours of reference ``i`` are ``cols[indptr[i]:indptr[i + 1]]`` (itself included) with
+    weights ``weights[...]`` summing to 1."""
+
+    indptr: NDArray[np.intp]
+    cols: NDArray[np.intp]
+    weights: FloatArray
+
+
+def reference_neighbours(xy_m: FloatArray, sigma_m: float, radius_m: float | None = None,
+                         chunk: int = 512) -> ReferenceNeighbours:
+    """Neighbours of every reference point within ``radius_m`` (default ``2.5 sigma_m``),
+    weighted ``exp(-d^2 / (2 sigma_m^2))`` and normalised per reference point.
+
+    ``xy_m``: shape (R, 2), m. Memory and time grow as R^2 / chunk per chunk of rows (a few
+    thousand reference points per floor take milliseconds).
+    """
+    xy = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
+    radius = 2.5 * sigma_m if radius_m is None else radius_m
+    rows, cols, wts = [], [], []
+    for a in range(0, len(xy), chunk):
+        d2 = ((xy[a:a + chunk, None, :] - xy[None, :, :]) ** 2).sum(axis=2)
+        r, c = np.nonzero(d2 <= radius * radius)  # row-major: sorted by row, then column
+        rows.append(r + a)
+        cols.append(c)
+        wts.append(np.exp(-d2[r, c] / (2.0 * sigma_m * sigma_m)))
+    row = np.concatenate(rows) if rows else np.empty(0, np.intp)
+    col = np.concatenate(cols) if cols else np.empty(0, np.intp)
+    w = np.concatenate(wts) if wts else np.empty(0)
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(row, minlength=len(xy)))])
+    w = w / np.repeat(np.add.reduceat(w, indptr[:-1]) if len(w) else w, np.diff(indptr))
+    return ReferenceNeighbours(indptr.astype(np.intp), col.astype(np.intp), w)
+
+
+def smoothed_distances(dist: FloatArray, neighbours: ReferenceNeighbours, mix: float
+                       ) -> FloatArray:
+    """Signal distances (S, R) mixed with their neighbourhood average over reference points:
+    ``(1 - mix) * d[:, i] + mix * sum_j w_ij d[:, j]``. A reference point then matches a scan
+    well only where its neighbours do too, which damps single noisy reference points."""
+    dist = np.asarray(dist, dtype=np.float64)
+    if mix <= 0 or dist.size == 0:
+        return dist
+    nb = neighbours
+    avg = np.add.reduceat(dist[:, nb.cols] * nb.weights, nb.indptr[:-1], axis=1)
+    return (1.0 - mix) * dist + mix * avg
 
 
 def knn_positions(dist: FloatArray, xy_m: FloatArray, k: int, power: float = 1.0

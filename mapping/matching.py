@@ -19,8 +19,8 @@ Missing-transmitter policy
 - A scan that hears no known transmitter gets position NaN, score NaN, ``n_aps = 0``.
 
 Default: :func:`default_matcher` (weighted kNN, Sorensen on the powed representation, k = 5,
-weights 1/d^2): on site1 (leave-one-walk-out) it beats the Gaussian match by ~0.5 m median; see
-``benchmarks/wifi_accuracy.py``.
+weights 1/d^4, reference distances smoothed over 1 m neighbourhoods): on site1 (walks held out)
+it beats the Gaussian match by ~1 m median; see ``benchmarks/wifi_accuracy.py``.
 """
 
 from __future__ import annotations
@@ -37,6 +37,8 @@ from localize.radio_match import (
     gaussian_loglik,
     knn_positions,
     powed,
+    reference_neighbours,
+    smoothed_distances,
     sorensen_distances,
 )
 
@@ -157,6 +159,11 @@ class WeightedKNN(_Matcher):
     age_fresh_ms, age_decay_ms : float, optional
         If both are given, a query row older than ``age_fresh_ms`` is down-weighted by
         ``exp(-(age - fresh) / decay)`` (powed only).
+    neighbour_mix, neighbour_sigma_m : float
+        Every reference point's signal distance is mixed with the Gaussian-weighted
+        (``neighbour_sigma_m``, m) average over the reference points within 2.5 sigma:
+        ``(1 - mix) * own + mix * neighbourhood`` (:func:`localize.radio_match.smoothed_distances`;
+        0 = off).
     min_aps : int
         Scans with fewer known transmitters get no position.
     """
@@ -165,7 +172,8 @@ class WeightedKNN(_Matcher):
                  representation: str = "powed", floor_dbm: float = -100.0,
                  beta: float = float(np.e), missing_dbm: float = -100.0,
                  use_detection: bool = True, age_fresh_ms: float | None = None,
-                 age_decay_ms: float | None = None, min_aps: int = 1) -> None:
+                 age_decay_ms: float | None = None, neighbour_mix: float = 0.0,
+                 neighbour_sigma_m: float = 1.0, min_aps: int = 1) -> None:
         if metric not in ("sorensen", "euclidean"):
             raise FingerprintError(f"metric must be 'sorensen' or 'euclidean', not {metric!r}")
         if representation not in ("powed", "dbm"):
@@ -175,6 +183,10 @@ class WeightedKNN(_Matcher):
             raise FingerprintError("the Sorensen distance needs the powed representation")
         if k < 1:
             raise FingerprintError(f"k must be >= 1, got {k}")
+        if not 0.0 <= neighbour_mix <= 1.0 or neighbour_sigma_m <= 0:
+            raise FingerprintError(f"neighbour_mix must lie in [0, 1] and neighbour_sigma_m be "
+                                   f"positive; got {neighbour_mix}, {neighbour_sigma_m}")
+        self.neighbour_mix, self.neighbour_sigma_m = float(neighbour_mix), float(neighbour_sigma_m)
         self.k, self.weight_power, self.metric = int(k), float(weight_power), metric
         self.representation, self.floor_dbm, self.beta = representation, floor_dbm, beta
         self.missing_dbm, self.use_detection = missing_dbm, use_detection
@@ -195,12 +207,18 @@ class WeightedKNN(_Matcher):
         if self.representation == "powed" and self.use_detection:
             ref = ref * d.detection_rate
         self.ref_ = ref
+        self.neighbours_ = (reference_neighbours(d.xy_m, self.neighbour_sigma_m)
+                            if self.neighbour_mix > 0 else None)
 
     def _dist(self, rssi: NDArray[np.float64], age: NDArray[np.float64]) -> NDArray[np.float64]:
         q = self._vectors(rssi, age)
         if self.metric == "sorensen":
-            return sorensen_distances(q, self.ref_)
-        return euclidean_distances(q, self.ref_)
+            dist = sorensen_distances(q, self.ref_)
+        else:
+            dist = euclidean_distances(q, self.ref_)
+        if self.neighbours_ is None:
+            return dist
+        return smoothed_distances(dist, self.neighbours_, self.neighbour_mix)
 
     def distances(self, scans: ScanSet) -> NDArray[np.float64]:
         """Signal distance of every scan to every reference point, shape (S, R)."""
@@ -269,7 +287,9 @@ class GaussianMatch(_Matcher):
 
 
 def default_matcher() -> WeightedKNN:
-    """indoormap's default matcher: Sorensen kNN on the powed representation (k = 5, 1/d^2
-    weights, detection-weighted references), with rows older than 2.5 s down-weighted with a
-    4 s decay when the scans carry row ages."""
-    return WeightedKNN(k=5, weight_power=2.0, age_fresh_ms=2500.0, age_decay_ms=4000.0)
+    """indoormap's default matcher: Sorensen kNN on the powed representation (k = 5, 1/d^4
+    weights, detection-weighted references, each reference point's distance mixed half and
+    half with its 1 m neighbourhood's), with rows older than 2.5 s down-weighted with a 4 s
+    decay when the scans carry row ages."""
+    return WeightedKNN(k=5, weight_power=4.0, age_fresh_ms=2500.0, age_decay_ms=4000.0,
+                       neighbour_mix=0.5, neighbour_sigma_m=1.0)

@@ -11,6 +11,8 @@ from localize.radio_match import (
     gaussian_loglik,
     knn_positions,
     powed,
+    reference_neighbours,
+    smoothed_distances,
     sorensen_distances,
 )
 from mapping.errors import FingerprintError
@@ -117,6 +119,31 @@ def test_knn_positions_weights_and_order():
     assert pos[0, 0] == pytest.approx((10 / 1 + 20 / 2) / (1 + 1 / 2))
 
 
+def test_neighbour_smoothing_matches_brute_force():
+    rng = np.random.default_rng(5)
+    xy = rng.uniform(0, 12, (700, 2))
+    nb = reference_neighbours(xy, sigma_m=1.0, chunk=128)   # several chunks
+    d2 = ((xy[:, None] - xy[None]) ** 2).sum(-1)
+    w = np.where(d2 <= 2.5 ** 2, np.exp(-d2 / 2.0), 0.0)
+    w /= w.sum(axis=1, keepdims=True)
+    dist = rng.random((4, len(xy)))
+    assert np.allclose(np.add.reduceat(nb.weights, nb.indptr[:-1]), 1.0)
+    assert np.allclose(smoothed_distances(dist, nb, 0.3), 0.7 * dist + 0.3 * dist @ w.T)
+    assert np.array_equal(smoothed_distances(dist, nb, 0.0), dist)
+
+
+def test_neighbour_smoothing_prefers_a_consistent_neighbourhood():
+    # reference points every metre on a line; one isolated lucky match at x = 15 m, a whole
+    # neighbourhood that matches almost as well around x = 4 m
+    xy = np.column_stack([np.arange(21.0), np.zeros(21)])
+    dist = np.full((1, 21), 0.6)
+    dist[0, 15] = 0.2
+    dist[0, 2:7] = 0.25
+    assert knn_positions(dist, xy, 1)[0][0, 0] == 15.0
+    smooth = smoothed_distances(dist, reference_neighbours(xy, 1.0), 0.5)
+    assert knn_positions(smooth, xy, 1)[0][0, 0] == 4.0
+
+
 def test_gaussian_loglik_is_the_sum_of_independent_terms():
     mean = np.array([[-60.0, np.nan]])
     var = np.array([[16.0, np.nan]])
@@ -135,3 +162,5 @@ def test_bad_parameters_and_unfitted_use():
         WeightedKNN(representation="dbm")
     with pytest.raises(FingerprintError, match="k must be >= 1"):
         GaussianMatch(0)
+    with pytest.raises(FingerprintError, match="neighbour_mix must lie in"):
+        WeightedKNN(neighbour_mix=1.5)

@@ -4,6 +4,7 @@ and the `floor` / `wifi-locate` commands."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import gzip
 import io
 import shutil
@@ -122,6 +123,8 @@ def test_scan_without_known_transmitter_gives_no_fix(built):
     assert fixes.n_known.tolist() == [0, 3]
     with pytest.raises(Exception, match="k > 0"):
         pos.with_calibration(0.0, 1.0)
+    with pytest.raises(Exception, match="neighbour_mix must lie in"):
+        dataclasses.replace(pos, neighbour_mix=2.0)
 
 
 def test_unknown_phone_is_calibrated_online(built):
