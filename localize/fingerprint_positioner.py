@@ -246,8 +246,9 @@ class FingerprintPositioner:
     def likelihood(self, scan: RadioScan, x_m: ArrayLike, y_m: ArrayLike
                    ) -> NDArray[np.float64] | None:
         """Radio likelihood at positions (m): a mixture of Gaussians (``likelihood_sigma_m``)
-        at the 2k nearest reference points, weighted ``1 / d ** weight_power``. Keeps the alternatives of an
-        ambiguous scan for the particle filter. None when the scan hears no known transmitter.
+        at the 2k nearest reference points, weighted ``1 / d ** weight_power``. Keeps the
+        alternatives of an ambiguous scan for the particle filter. None when the scan hears no
+        known transmitter.
         """
         if self.likelihood_sigma_m <= 0 or scan is None:
             return None

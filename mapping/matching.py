@@ -162,8 +162,8 @@ class WeightedKNN(_Matcher):
     neighbour_mix, neighbour_sigma_m : float
         Every reference point's signal distance is mixed with the Gaussian-weighted
         (``neighbour_sigma_m``, m) average over the reference points within 2.5 sigma:
-        ``(1 - mix) * own + mix * neighbourhood`` (:func:`localize.radio_match.smoothed_distances`;
-        0 = off).
+        ``(1 - mix) * own + mix * neighbourhood``
+        (:func:`localize.radio_match.smoothed_distances`; 0 = off).
     min_aps : int
         Scans with fewer known transmitters get no position.
     """
@@ -186,7 +186,8 @@ class WeightedKNN(_Matcher):
         if not 0.0 <= neighbour_mix <= 1.0 or neighbour_sigma_m <= 0:
             raise FingerprintError(f"neighbour_mix must lie in [0, 1] and neighbour_sigma_m be "
                                    f"positive; got {neighbour_mix}, {neighbour_sigma_m}")
-        self.neighbour_mix, self.neighbour_sigma_m = float(neighbour_mix), float(neighbour_sigma_m)
+        self.neighbour_mix = float(neighbour_mix)
+        self.neighbour_sigma_m = float(neighbour_sigma_m)
         self.k, self.weight_power, self.metric = int(k), float(weight_power), metric
         self.representation, self.floor_dbm, self.beta = representation, floor_dbm, beta
         self.missing_dbm, self.use_detection = missing_dbm, use_detection
