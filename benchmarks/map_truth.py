@@ -33,7 +33,7 @@ import pandas as pd
 from mapping.build import BuildParams, build_floor
 from mapping.floorplan import read_floor_plan
 from mapping.interpolate import RasterParams
-from survey.field_features import wrap_deg
+from mapping.truth_errors import truth_errors
 from survey.ingest import ingest
 from survey.process_store import process_store
 from survey.sim.site import SiteParams, load_field, simulate_site
@@ -52,22 +52,11 @@ def surveyed_truth(site: Path, truth: dict, floor: str) -> pd.DataFrame:
 
 def scores(content, field, true_xy: np.ndarray) -> dict[str, float]:
     """Strength and heading-offset errors of a built floor on the surveyed cells."""
-    g = content.grid
-    row, col, inside = g.cell_of(true_xy[:, 0], true_xy[:, 1])
-    surveyed = np.zeros(g.shape, bool)
-    surveyed[row[inside], col[inside]] = True
-    xc, yc = g.cell_centers()
-    xx, yy = np.meshgrid(xc, yc)
-    strength = content.layers["strength"].values
-    sel = surveyed & np.isfinite(strength)
-    true_strength = np.linalg.norm(field.field_earth_ut(xx[sel], yy[sel]), axis=1)
-    err = strength[sel] - true_strength
-    hsel = surveyed & np.isfinite(content.layers["heading_offset"].values)
-    herr = wrap_deg(content.layers["heading_offset"].values[hsel]
-                    + field.compass_deviation_deg(xx[hsel], yy[hsel]))
-    return {"cells": int(sel.sum()), "coverage": float(sel.sum() / max(surveyed.sum(), 1)),
-            "rmse": float(np.sqrt(np.mean(err ** 2))), "median_abs": float(np.median(np.abs(err))),
-            "heading_median_abs": float(np.median(np.abs(herr)))}
+    e = truth_errors(content.grid, content.layers, field, true_xy)
+    return {"cells": len(e.strength_ut), "coverage": len(e.strength_ut) / max(e.surveyed, 1),
+            "rmse": float(np.sqrt(np.mean(e.strength_ut ** 2))),
+            "median_abs": float(np.median(np.abs(e.strength_ut))),
+            "heading_median_abs": float(np.median(np.abs(e.heading_offset_deg)))}
 
 
 def main() -> int:

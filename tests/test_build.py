@@ -14,8 +14,8 @@ from localize.bundle import load_bundle
 from mapping.build import BuildError, BuildParams, build_floor
 from mapping.bundle_writer import write_bundle
 from mapping.floorplan import read_floor_plan
+from mapping.truth_errors import truth_errors
 from survey.cli import main
-from survey.field_features import wrap_deg
 from survey.ingest import ingest
 from survey.process_store import process_store
 from survey.sim.site import load_field
@@ -52,26 +52,16 @@ def test_layers_and_manifest(store, tmp_path):
 def test_map_against_simulated_truth(store):
     """Strength on surveyed cells within a few sensor-noise levels of the true field, and the
     heading-offset layer within 3 deg (median) of minus the simulated compass deviation. The
-    sample has 6 walks a floor; benchmarks report the 48-walk site."""
+    sample has 6 walks a floor; benchmarks/map_truth.py reports the 48-walk site."""
     truth = json.loads((SITE / "truth" / "site.json").read_text())
     content = build_floor(store, read_floor_plan(SITE / "F1"), floor="F1")
     field = load_field(truth, "F1")
     true_xy = pd.concat([pd.read_parquet(SITE / w["truth_path"])[["x_m", "y_m"]]
                          for w in truth["walks"] if w["floor"] == "F1"]).to_numpy()
-    g = content.grid
-    row, col, inside = g.cell_of(true_xy[:, 0], true_xy[:, 1])
-    surveyed = np.zeros(g.shape, bool)
-    surveyed[row[inside], col[inside]] = True
-    xc, yc = g.cell_centers()
-    xx, yy = np.meshgrid(xc, yc)
-    sel = surveyed & np.isfinite(content.layers["strength"].values)
-    assert sel.sum() > 300
-    true_strength = np.linalg.norm(field.field_earth_ut(xx[sel], yy[sel]), axis=1)
-    err = content.layers["strength"].values[sel] - true_strength
-    assert np.sqrt(np.mean(err ** 2)) < 3.0  # sensor noise 0.7 uT; see the note in the test
-    dev = field.compass_deviation_deg(xx[sel], yy[sel])
-    herr = wrap_deg(content.layers["heading_offset"].values[sel] + dev)
-    assert np.nanmedian(np.abs(herr)) < 3.0
+    errors = truth_errors(content.grid, content.layers, field, true_xy)
+    assert len(errors.strength_ut) > 300
+    assert np.sqrt(np.mean(errors.strength_ut ** 2)) < 3.0  # sensor noise 0.7 uT (6 walks)
+    assert np.median(np.abs(errors.heading_offset_deg)) < 3.0
 
 
 def test_walk_by_walk_layers_equal_the_in_memory_rasters(store):

@@ -1,0 +1,63 @@
+"""Built maps against a known (simulated) field: the errors on the cells a survey walked.
+
+Pure computation, used by the build tests and ``benchmarks/map_truth.py``. ``field`` is any
+object with ``field_earth_ut(x_m, y_m) -> (n, 3)`` (uT, east, north, up) and
+``compass_deviation_deg(x_m, y_m) -> (n,)`` (deg), e.g. :func:`survey.sim.site.load_field`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from survey.field_features import wrap_deg
+
+__all__ = ["TruthErrors", "surveyed_cells", "truth_errors"]
+
+
+def surveyed_cells(grid, true_xy_m: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Cells of ``grid`` that the true positions (n, 2) (m) pass through, shape ``grid.shape``."""
+    xy = np.asarray(true_xy_m, dtype=np.float64).reshape(-1, 2)
+    row, col, inside = grid.cell_of(xy[:, 0], xy[:, 1])
+    out = np.zeros(grid.shape, bool)
+    out[row[inside], col[inside]] = True
+    return out
+
+
+@dataclass(frozen=True)
+class TruthErrors:
+    """Map minus truth on the surveyed cells where the layer has a value.
+
+    Attributes
+    ----------
+    strength_ut : ndarray, shape (n,)
+        Strength layer minus the true field's strength (uT).
+    heading_offset_deg : ndarray, shape (m,)
+        Heading-offset layer plus the true compass deviation, wrapped to [-180, 180) (deg): the
+        layer is compass minus true heading, i.e. minus the deviation.
+    surveyed : int
+        Surveyed cells (with or without a map value).
+    """
+
+    strength_ut: NDArray[np.float64]
+    heading_offset_deg: NDArray[np.float64]
+    surveyed: int
+
+
+def truth_errors(grid, layers: dict, field, true_xy_m: NDArray[np.float64]) -> TruthErrors:
+    """Errors of the ``strength`` and ``heading_offset`` layers (objects with ``values`` of the
+    grid's shape, e.g. :class:`mapping.bundle_writer.Layer`) on the cells the true positions
+    (n, 2) (m) cross."""
+    surveyed = surveyed_cells(grid, true_xy_m)
+    xc, yc = grid.cell_centers()
+    xx, yy = np.meshgrid(xc, yc)
+    strength = layers["strength"].values
+    sel = surveyed & np.isfinite(strength)
+    true_strength = np.linalg.norm(field.field_earth_ut(xx[sel], yy[sel]), axis=1)
+    offset = layers["heading_offset"].values
+    hsel = surveyed & np.isfinite(offset)
+    herr = wrap_deg(offset[hsel] + field.compass_deviation_deg(xx[hsel], yy[hsel]))
+    return TruthErrors(strength[sel] - true_strength, np.asarray(herr, dtype=np.float64),
+                       int(surveyed.sum()))
