@@ -3,10 +3,11 @@
     python benchmarks/map_truth.py [--work DIR] [--preset default] [--seed 7]
 
 Simulates a site (preset ``default``: 3 floors, 48 walks, several phones, calibration sessions,
-pauses and holding modes; reused from ``--work`` when present), ingests and processes it as a
-user would, builds every floor with indoormap's default pipeline and, in the same run, with linear
-interpolation without levelling (the baseline of ``benchmarks/map_accuracy.py``), and prints per
-floor, on the surveyed cells (cells the true paths pass through):
+pauses and holding modes), ingests and processes it as a user would (site and store made by
+``localize_eval.sim_site`` / ``processed_store``, reused from ``--work`` when present), builds
+every floor with indoormap's default pipeline and, in the same run, with linear interpolation
+without levelling (the baseline of ``benchmarks/map_accuracy.py``), and prints per floor, on the
+surveyed cells (cells the true paths pass through):
 
 - strength RMSE and median absolute error against the true field (uT), and the RMSE over the
   walks' magnetometer noise (RMS of the simulated phones' ``mag_ut``; issue #4 asks for at most
@@ -30,14 +31,16 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from localize_eval import processed_store, sim_site
+
 from mapping.build import BuildParams, build_floor
 from mapping.floorplan import read_floor_plan
 from mapping.interpolate import RasterParams
 from mapping.truth_errors import truth_errors
-from survey.ingest import ingest
-from survey.process_store import process_store
-from survey.sim.site import SiteParams, load_field, simulate_site
-from survey.store import SurveyStore
+from survey.sim.site import load_field
 
 
 def surveyed_truth(site: Path, truth: dict, floor: str) -> pd.DataFrame:
@@ -67,23 +70,12 @@ def main() -> int:
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         work = args.work or Path(tmp)
-        site = work / f"sim_{args.preset}_{args.seed}"
         t = time.perf_counter()
-        if not (site / "truth" / "site.json").exists():
-            simulate_site(SiteParams.preset_params(args.preset, seed=args.seed), site,
-                          overwrite=True)
+        site = sim_site(work, args.preset, args.seed)
         truth = json.loads((site / "truth" / "site.json").read_text())
         floors = [f["name"] for f in truth["floors"]]
-        store_dir = work / f"store_{args.preset}_{args.seed}"
         plans = {f: read_floor_plan(site / f) for f in floors}
-        if not (store_dir / ".processed").exists():
-            ingest([site / f / "path_data_files" for f in floors], store_dir)
-            store = SurveyStore.open(store_dir)
-            process_store(store, reachable={(s, f): plans[f].reachable for s, f in
-                                            store.catalog()[["site", "floor"]].drop_duplicates()
-                                            .itertuples(index=False)})
-            (store_dir / ".processed").touch()
-        store = SurveyStore.open(store_dir)
+        store = processed_store(site.name, [site / f for f in floors], work)
         print(f"site {site.name}: {len(truth['walks'])} walks on {len(floors)} floors "
               f"(simulate, ingest, process: {time.perf_counter() - t:.0f} s)", flush=True)
         noise = {d["device_id"]: d["noise"]["mag_ut"] for d in truth["devices"]}
