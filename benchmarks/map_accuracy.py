@@ -36,11 +36,10 @@ def main() -> int:
         return 0
     from mapping.floorplan import read_floor_plan
     from mapping.grid import grid_for_extent, reachable_mask
-    from mapping.build import BuildParams, build_bandwidth
+    from mapping.build import BuildParams, build_smoothing
     from mapping.holdout import default_pipelines, floor_samples_with_baseline_positions, \
         leave_one_walk_out
     from mapping.levelling import apply_session_residuals, fit_session_residuals
-    from mapping.interpolate import RasterParams
     from survey.ingest import ingest
     from survey.process_store import process_store
     from survey.store import SurveyStore
@@ -63,13 +62,13 @@ def main() -> int:
             params = BuildParams()
             levelled = apply_session_residuals(samples, fit_session_residuals(
                 samples, params.levelling))
-            bw, _ = build_bandwidth(samples, levelled, grid, mask, params)
-            table = leave_one_walk_out(samples, grid, mask,
-                                       default_pipelines(RasterParams(bandwidth_m=bw)),
+            chosen, _ = build_smoothing(samples, levelled, grid, mask, params)
+            table = leave_one_walk_out(samples, grid, mask, default_pipelines(chosen),
                                        layers=("strength", "vertical"))
             print(f"\nsite1/{f}: {samples['trace_id'].nunique()} walks, leave-one-walk-out "
-                  f"({time.perf_counter() - t:.0f} s); kernel bandwidth {bw} m (chosen by the "
-                  "build's 5-fold cross-validation over all walks of the floor)")
+                  f"({time.perf_counter() - t:.0f} s); kernel bandwidth {chosen.bandwidth_m} m, "
+                  f"shrinkage {chosen.prior_walks} walks (chosen by the build's 5-fold "
+                  "cross-validation over all walks of the floor)")
             cols = ["layer", "pipeline", "rmse", "median_abs", "shape_rmse", "skill",
                     "corr_0.7m", "corr_5m"]
             print(table[cols].sort_values(["layer", "pipeline"]).to_string(

@@ -33,9 +33,9 @@ from .floorplan import FloorPlan
 from .grid import grid_for_extent, reachable_mask
 from .field_layers import FIELD_LAYERS, field_rasters, floor_steps, levelling_samples, \
     reduce_field
-from .holdout import choose_bandwidth
+from .holdout import BANDWIDTH_CANDIDATES_M, choose_smoothing
 from .interpolate import RasterParams, raster
-from .levelling import LevellingParams, fit_session_residuals
+from .levelling import LevellingParams, empty_residuals, fit_session_residuals
 from .radio_build import RadioParams, SiteRadio, build_site_radio
 
 
@@ -48,6 +48,9 @@ class BuildParams:
     """Map-building parameters (lengths in m)."""
 
     cell_m: float = 0.5
+    #: when the chosen kernel bandwidth is below ``2 * cell_m``, raster at half the bandwidth,
+    #: not below this (m), so that the cells resolve the kernel (set to ``cell_m`` to keep it)
+    min_cell_m: float = 0.25
     raster: RasterParams = field(default_factory=RasterParams)
     heading_raster: RasterParams = field(default_factory=lambda: RasterParams(bandwidth_m=2.0))
     levelling: LevellingParams = field(default_factory=LevellingParams)
@@ -77,14 +80,21 @@ def coverage(grid, mask, support, distances_m=(1.0, 2.0, 5.0)) -> dict[str, floa
     return {f"within_{d:g}m": float((mask & (dist <= d)).sum() / n) for d in distances_m}
 
 
-def build_bandwidth(samples: pd.DataFrame, field_enu: np.ndarray, grid, mask,
-                    params: BuildParams) -> tuple[float, dict[float, float]]:
-    """The kernel bandwidth a build chooses, from the floor's samples in memory: grouped
-    cross-validation of the levelled strength over walks (:func:`mapping.holdout.choose_bandwidth`
-    on every 5th sample, the ones :func:`build_floor` takes walk by walk)."""
-    return choose_bandwidth(grid, mask, samples["x_m"].to_numpy(), samples["y_m"].to_numpy(),
+def build_smoothing(samples: pd.DataFrame, field_enu: np.ndarray, grid, mask,
+                    params: BuildParams) -> tuple[RasterParams, dict[str, float]]:
+    """The kernel bandwidth and shrinkage a build chooses, from the floor's samples in memory:
+    grouped cross-validation of the levelled strength over walks
+    (:func:`mapping.holdout.choose_smoothing` on every 5th sample, the ones :func:`build_floor`
+    takes walk by walk)."""
+    return choose_smoothing(grid, mask, samples["x_m"].to_numpy(), samples["y_m"].to_numpy(),
                             np.linalg.norm(field_enu, axis=1), samples["trace_id"].to_numpy(),
                             params.raster)
+
+
+def raster_cell_m(params: BuildParams, bandwidth_m: float) -> float:
+    """Cell size (m) of a floor rastered with ``bandwidth_m``: ``params.cell_m``, or half the
+    bandwidth when that is finer (not below ``params.min_cell_m``)."""
+    return float(min(params.cell_m, max(params.min_cell_m, bandwidth_m / 2.0)))
 
 
 def floor_samples(store: SurveyStore, site: str | None, floor: str) -> pd.DataFrame:
@@ -152,17 +162,32 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
                          if i == n or i % 100 == 0 else None)
     release_free_memory()  # the walks' freed buffers
     say(f"{floor}: {reduction.n_samples} samples")
-    if residuals is None:
-        residuals = pd.DataFrame(columns=["r_x_ut", "r_y_ut", "r_z_ut", "n_samples",
-                                          "n_pairs"])
-    raster_params, heading_params, bandwidth_scores = params.raster, params.heading_raster, {}
+    raster_params, heading_params, smoothing_scores = params.raster, params.heading_raster, {}
     if params.auto_bandwidth and params.raster.method == "kernel":
-        bw, bandwidth_scores = choose_bandwidth(grid, mask, reduction.cv_x_m,
-                                                reduction.cv_y_m, reduction.cv_strength_ut,
-                                                reduction.cv_walk, params.raster, subsample=1)
-        raster_params = replace(params.raster, bandwidth_m=bw)
+        raster_params, smoothing_scores = choose_smoothing(
+            grid, mask, reduction.cv_x_m, reduction.cv_y_m, reduction.cv_strength_ut,
+            reduction.cv_walk, params.raster, subsample=1)
+        bw = raster_params.bandwidth_m
         heading_params = replace(params.heading_raster, bandwidth_m=max(bw, 1.0))
-        say(f"{floor}: kernel bandwidth {bw} m chosen by 5-fold cross-validation over walks")
+        say(f"{floor}: kernel bandwidth {bw} m, shrinkage {raster_params.prior_walks} walks, "
+            "chosen by 5-fold cross-validation over walks")
+        cell_m = raster_cell_m(params, bw)
+        if cell_m < grid.cell_m:
+            # a kernel this narrow is judged on cells that resolve it: choose again there
+            grid = grid_for_extent(plan.width_m, plan.height_m, cell_m)
+            mask = reachable_mask(grid, plan.reachable)
+            reduction = reduce_field(store, pcat, grid, residuals)
+            release_free_memory()
+            raster_params, smoothing_scores = choose_smoothing(
+                grid, mask, reduction.cv_x_m, reduction.cv_y_m, reduction.cv_strength_ut,
+                reduction.cv_walk, params.raster, subsample=1,
+                candidates=[b for b in BANDWIDTH_CANDIDATES_M if b <= 2 * bw])
+            bw = raster_params.bandwidth_m
+            heading_params = replace(params.heading_raster, bandwidth_m=max(bw, 1.0))
+            say(f"{floor}: rastered at {cell_m} m cells; there kernel bandwidth {bw} m, "
+                f"shrinkage {raster_params.prior_walks} walks")
+    if residuals is None:
+        residuals = empty_residuals()
     layers = {}
     for name, (vals, std) in field_rasters(grid, mask, reduction, raster_params).items():
         unit, kind, desc = FIELD_LAYERS[name]
@@ -190,8 +215,8 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
     build_time = params.build_time or _time_text(end_ms)
     first = cat.loc[walks["trace_id"].iloc[0]]
     metrics = {"coverage": coverage(grid, mask, reduction.support), "n_walks": int(len(walks)),
-               "bandwidth_m": raster_params.bandwidth_m,
-               "bandwidth_cv_shape_rmse_ut": {str(k): v for k, v in bandwidth_scores.items()},
+               "bandwidth_m": raster_params.bandwidth_m, "prior_walks": raster_params.prior_walks,
+               "smoothing_cv_shape_rmse_ut": smoothing_scores,
                "n_samples": reduction.n_samples, "heading_offset_floor_median_deg": global_offset}
     tables = {"source_walks": pa.Table.from_pandas(walks, preserve_index=False),
               "levelling": pa.Table.from_pandas(lev.astype({"session": "str"}),

@@ -95,6 +95,48 @@ def prior_of(stats: CellStats) -> tuple[float, float]:
     return float(mu), float(max(stats.q.sum() / total - mu * mu, 1e-6))
 
 
+@dataclass(frozen=True)
+class KernelSums:
+    """Gaussian-smoothed walk counts, sums and sums of squares (grid shape) of one bandwidth:
+    everything :func:`kernel_raster` needs but the shrinkage, which is cheap to vary."""
+
+    n: NDArray[np.float64]
+    s: NDArray[np.float64]
+    q: NDArray[np.float64]
+    peak: float  # kernel weight of a single cell at its centre
+    support: NDArray[np.bool_]
+
+
+def kernel_sums(grid: Grid, mask: NDArray[np.bool_], stats: CellStats, bandwidth_m: float
+                ) -> KernelSums:
+    """Smooth ``stats`` within the reachable area (normalised convolution, mask as weight)."""
+    sigma = bandwidth_m / grid.cell_m
+    m = mask.astype(np.float64)
+    k_n, k_s, k_q = (ndimage.gaussian_filter(a * m, sigma, mode="constant", truncate=3.0)
+                     for a in (stats.n, stats.s, stats.q))
+    return KernelSums(k_n, k_s, k_q, 1.0 / (2 * np.pi * sigma * sigma), stats.n > 0)
+
+
+def kernel_combine(grid: Grid, mask: NDArray[np.bool_], sums: KernelSums, prior_walks: float,
+                   max_distance_m: float, prior: tuple[float, float]
+                   ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """Values and uncertainty from :func:`kernel_sums`, shrunk towards ``prior`` (mean,
+    variance) with the weight of ``prior_walks`` walk-cells at full kernel weight."""
+    mu, prior_var = prior
+    k_n, k_s, k_q, peak = sums.n, sums.s, sums.q, sums.peak
+    lam = prior_walks * peak
+    mean = (k_s + lam * mu) / np.maximum(k_n + lam, 1e-12)
+    local_var = np.where(k_n > 0, np.maximum(k_q / np.maximum(k_n, 1e-12)
+                                             - (k_s / np.maximum(k_n, 1e-12)) ** 2, 0), 0)
+    n_eff = k_n / peak
+    # spread of one walk's observation: local spread where walks are, the prior elsewhere
+    var = (local_var * n_eff + prior_walks * prior_var) / np.maximum(n_eff + prior_walks, 1e-12)
+    std = np.sqrt(var / np.maximum(n_eff + prior_walks, 1.0))
+    ok = mask & _distance_ok(grid, sums.support & mask, max_distance_m)
+    return (np.where(ok, mean, np.nan).astype(np.float32),
+            np.where(ok, std, np.nan).astype(np.float32))
+
+
 def kernel_raster(grid: Grid, mask: NDArray[np.bool_], stats: CellStats,
                   params: RasterParams, prior: tuple[float, float] | None = None
                   ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
@@ -102,29 +144,12 @@ def kernel_raster(grid: Grid, mask: NDArray[np.bool_], stats: CellStats,
 
     ``prior`` (mean, variance) defaults to that of ``stats``; pass the whole floor's when
     ``stats`` covers only a window of it."""
-    support = stats.n > 0
     mu, prior_var = prior if prior is not None else prior_of(stats)
-    if not support.any() or not np.isfinite(mu):
+    if not (stats.n > 0).any() or not np.isfinite(mu):
         nan = np.full(grid.shape, np.nan, dtype=np.float32)
         return nan, nan.copy()
-    sigma = params.bandwidth_m / grid.cell_m
-    # Smooth only within the reachable area: normalised convolution with the mask as weight.
-    m = mask.astype(np.float64)
-    k_n = ndimage.gaussian_filter(stats.n * m, sigma, mode="constant", truncate=3.0)
-    k_s = ndimage.gaussian_filter(stats.s * m, sigma, mode="constant", truncate=3.0)
-    k_q = ndimage.gaussian_filter(stats.q * m, sigma, mode="constant", truncate=3.0)
-    peak = 1.0 / (2 * np.pi * sigma * sigma)  # kernel weight of a single cell at its centre
-    lam = params.prior_walks * peak
-    mean = (k_s + lam * mu) / (k_n + lam)
-    local_var = np.where(k_n > 0, np.maximum(k_q / np.maximum(k_n, 1e-12)
-                                             - (k_s / np.maximum(k_n, 1e-12)) ** 2, 0), 0)
-    n_eff = k_n / peak
-    # spread of one walk's observation: local spread where walks are, the prior elsewhere
-    var = (local_var * n_eff + params.prior_walks * prior_var) / (n_eff + params.prior_walks)
-    std = np.sqrt(var / np.maximum(n_eff + params.prior_walks, 1.0))
-    ok = mask & _distance_ok(grid, support & mask, params.max_distance_m)
-    return (np.where(ok, mean, np.nan).astype(np.float32),
-            np.where(ok, std, np.nan).astype(np.float32))
+    return kernel_combine(grid, mask, kernel_sums(grid, mask, stats, params.bandwidth_m),
+                          params.prior_walks, params.max_distance_m, (mu, prior_var))
 
 
 def linear_raster(grid: Grid, mask: NDArray[np.bool_], stats: CellStats,

@@ -124,6 +124,11 @@ def calibration_sessions(models: list[str], biases: list[NDArray[np.float64] | N
     return keys
 
 
+def session_device(session: str) -> str:
+    """The device model of a calibration session key made by :func:`calibration_sessions`."""
+    return str(session).rsplit("|", 1)[0]
+
+
 def calibrated_field(sensors: pd.DataFrame, session_fit: MagCalResult | None = None,
                      strength_range_ut: tuple[float, float] = (15.0, 120.0)
                      ) -> tuple[NDArray, NDArray, str, str]:

@@ -69,7 +69,7 @@ def test_walk_by_walk_layers_equal_the_in_memory_rasters(store):
     those of the whole floor's samples in one table, bit for bit."""
     from dataclasses import replace
 
-    from mapping.build import build_bandwidth, floor_samples
+    from mapping.build import build_smoothing, floor_samples
     from mapping.field_layers import FIELD_LAYERS, field_layer_values
     from mapping.interpolate import raster
     from mapping.levelling import apply_session_residuals, fit_session_residuals
@@ -100,12 +100,22 @@ def test_walk_by_walk_layers_equal_the_in_memory_rasters(store):
         np.testing.assert_array_equal(backward.walk_means[name][0], cell)
         np.testing.assert_array_equal(backward.walk_means[name][1], mean)
     assert np.array_equal(np.unique(backward.cv_walk), np.arange(len(walks)))
-    # the bandwidth the build picks equals the in-memory choice
-    auto = build_floor(store, plan, floor="F1", params=replace(params, auto_bandwidth=True))
-    bw, scores = build_bandwidth(samples, apply_session_residuals(samples, residuals),
-                                 content.grid, content.mask, params)
-    assert auto.metrics["bandwidth_m"] == bw
-    assert auto.metrics["bandwidth_cv_shape_rmse_ut"] == {str(k): v for k, v in scores.items()}
+    # the smoothing the build picks equals the in-memory choice
+    same_cells = replace(params, auto_bandwidth=True, min_cell_m=params.cell_m)
+    auto = build_floor(store, plan, floor="F1", params=same_cells)
+    chosen, scores = build_smoothing(samples, apply_session_residuals(samples, residuals),
+                                     content.grid, content.mask, params)
+    assert auto.metrics["bandwidth_m"] == chosen.bandwidth_m
+    assert auto.metrics["prior_walks"] == chosen.prior_walks
+    assert auto.metrics["smoothing_cv_shape_rmse_ut"] == scores
+    assert len(scores) == 24
+    # a kernel narrower than two cells is rastered (and chosen again) on cells of half its width
+    assert chosen.bandwidth_m < 2 * params.cell_m  # the simulated walks are well positioned
+    fine = build_floor(store, plan, floor="F1", params=replace(params, auto_bandwidth=True))
+    assert fine.grid.cell_m == max(params.min_cell_m, chosen.bandwidth_m / 2)
+    assert fine.metrics["bandwidth_m"] <= 2 * chosen.bandwidth_m
+    ratio = (params.cell_m / fine.grid.cell_m) ** 2
+    assert 0.8 * ratio < fine.mask.sum() / content.mask.sum() < 1.25 * ratio
 
 
 def test_excluded_walks_stay_out_of_the_map(store):
