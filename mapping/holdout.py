@@ -21,8 +21,8 @@ NaN far from its support; ``coverage`` reports the share each pipeline predicts)
 from __future__ import annotations
 
 from collections.abc import Callable
-from itertools import product
 from dataclasses import dataclass, replace
+from itertools import product
 
 import numpy as np
 import pandas as pd
@@ -30,8 +30,16 @@ from numpy.typing import NDArray
 
 from localize.bundle import Grid, sample_grid
 
-from .interpolate import CellStats, RasterParams, cell_stats, kernel_combine, kernel_sums, \
-    prior_of, raster_from_stats, walk_cell_means
+from .interpolate import (
+    CellStats,
+    RasterParams,
+    cell_stats,
+    kernel_combine,
+    kernel_sums,
+    prior_of,
+    raster_from_stats,
+    walk_cell_means,
+)
 from .levelling import LevellingParams, apply_session_residuals, fit_session_residuals
 
 LAYER_COLUMNS = {"strength": "strength_ut", "horizontal": "horizontal_ut",

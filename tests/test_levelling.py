@@ -5,8 +5,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from mapping.levelling import SOFT_IRON_COLUMNS, LevellingParams, apply_session_residuals, \
-    fit_session_residuals
+from mapping.levelling import (
+    SOFT_IRON_COLUMNS,
+    LevellingParams,
+    apply_session_residuals,
+    fit_session_residuals,
+)
 from survey.rotation import rotation_matrices
 from survey.sim import rotations as rot
 
@@ -92,7 +96,7 @@ def test_the_prior_shrinks_the_soft_iron():
     samples = survey()
     free = fit_session_residuals(samples, LevellingParams(subsample=2, soft_iron_prior=0.0))
     shrunk = fit_session_residuals(samples, LevellingParams(subsample=2, soft_iron_prior=5.0))
-    size = lambda t: np.abs(t[list(SOFT_IRON_COLUMNS)].to_numpy()).sum()  # noqa: E731
+    size = lambda t: np.abs(t[list(SOFT_IRON_COLUMNS)].to_numpy()).sum()
     assert size(shrunk) < 0.5 * size(free)
 
 
