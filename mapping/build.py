@@ -168,7 +168,6 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
             grid, mask, reduction.cv_x_m, reduction.cv_y_m, reduction.cv_strength_ut,
             reduction.cv_walk, params.raster, subsample=1)
         bw = raster_params.bandwidth_m
-        heading_params = replace(params.heading_raster, bandwidth_m=max(bw, 1.0))
         say(f"{floor}: kernel bandwidth {bw} m, shrinkage {raster_params.prior_walks} walks, "
             "chosen by 5-fold cross-validation over walks")
         cell_m = raster_cell_m(params, bw)
@@ -182,10 +181,10 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
                 grid, mask, reduction.cv_x_m, reduction.cv_y_m, reduction.cv_strength_ut,
                 reduction.cv_walk, params.raster, subsample=1,
                 candidates=[b for b in BANDWIDTH_CANDIDATES_M if b <= 2 * bw])
-            bw = raster_params.bandwidth_m
-            heading_params = replace(params.heading_raster, bandwidth_m=max(bw, 1.0))
-            say(f"{floor}: rastered at {cell_m} m cells; there kernel bandwidth {bw} m, "
-                f"shrinkage {raster_params.prior_walks} walks")
+            say(f"{floor}: rastered at {cell_m} m cells; there kernel bandwidth "
+                f"{raster_params.bandwidth_m} m, shrinkage {raster_params.prior_walks} walks")
+        heading_params = replace(params.heading_raster,
+                                 bandwidth_m=max(raster_params.bandwidth_m, 1.0))
     if residuals is None:
         residuals = empty_residuals()
     layers = {}

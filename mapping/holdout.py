@@ -286,7 +286,8 @@ def choose_smoothing(grid: Grid, mask: NDArray[np.bool_], x: NDArray, y: NDArray
     total = cell_stats(grid, cell, mean)
     group = np.arange(n_walks) % min(folds, n_walks)
     n_folds = min(folds, n_walks)
-    train = [total - cell_stats(grid, cell[group[w] == g], mean[group[w] == g])
+    fold_of_pair = group[w]
+    train = [total - cell_stats(grid, cell[fold_of_pair == g], mean[fold_of_pair == g])
              for g in range(n_folds)]
     held_out = [group[walk_code] == g for g in range(n_folds)]
     residuals = {k: [] for k in product(candidates, prior_candidates)}
