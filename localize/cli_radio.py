@@ -7,7 +7,9 @@ Both print CSV on standard output (progress and notes on standard error):
   the trace file names (``recorded_floor``) for checking.
 - ``wifi-locate BUNDLE WALK...``: per scan the Wi-Fi (or BLE) position, its spread, the number
   of transmitters the bundle knows and, when the walk has waypoints, the distance to the
-  waypoint track interpolated in time at the scan (``error_m``).
+  waypoint track interpolated in time at the scan (``error_m``). By default each walk's scans
+  are matched together (``--smoothing walk``; ``forward`` uses only earlier scans, ``none``
+  none).
 """
 
 from __future__ import annotations
@@ -115,11 +117,16 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
 @click.option("--calibration", default="auto", show_default=True,
               help="RSSI calibration of the walk's phone: auto (device table, else online from "
                    "its first scans), none, or K,B (calibrated = K * rssi + B).")
+@click.option("--smoothing", type=click.Choice(["walk", "forward", "none"]), default="walk",
+              show_default=True,
+              help="walk: match each walk's scans together (earlier and later scans); forward: "
+                   "earlier scans only, as in real time; none: every scan on its own.")
 def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
-                        calibration: str) -> None:
+                        calibration: str, smoothing: str) -> None:
     """Wi-Fi (or BLE) position per scan (CSV) from the fingerprints of BUNDLE (a floor bundle
     or a folder of bundles: the walk's floor, else the site floor model, picks one)."""
     from localize.cli import _open_maps, _positioner, _walks, radio_for_walk
+    from localize.radio_match import WalkSmoothing
     from survey.step_summaries import step_summaries, waypoints_of
     from survey.trace_reader import read_trace
 
@@ -149,7 +156,8 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
             how = "none"
         else:
             pos, how = pos.with_calibration(*given), f"given k={given[0]:g}, b={given[1]:+g} dB"
-        fixes = pos.locate_scans(scans)
+        fixes = (pos.locate_scans(scans) if smoothing == "none" else pos.locate_walk(
+            scans, WalkSmoothing(direction="both" if smoothing == "walk" else "forward")))
         t = np.array([s.t_ms for s in scans], dtype=np.float64)
         t_wp, xy_wp = waypoints_of(trace)
         truth = np.full((len(scans), 2), np.nan)

@@ -6,7 +6,9 @@ Cramer-Rao style bound over the bundle's fingerprint map.
   when the floor has more walks than ``max_lowo_walks``); per fold the radio maps are rebuilt
   from the training walks as ``indoormap build`` does (device table, AP selection, reference
   points; here over this floor only) and the held-out scans located with
-  :func:`mapping.matching.default_matcher`. Errors against the processed scan positions.
+  :func:`mapping.matching.default_matcher`, each scan on its own and with its walk's other
+  scans (:func:`mapping.matching.default_walk_matcher`). Errors against the processed scan
+  positions.
 - **Floor accuracy**: the cross-validated accuracy stored in the site bundle (``_site`` beside
   the floor bundle) when there is one; the floor model is a site-level product.
 - **Bound**: per cell the radio position bound ``sqrt(trace(J^-1))`` (m), with the Fisher
@@ -27,6 +29,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from localize.bundle import Grid, MapBundle
+from localize.radio_match import WalkSmoothing
 
 from .fingerprints import FingerprintDB
 from .matching import default_matcher
@@ -132,7 +135,8 @@ def heldout_radio(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: li
     For every group of walks: the site's radio maps are rebuilt from the other walks
     (:func:`mapping.radio_build.site_radio`: device table, AP selection, reference points),
     the held-out walks' RSSI is mapped through the device table, and every held-out scan is
-    located with :func:`mapping.matching.default_matcher`.
+    located with :func:`mapping.matching.default_matcher`, on its own (``kind``) and with
+    its walk's other scans (``"<kind> walk"``, :func:`mapping.matching.default_walk_matcher`).
 
     Parameters
     ----------
@@ -152,7 +156,8 @@ def heldout_radio(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: li
     Returns
     -------
     dict
-        ``(floor, kind)`` -> errors (m) of the held-out scans against their processed
+        ``(floor, kind)`` and ``(floor, kind + " walk")`` -> errors (m) of the held-out scans
+        against their processed
         positions, NaN for scans without a known transmitter; with ``with_positions``
         ``(errors, xy_m)``, ``xy_m`` (S, 2) the scans' processed positions (m).
     """
@@ -174,9 +179,12 @@ def heldout_radio(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: li
             if len(t) == 0:
                 continue
             scans = scan_set(t)
-            res = default_matcher().fit(db).predict(scans)
-            out.setdefault((floor, kind), []).append(
-                (np.linalg.norm(res.xy_m - scans.xy_m, axis=1), scans.xy_m))
+            matcher = default_matcher().fit(db)
+            for key, smoothing in ((kind, None), (f"{kind} walk", WalkSmoothing())):
+                matcher.walk_smoothing = smoothing
+                res = matcher.predict(scans)
+                out.setdefault((floor, key), []).append(
+                    (np.linalg.norm(res.xy_m - scans.xy_m, axis=1), scans.xy_m))
         if on_fold is not None:
             on_fold(held, radio, test_obs)
         say(f"radio fold {i + 1}/{len(groups)}")
@@ -257,6 +265,11 @@ def radio_summary(bundle: MapBundle, store, floor: str, site: str | None, *,
                              p80_error_m=float(np.percentile(e, 80)),
                              mean_error_m=float(e.mean()))
                 out["arrays"][f"{kind}_errors_m"] = e
+            walk_e, _ = errors.get((floor, f"{kind} walk"), (np.empty(0), None))
+            walk_e = walk_e[np.isfinite(walk_e)]
+            if walk_e.size:
+                k_out.update(walk_median_error_m=float(np.median(walk_e)),
+                             walk_p80_error_m=float(np.percentile(walk_e, 80)))
         out["kinds"][kind] = k_out
         if first is None:
             first = kind

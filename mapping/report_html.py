@@ -899,15 +899,16 @@ def _section_radio(result) -> str:
     rows = []
     for kind, k in radio.get("kinds", {}).items():
         if not k.get("available"):
-            rows.append([_e(kind), _e(k.get("reason", "")), "", "", "", "", ""])
+            rows.append([_e(kind), _e(k.get("reason", "")), "", "", "", "", "", ""])
             continue
         bound = k.get("bound_m") or {}
         rows.append([_e(kind), _num(k.get("reference_points"), "{:.0f}"),
                      _num(k.get("transmitters"), "{:.0f}"), _e(k.get("split", "no store")),
                      _num(k.get("median_error_m")), _num(k.get("p80_error_m")),
-                     _num(bound.get("median"))])
+                     _num(k.get("walk_median_error_m")), _num(bound.get("median"))])
     out.append(_table(["kind", "reference points", "transmitters", "held-out split",
-                       "median error (m)", "p80 error (m)", "median bound (m)"], rows))
+                       "median error (m)", "p80 error (m)", "whole-walk median (m)",
+                       "median bound (m)"], rows))
     fm = radio.get("floor_model")
     if fm:
         def pct(v) -> str:

@@ -16,12 +16,14 @@ from click.testing import CliRunner
 
 from localize.bundle import load_bundle
 from localize.cli import radio_for_walk
+from localize.errors import LocalizationError
 from localize.fingerprint_positioner import FingerprintPositioner, fingerprint_kinds
 from localize.floor_classifier import FloorClassifier
+from localize.radio_match import WalkSmoothing
 from localize.steps import RadioScan
 from mapping.fingerprints import FingerprintDB
 from mapping.floor_model import FloorModel
-from mapping.matching import default_matcher
+from mapping.matching import default_matcher, default_walk_matcher
 from mapping.radio_scans import scan_set
 from survey.cli import main
 
@@ -93,6 +95,17 @@ def test_localizer_positions_equal_the_mapping_matcher(built, wifi_obs):
     assert ok.mean() > 0.99
     np.testing.assert_allclose(got.xy_m[ok], want.xy_m[ok], atol=1e-6)
     assert np.all(got.sigma_m[ok] >= 1.0)
+    # whole walks: the same scores on both sides
+    want_walk = default_walk_matcher().fit(db).predict(scans)
+    walk = scans.scans["trace_id"].to_numpy().astype(str)
+    t = scans.scans["t_ms"].to_numpy(np.float64)
+    for w in np.unique(walk):
+        mine = (walk == w) & ok
+        got_walk = pos.locate_matrix(rssi[mine], t[mine], WalkSmoothing())
+        np.testing.assert_allclose(got_walk.xy_m, want_walk.xy_m[mine], atol=1e-6)
+    assert not np.allclose(want_walk.xy_m[ok], want.xy_m[ok])
+    with pytest.raises(LocalizationError, match="one time per scan"):
+        pos.locate_matrix(rssi[:3], None, WalkSmoothing())
 
 
 def test_localizer_floor_model_equals_the_fitted_one(built, wifi_obs):
@@ -179,6 +192,11 @@ def test_wifi_locate_command(built, tmp_path):
                                str(SITE / "F2" / "path_data_files")])
     assert ble.exit_code == 0, ble.output
     assert len(_rows(ble.stdout)) > 10
+    alone = runner.invoke(main, ["wifi-locate", "--smoothing", "none", str(built),
+                                 str(SITE / "F2" / "path_data_files")])
+    assert alone.exit_code == 0, alone.output
+    err_alone = np.array([float(r["error_m"]) for r in _rows(alone.stdout) if r["error_m"]])
+    assert len(err_alone) == len(err) and not np.allclose(err_alone, err)
     given = runner.invoke(main, ["wifi-locate", "--calibration", "1.1,x", str(built / "F2"),
                                  str(SITE / "F2" / "path_data_files")])
     assert given.exit_code == 2 and "K,B" in given.output

@@ -355,3 +355,7 @@ def test_metrics_json_radio_equals_heldout_radio(sites, reports):
         assert k["scans"] == len(e)
         assert k["median_error_m"] == pytest.approx(float(np.median(e)), rel=1e-12)
         assert k["p80_error_m"] == pytest.approx(float(np.percentile(e, 80)), rel=1e-12)
+        walk = err[(floor, f"{kind} walk")]
+        walk = walk[np.isfinite(walk)]
+        assert len(walk) == len(e)
+        assert k["walk_median_error_m"] == pytest.approx(float(np.median(walk)), rel=1e-12)
