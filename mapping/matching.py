@@ -316,13 +316,13 @@ class GaussianMatch(_Matcher):
         return -cost.min(axis=1) / self._n_heard
 
 
-def default_matcher() -> WeightedKNN:
+def default_matcher(walk_smoothing: WalkSmoothing | None = None) -> WeightedKNN:
     """indoormap's default matcher: Sorensen kNN on the powed representation (k = 5, 1/d^4
     weights, detection-weighted references, each reference point's distance mixed half and
     half with its 1 m neighbourhood's), with rows older than 2.5 s down-weighted with a 4 s
-    decay when the scans carry row ages."""
+    decay when the scans carry row ages; each scan on its own unless ``walk_smoothing``."""
     return WeightedKNN(k=5, weight_power=4.0, age_fresh_ms=2500.0, age_decay_ms=4000.0,
-                       neighbour_mix=0.5, neighbour_sigma_m=1.0)
+                       neighbour_mix=0.5, neighbour_sigma_m=1.0, walk_smoothing=walk_smoothing)
 
 
 def default_walk_matcher() -> WeightedKNN:
@@ -330,6 +330,4 @@ def default_walk_matcher() -> WeightedKNN:
     directions; :class:`localize.radio_match.WalkSmoothing` defaults): what ``wifi-locate``
     reports for a recorded walk. The localizer's particle filter takes the per-scan matches
     and combines them with the steps itself."""
-    m = default_matcher()
-    m.walk_smoothing = WalkSmoothing()
-    return m
+    return default_matcher(WalkSmoothing())
