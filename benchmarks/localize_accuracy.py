@@ -79,7 +79,8 @@ def run_floors(floors: dict, methods, params: FilterParams, label: str, steps: b
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description="localizer accuracy, 5-fold by walk")
     ap.add_argument("--work", type=Path, default=Path("benchmarks/.work"),
-                    help="cache of the simulated site, stores, bundles and step summaries")
+                    help="cache of the simulated site, stores, bundles and step summaries (their "
+                         "names carry a hash of the code that made them)")
     ap.add_argument("--methods", default=",".join(ALL_METHODS))
     ap.add_argument("--maps", default="truth,built", help="simulation maps: truth, built")
     ap.add_argument("--params", default="{}", help="JSON FilterParams overrides")

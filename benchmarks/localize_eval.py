@@ -142,6 +142,21 @@ def _load_walks(path: Path) -> list[EvalWalk]:
     return out
 
 
+REPO = Path(__file__).resolve().parents[1]
+
+
+def source_digest(*packages: str) -> str:
+    """Short hash of the ``.py`` sources of ``packages`` (top-level folders of the repository):
+    cached stores, walks and bundles carry it in their names, so a code change rebuilds them
+    instead of silently reusing what older code made."""
+    h = hashlib.sha256()
+    for pkg in packages:
+        for f in sorted((REPO / pkg).rglob("*.py")):
+            h.update(str(f.relative_to(REPO)).encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()[:10]
+
+
 def _cache(path: Path, make) -> list[EvalWalk]:
     """Walks from the ``.npz`` cache, or built and cached."""
     if path.exists():
@@ -190,7 +205,8 @@ def sim_walks(site: Path, floor: str, work: Path) -> list[EvalWalk]:
                                 refs))
         return out
 
-    return _cache(work / "cache" / f"{site.name}_{floor}_walks.npz", make)
+    return _cache(work / "cache" / f"{site.name}_{floor}_walks_{source_digest('survey')}.npz",
+                  make)
 
 
 def real_walks(floor_dir: Path, work: Path) -> list[EvalWalk]:
@@ -220,8 +236,8 @@ def real_walks(floor_dir: Path, work: Path) -> list[EvalWalk]:
                                 refs))
         return out
 
-    return _cache(work / "cache" / f"ilc_{floor_dir.parent.name}_{floor_dir.name}_walks.npz",
-                  make)
+    return _cache(work / "cache" / f"ilc_{floor_dir.parent.name}_{floor_dir.name}_walks_"
+                  f"{source_digest('survey')}.npz", make)
 
 
 def folds_of(walks: list[EvalWalk], k: int = 5, seed: int = 0) -> list[list[str]]:
@@ -285,7 +301,7 @@ def processed_store(name: str, floor_dirs: list[Path], work: Path):
     from survey.process_store import process_store
     from survey.store import SurveyStore
 
-    path = work / "stores" / name
+    path = work / "stores" / f"{name}_{source_digest('survey')}"
     done = path / ".processed"
     if not done.exists():
         t0 = time.time()
@@ -309,9 +325,8 @@ def built_bundle(store, floor_dir: Path, exclude: set[str], work: Path, tag: str
     from mapping.bundle_writer import write_bundle
     from mapping.floorplan import read_floor_plan
 
-    # "v3": bundles with fingerprint tables (v2: build_floor(exclude_walks=...) also leaves the
-    # walks out of the radio)
-    key = hashlib.sha256(("v3," + ",".join(sorted(exclude))).encode()).hexdigest()[:12]
+    key = hashlib.sha256((source_digest("survey", "mapping") + ","
+                          + ",".join(sorted(exclude))).encode()).hexdigest()[:12]
     target = work / "bundles" / f"{tag}_{floor_dir.name}_built_{cell_m:g}_{key}"
     if not (target / "manifest.json").exists():
         plan = read_floor_plan(floor_dir)
