@@ -270,6 +270,7 @@ def radio_summary(bundle: MapBundle, store, floor: str, site: str | None, *,
             if walk_e.size:
                 k_out.update(walk_median_error_m=float(np.median(walk_e)),
                              walk_p80_error_m=float(np.percentile(walk_e, 80)))
+                out["arrays"][f"{kind}_walk_errors_m"] = walk_e
         out["kinds"][kind] = k_out
         if first is None:
             first = kind
@@ -279,6 +280,7 @@ def radio_summary(bundle: MapBundle, store, floor: str, site: str | None, *,
         out["primary_kind"] = first
         out["median_error_m"] = main.get("median_error_m")
         out["p80_error_m"] = main.get("p80_error_m")
-        if f"{first}_errors_m" in out["arrays"]:
-            out["arrays"]["radio_errors_m"] = out["arrays"][f"{first}_errors_m"]
+        for name in ("errors_m", "walk_errors_m"):
+            if f"{first}_{name}" in out["arrays"]:
+                out["arrays"][f"radio_{name}"] = out["arrays"][f"{first}_{name}"]
     return out

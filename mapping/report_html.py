@@ -450,10 +450,19 @@ def fig_cdfs(result: ValidationResult) -> bytes | None:
         ax.tick_params(labelsize=7)
     if radio is not None:
         ax = axes[0][-1]
-        vs = np.sort(np.asarray(radio, dtype=float))
-        ax.plot(vs, np.arange(1, len(vs) + 1) / max(len(vs), 1), color="#2c7bb6")
+        curves = (("scan by scan", radio, "#2c7bb6"),
+                  ("whole walk", result.arrays.get("radio_walk_errors_m"), "#d7191c"))
+        for label, errors, color in curves:
+            if errors is None or not len(errors):
+                continue
+            vs = np.sort(np.asarray(errors, dtype=float))
+            ax.plot(vs, np.arange(1, len(vs) + 1) / len(vs), color=color,
+                    label=f"{label}: median {np.median(vs):.1f} m, p80 "
+                          f"{np.percentile(vs, 80):.1f} m")
         ax.set_xlabel("radio positioning error (m)", fontsize=8)
         ax.set_title("Wi-Fi/BLE held-out error CDF", fontsize=9)
+        ax.legend(fontsize=6.5, loc="lower right")
+        ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
     return _png(fig)
 

@@ -305,6 +305,8 @@ def test_radio_section_reports_heldout_errors_and_bound(reports):
     if HAS_MPL:
         html = (out / "report.html").read_text()
         assert "held-out split" in html and "leave-one-walk-out" in html
+        assert "whole-walk median" in html
+    assert 0 < wifi["walk_median_error_m"] < 10
 
 
 def test_radio_bound_of_two_linear_fields():
