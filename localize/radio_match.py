@@ -18,6 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from localize.errors import LocalizationError
+
 __all__ = ["ReferenceMotion", "ReferenceNeighbours", "WalkSmoothing", "age_weights",
            "euclidean_distances", "gaussian_loglik", "knn_positions", "powed",
            "reference_neighbours", "scan_rssi_matrix", "smoothed_distances",
@@ -180,10 +182,11 @@ class WalkSmoothing:
 
     def __post_init__(self) -> None:
         if self.direction not in ("both", "forward"):
-            raise ValueError(f"direction must be 'both' or 'forward', not {self.direction!r}")
+            raise LocalizationError(f"walk smoothing: direction must be 'both' or 'forward', "
+                                    f"not {self.direction!r}")
         if not (self.tau > 0 and self.speed_mps > 0 and 0 < self.min_sigma_m
                 <= self.max_sigma_m):
-            raise ValueError(f"walk smoothing needs tau > 0, speed_mps > 0 and "
+            raise LocalizationError(f"walk smoothing needs tau > 0, speed_mps > 0 and "
                              f"0 < min_sigma_m <= max_sigma_m; got {self}")
 
 
@@ -275,7 +278,7 @@ def walk_scores(dist: FloatArray, t_ms: FloatArray, motion: ReferenceMotion,
         for i in range(n - 2, -1, -1):
             if sigma[i] <= params.max_sigma_m:
                 ahead = motion.backward(ahead * like[i + 1], sigma[i])
-                ahead = ahead / ahead.max()
+                ahead = ahead / ahead.max() if ahead.max() > 0 else np.ones(r)
             else:
                 ahead = np.ones(r)
             prior[i] *= ahead

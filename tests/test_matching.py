@@ -234,6 +234,8 @@ def test_walk_scores_long_gap_breaks_the_chain():
     np.testing.assert_allclose(apart[7:], walk_scores(dist[7:], t_ms[7:], motion, params))
     one = walk_scores(dist[:1], t_ms[:1], motion, params)
     np.testing.assert_array_equal(one, dist[:1])      # a lone scan keeps its distances
+    # a likelihood so sharp it underflows away from the best match: still finite scores
+    assert np.isfinite(walk_scores(dist, t_ms, motion, WalkSmoothing(tau=1e-4))).all()
     with pytest.raises(ValueError, match="direction"):
         WalkSmoothing(direction="backward")
     with pytest.raises(ValueError, match="tau"):
