@@ -17,6 +17,7 @@ fingerprints (truth maps) or on request.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import time
@@ -145,6 +146,7 @@ def _load_walks(path: Path) -> list[EvalWalk]:
 REPO = Path(__file__).resolve().parents[1]
 
 
+@functools.cache
 def source_digest(*packages: str) -> str:
     """Short hash of the ``.py`` sources of ``packages`` (top-level folders of the repository):
     cached stores, walks and bundles carry it in their names, so a code change rebuilds them

@@ -272,7 +272,8 @@ def walk_scores(dist: FloatArray, t_ms: FloatArray, motion: ReferenceMotion,
             pred = motion.forward(post, sigma[i - 1])
             prior[i] = pred / pred.max()
         post = prior[i] * like[i]
-        post = post / post.sum() if post.sum() > 0 else like[i] / like[i].sum()
+        total = post.sum()
+        post = post / total if total > 0 else like[i] / like[i].sum()
     if params.direction == "both":
         ahead = np.ones(r)
         for i in range(n - 2, -1, -1):

@@ -284,8 +284,8 @@ def choose_smoothing(grid: Grid, mask: NDArray[np.bool_], x: NDArray, y: NDArray
         return base, {}
     w, cell, mean = walk_cell_means(grid, x, y, values, walk_code)
     total = cell_stats(grid, cell, mean)
-    group = np.arange(n_walks) % min(folds, n_walks)
     n_folds = min(folds, n_walks)
+    group = np.arange(n_walks) % n_folds
     fold_of_pair = group[w]
     train = [total - cell_stats(grid, cell[fold_of_pair == g], mean[fold_of_pair == g])
              for g in range(n_folds)]

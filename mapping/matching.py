@@ -130,7 +130,7 @@ class _Matcher:
         ok = n_aps >= max(self.min_aps, 1)
         if ok.any():
             cost = self._dist(rssi[ok], age[ok])
-            pick = self._pick(cost, scans.scans.loc[ok])
+            pick = self._pick(cost, scans.scans, ok)
             xy, d, nn = knn_positions(pick, dense.xy_m, k, self._power(), weight_dist=cost)
             out.xy_m[ok], out.neighbours[ok] = xy, nn
             out.score[ok] = self._score(cost, d)
@@ -139,8 +139,10 @@ class _Matcher:
     def _power(self) -> float:
         return 0.0
 
-    def _pick(self, cost: NDArray[np.float64], scans: pd.DataFrame) -> NDArray[np.float64]:
-        """Scores that pick the k neighbours (``cost`` unless the walk is smoothed)."""
+    def _pick(self, cost: NDArray[np.float64], scans: pd.DataFrame, rows: NDArray[np.bool_]
+              ) -> NDArray[np.float64]:
+        """Scores that pick the k neighbours of the scans ``scans[rows]`` (``cost``, their
+        distances, unless the walk is smoothed)."""
         return cost
 
     def _score(self, cost: NDArray[np.float64], d_mean: NDArray[np.float64]
@@ -229,12 +231,13 @@ class WeightedKNN(_Matcher):
                             if self.neighbour_mix > 0 else None)
         self.motion_ = ReferenceMotion(d.xy_m)  # transitions built on first use
 
-    def _pick(self, cost: NDArray[np.float64], scans: pd.DataFrame) -> NDArray[np.float64]:
+    def _pick(self, cost: NDArray[np.float64], scans: pd.DataFrame, rows: NDArray[np.bool_]
+              ) -> NDArray[np.float64]:
         if self.walk_smoothing is None:
             return cost
         out = np.empty_like(cost)
-        t = scans["t_ms"].to_numpy(np.float64)
-        walk = scans["trace_id"].to_numpy().astype(str)
+        t = scans["t_ms"].to_numpy(np.float64)[rows]
+        walk = scans["trace_id"].to_numpy().astype(str)[rows]
         for w in np.unique(walk):
             rows = np.flatnonzero(walk == w)
             out[rows] = walk_scores(cost[rows], t[rows], self.motion_, self.walk_smoothing)
