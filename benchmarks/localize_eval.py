@@ -79,7 +79,7 @@ class EvalWalk:
 _STEP_ARRAYS = ("t_ms", "frequency_hz", "delta_acc_ms2", "compass_deg", "turn_deg",
                 "strength_ut", "azimuth_deg", "polar_deg", "attitude", "relative_heading_deg",
                 "mag_offsets", "mag_strength_ut")
-_SCAN_KEYS = ("slot", "t", "off", "keys", "rssi")
+_SCAN_KEYS = ("slot", "t", "off", "keys", "rssi", "age")
 
 
 def _scans_arrays(scans: list[RadioScan | None]) -> dict[str, np.ndarray]:
@@ -89,14 +89,17 @@ def _scans_arrays(scans: list[RadioScan | None]) -> dict[str, np.ndarray]:
             "off": np.cumsum([0] + [len(s) for s in present]).astype(np.int64),
             "keys": np.concatenate([s.keys for s in present]).astype(str) if present
             else np.empty(0, dtype="<U1"),
-            "rssi": np.concatenate([s.rssi_dbm for s in present]) if present else np.empty(0)}
+            "rssi": np.concatenate([s.rssi_dbm for s in present]) if present else np.empty(0),
+            "age": np.concatenate([np.full(len(s), np.nan) if s.age_ms is None else s.age_ms
+                                   for s in present]) if present else np.empty(0)}
 
 
 def _scans_from(a: dict, n: int) -> list[RadioScan | None]:
     out: list[RadioScan | None] = [None] * n
     for j, slot in enumerate(a["slot"]):
         lo, hi = a["off"][j], a["off"][j + 1]
-        out[int(slot)] = RadioScan(int(a["t"][j]), a["keys"][lo:hi], a["rssi"][lo:hi])
+        out[int(slot)] = RadioScan(int(a["t"][j]), a["keys"][lo:hi], a["rssi"][lo:hi],
+                                   a["age"][lo:hi])
     return out
 
 

@@ -8,7 +8,7 @@ configuration is then chosen *per floor* by its waypoint error on the *other* fl
 Usage::
 
     python benchmarks/localize_tune.py sim  [--work DIR] [--grid small|wkt|full]
-    python benchmarks/localize_tune.py real [--work DIR] [--grid wkt] [--max-walks 40]
+    python benchmarks/localize_tune.py real [--work DIR] [--grid wkt|radio] [--max-walks 40]
 
 Prints one line per configuration (errors per floor and pooled) and the leave-one-floor-out
 selection. Results are also appended as JSON lines to ``WORK/tune_<source>.jsonl``.
@@ -17,6 +17,7 @@ selection. Results are also appended as JSON lines to ``WORK/tune_<source>.jsonl
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import itertools
 import json
 import sys
@@ -53,8 +54,21 @@ def grid(kind: str) -> list[dict]:
     ``small``: W x T x polar on/off. ``wkt``: W x span x T on strength alone, then the
     experiments: K (which cancels when weights are normalised every step), smoothed
     observations, the map's uncertainty raster, azimuth + polar on UFH steps, and the
-    compass-deviation feature."""
+    compass-deviation feature. ``radio``: the start and the Wi-Fi side (start square, radio
+    likelihood width, outlier share, injection; ``positioner`` entries change the fingerprint
+    positioner)."""
     out = []
+    if kind == "radio":
+        out.append({})
+        out.append({"init_from_fix_scale": 3.0})
+        out.append({"init_half_width_m": 5.0})
+        for sig in (5.0, 8.0):
+            out.append({"positioner": {"likelihood_sigma_m": sig}})
+        for eps in (0.03, 0.3):
+            out.append({"radio_outlier": eps})
+        out.append({"radio_inject_distance_m": 0.0})
+        out.append({"radio_inject_fraction": 0.0})
+        return out
     if kind == "wkt":
         off = {"polar": {"enabled": False}, "azimuth": {"enabled": False}}
         for w, span, t in itertools.product((1, 3, 8), (1, 8), (0.05, 0.5, 2.0)):
@@ -87,7 +101,7 @@ def grid(kind: str) -> list[dict]:
 def params_of(base: FilterParams, over: dict) -> FilterParams:
     feats = {k: v for k, v in over.items()
              if k in ("strength", "azimuth", "polar", "deviation")}
-    rest = {k: v for k, v in over.items() if k not in feats}
+    rest = {k: v for k, v in over.items() if k not in feats and k != "positioner"}
     p = base.with_features(**feats)
     if rest:
         d = json.loads(p.to_json())
@@ -120,12 +134,14 @@ def prepare(source: str, work: Path):
     return data
 
 
-def evaluate(data, params: FilterParams, start: str, max_walks: int = 0
-             ) -> dict[str, RunResult]:
+def evaluate(data, params: FilterParams, start: str, max_walks: int = 0,
+             positioner: dict | None = None) -> dict[str, RunResult]:
     out = {}
     for floor, (walks, folds, maps) in data.items():
         res = RunResult()
         for test, (bundle, radio) in zip(folds, maps):
+            if positioner and radio is not None:
+                radio = dataclasses.replace(radio, **positioner)
             if max_walks:
                 test = test[:max(1, max_walks // len(folds))]
             res.merge(run_fold(walks, test, bundle, ["indoormap"], params, start=start,
@@ -138,7 +154,7 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description="cross-validated grid search of W, K, T")
     ap.add_argument("source", choices=["sim", "real"])
     ap.add_argument("--work", type=Path, default=Path("benchmarks/.work"))
-    ap.add_argument("--grid", choices=["small", "wkt", "full"], default="wkt")
+    ap.add_argument("--grid", choices=["small", "wkt", "full", "radio"], default="wkt")
     ap.add_argument("--max-walks", type=int, default=0,
                     help="evaluate at most this many walks per floor (0 = all)")
     ap.add_argument("--start", choices=["wifi", "waypoint", "truth"], default="wifi")
@@ -152,7 +168,8 @@ def main(argv=None) -> None:
     log = args.work / f"tune_{args.source}.jsonl"
     for i, over in enumerate(configs):
         t0 = time.time()
-        res = evaluate(data, params_of(base, over), args.start, args.max_walks)
+        res = evaluate(data, params_of(base, over), args.start, args.max_walks,
+                       over.get("positioner"))
         per = {f: r.summary("indoormap") for f, r in res.items()}
         pooled = RunResult()
         for r in res.values():

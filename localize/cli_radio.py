@@ -22,15 +22,12 @@ import numpy as np
 
 from localize.errors import LocalizationError
 
-SCAN_MAX_AGE_MS = {"floor": 10**9, "locate": 3000}
-"""Wi-Fi rows used per scan: the floor model was fitted on rows of any age (a transmitter heard
-at all tells the floor); positions use rows seen within 3 s of the scan."""
-
-
-def _scans(trace, kind: str, max_age_ms: int):
+def _scans(trace, kind: str):
+    """Wi-Fi scans with every row and its age (the floor model was fitted on rows of any age;
+    the fingerprint matcher down-weights old rows), or BLE windows."""
     from survey.step_summaries import ble_scans_of, scans_of
 
-    return scans_of(trace, max_age_ms) if kind == "wifi" else ble_scans_of(trace)
+    return scans_of(trace) if kind == "wifi" else ble_scans_of(trace)
 
 
 def _site_bundle(path: Path):
@@ -79,7 +76,7 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
     for f in _walks(walks):
         trace = read_trace(f)
         recorded = trace.header.floor_name or ""
-        scans = _scans(trace, kind, SCAN_MAX_AGE_MS["floor"])
+        scans = _scans(trace, kind)
         rssi = model.scan_matrix(scans)
         lp = model.log_proba(rssi)
         ok = np.isfinite(lp).all(axis=1)
@@ -142,7 +139,7 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
     rows = []
     for f in _walks(walks):
         trace = read_trace(f)
-        scans = _scans(trace, kind, SCAN_MAX_AGE_MS["locate"])
+        scans = _scans(trace, kind)
         if not scans:
             click.echo(f"{trace.trace_id}: no {kind} scans", err=True)
             continue

@@ -32,11 +32,15 @@ from numpy.typing import ArrayLike, NDArray
 
 from localize.errors import LocalizationError
 from localize.radio_match import (
+    AGE_DECAY_MS,
+    AGE_FRESH_MS,
     ReferenceMotion,
     WalkSmoothing,
     knn_positions,
     powed,
+    age_weights,
     reference_neighbours,
+    scan_age_matrix,
     scan_rssi_matrix,
     smoothed_distances,
     sorensen_distances,
@@ -104,6 +108,10 @@ class FingerprintPositioner:
         Calibration ``k * rssi + b`` applied to every scan (dBm); identity by default.
     likelihood_sigma_m : float
         Spread (m) of each neighbour's Gaussian in :meth:`likelihood`.
+    age_fresh_ms, age_decay_ms : float
+        Scan rows older than ``age_fresh_ms`` weigh ``exp(-(age - fresh) / decay)`` (ms; the
+        mapping matcher's :data:`~localize.radio_match.AGE_FRESH_MS` and
+        :data:`~localize.radio_match.AGE_DECAY_MS`); rows of unknown age weigh 1.
     """
 
     aps: NDArray[np.str_]
@@ -118,6 +126,8 @@ class FingerprintPositioner:
     rssi_k: float = 1.0
     rssi_b: float = 0.0
     likelihood_sigma_m: float = 3.0
+    age_fresh_ms: float = AGE_FRESH_MS
+    age_decay_ms: float = AGE_DECAY_MS
 
     def __post_init__(self) -> None:
         shape = (len(self.xy_m), len(self.aps))
@@ -130,6 +140,9 @@ class FingerprintPositioner:
         if not 0.0 <= self.neighbour_mix <= 1.0 or self.neighbour_sigma_m <= 0:
             raise LocalizationError("fingerprints: neighbour_mix must lie in [0, 1] and "
                                     "neighbour_sigma_m be positive")
+        if not (self.age_fresh_ms >= 0 and self.age_decay_ms > 0):
+            raise LocalizationError("fingerprints: age_fresh_ms must be >= 0 and "
+                                    "age_decay_ms positive")
         ref = powed(self.mean_dbm) * self.detection_rate
         object.__setattr__(self, "_ref", ref)
         object.__setattr__(self, "_neighbours", reference_neighbours(
@@ -198,6 +211,7 @@ class FingerprintPositioner:
         """Estimate ``k, b`` of an unknown phone from a few of its scans (no positions needed;
         see :func:`localize.rssi_calibration.estimate_rssi_calibration`)."""
         rssi = self.scan_matrix(scans, calibrated=False)
+        rssi[self.scan_ages(scans) > self.age_fresh_ms] = np.nan  # stale rows lag the walker
         return estimate_rssi_calibration(rssi, self.mean_dbm, self.var_db2, **kw)
 
     def calibrated_online(self, scans: Sequence[RadioScan], **kw) -> FingerprintPositioner:
@@ -215,6 +229,19 @@ class FingerprintPositioner:
             out = self.rssi_k * out + self.rssi_b
         return out
 
+    def scan_ages(self, scans: Sequence[RadioScan]) -> NDArray[np.float64]:
+        """Row ages (ms) of ``scans`` laid out as :meth:`scan_matrix` (NaN = unknown)."""
+        return scan_age_matrix(scans, self._index)
+
+    def _query(self, rssi: NDArray[np.float64], age_ms: ArrayLike | None
+               ) -> NDArray[np.float64]:
+        """Powed scans (S, A), rows down-weighted by age."""
+        q = powed(rssi)
+        if age_ms is None:
+            return q
+        age = np.asarray(age_ms, dtype=np.float64).reshape(q.shape)
+        return q * age_weights(age, self.age_fresh_ms, self.age_decay_ms)
+
     def _distances(self, q: NDArray[np.float64]) -> NDArray[np.float64]:
         """Signal distances of powed scans ``q`` (S, A) to every reference point, (S, R)."""
         d = sorensen_distances(q, self._ref)
@@ -223,8 +250,10 @@ class FingerprintPositioner:
         return smoothed_distances(d, self._neighbours, self.neighbour_mix)
 
     def locate_matrix(self, rssi_dbm: ArrayLike, t_ms: ArrayLike | None = None,
-                      smoothing: WalkSmoothing | None = None) -> RadioFixes:
-        """Positions of scans given as a matrix over :attr:`aps` (already calibrated).
+                      smoothing: WalkSmoothing | None = None, *,
+                      age_ms: ArrayLike | None = None) -> RadioFixes:
+        """Positions of scans given as a matrix over :attr:`aps` (already calibrated), with
+        the rows' ages (ms, same shape; None = all fresh).
 
         With ``smoothing`` the scans are one walk's, taken at ``t_ms`` (ms), and are matched
         together (:func:`localize.radio_match.walk_scores`); else each on its own.
@@ -233,7 +262,7 @@ class FingerprintPositioner:
         n = len(rssi)
         n_known = np.isfinite(rssi).sum(axis=1).astype(np.int64)
         xy, sigma, dist = np.full((n, 2), np.nan), np.full(n, np.nan), np.full(n, np.nan)
-        q = powed(rssi)
+        q = self._query(rssi, age_ms)
         ok = q.sum(axis=1) > 0
         if ok.any():
             d = self._distances(q[ok])
@@ -255,7 +284,7 @@ class FingerprintPositioner:
 
     def locate_scans(self, scans: Sequence[RadioScan]) -> RadioFixes:
         """Positions of several scans (calibration applied), each on its own."""
-        return self.locate_matrix(self.scan_matrix(scans))
+        return self.locate_matrix(self.scan_matrix(scans), age_ms=self.scan_ages(scans))
 
     def locate_walk(self, scans: Sequence[RadioScan],
                     smoothing: WalkSmoothing | None = None) -> RadioFixes:
@@ -264,7 +293,8 @@ class FingerprintPositioner:
         directions with the defaults of :class:`WalkSmoothing`; ``direction="forward"`` uses
         the past only). site1: 3.46 m median against 3.65 m scan by scan."""
         t = np.array([s.t_ms for s in scans], dtype=np.float64)
-        return self.locate_matrix(self.scan_matrix(scans), t, smoothing or WalkSmoothing())
+        return self.locate_matrix(self.scan_matrix(scans), t, smoothing or WalkSmoothing(),
+                                  age_ms=self.scan_ages(scans))
 
     def locate(self, scan: RadioScan) -> tuple[float, float, float] | None:
         """``(x_m, y_m, sigma_m)`` of one scan, or None when it hears no known transmitter."""
@@ -282,7 +312,7 @@ class FingerprintPositioner:
         """
         if self.likelihood_sigma_m <= 0 or scan is None:
             return None
-        q = powed(self.scan_matrix([scan]))
+        q = self._query(self.scan_matrix([scan]), self.scan_ages([scan]))
         if q.sum() <= 0:
             return None
         d = self._distances(q)

@@ -5,7 +5,8 @@ optionally, ``likelihood(scan, x_m, y_m) -> weights``: the fingerprint matcher o
 stage (``mapping/matching.py``) can be plugged in unchanged. :class:`KnnRadioPositioner` is the
 stand-in used until then: reference scans (positions and RSSI per transmitter key), Euclidean
 distance in dBm over the union of heard keys (unheard = ``missing_dbm``), weighted mean of the k
-nearest references.
+nearest references. It uses the rows of a scan seen within :data:`KNN_MAX_AGE_MS` (the ILC
+findings: 5.5 m -> 4.8 m median for the plain kNN).
 """
 
 from __future__ import annotations
@@ -21,6 +22,9 @@ from localize.steps import RadioScan
 __all__ = ["KnnRadioPositioner", "RadioFix", "RadioModel"]
 
 RadioFix = tuple[float, float, float]
+
+#: Rows of a scan older than this (ms) are left out by :class:`KnnRadioPositioner`.
+KNN_MAX_AGE_MS = 3000.0
 
 
 @runtime_checkable
@@ -83,6 +87,7 @@ class KnnRadioPositioner:
     @classmethod
     def from_scans(cls, xy_m: ArrayLike, scans: list[RadioScan], **kw) -> KnnRadioPositioner:
         """References from scans taken at known positions (one reference per scan)."""
+        scans = [s.fresh(KNN_MAX_AGE_MS) for s in scans]
         keys = sorted({k for s in scans for k in s.keys.tolist()})
         index = {k: i for i, k in enumerate(keys)}
         r = np.full((len(scans), len(keys)), np.nan)
@@ -112,6 +117,7 @@ class KnnRadioPositioner:
         return cls(keys, xy, r, **kw)
 
     def _vector(self, scan: RadioScan) -> tuple[NDArray[np.float32], int]:
+        scan = scan.fresh(KNN_MAX_AGE_MS)
         v = np.full(len(self.keys_), self.missing_dbm, dtype=np.float32)
         idx = [self._index.get(k, -1) for k in scan.keys.tolist()]
         idx = np.asarray(idx, dtype=np.int64)

@@ -78,19 +78,37 @@ class RadioScan:
         BSSIDs (lower-case, colon separated) or beacon keys; unique within the scan.
     rssi_dbm : ndarray of float, shape (k,)
         Received signal strength (dBm).
+    age_ms : ndarray of float, shape (k,), optional
+        Age of each row at the scan time (ms): Android reports, with every scan, transmitters
+        last heard up to several seconds before it, and those rows lag the walker. NaN (or no
+        array) = unknown, treated as fresh.
     """
 
     t_ms: int
     keys: NDArray[np.str_]
     rssi_dbm: NDArray[np.float64]
+    age_ms: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
         if len(self.keys) != len(self.rssi_dbm):
             raise LocalizationError(f"scan at {self.t_ms}: {len(self.keys)} keys but "
                                     f"{len(self.rssi_dbm)} RSSI values")
+        if self.age_ms is not None and len(self.age_ms) != len(self.keys):
+            raise LocalizationError(f"scan at {self.t_ms}: {len(self.keys)} keys but "
+                                    f"{len(self.age_ms)} row ages")
 
     def __len__(self) -> int:
         return len(self.keys)
+
+    def fresh(self, max_age_ms: float) -> RadioScan:
+        """The scan without the rows older than ``max_age_ms`` (rows of unknown age stay)."""
+        if self.age_ms is None:
+            return self
+        keep = ~(np.asarray(self.age_ms, dtype=np.float64) > max_age_ms)
+        if keep.all():
+            return self
+        return RadioScan(self.t_ms, np.asarray(self.keys)[keep],
+                         np.asarray(self.rssi_dbm)[keep], np.asarray(self.age_ms)[keep])
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ from localize_fixtures import SAMPLE, site_json
 from localize.errors import LocalizationError
 from localize.steps import AttitudeCode, RadioScan, StepSummaries, attitude_codes
 from survey.errors import ProcessingError
-from survey.step_summaries import step_summaries
+from survey.step_summaries import StepSummaryParams, scans_of, step_summaries
 from survey.trace_reader import read_trace
 
 
@@ -43,6 +43,26 @@ def test_summaries_follow_the_truth(walk):
     assert s[3].mag_strength_ut.size > 10
     assert any(sc is not None for sc in s.scans)
     assert set(np.unique(s.attitude)) <= {int(a) for a in AttitudeCode}
+
+
+def test_scans_carry_row_ages(walk):
+    """Every Wi-Fi row reaches the localizer with its age (the matcher down-weights old rows);
+    beacons merged into a step's scan count as fresh; ``fresh`` drops old rows."""
+    _, trace = walk
+    s = step_summaries(trace, StepSummaryParams(include_ble=trace.ble is not None))
+    scans = [sc for sc in s.scans if sc is not None]
+    wifi = trace.wifi
+    n_rows = wifi.drop_duplicates(["scan_t_ms", "bssid"]).groupby("scan_t_ms").size()
+    assert sum(len(sc) for sc in scans_of(trace)) == n_rows.sum()
+    ages = np.concatenate([sc.age_ms for sc in scans])
+    assert np.isfinite(ages).all() and ages.max() > 3000
+    for sc in scans:
+        wifi_rows = np.char.find(sc.keys.astype(str), "ble:") < 0
+        assert (sc.age_ms[~wifi_rows] == 0).all()
+        kept = sc.fresh(3000)
+        assert np.all(kept.age_ms <= 3000) and len(kept) == int((sc.age_ms <= 3000).sum())
+    with pytest.raises(LocalizationError, match="row ages"):
+        RadioScan(0, np.array(["a", "b"]), np.array([-50.0, -60.0]), np.array([0.0]))
 
 
 def test_trace_without_magnetometer(walk):

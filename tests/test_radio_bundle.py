@@ -83,25 +83,33 @@ def test_localizer_positions_equal_the_mapping_matcher(built, wifi_obs):
     pos = FingerprintPositioner.from_bundle(b, "wifi")
     db = FingerprintDB.from_tables(_tables(b, "wifi"))
     obs = wifi_obs["F1"]
-    obs = obs[obs["age_ms"] <= 2500]  # the matcher down-weights older rows; scans carry no age
-    scans = scan_set(obs)
+    scans = scan_set(obs)  # every row, with its age
+    assert np.nanmax(scans.age_ms) > 4000  # old rows are there, to be down-weighted
     want = default_matcher().fit(db).predict(scans)
     rssi = np.full((len(scans), len(pos.aps)), np.nan)
+    age = np.full_like(rssi, np.nan)
     idx = np.searchsorted(pos.aps, scans.aps)
     known = (idx < len(pos.aps)) & (pos.aps[np.minimum(idx, len(pos.aps) - 1)] == scans.aps)
     rssi[:, idx[known]] = scans.rssi_dbm[:, known]
-    got = pos.locate_matrix(rssi)
+    age[:, idx[known]] = scans.age_ms[:, known]
+    got = pos.locate_matrix(rssi, age_ms=age)
     ok = np.isfinite(want.xy_m[:, 0])
     assert ok.mean() > 0.99
     np.testing.assert_allclose(got.xy_m[ok], want.xy_m[ok], atol=1e-6)
     assert np.all(got.sigma_m[ok] >= 1.0)
+    # without the ages the old rows count in full and the fixes differ
+    assert not np.allclose(pos.locate_matrix(rssi).xy_m[ok], want.xy_m[ok])
+    # RadioScan objects carry the same ages through locate_scans
+    one = [RadioScan(0, pos.aps[np.isfinite(r)], r[np.isfinite(r)], a[np.isfinite(r)])
+           for r, a in zip(rssi[:20], age[:20])]
+    np.testing.assert_allclose(pos.locate_scans(one).xy_m, got.xy_m[:20], atol=1e-6)
     # whole walks: the same scores on both sides
     want_walk = default_walk_matcher().fit(db).predict(scans)
     walk = scans.scans["trace_id"].to_numpy().astype(str)
     t = scans.scans["t_ms"].to_numpy(np.float64)
     for w in np.unique(walk):
         mine = (walk == w) & ok
-        got_walk = pos.locate_matrix(rssi[mine], t[mine], WalkSmoothing())
+        got_walk = pos.locate_matrix(rssi[mine], t[mine], WalkSmoothing(), age_ms=age[mine])
         np.testing.assert_allclose(got_walk.xy_m, want_walk.xy_m[mine], atol=1e-6)
     assert not np.allclose(want_walk.xy_m[ok], want.xy_m[ok])
     with pytest.raises(LocalizationError, match="one time per scan"):
