@@ -33,7 +33,7 @@ from localize.smoothing import Genealogy
 from localize.stepper import StepInputs, advance
 from localize.steps import RadioScan, StepSummaries, StepSummary
 from localize.track import Estimate, Track
-from localize.update import radio_update
+from localize.update import radio_likelihood, radio_update
 
 __all__ = ["BaseLocalizer", "Localizer", "make_rng"]
 
@@ -239,6 +239,7 @@ class Localizer(BaseLocalizer):
             self.genealogy = Genealogy()
             self.genealogy.record(self.state.x[0], self.state.y[0], None)
         self._steps_since_start = 0
+        self._fit: list[float] | None = None  # radio fit averages (fast, slow)
         self.n_recoveries = 0
         self._consecutive = np.zeros(1, dtype=np.int64)
         mx, my, spread = estimate(self.state)
@@ -295,15 +296,40 @@ class Localizer(BaseLocalizer):
     def _radio_step(self, st: ParticleState, scan: RadioScan) -> None:
         """Radio weight update and/or particle injection around the scan's fix."""
         p = self.params
+        lk = (radio_likelihood(self.radio, scan, st.x[0], st.y[0])
+              if p.radio_update or p.radio_inject_rule == "fit" else None)
+        share = p.radio_inject_fraction
+        if share > 0 and p.radio_inject_rule == "fit" and lk is not None:
+            share = self._fit_share(st, lk)
         if p.radio_update:
-            radio_update(st, 0, self.radio, scan, p)
-        if p.radio_inject_fraction > 0:
+            radio_update(st, 0, self.radio, scan, p, likelihood=lk)
+        if share > 0:
             fix = self.radio.locate(scan)
-            far = fix is not None and np.hypot(fix[0] - self._last.x_m, fix[1] - self._last.y_m
-                                               ) >= p.radio_inject_distance_m
-            if far:
-                hw = max(p.radio_sigma_floor_m, p.init_from_fix_scale * float(fix[2]))
-                inject(st, self.fmap, p, self.rng, 0, p.radio_inject_fraction, fix[:2], hw)
+            if fix is None:
+                return
+            if p.radio_inject_rule == "distance" or lk is None:
+                far = np.hypot(fix[0] - self._last.x_m, fix[1] - self._last.y_m)
+                if far < p.radio_inject_distance_m:
+                    return
+            hw = max(p.radio_sigma_floor_m, p.init_from_fix_scale * float(fix[2]))
+            inject(st, self.fmap, p, self.rng, 0, share, fix[:2], hw)
+
+    def _fit_share(self, st: ParticleState, lk: NDArray) -> float:
+        """Augmented MCL: share of particles to inject from how well the cloud fits the
+        radio lately (fast average of its mean likelihood) against the long run (slow)."""
+        p = self.params
+        w = st.w[0]
+        total = float(w.sum())
+        fit = float((w * lk).sum() / total) if total > 0 else 0.0
+        if self._fit is None:
+            self._fit = [fit, fit]
+        else:
+            self._fit[0] += p.radio_fit_fast * (fit - self._fit[0])
+            self._fit[1] += p.radio_fit_slow * (fit - self._fit[1])
+        fast, slow = self._fit
+        if slow <= 0:
+            return 0.0
+        return float(min(p.radio_inject_fraction, max(0.0, 1.0 - fast / slow)))
 
     @property
     def particles(self) -> tuple[NDArray, NDArray, NDArray]:

@@ -150,6 +150,17 @@ class FilterParams:
     radio_inject_distance_m : float
         Inject only when the fix is farther than this from the current estimate (m; 0 =
         at every fix).
+    radio_inject_rule : {"distance", "fit"}
+        When to inject: ``"distance"``, whenever the fix is ``radio_inject_distance_m`` or
+        more from the estimate; ``"fit"`` (augmented MCL, Thrun et al., Probabilistic
+        Robotics 8.3.5), when the particles' mean radio likelihood over the last few scans
+        (``radio_fit_fast``) falls below its long-run average (``radio_fit_slow``), with the
+        share ``min(radio_inject_fraction, 1 - fast / slow)``: a wrong fix that the filter's
+        cloud has seen agree before does not pull particles away. Models without a
+        likelihood use the distance rule.
+    radio_fit_fast, radio_fit_slow : float
+        Rates (per scan) of the two averages of the ``"fit"`` rule.
+
     radio_update : bool
         Multiply weights by the radio likelihood whenever a step carries a scan (the paper
         uses Wi-Fi/BLE only to start).
@@ -158,6 +169,7 @@ class FilterParams:
     radio_outlier : float
         Mixture weight of a uniform outlier term in the radio update (keeps particles alive
         when the fix is wrong).
+
     mode_spread_m : float
         When the particles spread more than this (RMS, m) the estimate is the densest part of
         the cloud (:func:`~localize.particles.estimate_mode`) instead of the mean (001), which
@@ -207,6 +219,9 @@ class FilterParams:
     dtw_sigma: float = 1.0
     radio_inject_fraction: float = 0.1
     radio_inject_distance_m: float = 6.0
+    radio_inject_rule: str = "distance"
+    radio_fit_fast: float = 0.5
+    radio_fit_slow: float = 0.05
     radio_update: bool = True
     radio_sigma_floor_m: float = 3.0
     radio_outlier: float = 0.1
@@ -239,6 +254,11 @@ class FilterParams:
                 raise LocalizationError(f"{name}: award K and threshold T must be positive")
         if not 0 <= self.radio_inject_fraction <= 1:
             raise LocalizationError("radio_inject_fraction must be in [0, 1]")
+        if self.radio_inject_rule not in ("distance", "fit"):
+            raise LocalizationError(f"radio_inject_rule must be 'distance' or 'fit', got "
+                                    f"{self.radio_inject_rule!r}")
+        if not 0 < self.radio_fit_slow < self.radio_fit_fast <= 1:
+            raise LocalizationError("radio rates: need 0 < radio_fit_slow < radio_fit_fast <= 1")
         if not 0 <= self.radio_outlier < 1:
             raise LocalizationError("radio_outlier must be in [0, 1)")
 

@@ -27,7 +27,7 @@ from localize.weights import (
 )
 
 __all__ = ["dtw_update", "gaussian_update", "magnetic_update", "mass_centered_update",
-           "normalise_rows", "radio_update"]
+           "normalise_rows", "radio_likelihood", "radio_update"]
 
 
 def normalise_rows(w: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -130,17 +130,25 @@ def magnetic_update(st: ParticleState, fmap: FilterMap, params: FilterParams,
         dtw_update(st, fmap, params, raw_strength_ut)
 
 
-def radio_update(st: ParticleState, row: int, radio, scan, params: FilterParams) -> bool:
+def radio_likelihood(radio, scan, x_m: NDArray, y_m: NDArray) -> NDArray[np.float64] | None:
+    """``radio.likelihood(scan, x, y)`` when the model has one (None otherwise or when the scan
+    tells nothing)."""
+    like = getattr(radio, "likelihood", None)
+    return None if like is None else like(scan, x_m, y_m)
+
+
+def radio_update(st: ParticleState, row: int, radio, scan, params: FilterParams,
+                 likelihood: NDArray[np.float64] | None = None) -> bool:
     """Multiply row ``row``'s weights by the radio likelihood of ``scan``; True if applied.
 
     Uses ``radio.likelihood(scan, x, y)`` when the model has it, else a Gaussian around
     ``radio.locate(scan)`` with ``sigma = max(fix sigma, radio_sigma_floor_m)``. A uniform
-    share ``radio_outlier`` keeps particles alive when the fix is wrong.
+    share ``radio_outlier`` keeps particles alive when the fix is wrong. ``likelihood``: the
+    model's likelihood at the particles, when already computed.
     """
     eps = params.radio_outlier
     x, y = st.x[row], st.y[row]
-    like = getattr(radio, "likelihood", None)
-    lk = None if like is None else like(scan, x, y)
+    lk = likelihood if likelihood is not None else radio_likelihood(radio, scan, x, y)
     if lk is not None:
         lk = np.asarray(lk, dtype=np.float64)
         top = lk.max(initial=0.0)

@@ -133,6 +133,59 @@ def test_radio_updates_and_injection_run(f1_bundle, sim_walks):  # noqa: F811
     assert isinstance(radio, RadioModel)  # the protocol is structural: locate() suffices
 
 
+class _FarRadio:
+    """Every scan's fix is 20 m east of the true position; the likelihood is a Gaussian there."""
+
+    def __init__(self, steps, true_xy):
+        self.t, self.xy = steps.t_ms, true_xy
+
+    def _at(self, scan):
+        i = int(np.clip(np.searchsorted(self.t, scan.t_ms), 0, len(self.t) - 1))
+        return self.xy[i] + np.array([20.0, 0.0])
+
+    def locate(self, scan):
+        x, y = self._at(scan)
+        return float(x), float(y), 2.0
+
+    def likelihood(self, scan, x, y):
+        fx, fy = self._at(scan)
+        return np.exp(-((np.asarray(x) - fx) ** 2 + (np.asarray(y) - fy) ** 2) / 18.0)
+
+
+def test_fit_rule_injects_when_the_radio_stops_agreeing(f1_bundle, sim_walks,  # noqa: F811
+                                                        monkeypatch):
+    """Augmented MCL: while the cloud fits the radio as well as it did, nothing is injected;
+    when the fits drop, a share up to ``radio_inject_fraction`` is."""
+    w = next(v for v in sim_walks if v.floor == "F1")
+    p = FilterParams(radio_inject_rule="fit", radio_inject_fraction=0.3)
+    loc = Localizer(f1_bundle, p, rng=0)
+    loc.start(*w.start_xy)
+    st = loc.state
+    ones = np.ones(st.shape[1])
+    assert [loc._fit_share(st, ones) for _ in range(5)] == [0.0] * 5
+    shares = [loc._fit_share(st, 0.01 * ones) for _ in range(3)]
+    assert 0 < shares[0] <= shares[1] <= shares[2] <= 0.3
+    assert shares[2] == pytest.approx(0.3)
+    # end to end: a radio right for the first half of the walk, then 20 m off
+    w = max((v for v in sim_walks if v.floor == "F1"),
+            key=lambda v: sum(s is not None for s in v.steps.scans))
+    radio = _FarRadio(w.steps, w.true_xy)
+    half = w.steps.t_ms[len(w.steps) // 2]
+    radio._at = lambda scan, at=radio._at: at(scan) - (
+        np.array([20.0, 0.0]) if scan.t_ms < half else 0.0)
+    seen = []
+    real_fit = Localizer._fit_share
+    monkeypatch.setattr(Localizer, "_fit_share",
+                        lambda self, st, lk: seen.append(real_fit(self, st, lk)) or seen[-1])
+    Localizer(f1_bundle, p, radio=radio, rng=0).run(w.steps, start_xy=tuple(w.true_xy[0]))
+    t_scans = np.array([sc.t_ms for sc in w.steps.scans if sc is not None])
+    before, after = np.array(seen)[t_scans < half], np.array(seen)[t_scans >= half]
+    assert after.max() == pytest.approx(0.3) and after[:3].sum() > 0.5
+    assert before.mean() < 0.1
+    with pytest.raises(LocalizationError, match="radio_inject_rule"):
+        FilterParams(radio_inject_rule="sometimes")
+
+
 def test_gaussian_update_never_makes_nan_from_dead_particles():
     """A dead particle (w = 0) fitting better than every living one gave 0 * exp(+big) = NaN."""
     from localize.update import gaussian_update
