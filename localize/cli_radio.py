@@ -22,6 +22,7 @@ import numpy as np
 
 from localize.errors import LocalizationError
 
+
 def _scans(trace, kind: str):
     """Wi-Fi scans with every row and its age (the floor model was fitted on rows of any age;
     the fingerprint matcher down-weights old rows), or BLE windows."""

@@ -160,7 +160,6 @@ class FilterParams:
         likelihood use the distance rule.
     radio_fit_fast, radio_fit_slow : float
         Rates (per scan) of the two averages of the ``"fit"`` rule.
-
     radio_update : bool
         Multiply weights by the radio likelihood whenever a step carries a scan (the paper
         uses Wi-Fi/BLE only to start).
@@ -169,7 +168,6 @@ class FilterParams:
     radio_outlier : float
         Mixture weight of a uniform outlier term in the radio update (keeps particles alive
         when the fix is wrong).
-
     mode_spread_m : float
         When the particles spread more than this (RMS, m) the estimate is the densest part of
         the cloud (:func:`~localize.particles.estimate_mode`) instead of the mean (001), which

@@ -20,10 +20,10 @@ from numpy.typing import NDArray
 
 from localize.errors import LocalizationError
 
-__all__ = ["AGE_DECAY_MS", "AGE_FRESH_MS", "ReferenceMotion", "ReferenceNeighbours", "WalkSmoothing", "age_weights",
-           "euclidean_distances", "gaussian_loglik", "knn_positions", "powed",
-           "reference_neighbours", "scan_age_matrix", "scan_rssi_matrix", "smoothed_distances",
-           "sorensen_distances", "walk_scores"]
+__all__ = ["AGE_DECAY_MS", "AGE_FRESH_MS", "ReferenceMotion", "ReferenceNeighbours",
+           "WalkSmoothing", "age_weights", "euclidean_distances", "gaussian_loglik",
+           "knn_positions", "powed", "reference_neighbours", "scan_age_matrix",
+           "scan_rssi_matrix", "smoothed_distances", "sorensen_distances", "walk_scores"]
 
 FloatArray = NDArray[np.float64]
 
