@@ -40,8 +40,7 @@ from localize.radio_match import (
     knn_positions,
     powed,
     reference_neighbours,
-    scan_age_matrix,
-    scan_rssi_matrix,
+    scan_matrices,
     smoothed_distances,
     sorensen_distances,
     walk_scores,
@@ -149,6 +148,9 @@ class FingerprintPositioner:
             self.xy_m, self.neighbour_sigma_m) if self.neighbour_mix > 0 else None)
         object.__setattr__(self, "_index", {a: i for i, a in enumerate(self.aps.tolist())})
         object.__setattr__(self, "_motion", ReferenceMotion(self.xy_m))
+        # the last single scan's distances: the filter asks likelihood() and locate() of the
+        # same scan in one step
+        object.__setattr__(self, "_last_single", None)
 
     # -- construction ------------------------------------------------------------------------
     @classmethod
@@ -210,8 +212,8 @@ class FingerprintPositioner:
     def online_calibration(self, scans: Sequence[RadioScan], **kw) -> OnlineCalibration:
         """Estimate ``k, b`` of an unknown phone from a few of its scans (no positions needed;
         see :func:`localize.rssi_calibration.estimate_rssi_calibration`)."""
-        rssi = self.scan_matrix(scans, calibrated=False)
-        rssi[self.scan_ages(scans) > self.age_fresh_ms] = np.nan  # stale rows lag the walker
+        rssi, age = self.scan_matrices(scans, calibrated=False)
+        rssi[age > self.age_fresh_ms] = np.nan  # stale rows lag the walker
         return estimate_rssi_calibration(rssi, self.mean_dbm, self.var_db2, **kw)
 
     def calibrated_online(self, scans: Sequence[RadioScan], **kw) -> FingerprintPositioner:
@@ -220,18 +222,15 @@ class FingerprintPositioner:
         return self.with_calibration(cal.k, cal.b)
 
     # -- matching ----------------------------------------------------------------------------
-    def scan_matrix(self, scans: Sequence[RadioScan], *, calibrated: bool = True
-                    ) -> NDArray[np.float64]:
+    def scan_matrices(self, scans: Sequence[RadioScan], *, calibrated: bool = True
+                      ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """RSSI of ``scans`` over :attr:`aps`, shape (S, A) (dBm; NaN = not heard), with the
-        calibration applied unless ``calibrated=False``."""
-        out = scan_rssi_matrix(scans, self._index)
+        calibration applied unless ``calibrated=False``, and the rows' ages (ms, same shape;
+        NaN = unknown)."""
+        rssi, age = scan_matrices(scans, self._index)
         if calibrated and (self.rssi_k != 1.0 or self.rssi_b != 0.0):
-            out = self.rssi_k * out + self.rssi_b
-        return out
-
-    def scan_ages(self, scans: Sequence[RadioScan]) -> NDArray[np.float64]:
-        """Row ages (ms) of ``scans`` laid out as :meth:`scan_matrix` (NaN = unknown)."""
-        return scan_age_matrix(scans, self._index)
+            rssi = self.rssi_k * rssi + self.rssi_b
+        return rssi, age
 
     def _query(self, rssi: NDArray[np.float64], age_ms: ArrayLike | None
                ) -> NDArray[np.float64]:
@@ -243,11 +242,18 @@ class FingerprintPositioner:
         return q * age_weights(age, self.age_fresh_ms, self.age_decay_ms)
 
     def _distances(self, q: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Signal distances of powed scans ``q`` (S, A) to every reference point, (S, R)."""
+        """Signal distances of powed scans ``q`` (S, A) to every reference point, (S, R)
+        (read-only when ``q`` is one scan: that result is kept for the next call)."""
+        last = self._last_single
+        if len(q) == 1 and last is not None and np.array_equal(last[0], q):
+            return last[1]
         d = sorensen_distances(q, self._ref)
-        if self._neighbours is None:
-            return d
-        return smoothed_distances(d, self._neighbours, self.neighbour_mix)
+        if self._neighbours is not None:
+            d = smoothed_distances(d, self._neighbours, self.neighbour_mix)
+        if len(q) == 1:
+            d.flags.writeable = False
+            object.__setattr__(self, "_last_single", (q.copy(), d))
+        return d
 
     def locate_matrix(self, rssi_dbm: ArrayLike, t_ms: ArrayLike | None = None,
                       smoothing: WalkSmoothing | None = None, *,
@@ -284,7 +290,8 @@ class FingerprintPositioner:
 
     def locate_scans(self, scans: Sequence[RadioScan]) -> RadioFixes:
         """Positions of several scans (calibration applied), each on its own."""
-        return self.locate_matrix(self.scan_matrix(scans), age_ms=self.scan_ages(scans))
+        rssi, age = self.scan_matrices(scans)
+        return self.locate_matrix(rssi, age_ms=age)
 
     def locate_walk(self, scans: Sequence[RadioScan],
                     smoothing: WalkSmoothing | None = None) -> RadioFixes:
@@ -293,8 +300,8 @@ class FingerprintPositioner:
         directions with the defaults of :class:`WalkSmoothing`; ``direction="forward"`` uses
         the past only). site1: 3.46 m median against 3.65 m scan by scan."""
         t = np.array([s.t_ms for s in scans], dtype=np.float64)
-        return self.locate_matrix(self.scan_matrix(scans), t, smoothing or WalkSmoothing(),
-                                  age_ms=self.scan_ages(scans))
+        rssi, age = self.scan_matrices(scans)
+        return self.locate_matrix(rssi, t, smoothing or WalkSmoothing(), age_ms=age)
 
     def locate(self, scan: RadioScan) -> tuple[float, float, float] | None:
         """``(x_m, y_m, sigma_m)`` of one scan, or None when it hears no known transmitter."""
@@ -312,7 +319,7 @@ class FingerprintPositioner:
         """
         if self.likelihood_sigma_m <= 0 or scan is None:
             return None
-        q = self._query(self.scan_matrix([scan]), self.scan_ages([scan]))
+        q = self._query(*self.scan_matrices([scan]))
         if q.sum() <= 0:
             return None
         d = self._distances(q)

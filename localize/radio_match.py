@@ -22,7 +22,7 @@ from localize.errors import LocalizationError
 
 __all__ = ["AGE_DECAY_MS", "AGE_FRESH_MS", "ReferenceMotion", "ReferenceNeighbours",
            "WalkSmoothing", "age_weights", "euclidean_distances", "gaussian_loglik",
-           "knn_positions", "powed", "reference_neighbours", "scan_age_matrix",
+           "knn_positions", "powed", "reference_neighbours", "scan_matrices",
            "scan_rssi_matrix", "smoothed_distances", "sorensen_distances", "walk_scores"]
 
 FloatArray = NDArray[np.float64]
@@ -32,26 +32,25 @@ def scan_rssi_matrix(scans, index: dict[str, int]) -> FloatArray:
     """RSSI of scans (objects with ``keys`` and ``rssi_dbm``, e.g. ``RadioScan``; None allowed)
     as a matrix over the transmitters of ``index`` (key -> column), shape (S, len(index))
     (dBm; NaN = not heard, unknown keys ignored)."""
-    return _scan_matrix(scans, index, "rssi_dbm")
+    return scan_matrices(scans, index)[0]
 
 
-def scan_age_matrix(scans, index: dict[str, int]) -> FloatArray:
-    """Row ages (ms) of scans as :func:`scan_rssi_matrix` lays out their RSSI; NaN where not
-    heard or where the scan carries no ``age_ms``."""
-    return _scan_matrix(scans, index, "age_ms")
-
-
-def _scan_matrix(scans, index: dict[str, int], attr: str) -> FloatArray:
-    out = np.full((len(scans), len(index)), np.nan)
+def scan_matrices(scans, index: dict[str, int]) -> tuple[FloatArray, FloatArray]:
+    """RSSI (dBm) and row ages (ms) of scans, both laid out as :func:`scan_rssi_matrix`; an age
+    is NaN where not heard or where the scan carries no ``age_ms``."""
+    rssi = np.full((len(scans), len(index)), np.nan)
+    age = np.full_like(rssi, np.nan)
     for i, scan in enumerate(scans):
-        values = None if scan is None else getattr(scan, attr, None)
-        if values is None or not len(scan.keys):
+        keys = [] if scan is None else np.asarray(scan.keys).astype(str).tolist()
+        if not keys:
             continue
-        keys = np.asarray(scan.keys).astype(str).tolist()
         idx = np.fromiter((index.get(k, -1) for k in keys), dtype=np.int64, count=len(keys))
         known = idx >= 0
-        out[i, idx[known]] = np.asarray(values, dtype=np.float64)[known]
-    return out
+        rssi[i, idx[known]] = np.asarray(scan.rssi_dbm, dtype=np.float64)[known]
+        ages = getattr(scan, "age_ms", None)
+        if ages is not None:
+            age[i, idx[known]] = np.asarray(ages, dtype=np.float64)[known]
+    return rssi, age
 
 
 def powed(rssi_dbm: FloatArray, floor_dbm: float = -100.0, beta: float = float(np.e)
@@ -206,7 +205,7 @@ class WalkSmoothing:
         if not (self.tau > 0 and self.speed_mps > 0 and 0 < self.min_sigma_m
                 <= self.max_sigma_m):
             raise LocalizationError(f"walk smoothing needs tau > 0, speed_mps > 0 and "
-                             f"0 < min_sigma_m <= max_sigma_m; got {self}")
+                                    f"0 < min_sigma_m <= max_sigma_m; got {self}")
 
 
 SIGMA_LEVELS_M = (1.0, 1.5, 2.0, 3.0, 4.0, 5.0, 6.0)
@@ -298,7 +297,8 @@ def walk_scores(dist: FloatArray, t_ms: FloatArray, motion: ReferenceMotion,
         for i in range(n - 2, -1, -1):
             if sigma[i] <= params.max_sigma_m:
                 ahead = motion.backward(ahead * like[i + 1], sigma[i])
-                ahead = ahead / ahead.max() if ahead.max() > 0 else np.ones(r)
+                top = ahead.max()
+                ahead = ahead / top if top > 0 else np.ones(r)
             else:
                 ahead = np.ones(r)
             prior[i] *= ahead

@@ -241,8 +241,8 @@ class WeightedKNN(_Matcher):
         t = scans["t_ms"].to_numpy(np.float64)[rows]
         walk = scans["trace_id"].to_numpy().astype(str)[rows]
         for w in np.unique(walk):
-            rows = np.flatnonzero(walk == w)
-            out[rows] = walk_scores(cost[rows], t[rows], self.motion_, self.walk_smoothing)
+            mine = np.flatnonzero(walk == w)
+            out[mine] = walk_scores(cost[mine], t[mine], self.motion_, self.walk_smoothing)
         return out
 
     def _dist(self, rssi: NDArray[np.float64], age: NDArray[np.float64]) -> NDArray[np.float64]:
