@@ -95,7 +95,7 @@ def main() -> int:
                 t = time.perf_counter()
                 content = build_floor(store, plans[f], floor=f, params=params)
                 s = scores(content, field, xy)
-                kernel = params.raster.method == "kernel"
+                kernel = params.raster.kernel_based
                 rows.append({"floor": f, "pipeline": name,
                              "bandwidth_m": content.metrics.get("bandwidth_m") if kernel
                              else np.nan, **s,

@@ -48,11 +48,12 @@ class BuildParams:
     """Map-building parameters (lengths in m)."""
 
     cell_m: float = 0.5
-    #: when the chosen kernel bandwidth is below ``2 * cell_m``, raster at half the bandwidth,
-    #: not below this (m), so that the cells resolve the kernel (set to ``cell_m`` to keep it)
+    #: when the chosen kernel bandwidth is below ``2 * cell_m``, raster (and choose again) on
+    #: cells of this size (m), so that the cells resolve the kernel (``cell_m`` keeps it)
     min_cell_m: float = 0.25
     raster: RasterParams = field(default_factory=RasterParams)
-    heading_raster: RasterParams = field(default_factory=lambda: RasterParams(bandwidth_m=2.0))
+    heading_raster: RasterParams = field(
+        default_factory=lambda: RasterParams(method="kernel", bandwidth_m=2.0))
     levelling: LevellingParams = field(default_factory=LevellingParams)
     level: bool = True
     #: Wi-Fi/BLE fingerprints and device table in the floor bundle (see mapping.radio_build)
@@ -91,10 +92,20 @@ def build_smoothing(samples: pd.DataFrame, field_enu: np.ndarray, grid, mask,
                             params.raster)
 
 
+def _smoothing_text(params: RasterParams) -> str:
+    text = f"{params.method} bandwidth {params.bandwidth_m} m, shrinkage {params.prior_walks} walks"
+    if params.method == "local_linear":
+        text += f", slope ridge {params.slope_ridge}"
+    return text
+
+
 def raster_cell_m(params: BuildParams, bandwidth_m: float) -> float:
-    """Cell size (m) of a floor rastered with ``bandwidth_m``: ``params.cell_m``, or half the
-    bandwidth when that is finer (not below ``params.min_cell_m``)."""
-    return float(min(params.cell_m, max(params.min_cell_m, bandwidth_m / 2.0)))
+    """Cell size (m) of a floor rastered with ``bandwidth_m``: ``params.cell_m``, or
+    ``params.min_cell_m`` when the kernel is narrower than two cells (the finest cells, where
+    the choice is made again: a local plane often picks a wider kernel on coarse cells than
+    the fine cells then support)."""
+    return float(params.cell_m if bandwidth_m >= 2 * params.cell_m
+                 else min(params.cell_m, params.min_cell_m))
 
 
 def floor_samples(store: SurveyStore, site: str | None, floor: str) -> pd.DataFrame:
@@ -163,13 +174,13 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
     release_free_memory()  # the walks' freed buffers
     say(f"{floor}: {reduction.n_samples} samples")
     raster_params, heading_params, smoothing_scores = params.raster, params.heading_raster, {}
-    if params.auto_bandwidth and params.raster.method == "kernel":
+    if params.auto_bandwidth and params.raster.kernel_based:
         raster_params, smoothing_scores = choose_smoothing(
             grid, mask, reduction.cv_x_m, reduction.cv_y_m, reduction.cv_strength_ut,
             reduction.cv_walk, params.raster, subsample=1)
         bw = raster_params.bandwidth_m
-        say(f"{floor}: kernel bandwidth {bw} m, shrinkage {raster_params.prior_walks} walks, "
-            "chosen by 5-fold cross-validation over walks")
+        say(f"{floor}: {_smoothing_text(raster_params)}, chosen by 5-fold cross-validation "
+            "over walks")
         cell_m = raster_cell_m(params, bw)
         if cell_m < grid.cell_m:
             # a kernel this narrow is judged on cells that resolve it: choose again there
@@ -181,8 +192,7 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
                 grid, mask, reduction.cv_x_m, reduction.cv_y_m, reduction.cv_strength_ut,
                 reduction.cv_walk, params.raster, subsample=1,
                 candidates=[b for b in BANDWIDTH_CANDIDATES_M if b <= 2 * bw])
-            say(f"{floor}: rastered at {cell_m} m cells; there kernel bandwidth "
-                f"{raster_params.bandwidth_m} m, shrinkage {raster_params.prior_walks} walks")
+            say(f"{floor}: rastered at {cell_m} m cells; there {_smoothing_text(raster_params)}")
         heading_params = replace(params.heading_raster,
                                  bandwidth_m=max(raster_params.bandwidth_m, 1.0))
     if residuals is None:
@@ -215,6 +225,8 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
     first = cat.loc[walks["trace_id"].iloc[0]]
     metrics = {"coverage": coverage(grid, mask, reduction.support), "n_walks": int(len(walks)),
                "bandwidth_m": raster_params.bandwidth_m, "prior_walks": raster_params.prior_walks,
+               "slope_ridge": raster_params.slope_ridge
+               if raster_params.method == "local_linear" else None,
                "smoothing_cv_shape_rmse_ut": smoothing_scores,
                "n_samples": reduction.n_samples, "heading_offset_floor_median_deg": global_offset}
     tables = {"source_walks": pa.Table.from_pandas(walks, preserve_index=False),

@@ -45,7 +45,8 @@ def floors_of(path: Path) -> list[Path]:
               help="Also publish every bundle into this registry and make it current.")
 @click.option("--cell", "cell_m", type=float, default=0.5, show_default=True,
               help="Raster cell size (m).")
-@click.option("--interpolator", type=click.Choice(["kernel", "linear"]), default="kernel",
+@click.option("--interpolator", type=click.Choice(["local_linear", "kernel", "linear"]),
+              default="local_linear",
               show_default=True)
 @click.option("--build-time", default=None,
               help="Build time written to the manifest (default: end of the newest walk, so "

@@ -258,7 +258,9 @@ def default_pipelines(raster: RasterParams = RasterParams()) -> list[Pipeline]:
 
 BANDWIDTH_CANDIDATES_M = (0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0)
 #: shrinkage towards the floor mean (``RasterParams.prior_walks``) tried with every bandwidth
-PRIOR_WALKS_CANDIDATES = (0.1, 0.5, 2.0)
+PRIOR_WALKS_CANDIDATES = (0.1, 0.5, 2.0, 8.0)
+#: slope ridges (``RasterParams.slope_ridge``) tried with every pair for ``local_linear``
+SLOPE_RIDGE_CANDIDATES = (0.1, 1.0, 10.0, 100.0)
 #: the cross-validation uses every n-th sample (the build takes the same ones)
 BANDWIDTH_SUBSAMPLE = 5
 
@@ -266,17 +268,23 @@ BANDWIDTH_SUBSAMPLE = 5
 def choose_smoothing(grid: Grid, mask: NDArray[np.bool_], x: NDArray, y: NDArray,
                      values: NDArray, walk: NDArray, base: RasterParams, *,
                      candidates=BANDWIDTH_CANDIDATES_M, prior_candidates=PRIOR_WALKS_CANDIDATES,
-                     folds: int = 5, subsample: int = BANDWIDTH_SUBSAMPLE
+                     ridge_candidates=SLOPE_RIDGE_CANDIDATES, folds: int = 5,
+                     subsample: int = BANDWIDTH_SUBSAMPLE
                      ) -> tuple[RasterParams, dict[str, float]]:
-    """Kernel bandwidth (m) and shrinkage (``prior_walks``) with the lowest grouped k-fold shape
-    RMSE (uT; folds of whole walks).
+    """Kernel bandwidth (m), shrinkage (``prior_walks``) and, for ``local_linear``, slope ridge
+    with the lowest grouped k-fold shape RMSE (uT; folds of whole walks).
 
     How much to smooth depends on how well the survey was positioned and how consistent the
     walks are (sub-metre bandwidth and almost no shrinkage on clean simulated walks, 3 m and
-    strong shrinkage on the real traces), so it is measured, not assumed. Returns ``base`` with
-    the chosen ``bandwidth_m`` and ``prior_walks``, and the score of every candidate, keyed
-    ``"<bandwidth_m>/<prior_walks>"``.
+    strong shrinkage on the real traces), so it is measured, not assumed. Returns ``base``
+    (a kernel method) with the chosen ``bandwidth_m``, ``prior_walks`` and ``slope_ridge``,
+    and the score of every candidate, keyed ``"<bandwidth_m>/<prior_walks>"`` (``kernel``) or
+    ``"<bandwidth_m>/<prior_walks>/<slope_ridge>"`` (``local_linear``).
     """
+    if not base.kernel_based:
+        raise ValueError(f"choose_smoothing: {base.method!r} has no bandwidth to choose")
+    local_linear = base.method == "local_linear"
+    ridges = tuple(ridge_candidates) if local_linear else (None,)
     x, y, values = x[::subsample], y[::subsample], values[::subsample]
     walk_code = np.unique(np.asarray(walk)[::subsample], return_inverse=True)[1]
     n_walks = walk_code.max() + 1 if len(walk_code) else 0
@@ -290,25 +298,31 @@ def choose_smoothing(grid: Grid, mask: NDArray[np.bool_], x: NDArray, y: NDArray
     train = [total - cell_stats(grid, cell[fold_of_pair == g], mean[fold_of_pair == g])
              for g in range(n_folds)]
     held_out = [group[walk_code] == g for g in range(n_folds)]
-    residuals = {k: [] for k in product(candidates, prior_candidates)}
+    keys = list(product(candidates, prior_candidates, ridges))
+    residuals = {k: [] for k in keys}
     for bw in candidates:
         for g in range(n_folds):
-            sums = kernel_sums(grid, mask, train[g], bw)
+            sums = kernel_sums(grid, mask, train[g], bw, local_linear=local_linear)
             prior = prior_of(train[g])
             sel = held_out[g]
-            for pw in prior_candidates:
-                vals, _ = kernel_combine(grid, mask, sums, pw, base.max_distance_m, prior)
-                residuals[(bw, pw)].append(sample_grid(grid, mask, vals, x[sel], y[sel])
-                                           - values[sel])
+            for pw, ridge in product(prior_candidates, ridges):
+                vals, _ = kernel_combine(grid, mask, sums, pw, base.max_distance_m, prior,
+                                         ridge)
+                residuals[(bw, pw, ridge)].append(
+                    sample_grid(grid, mask, vals, x[sel], y[sel]) - values[sel])
     walks_of = np.concatenate([walk_code[sel] for sel in held_out])
-    scores: dict[tuple[float, float], float] = {}
+    scores: dict[tuple, float] = {}
     for key, parts in residuals.items():
         r = np.concatenate(parts)
         ok = np.isfinite(r)
         r, wk = r[ok], walks_of[ok]
         med = pd.Series(r).groupby(wk).transform("median").to_numpy()
         scores[key] = float(np.sqrt(np.mean((r - med) ** 2))) if len(r) else np.inf
-    # ties go to the smoother map (larger bandwidth, then more shrinkage)
-    bw, pw = min(scores, key=lambda k: (scores[k], -k[0], -k[1]))
-    return (replace(base, method="kernel", bandwidth_m=bw, prior_walks=pw),
-            {f"{b:g}/{p:g}": v for (b, p), v in scores.items()})
+    # ties go to the smoother map (larger bandwidth, more shrinkage, flatter plane)
+    bw, pw, ridge = min(scores, key=lambda k: (scores[k], -k[0], -k[1],
+                                                -(k[2] if k[2] is not None else 0.0)))
+    chosen = replace(base, bandwidth_m=bw, prior_walks=pw)
+    if local_linear:
+        chosen = replace(chosen, slope_ridge=ridge)
+    return chosen, {"/".join(f"{v:g}" for v in k if v is not None): s
+                    for k, s in scores.items()}

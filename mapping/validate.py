@@ -45,7 +45,7 @@ import json
 import math
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -434,12 +434,16 @@ def _bundle_raster_params(bundle: MapBundle) -> tuple[RasterParams, RasterParams
     p = m.get("build", {}).get("params", {})
     raster = RasterParams(**p.get("raster", {}))
     heading = RasterParams(**p.get("heading_raster", {"bandwidth_m": 2.0}))
-    bw = m.get("metrics", {}).get("bandwidth_m")
+    metrics = m.get("metrics", {})
+    bw = metrics.get("bandwidth_m")
     if bw is not None:
-        raster = RasterParams(raster.method, float(bw), raster.prior_walks, raster.max_distance_m)
-        if p.get("auto_bandwidth", True) and raster.method == "kernel":
-            heading = RasterParams(heading.method, max(float(bw), 1.0), heading.prior_walks,
-                                   heading.max_distance_m)
+        chosen = {"bandwidth_m": float(bw)}
+        for name in ("prior_walks", "slope_ridge"):
+            if metrics.get(name) is not None:
+                chosen[name] = float(metrics[name])
+        raster = replace(raster, **chosen)
+        if p.get("auto_bandwidth", True) and raster.kernel_based:
+            heading = replace(heading, bandwidth_m=max(float(bw), 1.0))
     lev = LevellingParams(**p.get("levelling", {}))
     return raster, heading, lev
 

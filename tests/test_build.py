@@ -108,11 +108,12 @@ def test_walk_by_walk_layers_equal_the_in_memory_rasters(store):
     assert auto.metrics["bandwidth_m"] == chosen.bandwidth_m
     assert auto.metrics["prior_walks"] == chosen.prior_walks
     assert auto.metrics["smoothing_cv_shape_rmse_ut"] == scores
-    assert len(scores) == 24
+    assert auto.metrics["slope_ridge"] == chosen.slope_ridge
+    assert len(scores) == 8 * 4 * 4  # bandwidths x shrinkages x slope ridges
     # a kernel narrower than two cells is rastered (and chosen again) on cells of half its width
     assert chosen.bandwidth_m < 2 * params.cell_m  # the simulated walks are well positioned
     fine = build_floor(store, plan, floor="F1", params=replace(params, auto_bandwidth=True))
-    assert fine.grid.cell_m == max(params.min_cell_m, chosen.bandwidth_m / 2)
+    assert fine.grid.cell_m == params.min_cell_m
     assert fine.metrics["bandwidth_m"] <= 2 * chosen.bandwidth_m
     ratio = (params.cell_m / fine.grid.cell_m) ** 2
     assert 0.8 * ratio < fine.mask.sum() / content.mask.sum() < 1.25 * ratio
