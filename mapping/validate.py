@@ -433,7 +433,7 @@ def _bundle_raster_params(bundle: MapBundle) -> tuple[RasterParams, RasterParams
     m = bundle.manifest
     p = m.get("build", {}).get("params", {})
     raster = RasterParams(**p.get("raster", {}))
-    heading = RasterParams(**p.get("heading_raster", {"bandwidth_m": 2.0}))
+    heading = RasterParams(**p.get("heading_raster", {"method": "kernel", "bandwidth_m": 2.0}))
     metrics = m.get("metrics", {})
     bw = metrics.get("bandwidth_m")
     if bw is not None:
