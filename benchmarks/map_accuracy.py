@@ -65,12 +65,9 @@ def main() -> int:
             chosen, _ = build_smoothing(samples, levelled, grid, mask, params)
             table = leave_one_walk_out(samples, grid, mask, default_pipelines(chosen),
                                        layers=("strength", "vertical"))
-            ridge = (f", slope ridge {chosen.slope_ridge}" if chosen.method == "local_linear"
-                     else "")
             print(f"\nsite1/{f}: {samples['trace_id'].nunique()} walks, leave-one-walk-out "
-                  f"({time.perf_counter() - t:.0f} s); {chosen.method} bandwidth "
-                  f"{chosen.bandwidth_m} m, shrinkage {chosen.prior_walks} walks{ridge} "
-                  "(chosen by the build's 5-fold cross-validation over all walks of the floor)")
+                  f"({time.perf_counter() - t:.0f} s); {chosen.describe()} (chosen by the "
+                  "build's 5-fold cross-validation over all walks of the floor)")
             cols = ["layer", "pipeline", "rmse", "median_abs", "shape_rmse", "skill",
                     "corr_0.7m", "corr_5m"]
             print(table[cols].sort_values(["layer", "pipeline"]).to_string(

@@ -92,13 +92,6 @@ def build_smoothing(samples: pd.DataFrame, field_enu: np.ndarray, grid, mask,
                             params.raster)
 
 
-def _smoothing_text(params: RasterParams) -> str:
-    text = f"{params.method} bandwidth {params.bandwidth_m} m, shrinkage {params.prior_walks} walks"
-    if params.method == "local_linear":
-        text += f", slope ridge {params.slope_ridge}"
-    return text
-
-
 def raster_cell_m(params: BuildParams, bandwidth_m: float) -> float:
     """Cell size (m) of a floor rastered with ``bandwidth_m``: ``params.cell_m``, or
     ``params.min_cell_m`` when the kernel is narrower than two cells (the finest cells, where
@@ -179,7 +172,7 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
             grid, mask, reduction.cv_x_m, reduction.cv_y_m, reduction.cv_strength_ut,
             reduction.cv_walk, params.raster, subsample=1)
         bw = raster_params.bandwidth_m
-        say(f"{floor}: {_smoothing_text(raster_params)}, chosen by 5-fold cross-validation "
+        say(f"{floor}: {raster_params.describe()}, chosen by 5-fold cross-validation "
             "over walks")
         cell_m = raster_cell_m(params, bw)
         if cell_m < grid.cell_m:
@@ -192,7 +185,7 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
                 grid, mask, reduction.cv_x_m, reduction.cv_y_m, reduction.cv_strength_ut,
                 reduction.cv_walk, params.raster, subsample=1,
                 candidates=[b for b in BANDWIDTH_CANDIDATES_M if b <= 2 * bw])
-            say(f"{floor}: rastered at {cell_m} m cells; there {_smoothing_text(raster_params)}")
+            say(f"{floor}: rastered at {cell_m} m cells; there {raster_params.describe()}")
         heading_params = replace(params.heading_raster,
                                  bandwidth_m=max(raster_params.bandwidth_m, 1.0))
     if residuals is None:

@@ -34,7 +34,7 @@ from .interpolate import (
     CellStats,
     RasterParams,
     cell_stats,
-    kernel_combine,
+    kernel_mean,
     kernel_sums,
     prior_of,
     raster_from_stats,
@@ -298,16 +298,15 @@ def choose_smoothing(grid: Grid, mask: NDArray[np.bool_], x: NDArray, y: NDArray
     train = [total - cell_stats(grid, cell[fold_of_pair == g], mean[fold_of_pair == g])
              for g in range(n_folds)]
     held_out = [group[walk_code] == g for g in range(n_folds)]
-    keys = list(product(candidates, prior_candidates, ridges))
-    residuals = {k: [] for k in keys}
+    residuals = {k: [] for k in product(candidates, prior_candidates, ridges)}
     for bw in candidates:
         for g in range(n_folds):
-            sums = kernel_sums(grid, mask, train[g], bw, local_linear=local_linear)
-            prior = prior_of(train[g])
+            sums = kernel_sums(grid, mask, train[g], bw, base.max_distance_m,
+                               local_linear=local_linear)
+            mu = prior_of(train[g])[0]
             sel = held_out[g]
             for pw, ridge in product(prior_candidates, ridges):
-                vals, _ = kernel_combine(grid, mask, sums, pw, base.max_distance_m, prior,
-                                         ridge)
+                vals = kernel_mean(sums, pw, mu, ridge)
                 residuals[(bw, pw, ridge)].append(
                     sample_grid(grid, mask, vals, x[sel], y[sel]) - values[sel])
     walks_of = np.concatenate([walk_code[sel] for sel in held_out])

@@ -64,6 +64,15 @@ class RasterParams:
         """Whether the bandwidth and shrinkage apply (and are chosen by cross-validation)."""
         return self.method in KERNEL_METHODS
 
+    def describe(self) -> str:
+        """The smoothing in words (progress messages, benchmark headers)."""
+        if not self.kernel_based:
+            return self.method
+        text = f"{self.method} bandwidth {self.bandwidth_m} m, shrinkage {self.prior_walks} walks"
+        if self.method == "local_linear":
+            text += f", slope ridge {self.slope_ridge}"
+        return text
+
 
 @dataclass
 class CellStats:
@@ -123,22 +132,24 @@ def prior_of(stats: CellStats) -> tuple[float, float]:
 @dataclass(frozen=True)
 class KernelSums:
     """Gaussian-smoothed walk counts, sums and sums of squares (grid shape) of one bandwidth:
-    everything :func:`kernel_raster` needs but the shrinkage, which is cheap to vary.
+    everything :func:`kernel_raster` needs but the shrinkage and slope ridge, which are cheap
+    to vary (:func:`kernel_mean`, :func:`kernel_std`).
 
-    ``moments`` (local-linear sums only), shape (7, height, width): the kernel-weighted
-    ``sum w dx``, ``sum w dy``, ``sum w dx^2``, ``sum w dx dy``, ``sum w dy^2``,
+    ``covered``: the reachable cells within ``max_distance_m`` of a surveyed cell (the others
+    are NaN). ``moments`` (local-linear sums only), shape (7, height, width): the
+    kernel-weighted ``sum w dx``, ``sum w dy``, ``sum w dx^2``, ``sum w dx dy``, ``sum w dy^2``,
     ``sum w v dx``, ``sum w v dy`` around each cell (offsets ``dx, dy`` in m)."""
 
     n: NDArray[np.float64]
     s: NDArray[np.float64]
     q: NDArray[np.float64]
     peak: float  # kernel weight of a single cell at its centre
-    support: NDArray[np.bool_]
+    covered: NDArray[np.bool_]
     moments: NDArray[np.float64] | None = None
 
 
 def kernel_sums(grid: Grid, mask: NDArray[np.bool_], stats: CellStats, bandwidth_m: float,
-                *, local_linear: bool = False) -> KernelSums:
+                max_distance_m: float, *, local_linear: bool = False) -> KernelSums:
     """Smooth ``stats`` within the reachable area (normalised convolution, mask as weight);
     ``local_linear`` adds the first-order moments a local plane needs."""
     sigma = bandwidth_m / grid.cell_m
@@ -166,14 +177,16 @@ def kernel_sums(grid: Grid, mask: NDArray[np.bool_], stats: CellStats, bandwidth
             g_nyy - 2 * y * g_ny + y * y * k_n,
             g_sx - x * k_s,
             g_sy - y * k_s])
-    return KernelSums(k_n, k_s, k_q, 1.0 / (2 * np.pi * sigma * sigma), stats.n > 0, moments)
+    covered = mask & _distance_ok(grid, (stats.n > 0) & mask, max_distance_m)
+    return KernelSums(k_n, k_s, k_q, 1.0 / (2 * np.pi * sigma * sigma), covered, moments)
 
 
-def _local_plane_intercept(sums: KernelSums, lam: float, mu: float, ridge: float,
-                           cells: NDArray[np.bool_]) -> NDArray[np.float64]:
-    """Intercept ``a`` of the kernel-weighted plane ``a + g . (c - p)`` at the cells selected,
+def _local_plane_intercept(sums: KernelSums, lam: float, mu: float, ridge: float
+                           ) -> NDArray[np.float64]:
+    """Intercept ``a`` of the kernel-weighted plane ``a + g . (c - p)`` at the covered cells,
     minimising ``sum K w (v - a - g . d)^2 + lam (a - mu)^2 + ridge |g|^2`` (Cramer's rule on
     the symmetric 3 x 3 normal equations, all cells at once)."""
+    cells = sums.covered
     mom = sums.moments[:, cells]
     a = sums.n[cells] + lam
     b, c = mom[0], mom[1]
@@ -184,35 +197,39 @@ def _local_plane_intercept(sums: KernelSums, lam: float, mu: float, ridge: float
     return (r0 * m00 - b * m01 + c * m02) / np.maximum(det, 1e-300)
 
 
-def kernel_combine(grid: Grid, mask: NDArray[np.bool_], sums: KernelSums, prior_walks: float,
-                   max_distance_m: float, prior: tuple[float, float],
-                   slope_ridge: float | None = None
-                   ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-    """Values and uncertainty from :func:`kernel_sums`, shrunk towards ``prior`` (mean,
-    variance) with the weight of ``prior_walks`` walk-cells at full kernel weight.
+def kernel_mean(sums: KernelSums, prior_walks: float, prior_mean: float,
+                slope_ridge: float | None = None) -> NDArray[np.float32]:
+    """Values from :func:`kernel_sums` (NaN off the covered cells), shrunk towards
+    ``prior_mean`` with the weight of ``prior_walks`` walk-cells at full kernel weight.
 
     With ``slope_ridge`` (sums made with ``local_linear=True``) each value is the intercept of
     a local plane whose slope is ridged by ``slope_ridge`` walk-cells x m^2 at full kernel
-    weight; the uncertainty is the local-constant one either way."""
-    mu, prior_var = prior
-    k_n, k_s, k_q, peak = sums.n, sums.s, sums.q, sums.peak
-    lam = prior_walks * peak
-    ok = mask & _distance_ok(grid, sums.support & mask, max_distance_m)
+    weight; else the local constant."""
+    lam = prior_walks * sums.peak
     if slope_ridge is None:
-        mean = (k_s + lam * mu) / np.maximum(k_n + lam, 1e-12)
+        mean = (sums.s + lam * prior_mean) / np.maximum(sums.n + lam, 1e-12)
     else:
         if sums.moments is None:
-            raise ValueError("kernel_combine: slope_ridge needs sums made with local_linear=True")
-        mean = np.full(grid.shape, np.nan)
-        mean[ok] = _local_plane_intercept(sums, lam, mu, slope_ridge * peak, ok)
+            raise ValueError("kernel_mean: slope_ridge needs sums made with local_linear=True")
+        mean = np.full(sums.n.shape, np.nan)
+        mean[sums.covered] = _local_plane_intercept(sums, lam, prior_mean,
+                                                    slope_ridge * sums.peak)
+    return np.where(sums.covered, mean, np.nan).astype(np.float32)
+
+
+def kernel_std(sums: KernelSums, prior_walks: float, prior: tuple[float, float]
+               ) -> NDArray[np.float32]:
+    """Standard error of the local mean (the value's unit; NaN off the covered cells): the
+    local spread of walks where they are, the ``prior`` (mean, variance) elsewhere, the same
+    for the local constant and the local plane."""
+    k_n, k_s, k_q, peak = sums.n, sums.s, sums.q, sums.peak
     local_var = np.where(k_n > 0, np.maximum(k_q / np.maximum(k_n, 1e-12)
                                              - (k_s / np.maximum(k_n, 1e-12)) ** 2, 0), 0)
     n_eff = k_n / peak
     # spread of one walk's observation: local spread where walks are, the prior elsewhere
-    var = (local_var * n_eff + prior_walks * prior_var) / np.maximum(n_eff + prior_walks, 1e-12)
+    var = (local_var * n_eff + prior_walks * prior[1]) / np.maximum(n_eff + prior_walks, 1e-12)
     std = np.sqrt(var / np.maximum(n_eff + prior_walks, 1.0))
-    return (np.where(ok, mean, np.nan).astype(np.float32),
-            np.where(ok, std, np.nan).astype(np.float32))
+    return np.where(sums.covered, std, np.nan).astype(np.float32)
 
 
 def kernel_raster(grid: Grid, mask: NDArray[np.bool_], stats: CellStats,
@@ -223,14 +240,16 @@ def kernel_raster(grid: Grid, mask: NDArray[np.bool_], stats: CellStats,
 
     ``prior`` (mean, variance) defaults to that of ``stats``; pass the whole floor's when
     ``stats`` covers only a window of it."""
-    mu, prior_var = prior if prior is not None else prior_of(stats)
-    if not (stats.n > 0).any() or not np.isfinite(mu):
+    prior = prior if prior is not None else prior_of(stats)
+    if not (stats.n > 0).any() or not np.isfinite(prior[0]):
         nan = np.full(grid.shape, np.nan, dtype=np.float32)
         return nan, nan.copy()
     local_linear = params.method == "local_linear"
-    sums = kernel_sums(grid, mask, stats, params.bandwidth_m, local_linear=local_linear)
-    return kernel_combine(grid, mask, sums, params.prior_walks, params.max_distance_m,
-                          (mu, prior_var), params.slope_ridge if local_linear else None)
+    sums = kernel_sums(grid, mask, stats, params.bandwidth_m, params.max_distance_m,
+                       local_linear=local_linear)
+    return (kernel_mean(sums, params.prior_walks, prior[0],
+                        params.slope_ridge if local_linear else None),
+            kernel_std(sums, params.prior_walks, prior))
 
 
 def linear_raster(grid: Grid, mask: NDArray[np.bool_], stats: CellStats,
