@@ -155,6 +155,10 @@ def leave_one_walk_out(samples: pd.DataFrame, grid: Grid, mask: NDArray[np.bool_
         the map-frame field ``mag_*_ut`` and the attitude quaternion ``q_*``.
     subsample : int
         Use every n-th sample (50 Hz is far denser than the field varies along a track).
+    levelling : LevellingParams
+        As the build's. Its ``subsample`` counts the floor's samples, as in the build, so the
+        levelling is fitted on every ``levelling.subsample``-th sample whatever ``subsample``
+        is (on the already thinned samples, every ``levelling.subsample // subsample``-th).
 
     Returns
     -------
@@ -162,6 +166,8 @@ def leave_one_walk_out(samples: pd.DataFrame, grid: Grid, mask: NDArray[np.bool_
     ``skill`` (relative to the constant map of the same layer).
     """
     s = samples.iloc[::subsample].reset_index(drop=True)
+    # the build levels on every levelling.subsample-th sample of the floor: so does this
+    levelling = replace(levelling, subsample=max(1, levelling.subsample // subsample))
     walks = np.asarray(sorted(s["trace_id"].unique()))
     walk_code = np.searchsorted(walks, s["trace_id"].to_numpy())
     raw_field = s[["mag_east_ut", "mag_north_ut", "mag_up_ut"]].to_numpy(np.float64)

@@ -113,3 +113,34 @@ def test_bad_levelling_parameters_raise():
         LevellingParams(soft_iron="yes")
     with pytest.raises(ValueError, match="soft_iron_prior"):
         LevellingParams(soft_iron_prior=-1.0)
+
+
+def test_held_out_levelling_uses_the_builds_share_of_samples(monkeypatch):
+    """The held-out figures score the build's pipeline: leave_one_walk_out thins the samples
+    (``subsample``) and must then level on every ``levelling.subsample``-th sample of the floor
+    as the build does, not on every (subsample x levelling.subsample)-th (an old bug: the
+    benchmark levelled on a fifth of the build's samples and understated its skill)."""
+    from mapping import holdout
+    from mapping.grid import grid_for_extent
+
+    samples = survey(n=200)
+    calls = []
+
+    def recording(train, params):
+        calls.append((len(train), params.subsample))
+        return fit_session_residuals(train, params)
+
+    monkeypatch.setattr(holdout, "fit_session_residuals", recording)
+    grid = grid_for_extent(30.0, 3.0, 0.5)
+    pipes = [holdout.Pipeline("constant", level=False, constant=True),
+             holdout.Pipeline("default")]
+    # (holdout thinning, levelling.subsample, the fit's stride on the thinned samples)
+    for thin, lev, stride in ((5, 5, 1), (2, 4, 2), (1, 3, 3), (4, 2, 1)):
+        calls.clear()
+        holdout.leave_one_walk_out(samples, grid, np.ones(grid.shape, bool), pipes,
+                                   levelling=LevellingParams(subsample=lev),
+                                   levelling_folds=2, subsample=thin)
+        assert len(calls) == 2  # one fit per levelling fold
+        for n_train, fit_stride in calls:
+            assert fit_stride == stride
+            assert abs(n_train - len(samples) / 2 / thin) <= 4  # half of the 8 walks
