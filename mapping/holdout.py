@@ -156,9 +156,10 @@ def leave_one_walk_out(samples: pd.DataFrame, grid: Grid, mask: NDArray[np.bool_
     subsample : int
         Use every n-th sample (50 Hz is far denser than the field varies along a track).
     levelling : LevellingParams
-        As the build's. Its ``subsample`` counts the floor's samples, as in the build, so the
-        levelling is fitted on every ``levelling.subsample``-th sample whatever ``subsample``
-        is (on the already thinned samples, every ``levelling.subsample // subsample``-th).
+        As the build's. Its ``subsample`` counts the floor's samples, as in the build: the
+        levelling is fitted on every ``max(1, levelling.subsample // subsample)``-th of the
+        thinned samples, i.e. on every ``levelling.subsample``-th sample of the floor when
+        ``subsample`` divides it (the defaults, 5 and 5), as the build does.
 
     Returns
     -------
