@@ -101,6 +101,13 @@ def raster_cell_m(params: BuildParams, bandwidth_m: float) -> float:
                  else min(params.cell_m, params.min_cell_m))
 
 
+def heading_raster_for(heading: RasterParams, bandwidth_m: float) -> RasterParams:
+    """The heading-offset raster of a floor whose field layers were given the bandwidth
+    ``bandwidth_m`` (m) by cross-validation: the same bandwidth, at least 1 m (the offsets are
+    per step, about 0.7 m apart)."""
+    return replace(heading, bandwidth_m=max(float(bandwidth_m), 1.0))
+
+
 def floor_samples(store: SurveyStore, site: str | None, floor: str) -> pd.DataFrame:
     """Processed samples of a floor with their session, all in memory (validation and
     benchmarks; the build reads walk by walk)."""
@@ -186,8 +193,7 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
                 reduction.cv_walk, params.raster, subsample=1,
                 candidates=[b for b in BANDWIDTH_CANDIDATES_M if b <= 2 * bw])
             say(f"{floor}: rastered at {cell_m} m cells; there {raster_params.describe()}")
-        heading_params = replace(params.heading_raster,
-                                 bandwidth_m=max(raster_params.bandwidth_m, 1.0))
+        heading_params = heading_raster_for(params.heading_raster, raster_params.bandwidth_m)
     if residuals is None:
         residuals = empty_residuals()
     layers = {}

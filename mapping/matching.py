@@ -327,7 +327,8 @@ def default_matcher(walk_smoothing: WalkSmoothing | None = None) -> WeightedKNN:
     half with its 1 m neighbourhood's), with rows older than 2.5 s down-weighted with a 4 s
     decay when the scans carry row ages; each scan on its own unless ``walk_smoothing``."""
     return WeightedKNN(k=5, weight_power=4.0, age_fresh_ms=AGE_FRESH_MS,
-                       age_decay_ms=AGE_DECAY_MS, neighbour_mix=0.5, neighbour_sigma_m=1.0, walk_smoothing=walk_smoothing)
+                       age_decay_ms=AGE_DECAY_MS, neighbour_mix=0.5, neighbour_sigma_m=1.0,
+                       walk_smoothing=walk_smoothing)
 
 
 def default_walk_matcher() -> WeightedKNN:

@@ -59,6 +59,7 @@ from survey.errors import IndoormapError
 from survey.field_features import circular_median_deg, wrap_deg
 
 from . import holdout
+from .build import BuildParams, heading_raster_for
 from .interpolate import CellStats, RasterParams, cell_stats, walk_cell_means
 from .levelling import LevellingParams, apply_session_residuals
 
@@ -433,7 +434,7 @@ def _bundle_raster_params(bundle: MapBundle) -> tuple[RasterParams, RasterParams
     m = bundle.manifest
     p = m.get("build", {}).get("params", {})
     raster = RasterParams(**p.get("raster", {}))
-    heading = RasterParams(**p.get("heading_raster", {"method": "kernel", "bandwidth_m": 2.0}))
+    heading = RasterParams(**p.get("heading_raster", asdict(BuildParams().heading_raster)))
     metrics = m.get("metrics", {})
     bw = metrics.get("bandwidth_m")
     if bw is not None:
@@ -443,7 +444,7 @@ def _bundle_raster_params(bundle: MapBundle) -> tuple[RasterParams, RasterParams
                 chosen[name] = float(metrics[name])
         raster = replace(raster, **chosen)
         if p.get("auto_bandwidth", True) and raster.kernel_based:
-            heading = replace(heading, bandwidth_m=max(float(bw), 1.0))
+            heading = heading_raster_for(heading, bw)
     lev = LevellingParams(**p.get("levelling", {}))
     return raster, heading, lev
 
