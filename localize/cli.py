@@ -5,9 +5,13 @@ importing this module stays light), pick the floor bundle of each walk (a floor 
 folder of floor bundles: the walk's floor id decides), and run one of
 :data:`localize.baselines.METHODS`.
 
-Start position (``--start``): ``auto`` (the bundle's radio fingerprints when it has them, else
-the walk's first waypoint), ``waypoint`` (first waypoint, as the ILC PDR baseline), ``radio``
-(first Wi-Fi fix), or ``X,Y`` in metres.
+Start position (``--start``): ``auto`` (the first Wi-Fi/BLE fix of the walk when the bundle has
+fingerprints and a scan of the walk can be located, else the walk's first waypoint),
+``waypoint`` (first waypoint, as the ILC PDR baseline), ``radio`` (first Wi-Fi/BLE fix, an
+error without one), or ``X,Y`` in metres.
+
+A walk that cannot be read or localized is reported (file and reason) and the others go on;
+the command then exits with status 1.
 """
 
 from __future__ import annotations
@@ -95,26 +99,88 @@ def _walks(paths: tuple[str, ...]) -> list[Path]:
     return files
 
 
-def _start(start: str, steps, trace, radio) -> tuple[tuple[float, float] | None, str]:
+def _parse_start(start: str) -> str | tuple[float, float]:
+    """``--start``'s value checked before any walk is read: a keyword or ``(x, y)`` (m)."""
+    if start in ("auto", "waypoint", "radio"):
+        return start
+    try:
+        x, y = (float(v) for v in start.split(","))
+    except ValueError as err:
+        raise click.BadParameter(f"must be auto, waypoint, radio or X,Y (m); got {start!r}",
+                                 param_hint="--start") from err
+    return x, y
+
+
+def _start(start: str | tuple[float, float], steps, trace, radio
+           ) -> tuple[tuple[float, float] | None, str]:
     """Start position and how it was chosen; None = let the localizer use the radio fix."""
+    from localize.filter import first_radio_fix
     from survey.step_summaries import waypoints_of
 
-    if start not in ("auto", "waypoint", "radio"):
-        try:
-            x, y = (float(v) for v in start.split(","))
-        except ValueError as err:
-            raise click.BadParameter(f"--start must be auto, waypoint, radio or X,Y; got "
-                                     f"{start!r}") from err
-        return (x, y), "given"
-    if start == "radio" or (start == "auto" and radio is not None):
+    if not isinstance(start, str):
+        return start, "given"
+    if start == "radio":
         if radio is None:
             raise LocalizationError("--start radio needs a bundle with Wi-Fi or BLE "
                                     "fingerprints (wifi_rp/wifi_fp tables)")
         return None, "radio"
+    how = "first waypoint"
+    if start == "auto" and radio is not None:
+        if first_radio_fix(radio, steps) is not None:
+            return None, "radio"
+        how = "first waypoint (no Wi-Fi/BLE fix in the walk)"
     t, xy = waypoints_of(trace)
     if not len(t):
-        raise LocalizationError(f"{steps.trace_id}: no waypoint to start from; pass --start X,Y")
-    return (float(xy[0, 0]), float(xy[0, 1])), "first waypoint"
+        raise LocalizationError(f"{steps.trace_id}: no waypoint to start from"
+                                + (" and no Wi-Fi/BLE fix" if start == "auto" else "")
+                                + "; pass --start X,Y")
+    return (float(xy[0, 0]), float(xy[0, 1])), how
+
+
+def _read_walk(path: Path):
+    """The trace at ``path``; a warning names the file when lines had to be skipped (bad
+    lines, a damaged compressed stream), as ``indoormap ingest`` reports them."""
+    from survey.trace_reader import read_trace
+
+    trace = read_trace(path)
+    r = trace.report
+    if r.bad_total:
+        click.echo(f"warning: {path}: {r.bad_total} bad line(s) skipped"
+                   + (f"; first: {r.messages[0]}" if r.messages else ""), err=True)
+    return trace
+
+
+def _warn_if_source_walk(bundle, trace_id: str) -> None:
+    """Warn when the bundle was built from this walk (its errors are then optimistic)."""
+    if bundle.has_table("source_walks"):
+        used = set(bundle.table("source_walks").column("trace_id").to_pylist())
+        if trace_id in used:
+            click.echo(f"warning: {trace_id} was used to build {bundle.path}; its errors are "
+                       "optimistic", err=True)
+
+
+class _WalkFailures:
+    """Walks that could not be read or localized: each is reported with its file and reason,
+    and the walks after it still run."""
+
+    def __init__(self) -> None:
+        self.count = 0
+
+    def run(self, path: Path, fn):
+        """``fn()``, or None after reporting an indoormap error (bad trace, no start, ...)."""
+        from survey.errors import IndoormapError
+
+        try:
+            return fn()
+        except IndoormapError as err:
+            self.count += 1
+            click.echo(f"error: {path}: {err}", err=True)
+            return None
+
+    def exit_if_any(self, total: int) -> None:
+        if self.count:
+            click.echo(f"{self.count} of {total} walk(s) failed", err=True)
+            sys.exit(1)
 
 
 def plot_track(path: Path, bundle, tracks: dict, waypoints_xy=None, title: str = "") -> bool:
@@ -145,7 +211,8 @@ def plot_track(path: Path, bundle, tracks: dict, waypoints_xy=None, title: str =
     return True
 
 
-def _write_track(track, path: Path, fmt: str) -> Path:
+def _write_track(track, target: Path, fmt: str, overwrite: bool = False) -> None:
+    """Write a track table to ``target`` (Parquet or CSV) atomically."""
     import pyarrow as pa
     import pyarrow.csv as pacsv
     import pyarrow.parquet as pq
@@ -155,13 +222,10 @@ def _write_track(track, path: Path, fmt: str) -> Path:
     table = track.to_arrow()
     sink = pa.BufferOutputStream()
     if fmt == "csv":
-        target = path.with_suffix(".csv")
         pacsv.write_csv(table, sink)
     else:
-        target = path.with_suffix(".parquet")
         pq.write_table(table, sink)
-    atomic_write_bytes(target, sink.getvalue().to_pybytes())
-    return target
+    atomic_write_bytes(target, sink.getvalue().to_pybytes(), overwrite=overwrite)
 
 
 def _row_name(method: str, smooth: bool) -> str:
@@ -185,7 +249,8 @@ def _params(particles: int | None):
               type=click.Choice(["indoormap", "pf_no_mag", "magpp_gaussian", "magicol_dtw",
                                  "pdr", "radio"]))
 @click.option("--start", default="auto", show_default=True,
-              help="auto, waypoint, radio or X,Y (m).")
+              help="auto (the walk's first Wi-Fi/BLE fix, else its first waypoint), "
+                   "waypoint, radio, or X,Y (m).")
 @click.option("--particles", type=click.IntRange(1, 1_000_000), default=None,
               help="Particles (default 300).")
 @click.option("--seed", type=int, default=0, show_default=True)
@@ -196,30 +261,41 @@ def _params(particles: int | None):
 @click.option("--smooth", is_flag=True,
               help="Offline: positions from the whole walk, later steps included (particle "
                    "filters only; default: the real-time filter estimates).")
+@click.option("--overwrite", is_flag=True, help="Replace a walk's existing outputs in OUT.")
 def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, method: str,
                      start: str, particles: int | None, seed: int, fmt: str,
-                     plot: bool, smooth: bool) -> None:
+                     plot: bool, smooth: bool, overwrite: bool) -> None:
     """Localize survey walks (trace files or folders) on BUNDLE (a floor bundle or a folder
-    of floor bundles): positions per step as Parquet/CSV and a trajectory plot."""
+    of floor bundles): positions per step as Parquet/CSV and a trajectory plot.
+
+    A walk that fails (unreadable, no start, another site) is reported with its file and the
+    others go on; the exit status is then 1."""
     from localize.baselines import PARTICLE_FILTERS, make_localizer
 
     if smooth and method not in PARTICLE_FILTERS:
         raise click.BadParameter(f"--smooth needs a particle filter "
                                  f"({', '.join(PARTICLE_FILTERS)}), not {method}")
     from survey.step_summaries import step_summaries, waypoints_of
-    from survey.trace_reader import read_trace
 
+    start_opt = _parse_start(start)
     maps = _open_maps(bundle_path)
-    out.mkdir(parents=True, exist_ok=True)
-    for f in _walks(walks):
-        trace = read_trace(f)
+    files = _walks(walks)
+    failures = _WalkFailures()
+    created = not out.exists()
+
+    def one(f: Path) -> None:
+        trace = _read_walk(f)
+        target = out / f"{trace.trace_id}.{fmt}"
+        if target.exists() and not overwrite:  # before the work, not after
+            raise LocalizationError(f"{target} exists; pass --overwrite to replace it")
         steps = step_summaries(trace)
         bundle = maps.select(steps)
+        _warn_if_source_walk(bundle, trace.trace_id)
         radio = _radio_of(bundle, trace, steps)
-        start_xy, how = _start(start, steps, trace, radio)
+        start_xy, how = _start(start_opt, steps, trace, radio)
         loc = make_localizer(method, bundle, _params(particles), radio=radio, rng=seed)
         track = loc.run(steps, start_xy=start_xy, smooth=smooth)
-        target = _write_track(track, out / trace.trace_id, fmt)
+        _write_track(track, target, fmt, overwrite=overwrite)
         msg = (f"{trace.trace_id}: {len(track)} {'smoothed ' if smooth else ''}steps on "
                f"{bundle.floor_id} "
                f"({bundle.manifest.get('floor_name', '')}), start {how}, "
@@ -233,6 +309,14 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
                 msg += " (no plot: matplotlib not installed)"
         click.echo(msg)
 
+    try:
+        for f in files:
+            failures.run(f, lambda f=f: one(f))
+    finally:
+        if created and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()  # nothing was written: leave no empty folder behind
+    failures.exit_if_any(len(files))
+
 
 @click.command("evaluate")
 @click.argument("bundle_path", metavar="BUNDLE",
@@ -241,11 +325,13 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
 @click.option("--methods", default="indoormap,pf_no_mag,pdr", show_default=True,
               help="Comma-separated methods.")
 @click.option("--start", default="auto", show_default=True,
-              help="auto, waypoint, radio or X,Y (m).")
-@click.option("--particles", type=click.IntRange(1, 1_000_000), default=None)
+              help="auto (the walk's first Wi-Fi/BLE fix, else its first waypoint), "
+                   "waypoint, radio, or X,Y (m).")
+@click.option("--particles", type=click.IntRange(1, 1_000_000), default=None,
+              help="Particles of the particle filters (default 300).")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False, path_type=Path),
-              default=None, help="Write the error CDFs as a PNG.")
+              default=None, help="Write the error CDFs as a PNG (folders are created).")
 @click.option("--smooth", is_flag=True,
               help="Also score every particle filter's offline smoothed track "
                    "(rows '<method>+smoothed').")
@@ -257,35 +343,43 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
     from localize.baselines import METHODS, PARTICLE_FILTERS, make_localizer
     from localize.evaluate import summarize, waypoint_errors
     from survey.step_summaries import step_summaries, waypoints_of
-    from survey.trace_reader import read_trace
 
     names = [m.strip() for m in methods.split(",") if m.strip()]
+    if not names:
+        raise click.BadParameter(f"no method given; known: {', '.join(sorted(METHODS))}",
+                                 param_hint="--methods")
     unknown = [m for m in names if m not in METHODS]
     if unknown:
         raise click.BadParameter(f"unknown methods {unknown}; known: {sorted(METHODS)}")
+    start_opt = _parse_start(start)
     maps = _open_maps(bundle_path)
+    files = _walks(walks)
+    failures = _WalkFailures()
     rows = [(m, False) for m in names] + [(m, True) for m in names
                                           if smooth and m in PARTICLE_FILTERS]
     errors: dict[str, list[np.ndarray]] = {_row_name(m, sm): [] for m, sm in rows}
-    for f in _walks(walks):
-        trace = read_trace(f)
+
+    def one(f: Path) -> None:
+        trace = _read_walk(f)
         t_wp, xy_wp = waypoints_of(trace)
         if len(t_wp) == 0:
-            click.echo(f"{trace.trace_id}: no waypoints, skipped", err=True)
-            continue
+            click.echo(f"{f}: no waypoints, skipped", err=True)
+            return
         steps = step_summaries(trace)
         bundle = maps.select(steps)
-        if bundle.has_table("source_walks"):
-            used = set(bundle.table("source_walks").column("trace_id").to_pylist())
-            if trace.trace_id in used:
-                click.echo(f"warning: {trace.trace_id} was used to build {bundle.path}; its "
-                           "errors are optimistic", err=True)
+        _warn_if_source_walk(bundle, trace.trace_id)
         radio = _radio_of(bundle, trace, steps)
-        start_xy, _ = _start(start, steps, trace, radio)
-        for m, sm in rows:
+        start_xy, _ = _start(start_opt, steps, trace, radio)
+        walk_errors = {}
+        for m, sm in rows:  # all methods first, so that a failing walk adds to no row
             loc = make_localizer(m, bundle, _params(particles), radio=radio, rng=seed)
             track = loc.run(steps, start_xy=start_xy, smooth=sm)
-            errors[_row_name(m, sm)].append(waypoint_errors(track, t_wp, xy_wp))
+            walk_errors[_row_name(m, sm)] = waypoint_errors(track, t_wp, xy_wp)
+        for name, e in walk_errors.items():
+            errors[name].append(e)
+
+    for f in files:
+        failures.run(f, lambda f=f: one(f))
     click.echo(f"{'method':<20}{'n':>6}{'median':>9}{'p80':>9}{'mean':>9}  (m, at waypoints)")
     for m, v in errors.items():
         s = summarize(np.concatenate(v) if v else np.empty(0))
@@ -293,8 +387,10 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
     if plot_path is not None:
         from localize.evaluate import plot_cdfs
 
+        plot_path.parent.mkdir(parents=True, exist_ok=True)
         if not plot_cdfs(plot_path, {m: np.concatenate(v) for m, v in errors.items() if v}):
             click.echo("(no plot: matplotlib not installed)", err=True)
+    failures.exit_if_any(len(files))
 
 
 def main() -> None:  # pragma: no cover - convenience entry for python -m localize.cli

@@ -35,7 +35,7 @@ from localize.steps import RadioScan, StepSummaries, StepSummary
 from localize.track import Estimate, Track
 from localize.update import radio_likelihood, radio_update
 
-__all__ = ["BaseLocalizer", "Localizer", "make_rng"]
+__all__ = ["BaseLocalizer", "Localizer", "first_radio_fix", "make_rng"]
 
 
 def make_rng(rng: np.random.Generator | int | None) -> np.random.Generator:
@@ -43,6 +43,20 @@ def make_rng(rng: np.random.Generator | int | None) -> np.random.Generator:
     if isinstance(rng, np.random.Generator):
         return rng
     return np.random.default_rng(0 if rng is None else rng)
+
+
+def first_radio_fix(radio, steps: StepSummaries) -> tuple[float, float, float, float] | None:
+    """``(x, y, sigma, t_ms)`` of the first scan of ``steps`` that ``radio`` (anything with
+    ``locate(scan)``) can locate (m, m, m, Unix ms); None without radio, scans or a fix."""
+    if radio is None or steps.scans is None:
+        return None
+    for i, scan in enumerate(steps.scans):
+        if scan is None:
+            continue
+        fix = radio.locate(scan)
+        if fix is not None:
+            return fix[0], fix[1], fix[2], float(steps.t_ms[i])
+    return None
 
 
 class BaseLocalizer:
@@ -118,15 +132,7 @@ class BaseLocalizer:
 
     def first_fix(self, steps: StepSummaries) -> tuple[float, float, float, float] | None:
         """``(x, y, sigma, t_ms)`` of the first scan of the walk the radio model can locate."""
-        if self.radio is None or steps.scans is None:
-            return None
-        for i, scan in enumerate(steps.scans):
-            if scan is None:
-                continue
-            fix = self.radio.locate(scan)
-            if fix is not None:
-                return fix[0], fix[1], fix[2], float(steps.t_ms[i])
-        return None
+        return first_radio_fix(self.radio, steps)
 
     def run(self, steps: StepSummaries, start_xy: tuple[float, float] | None = None, *,
             start_t_ms: float | None = None, half_width_m: float | None = None,

@@ -75,3 +75,55 @@ def test_smooth_option(truth_bundles, tmp_path):  # noqa: F811
     assert res.exit_code == 0, res.output
     rows = {ln.split()[0] for ln in res.output.splitlines() if ln.strip()}
     assert {"indoormap", "indoormap+smoothed", "pdr"} <= rows and "pdr+smoothed" not in rows
+
+
+def test_localize_reports_a_failing_walk_and_goes_on(truth_bundles, tmp_path):  # noqa: F811
+    """A bad trace among good ones: named with its reason, the good walk still written, exit
+    1; a second run refuses to replace outputs unless --overwrite; a run where every walk fails
+    leaves no output folder behind."""
+    good = min(F1_WALKS.glob("*.txt.gz"))
+    junk = tmp_path / "junk.txt"
+    junk.write_text("not a trace\n")
+    out = tmp_path / "out"
+    args = ["localize", str(truth_bundles["F1"]), str(good), str(junk), "-o", str(out),
+            "--no-plot", "--particles", "100"]
+    res = CliRunner().invoke(main, args)
+    assert res.exit_code == 1
+    assert f"error: {junk}:" in res.output and "1 of 2 walk(s) failed" in res.output
+    tid = good.name.split(".")[0]
+    first = (out / f"{tid}.parquet").read_bytes()
+    again = CliRunner().invoke(main, args[:3] + args[4:])  # the good walk alone
+    assert again.exit_code == 1 and "pass --overwrite" in again.output
+    again = CliRunner().invoke(main, args[:3] + args[4:] + ["--overwrite"])
+    assert again.exit_code == 0, again.output
+    assert (out / f"{tid}.parquet").read_bytes() == first  # same seed, same bytes
+    nothing = tmp_path / "nothing"
+    res = CliRunner().invoke(main, ["localize", str(truth_bundles["F1"]), str(junk), "-o",
+                                    str(nothing)])
+    assert res.exit_code == 1 and not nothing.exists()
+
+
+def test_evaluate_usage_errors_and_plot_folder(truth_bundles, tmp_path):  # noqa: F811
+    walk = min(F1_WALKS.glob("*.txt.gz"))
+    res = CliRunner().invoke(main, ["evaluate", str(truth_bundles["F1"]), str(walk),
+                                    "--methods", " , "])
+    assert res.exit_code == 2 and "no method given" in res.output
+    plot = tmp_path / "new" / "folder" / "cdf.png"
+    res = CliRunner().invoke(main, ["evaluate", str(truth_bundles["F1"]), str(walk),
+                                    "--methods", "pdr", "--plot", str(plot)])
+    assert res.exit_code == 0, res.output
+    assert plot.stat().st_size > 1000
+
+
+def test_a_damaged_walk_is_localized_with_a_warning(truth_bundles, tmp_path):  # noqa: F811
+    """Lines the reader had to skip are not silent: the file and the first problem are named."""
+    import gzip
+
+    walk = min(F1_WALKS.glob("*.txt.gz"))
+    cut = tmp_path / walk.name.replace(".gz", "")
+    lines = gzip.decompress(walk.read_bytes()).decode().splitlines(keepends=True)
+    cut.write_text("".join(lines[:len(lines) // 2]) + "1600000000000\tTYPE_WIFI\tx\n")
+    res = CliRunner().invoke(main, ["evaluate", str(truth_bundles["F1"]), str(cut),
+                                    "--methods", "pdr"])
+    assert res.exit_code == 0, res.output
+    assert f"warning: {cut}: 1 bad line(s) skipped; first: {cut}:" in res.output

@@ -230,11 +230,35 @@ def test_site_without_wifi_builds_without_radio_tables(tmp_path):
         opener = gzip.open if src.suffix == ".gz" else open
         with opener(src, "rt", encoding="utf-8") as fh:
             lines = [ln for ln in fh if "TYPE_WIFI" not in ln and "TYPE_BEACON" not in ln]
+        lines.append("1600000000000\tTYPE_ACCELEROMETER\t1\tx\t3\t3\n")  # one bad line each
         (floor / "path_data_files" / src.name.replace(".gz", "")).write_text("".join(lines))
+    (floor / "path_data_files" / "empty.txt").write_text("")
     out = tmp_path / "out"
     res = CliRunner().invoke(main, ["build", str(floor), "-o", str(out)])
     assert res.exit_code == 0, res.output
     assert "no floor model" in res.output
+    # what the reader skipped is said, as `indoormap ingest` says it
+    assert "3 bad line(s) skipped (non_numeric 3); first:" in res.output
+    assert f"unreadable: {floor / 'path_data_files' / 'empty.txt'}: no sensor sample" \
+        in res.output
     b = load_bundle(out / "F1")
     assert fingerprint_kinds(b) == [] and b.manifest["metrics"]["radio"]["wifi"] is None
     assert FloorClassifier.from_bundle(load_bundle(out / "_site")) is None
+
+
+def test_localize_auto_start_falls_back_to_the_first_waypoint(built, tmp_path):
+    """``--start auto`` (the default) on a bundle with fingerprints: the radio fix where the
+    walk has one, the first waypoint for the walk without Wi-Fi, not an error."""
+    no_wifi = SITE / "F1" / "path_data_files" / "641189778a6ffd7aae963f2c.txt.gz"
+    with_wifi = next(p for p in sorted((SITE / "F1" / "path_data_files").glob("*.txt.gz"))
+                     if p != no_wifi)
+    out = tmp_path / "loc"
+    res = CliRunner().invoke(main, ["localize", str(built), str(no_wifi), str(with_wifi),
+                                    "-o", str(out), "--no-plot", "--particles", "100"])
+    assert res.exit_code == 0, res.output
+    assert "start first waypoint (no Wi-Fi/BLE fix in the walk)" in res.output
+    assert "start radio" in res.output
+    assert len(list(out.glob("*.parquet"))) == 2
+    res = CliRunner().invoke(main, ["localize", str(built), str(no_wifi), "-o",
+                                    str(tmp_path / "radio"), "--start", "radio"])
+    assert res.exit_code == 1 and "no Wi-Fi/BLE fix" in res.output
