@@ -184,6 +184,8 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
         cell_m = raster_cell_m(params, bw)
         if cell_m < grid.cell_m:
             # a kernel this narrow is judged on cells that resolve it: choose again there
+            say(f"{floor}: a {bw:g} m kernel is narrower than two {grid.cell_m:g} m cells; "
+                f"rastering on {cell_m:g} m cells instead (BuildParams.min_cell_m)")
             grid = grid_for_extent(plan.width_m, plan.height_m, cell_m)
             mask = reachable_mask(grid, plan.reachable)
             reduction = reduce_field(store, pcat, grid, residuals)
@@ -192,7 +194,7 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
                 grid, mask, reduction.cv_x_m, reduction.cv_y_m, reduction.cv_strength_ut,
                 reduction.cv_walk, params.raster, subsample=1,
                 candidates=[b for b in BANDWIDTH_CANDIDATES_M if b <= 2 * bw])
-            say(f"{floor}: rastered at {cell_m} m cells; there {raster_params.describe()}")
+            say(f"{floor}: on {cell_m:g} m cells {raster_params.describe()}")
         heading_params = heading_raster_for(params.heading_raster, raster_params.bandwidth_m)
     if residuals is None:
         residuals = empty_residuals()

@@ -1,10 +1,11 @@
-"""``indoormap build`` and ``indoormap bundle info|verify|diff|list``."""
+"""``indoormap build`` and ``indoormap bundle info|verify|diff|list|publish|use``."""
 
 from __future__ import annotations
 
 import json
 import sys
 import tempfile
+from datetime import datetime
 from pathlib import Path
 
 import click
@@ -16,8 +17,20 @@ from survey.errors import IndoormapError
 from .build import BuildParams, build_floor
 from .bundle_writer import write_bundle
 from .floorplan import read_floor_plan
-from .radio_build import build_site_radio
+from .radio_build import build_site_radio, format_share
 from .registry import SITE_BUNDLE, Registry
+
+
+def _iso_time(ctx: click.Context, param: click.Parameter, text: str | None) -> str | None:
+    """``--build-time`` checked (a click callback): an ISO 8601 date and time, kept as given."""
+    if text is None:
+        return None
+    try:
+        datetime.fromisoformat(text.replace("Z", "+00:00"))
+    except ValueError as err:
+        raise click.BadParameter(f"{text!r} is not an ISO 8601 time such as "
+                                 "2026-11-22T10:00:00Z", param_hint="--build-time") from err
+    return text
 
 
 def _is_floor_dir(p: Path) -> bool:
@@ -43,14 +56,17 @@ def floors_of(path: Path) -> list[Path]:
               help="Survey store to use (default: a temporary store of SOURCE's traces).")
 @click.option("--registry", "registry_dir", type=click.Path(path_type=Path), default=None,
               help="Also publish every bundle into this registry and make it current.")
-@click.option("--cell", "cell_m", type=float, default=0.5, show_default=True,
-              help="Raster cell size (m).")
+@click.option("--cell", "cell_m", type=click.FloatRange(0.0, 100.0, min_open=True), default=0.5,
+              show_default=True,
+              help="Raster cell size (m). A floor whose chosen smoothing kernel is narrower than "
+                   "two cells is rastered on finer cells (down to 0.25 m; the log says so).")
 @click.option("--interpolator", type=click.Choice(["local_linear", "kernel", "linear"]),
               default="local_linear",
               show_default=True)
-@click.option("--build-time", default=None,
-              help="Build time written to the manifest (default: end of the newest walk, so "
-                   "rebuilding the same data gives the same bytes).")
+@click.option("--build-time", default=None, callback=_iso_time,
+              help="Build time written to the manifest, ISO 8601 (e.g. 2026-11-22T10:00:00Z; "
+                   "default: end of the newest walk, so rebuilding the same data gives the same "
+                   "bytes).")
 @click.option("--overwrite", is_flag=True, help="Replace existing output bundles.")
 def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir: Path | None,
                   cell_m: float, interpolator: str, build_time: str | None,
@@ -68,11 +84,14 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
     floors = floors_of(source)
     params = BuildParams(cell_m=cell_m, raster=RasterParams(method=interpolator),
                          build_time=build_time)
+    if out.exists() and not out.is_dir():
+        raise click.UsageError(f"{out} is a file; -o/--out needs a folder")
     targets = {f.name: out / f.name for f in floors}
     site_target = out / SITE_BUNDLE
     for name, target in [*targets.items(), (SITE_BUNDLE, site_target)]:
         if target.exists() and not overwrite:
             raise click.UsageError(f"{target} exists; pass --overwrite to replace it")
+    plans = {f.name: read_floor_plan(f) for f in floors}  # a bad plan fails before the work
     with tempfile.TemporaryDirectory(prefix="indoormap-build-") as tmp:
         store_path = store_dir or Path(tmp) / "store"
 
@@ -81,19 +100,24 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
 
         say(f"ingest {len(floors)} floor(s) into {store_path}")
         summary = ingest([f / "path_data_files" for f in floors], store_path)
-        if summary.failed:
-            for o in summary.failed:
-                say(f"  unreadable: {o.path}: {o.detail}")
+        for o in summary.failed:
+            say(f"  unreadable: {o.path}: {o.detail}")
+        bad = sum(summary.bad.values())
+        if bad:
+            say(f"  {bad} bad line(s) skipped (" + ", ".join(
+                f"{k} {v}" for k, v in sorted(summary.bad.items())) + "); first:")
+            for m in summary.messages[:5]:
+                say(f"    {m}")
         store = SurveyStore.open(store_path)
-        plans = {f.name: read_floor_plan(f) for f in floors}
         cat = store.catalog()
         reachable = {(s, fl): plans[fl].reachable for s, fl in
                      cat[["site", "floor"]].drop_duplicates().itertuples(index=False)
                      if fl in plans}
         say("process walks")
         report = process_store(store, reachable=reachable)
+        source_of = dict(zip(cat["trace_id"], cat["source_path"]))
         for tid, reason in report.skipped.items():
-            say(f"  skipped {tid}: {reason}")
+            say(f"  skipped {source_of.get(tid, tid)}: {reason}")
         registry = Registry(registry_dir) if registry_dir else None
         radio = build_site_radio(store, [f.name for f in floors], params=params.radio,
                                  progress=say)
@@ -119,8 +143,7 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
         fm = site_content.metrics["floor_model"]
         acc = ("no floor model (no radio rows)" if fm is None else
                f"floor model: {len(fm['floors'])} floors, cross-validated per scan "
-               + ("n/a" if fm["cv_scan_accuracy"] is None else
-                  f"{100 * fm['cv_scan_accuracy']:.2f} %"))
+               + format_share(fm["cv_scan_accuracy"]))
         click.echo(f"site: bundle {site_bundle_id[:16]} -> {site_target} ({acc})")
         if registry:
             entry = registry.publish(site_target)
@@ -129,7 +152,8 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
 
 @click.group("bundle")
 def bundle_group() -> None:
-    """Inspect, verify and compare map bundles, list a registry."""
+    """Inspect, verify and compare map bundles; publish them into a registry, list it and
+    switch its current versions."""
 
 
 @bundle_group.command("info")
@@ -142,7 +166,9 @@ def bundle_info(path: Path, as_json: bool) -> None:
     if as_json:
         click.echo(json.dumps(m, indent=1, sort_keys=True))
         return
-    click.echo(f"bundle {m['bundle_id']}\n  site {m['site_id']} floor {m['floor_name']} "
+    where = ("site-level bundle" if m.get("kind") == "site"
+             else f"floor {m.get('floor_name') or m.get('floor_id', '?')}")
+    click.echo(f"bundle {m['bundle_id']}\n  site {m['site_id']} {where} "
                f"(schema {m['schema_version']}, indoormap {m['software_version']})")
     if b.grid is not None:
         g = b.grid
@@ -214,6 +240,57 @@ def bundle_diff(a: Path, b: Path) -> None:
 @click.argument("registry", type=click.Path(exists=True, file_okay=False, path_type=Path))
 def bundle_list(registry: Path) -> None:
     """Versions in a registry; * marks the current one."""
-    for e in Registry(registry).list():
+    entries = Registry(registry).list()
+    if not entries:
+        raise click.UsageError(f"{registry}: not a registry, or nothing published in it (a "
+                               "registry holds <site>/<floor>/history.json; build with "
+                               "--registry or use `indoormap bundle publish`)")
+    for e in entries:
         click.echo(f"{'*' if e['current'] else ' '} {e['site']}/{e['floor']} #{e['seq']} "
                    f"{e['bundle_id']}")
+
+
+@bundle_group.command("publish")
+@click.argument("paths", nargs=-1, required=True,
+                type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--registry", "registry_dir", required=True, type=click.Path(path_type=Path),
+              help="Registry folder (created if missing).")
+@click.option("--no-current", is_flag=True,
+              help="Only add the versions; keep the current pointers where they are.")
+def bundle_publish(paths: tuple[Path, ...], registry_dir: Path, no_current: bool) -> None:
+    """Copy verified bundles into a registry as new versions and make them current."""
+    reg = Registry(registry_dir)
+    for p in paths:
+        e = reg.publish(p, make_current=not no_current)
+        click.echo(f"{p}: {e['bundle_id'][:16]} #{e['seq']}"
+                   + ("" if no_current else " (current)"))
+
+
+@bundle_group.command("use")
+@click.argument("registry", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.argument("site_floor", metavar="SITE/FLOOR")
+@click.argument("version", metavar="VERSION")
+@click.option("--rollback", is_flag=True,
+              help="Allow pointing at an older version than the current one.")
+def bundle_use(registry: Path, site_floor: str, version: str, rollback: bool) -> None:
+    """Make a published VERSION (bundle id, a unique prefix of it, or #SEQ) of SITE/FLOOR
+    current. Moving to an older version needs --rollback."""
+    site, sep, floor = site_floor.partition("/")
+    if not sep:
+        raise click.BadParameter(f"expected SITE/FLOOR, got {site_floor!r}",
+                                 param_hint="SITE/FLOOR")
+    reg = Registry(registry)
+    history = reg.history(site, floor)
+    if not history:
+        raise click.BadParameter(f"{registry}: nothing published for {site_floor}",
+                                 param_hint="SITE/FLOOR")
+    if version.startswith("#"):
+        match = [h for h in history if str(h["seq"]) == version[1:]]
+    else:
+        match = [h for h in history if h["bundle_id"].startswith(version)]
+    if len(match) != 1:
+        known = ", ".join(f"#{h['seq']} {h['bundle_id'][:12]}" for h in history)
+        raise click.BadParameter(f"{version!r} names {len(match)} versions of {site_floor}; "
+                                 f"published: {known}", param_hint="VERSION")
+    reg.set_current(site, floor, match[0]["bundle_id"], allow_rollback=rollback)
+    click.echo(f"{site_floor}: current is #{match[0]['seq']} {match[0]['bundle_id'][:16]}")

@@ -102,9 +102,17 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
         raise FloorPlanError(f"{geo}: feature {outline_idx} (the outline) is not a polygon")
     if info.exists():
         try:
-            meta = json.loads(info.read_text())["map_info"]
+            text = info.read_text()
+        except (OSError, UnicodeDecodeError) as err:
+            raise FloorPlanError(f"{info}: cannot read ({err})") from err
+        try:
+            meta = json.loads(text)
+        except ValueError as err:
+            raise FloorPlanError(f"{info}:{err.lineno}: not valid JSON ({err.msg})") from err
+        try:
+            meta = meta["map_info"]
             width, height = float(meta["width"]), float(meta["height"])
-        except (OSError, ValueError, KeyError, TypeError) as err:
+        except (ValueError, KeyError, TypeError) as err:
             raise FloorPlanError(f"{info}: needs map_info.width and map_info.height ({err})") \
                 from err
         lon0, lat0, lon1, lat1 = outline.bounds

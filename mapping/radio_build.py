@@ -52,7 +52,8 @@ from .radio_reduce import TextCodes, capped_walk_sample, walk_rows
 from .radio_scans import OBS_COLUMNS, ble_observations, wifi_observations
 
 __all__ = ["KINDS", "RadioParams", "SiteRadio", "WalkSource", "build_site_radio", "calibrated",
-           "reduce_site_radio", "site_observations", "site_radio", "store_walks", "table_walks"]
+           "format_share", "reduce_site_radio", "site_observations", "site_radio", "store_walks",
+           "table_walks"]
 
 KINDS = ("wifi", "ble")
 
@@ -339,6 +340,11 @@ def _with_calibration(obs: pd.DataFrame, kb_of: Mapping[str, tuple[float, float]
     return obs.assign(rssi_dbm=kb[idx, 0] * obs["rssi_dbm"].to_numpy() + kb[idx, 1])
 
 
+def format_share(v: float | None) -> str:
+    """A cross-validated accuracy for the log: a percentage, or n/a (one floor, no folds)."""
+    return "n/a" if v is None or not np.isfinite(v) else f"{100 * v:.2f} %"
+
+
 def build_site_radio(store: SurveyStore | str, floors: Sequence[str], *,
                      site: str | None = None, params: RadioParams = RadioParams(),
                      exclude_walks: Collection[str] = (),
@@ -506,8 +512,9 @@ def reduce_site_radio(source: WalkSource, device_of: pd.Series, floors: Sequence
             sel = evidence.select(ssid=ssid_of if kind == "wifi" else None, floor_order=floors)
             selections[kind] = sel
             kept = set(sel.kept.tolist())
-            say(f"{kind}: kept {len(sel.kept)} transmitters, dropped {len(sel.dropped)} "
-                f"{sel.summary()}")
+            why = ", ".join(f"{k} {v}" for k, v in sel.summary().items())
+            say(f"{kind}: kept {len(sel.kept)} transmitters, dropped {len(sel.dropped)}"
+                + (f" ({why})" if why else ""))
         del evidence
         for floor in floors:
             if floor not in seen:
@@ -536,8 +543,9 @@ def reduce_site_radio(source: WalkSource, device_of: pd.Series, floors: Sequence
             model_kind = kind
             m = model.meta
             say(f"floor model ({kind}): {len(model.floors)} floors, {len(model.aps)} "
-                f"transmitters; cross-validated per scan {m['cv_scan_accuracy']:.4f}, per walk "
-                f"{m['cv_walk_accuracy']:.4f}")
+                f"transmitters; cross-validated per scan "
+                f"{format_share(m['cv_scan_accuracy'])}, per walk "
+                f"{format_share(m['cv_walk_accuracy'])}")
             break
     for n in notes:
         say(n)

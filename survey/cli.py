@@ -5,7 +5,9 @@ Exit codes: 0 success, 1 data or validation failure, 2 usage error (click's own)
 
 from __future__ import annotations
 
+import signal
 import sys
+import threading
 
 import click
 
@@ -13,15 +15,27 @@ from . import __version__
 from .errors import IndoormapError
 
 
+def _terminated(signum: int, frame) -> None:
+    """SIGTERM as an exception, so that temporary files and folders are removed on the way out
+    (a killed build leaves no store in the temporary folder and no half bundle)."""
+    raise SystemExit(128 + signum)
+
+
 class _Group(click.Group):
-    """Maps indoormap's own errors to a one-line message and exit code 1."""
+    """Maps indoormap's own errors to a one-line message and exit code 1; a SIGTERM unwinds
+    like Ctrl-C does."""
 
     def invoke(self, ctx: click.Context):
+        main_thread = threading.current_thread() is threading.main_thread()
+        previous = signal.signal(signal.SIGTERM, _terminated) if main_thread else None
         try:
             return super().invoke(ctx)
         except IndoormapError as err:
             click.echo(f"error: {err}", err=True)
             sys.exit(1)
+        finally:
+            if main_thread:
+                signal.signal(signal.SIGTERM, previous)
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})

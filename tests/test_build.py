@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -160,6 +161,59 @@ def test_build_cli_twice_identical_bytes(tmp_path):
     again = runner.invoke(main, ["build", str(SITE / "F2"), "-o", str(tmp_path / "a")])
     assert again.exit_code == 2 and "--overwrite" in again.output
     info = runner.invoke(main, ["bundle", "info", str(a)])
-    assert info.exit_code == 0 and "layer strength" in info.output
+    assert info.exit_code == 0 and "layer strength" in info.output and "floor F2" in info.output
+    site = runner.invoke(main, ["bundle", "info", str(tmp_path / "a" / "_site")])
+    assert site.exit_code == 0 and "site-level bundle" in site.output
     verify = runner.invoke(main, ["bundle", "verify", str(a), str(tmp_path)])
     assert verify.exit_code == 1 and "ok " in verify.output and "FAILED" in verify.output
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--cell", "0"], "Invalid value for '--cell'"),
+    (["--build-time", "yesterday"], "not an ISO 8601 time"),
+    (["-o", "FILE"], "is a file; -o/--out needs a folder"),
+])
+def test_build_cli_refuses_bad_options_before_any_work(tmp_path, args, message):
+    """Bad options are usage errors (exit 2) found before ingesting anything: no traceback
+    after a whole build, no temporary store left."""
+    (tmp_path / "FILE").write_text("keep me")
+    args = [str(tmp_path / "FILE") if a == "FILE" else a for a in args]
+    out = [] if "-o" in args else ["-o", str(tmp_path / "out")]
+    res = CliRunner().invoke(main, ["build", str(SITE / "F2"), *out, *args])
+    assert res.exit_code == 2 and message in res.output
+    assert "ingest" not in res.output
+    assert (tmp_path / "FILE").read_text() == "keep me" and not (tmp_path / "out").exists()
+
+
+def test_a_broken_floor_info_is_named_with_its_line(tmp_path):
+    floor = tmp_path / "F2"
+    shutil.copytree(SITE / "F2", floor, ignore=shutil.ignore_patterns("path_data_files"))
+    (floor / "path_data_files").mkdir()
+    (floor / "floor_info.json").write_text('{"map_info":\n  {"width": 40,, "height": 25}}')
+    res = CliRunner().invoke(main, ["build", str(floor), "-o", str(tmp_path / "out")])
+    assert res.exit_code == 1
+    assert f"{floor / 'floor_info.json'}:2: not valid JSON" in res.output
+
+
+def test_sigterm_during_build_leaves_no_litter(tmp_path):
+    """A build killed with SIGTERM (a job scheduler's stop) unwinds: its temporary store is
+    removed and no output bundle appears."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "survey.cli", "build", str(SITE / "F2"), "-o",
+         str(tmp_path / "out")], stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
+        env={**os.environ, "TMPDIR": str(tmp)}, cwd=Path(__file__).resolve().parents[1])
+    for line in proc.stderr:  # the temporary store exists once processing starts
+        if b"process walks" in line:
+            break
+    assert list(tmp.glob("indoormap-build-*"))
+    proc.send_signal(signal.SIGTERM)
+    proc.communicate(timeout=120)
+    assert proc.returncode == 128 + signal.SIGTERM
+    assert not list(tmp.iterdir()) and not (tmp_path / "out").exists()

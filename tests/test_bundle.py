@@ -214,6 +214,41 @@ def test_registry_versions_move_forward(tmp_path):
         reg.open("site", "F1", e2["bundle_id"])
 
 
+def test_registry_command_line(tmp_path):
+    """publish / list / use (by #seq or id prefix; --rollback to go back) / a non-registry."""
+    from click.testing import CliRunner
+
+    from survey.cli import main
+
+    write_bundle(tmp_path / "v1", _content(0.0))
+    write_bundle(tmp_path / "v2", _content(1.0))
+    reg, run = str(tmp_path / "reg"), CliRunner().invoke
+    res = run(main, ["bundle", "publish", str(tmp_path / "v1"), str(tmp_path / "v2"),
+                     "--registry", reg])
+    assert res.exit_code == 0 and "#2 (current)" in res.output
+    ids = [load_bundle(tmp_path / v).bundle_id for v in ("v1", "v2")]
+
+    def listed():
+        res = run(main, ["bundle", "list", reg])
+        assert res.exit_code == 0, res.output
+        return [ln.split() for ln in res.output.splitlines()]
+
+    assert listed() == [["site/F1", "#1", ids[0]], ["*", "site/F1", "#2", ids[1]]]
+    back = run(main, ["bundle", "use", reg, "site/F1", "#1"])
+    assert back.exit_code == 1 and "rolling back needs" in back.output
+    assert run(main, ["bundle", "use", reg, "site/F1", "#1", "--rollback"]).exit_code == 0
+    assert listed()[0] == ["*", "site/F1", "#1", ids[0]]
+    assert run(main, ["bundle", "use", reg, "site/F1", ids[1][:10]]).exit_code == 0
+    assert listed()[1] == ["*", "site/F1", "#2", ids[1]]
+    for bad, message in ((["site/F1", "zz"], "names 0 versions"),
+                         (["site/F9", "#1"], "nothing published for site/F9"),
+                         (["F1", "#1"], "expected SITE/FLOOR")):
+        res = run(main, ["bundle", "use", reg, *bad])
+        assert res.exit_code == 2 and message in res.output
+    res = run(main, ["bundle", "list", str(tmp_path)])
+    assert res.exit_code == 2 and "not a registry" in res.output
+
+
 REG_CRASH = """
 import sys
 sys.path.insert(0, sys.argv[3])
