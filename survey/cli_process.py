@@ -11,6 +11,17 @@ from .process_store import process_store, processed_catalog, processed_table
 from .store import SurveyStore
 
 
+def _require_walks(selected, everything, site: str | None, floor: str | None) -> None:
+    """An empty selection by ``--site``/``--floor`` is a usage error naming what there is."""
+    if len(selected) or (site is None and floor is None):
+        return
+    have = sorted({f"{s}/{f}" for s, f in everything[["site", "floor"]].itertuples(index=False)})
+    raise click.BadParameter(
+        f"no walks for{f' site {site}' if site else ''}{f' floor {floor}' if floor else ''}"
+        f"; the store has {', '.join(have) if have else 'no walks'} (site/floor)",
+        param_hint="--site/--floor")
+
+
 @click.command("process")
 @click.option("--store", "store_dir", required=True, type=click.Path(file_okay=False,
                                                                      exists=True))
@@ -28,6 +39,7 @@ def process_command(store_dir: str, site: str | None, floor: str | None,
     store = SurveyStore.open(store_dir)
     reachable = {}
     cat = store.traces(site, floor)
+    _require_walks(cat, store.traces(None, None), site, floor)
     for fp in floor_plans:
         plan = read_floor_plan(fp)
         name = Path(fp).name if Path(fp).is_dir() else Path(fp).parent.name
@@ -58,11 +70,12 @@ def process_command(store_dir: str, site: str | None, floor: str | None,
 def survey_report_command(store_dir: str, site: str | None, floor: str | None,
                           csv_path: str | None) -> None:
     """Per-walk QA: steps, length, flagged legs, step model, calibration decision, headings."""
-    cat = processed_catalog(store_dir)
+    everything = cat = processed_catalog(store_dir)
     if site is not None:
         cat = cat[cat["site"] == site]
     if floor is not None:
         cat = cat[cat["floor"] == floor]
+    _require_walks(cat, everything, site, floor)
     rows = []
     for r in cat.itertuples(index=False):
         s = r.summary
@@ -79,6 +92,7 @@ def survey_report_command(store_dir: str, site: str | None, floor: str | None,
 
     table = pd.DataFrame(rows)
     if csv_path:
+        Path(csv_path).parent.mkdir(parents=True, exist_ok=True)
         table.to_csv(csv_path, index=False)
     with pd.option_context("display.max_rows", None, "display.width", 200,
                            "display.max_colwidth", 40):

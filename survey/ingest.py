@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import shutil
 from collections import Counter
 from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor
@@ -83,6 +84,12 @@ def _parse_and_write(root: str, paths: list[str], shas: list[str], sizes: list[i
         if isinstance(item, ReadFailure):
             out.append((item.path, None, str(item.error)))
             continue
+        if not (len(item.sensors) or len(item.waypoints) or len(item.wifi) or len(item.ble)):
+            r = item.report
+            out.append((r.path, None, f"no sensor sample, waypoint or scan in {r.lines_total} "
+                        f"lines ({r.bad_total} bad): empty, or not a trace file"
+                        + (f" (first problem: {r.messages[0]})" if r.messages else "")))
+            continue
         sha, size = info[item.report.path]
         row = catalog_row(item, source_path=item.report.path, sha256=sha, size_bytes=size)
         write_parts(Path(root), item, row)
@@ -113,8 +120,24 @@ def ingest(paths: Iterable[str | os.PathLike], store: str | os.PathLike | Survey
     -------
     IngestSummary
     """
-    store = store if isinstance(store, SurveyStore) else SurveyStore.create(store)
+    paths = list(paths)
     trace_files, plans = find_inputs(paths)
+    if not trace_files and not plans:
+        raise SurveyFormatError("no trace files (.txt, .txt.gz) or walk plans (.geojson) found",
+                                path=", ".join(map(str, paths)), reason="no-input")
+    created = not isinstance(store, SurveyStore) and not Path(store).exists()
+    store = store if isinstance(store, SurveyStore) else SurveyStore.create(store)
+    try:
+        return _ingest_files(store, trace_files, plans, strict, workers, batch_bytes, progress)
+    except BaseException:
+        if created:  # a store this call made and could not fill: leave nothing behind
+            shutil.rmtree(store.root, ignore_errors=True)
+        raise
+
+
+def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path], strict: bool,
+                  workers: int, batch_bytes: int,
+                  progress: Callable[[int, int], None] | None) -> IngestSummary:
     summary = IngestSummary()
     total = len(trace_files) + len(plans)
     done = 0

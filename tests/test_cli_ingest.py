@@ -41,6 +41,27 @@ def test_strict_exits_1_with_file_and_line(tmp_path):
                                        "--strict"])
     assert result.exit_code == 1
     assert "bad.txt:1: TYPE_ACCELEROMETER: field 'y' expected a number, got 'x'" in result.output
+    assert not (tmp_path / "s").exists()  # the store this run created is not left half made
+
+
+def test_empty_or_foreign_files_are_not_walks(tmp_path):
+    """An empty file or a file with no trace line fails (named, exit 1) instead of becoming a
+    walk with no data; a folder without any trace file is an error and creates no store."""
+    (tmp_path / "in").mkdir()
+    (tmp_path / "in" / "empty.txt").write_text("")
+    (tmp_path / "in" / "notes.txt").write_text("walked the east wing twice\n")
+    write_trace(tmp_path / "in" / "w.txt", small_trace(trace_id="w"))
+    result = CliRunner().invoke(main, ["ingest", str(tmp_path / "in"), "--store",
+                                       str(tmp_path / "s")])
+    assert result.exit_code == 1
+    assert "FAILED " + str(tmp_path / "in" / "empty.txt") + ": no sensor sample" in result.output
+    assert "notes.txt: no sensor sample, waypoint or scan in 1 lines" in result.output
+    assert list(SurveyStore.open(tmp_path / "s").catalog()["trace_id"]) == ["w"]
+    (tmp_path / "nothing").mkdir()
+    result = CliRunner().invoke(main, ["ingest", str(tmp_path / "nothing"), "--store",
+                                       str(tmp_path / "s2")])
+    assert result.exit_code == 1 and "no trace files" in result.output
+    assert not (tmp_path / "s2").exists()
 
 
 def test_usage_errors_exit_2(tmp_path):

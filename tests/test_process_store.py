@@ -43,6 +43,10 @@ def test_process_cli_and_report(tmp_path):
     assert report.exit_code == 0, report.output
     assert "device-calibrated" in report.output and "flagged legs by reason" in report.output
     assert (tmp_path / "qa.csv").read_text().startswith("trace_id,floor,status,steps")
+    for command in ("process", "survey-report"):  # a floor the store does not hold
+        res = runner.invoke(main, [command, "--store", str(tmp_path / "store"), "--floor", "F9"])
+        assert res.exit_code == 2 and "no walks for floor F9; the store has" in res.output
+        assert "/F1 (site/floor)" in res.output
 
 
 def test_process_without_processing_says_so(tmp_path):

@@ -57,7 +57,7 @@ def test_sample_preset_shape(sample):
 def test_layout(sample):
     site, out, truth = sample
     for floor in site.floors:
-        for name in ("floor_info.json", "geojson_map.json", "walk_plan.geojson"):
+        for name in ("floor_info.json", "geojson_map.json", "planned_routes.geojson"):
             assert (out / floor / name).is_file()
         traces = sorted((out / floor / "path_data_files").glob("*.txt.gz"))
         assert len(traces) == 6
@@ -96,7 +96,7 @@ def test_map_files_follow_the_real_layout(sample):
         outline = Polygon(to_m(ring))
         shops = [Polygon(to_m(f["geometry"]["coordinates"][0])) for f in feats[1:]]
         assert outline.bounds == pytest.approx((0.0, 0.0, w, h), abs=1e-6)
-        plan = json.loads((out / floor / "walk_plan.geojson").read_text())
+        plan = json.loads((out / floor / "planned_routes.geojson").read_text())
         assert len(plan["features"]) == 6
         for feat in plan["features"]:
             props = feat["properties"]

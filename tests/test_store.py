@@ -90,10 +90,13 @@ def test_strict_failure_keeps_store(tmp_path):
         ingest([bad], tmp_path / "store", strict=True)
     after = {p: (tmp_path / "store" / p).read_bytes() for p in _files(tmp_path / "store")}
     assert after == before
-    # lenient: the bad file is ingested with its bad line counted, nothing else changes
+    # lenient: a file whose only line is bad holds no walk; it fails with its first problem
+    # and nothing else changes
     s = ingest([bad], tmp_path / "store")
-    assert s.bad == {"field_count": 1}
-    assert len(SurveyStore.open(tmp_path / "store").catalog()) == 4
+    assert [o.status for o in s.outcomes] == ["failed"]
+    assert "no sensor sample" in s.failed[0].detail
+    assert "bad.txt:1: TYPE_WIFI needs 5 values, got 2" in s.failed[0].detail
+    assert len(SurveyStore.open(tmp_path / "store").catalog()) == 3
 
 
 def test_unreadable_file_is_reported_and_others_ingested(tmp_path):

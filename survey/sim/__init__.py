@@ -9,7 +9,7 @@ numbers of the others. Modules, one job each:
 - :mod:`~survey.sim.floorplan`: floor outline, shop blocks, corridors, walk lines;
 - :mod:`~survey.sim.routes`: the waypoint graph on the walk lines and random survey routes;
 - :mod:`~survey.sim.mapjson`: the floor's ``geojson_map.json``, ``floor_info.json`` and
-  ``walk_plan.geojson`` as dictionaries;
+  ``planned_routes.geojson`` as dictionaries;
 - :mod:`~survey.sim.field`: the magnetic field (earth field + steel anomalies);
 - :mod:`~survey.sim.walker`: true path, timeline, steps and waypoint clicks of one walk;
 - :mod:`~survey.sim.imu`: attitude, accelerometer, gyroscope and rotation vector;

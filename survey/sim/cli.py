@@ -18,7 +18,7 @@ import click
 def simulate(out_dir: Path, preset: str, seed: int | None, overwrite: bool) -> None:
     """Simulate a surveyed site into OUT_DIR (published atomically).
 
-    Writes per floor floor_info.json, geojson_map.json, walk_plan.geojson and
+    Writes per floor floor_info.json, geojson_map.json, planned_routes.geojson and
     path_data_files/*.txt.gz, and the ground truth under OUT_DIR/truth/. The same preset and
     seed always give byte-identical files.
     """

@@ -5,8 +5,8 @@
   fixed synthetic origin, so the outline's lon/lat bounding box maps onto
   ``[0, width] x [0, height]`` metres exactly as in the real data.
 - ``floor_info.json``: ``{"map_info": {"width": W, "height": H}}``.
-- ``walk_plan.geojson``: FeatureCollection of the walks' planned routes in *metres* (one
-  LineString per walk through its click points; properties ``walk_id`` (= trace id),
+- ``planned_routes.geojson``: FeatureCollection of the walks' planned routes in *metres*
+  (one LineString per walk through its click points; properties ``walk_id`` (= trace id),
   ``start_ms``, ``end_ms``, plus ``floor``, ``device_id`` and ``n_waypoints``).
 """
 
@@ -74,8 +74,8 @@ def floor_info(plan: Floorplan) -> dict:
     return {"map_info": {"height": plan.height_m, "width": plan.width_m}}
 
 
-def walk_plan_geojson(walks: list[dict]) -> dict:
-    """``walk_plan.geojson`` (metres).
+def planned_routes_geojson(walks: list[dict]) -> dict:
+    """``planned_routes.geojson`` (metres).
 
     Parameters
     ----------
@@ -92,5 +92,5 @@ def walk_plan_geojson(walks: list[dict]) -> dict:
                          "coordinates": np.asarray(w["route_m"], dtype=np.float64).tolist()},
             "properties": props,
         })
-    return {"type": "FeatureCollection", "name": "walk_plan",
+    return {"type": "FeatureCollection", "name": "planned_routes",
             "units": "m (x east, y north, floor_info frame)", "features": features}

@@ -4,7 +4,7 @@ Layout written by :func:`simulate_site` (``OUT`` is published atomically)::
 
     OUT/F1/floor_info.json              {"map_info": {"width": W, "height": H}}
     OUT/F1/geojson_map.json             outline + shops in lon/lat (real-data layout)
-    OUT/F1/walk_plan.geojson            planned routes in metres (walk_id = trace id)
+    OUT/F1/planned_routes.geojson       planned routes in metres (walk_id = trace id)
     OUT/F1/path_data_files/<id>.txt.gz  one trace per walk (24-hex trace ids)
     OUT/F2/...
     OUT/truth/site.json                 parameters, devices, sessions, walks, radio, fields
@@ -50,7 +50,7 @@ from .imu import (
     rotation_vector,
     specific_force,
 )
-from .mapjson import GeoOrigin, floor_geojson, floor_info, walk_plan_geojson
+from .mapjson import GeoOrigin, floor_geojson, floor_info, planned_routes_geojson
 from .output import json_bytes, parquet_bytes
 from .radio import (
     RadioEnvironment,
@@ -442,8 +442,8 @@ def simulate_site(params: SiteParams, out_dir: str | Path, *,
             atomic_write_bytes(d / "geojson_map.json",
                                json_bytes(floor_geojson(fl.plan, origin), compact=True))
             feats = sorted(plan_features[f], key=lambda x: x["start_ms"])
-            atomic_write_bytes(d / "walk_plan.geojson",
-                               json_bytes(walk_plan_geojson(feats), compact=True))
+            atomic_write_bytes(d / "planned_routes.geojson",
+                               json_bytes(planned_routes_geojson(feats), compact=True))
             (d / "path_data_files").mkdir(parents=True, exist_ok=True)
 
         infos.sort(key=lambda x: (x.floor, x.start_ms))
