@@ -63,9 +63,8 @@ def _csv(rows: list[dict], columns: list[str]) -> None:
               help="Scans in the sequence estimate (this scan and the ones before it).")
 def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
     """Predicted floor per scan and per walk (CSV) from the site bundle's floor model."""
-    from localize.cli import _walks
+    from localize.cli import _read_walk, _walks
     from localize.floor_classifier import FloorClassifier
-    from survey.trace_reader import read_trace
 
     site = _site_bundle(site_path)
     model = FloorClassifier.from_bundle(site)
@@ -75,7 +74,7 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
     kind = (site.manifest.get("metrics", {}).get("floor_model") or {}).get("kind", "wifi")
     rows, n_right, n_scans = [], 0, 0
     for f in _walks(walks):
-        trace = read_trace(f)
+        trace = _read_walk(f)
         recorded = trace.header.floor_name or ""
         scans = _scans(trace, kind)
         rssi = model.scan_matrix(scans)
@@ -123,10 +122,9 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
                         calibration: str, smoothing: str) -> None:
     """Wi-Fi (or BLE) position per scan (CSV) from the fingerprints of BUNDLE (a floor bundle
     or a folder of bundles: the walk's floor, else the site floor model, picks one)."""
-    from localize.cli import _open_maps, _positioner, _walks, radio_for_walk
+    from localize.cli import _open_maps, _positioner, _read_walk, _walks, radio_for_walk
     from localize.radio_match import WalkSmoothing
     from survey.step_summaries import step_summaries, waypoints_of
-    from survey.trace_reader import read_trace
 
     given = None
     if calibration not in ("auto", "none"):
@@ -139,7 +137,7 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
     maps = _open_maps(bundle_path)
     rows = []
     for f in _walks(walks):
-        trace = read_trace(f)
+        trace = _read_walk(f)
         scans = _scans(trace, kind)
         if not scans:
             click.echo(f"{trace.trace_id}: no {kind} scans", err=True)
