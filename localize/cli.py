@@ -139,10 +139,19 @@ def _start(start: str | tuple[float, float], steps, trace, radio
 
 def _read_walk(path: Path):
     """The trace at ``path``; a warning names the file when lines had to be skipped (bad
-    lines, a damaged compressed stream), as ``indoormap ingest`` reports them."""
+    lines, a damaged compressed stream), as ``indoormap ingest`` reports them.
+
+    Raises
+    ------
+    SurveyFormatError
+        The file holds no sensor sample, waypoint or scan (empty, or not a trace file).
+    """
+    from survey.errors import SurveyFormatError
     from survey.trace_reader import read_trace
 
     trace = read_trace(path)
+    if trace.is_empty:
+        raise SurveyFormatError(trace.empty_reason(), path=str(path), reason="empty")
     r = trace.report
     if r.bad_total:
         click.echo(f"warning: {path}: {r.bad_total} bad line(s) skipped"
@@ -166,20 +175,23 @@ class _WalkFailures:
     def __init__(self) -> None:
         self.count = 0
 
-    def run(self, path: Path, fn):
-        """``fn()``, or None after reporting an indoormap error (bad trace, no start, ...)."""
+    def run(self, where: str | Path, fn):
+        """``fn()``, or None after reporting an indoormap error (bad trace, no start, ...)
+        under ``where`` (the file, and the method when one method failed)."""
         from survey.errors import IndoormapError
 
         try:
             return fn()
         except IndoormapError as err:
             self.count += 1
-            click.echo(f"error: {path}: {err}", err=True)
+            text = str(err)  # reader errors already start with the file
+            click.echo(f"error: {text}" if text.startswith(str(where)) else
+                       f"error: {where}: {text}", err=True)
             return None
 
     def exit_if_any(self, total: int) -> None:
         if self.count:
-            click.echo(f"{self.count} of {total} walk(s) failed", err=True)
+            click.echo(f"{self.count} failure(s) in {total} walk(s)", err=True)
             sys.exit(1)
 
 
@@ -286,8 +298,10 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
     def one(f: Path) -> None:
         trace = _read_walk(f)
         target = out / f"{trace.trace_id}.{fmt}"
-        if target.exists() and not overwrite:  # before the work, not after
-            raise LocalizationError(f"{target} exists; pass --overwrite to replace it")
+        png = out / f"{trace.trace_id}.png"
+        for existing in (target, png) if plot else (target,):
+            if existing.exists() and not overwrite:  # before the work, not after
+                raise LocalizationError(f"{existing} exists; pass --overwrite to replace it")
         steps = step_summaries(trace)
         bundle = maps.select(steps)
         _warn_if_source_walk(bundle, trace.trace_id)
@@ -301,7 +315,6 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
                f"({bundle.manifest.get('floor_name', '')}), start {how}, "
                f"{track.n_recoveries} recoveries -> {target}")
         if plot:
-            png = out / f"{trace.trace_id}.png"
             if plot_track(png, bundle, {method: track}, waypoints_of(trace)[1],
                           title=f"{trace.trace_id} ({method})"):
                 msg += f", {png.name}"
@@ -339,7 +352,10 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
                      particles: int | None, seed: int, plot_path: Path | None,
                      smooth: bool) -> None:
     """Error at the waypoints of walks (median, p80, mean per method). The bundles should be
-    built without these walks (a warning names walks the bundle was built from)."""
+    built without these walks (a warning names walks the bundle was built from).
+
+    A walk that cannot be read, or a method that fails on a walk, is reported with the file
+    (and method) and the rest goes on; the exit status is then 1."""
     from localize.baselines import METHODS, PARTICLE_FILTERS, make_localizer
     from localize.evaluate import summarize, waypoint_errors
     from survey.step_summaries import step_summaries, waypoints_of
@@ -370,13 +386,12 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
         _warn_if_source_walk(bundle, trace.trace_id)
         radio = _radio_of(bundle, trace, steps)
         start_xy, _ = _start(start_opt, steps, trace, radio)
-        walk_errors = {}
-        for m, sm in rows:  # all methods first, so that a failing walk adds to no row
-            loc = make_localizer(m, bundle, _params(particles), radio=radio, rng=seed)
-            track = loc.run(steps, start_xy=start_xy, smooth=sm)
-            walk_errors[_row_name(m, sm)] = waypoint_errors(track, t_wp, xy_wp)
-        for name, e in walk_errors.items():
-            errors[name].append(e)
+        for m, sm in rows:  # a method failing on this walk leaves the others' rows alone
+            def run(m=m, sm=sm):
+                loc = make_localizer(m, bundle, _params(particles), radio=radio, rng=seed)
+                track = loc.run(steps, start_xy=start_xy, smooth=sm)
+                errors[_row_name(m, sm)].append(waypoint_errors(track, t_wp, xy_wp))
+            failures.run(f"{f} ({_row_name(m, sm)})", run)
 
     for f in files:
         failures.run(f, lambda f=f: one(f))

@@ -58,8 +58,9 @@ def floors_of(path: Path) -> list[Path]:
               help="Also publish every bundle into this registry and make it current.")
 @click.option("--cell", "cell_m", type=click.FloatRange(0.0, 100.0, min_open=True), default=0.5,
               show_default=True,
-              help="Raster cell size (m). A floor whose chosen smoothing kernel is narrower than "
-                   "two cells is rastered on finer cells (down to 0.25 m; the log says so).")
+              help="Raster cell size (m). When the cross-validated smoothing kernel is narrower "
+                   "than two cells, the floor is rastered on 0.25 m cells instead "
+                   "(BuildParams.min_cell_m; the log says so).")
 @click.option("--interpolator", type=click.Choice(["local_linear", "kernel", "linear"]),
               default="local_linear",
               show_default=True)

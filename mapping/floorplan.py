@@ -107,8 +107,10 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
             raise FloorPlanError(f"{info}: cannot read ({err})") from err
         try:
             meta = json.loads(text)
-        except ValueError as err:
+        except json.JSONDecodeError as err:
             raise FloorPlanError(f"{info}:{err.lineno}: not valid JSON ({err.msg})") from err
+        except RecursionError as err:  # absurdly deep nesting
+            raise FloorPlanError(f"{info}: not a floor_info file (nested too deeply)") from err
         try:
             meta = meta["map_info"]
             width, height = float(meta["width"]), float(meta["height"])

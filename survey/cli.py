@@ -26,16 +26,20 @@ class _Group(click.Group):
     like Ctrl-C does."""
 
     def invoke(self, ctx: click.Context):
-        main_thread = threading.current_thread() is threading.main_thread()
-        previous = signal.signal(signal.SIGTERM, _terminated) if main_thread else None
+        # only where SIGTERM would kill us anyway: an embedding program's handler (or its
+        # choice to ignore the signal) is left alone
+        ours = (threading.current_thread() is threading.main_thread()
+                and signal.getsignal(signal.SIGTERM) is signal.SIG_DFL)
+        if ours:
+            signal.signal(signal.SIGTERM, _terminated)
         try:
             return super().invoke(ctx)
         except IndoormapError as err:
             click.echo(f"error: {err}", err=True)
             sys.exit(1)
         finally:
-            if main_thread:
-                signal.signal(signal.SIGTERM, previous)
+            if ours:
+                signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})

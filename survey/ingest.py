@@ -84,11 +84,11 @@ def _parse_and_write(root: str, paths: list[str], shas: list[str], sizes: list[i
         if isinstance(item, ReadFailure):
             out.append((item.path, None, str(item.error)))
             continue
-        if not (len(item.sensors) or len(item.waypoints) or len(item.wifi) or len(item.ble)):
-            r = item.report
-            out.append((r.path, None, f"no sensor sample, waypoint or scan in {r.lines_total} "
-                        f"lines ({r.bad_total} bad): empty, or not a trace file"
-                        + (f" (first problem: {r.messages[0]})" if r.messages else "")))
+        if item.is_empty:
+            if strict:
+                raise SurveyFormatError(item.empty_reason(), path=item.report.path,
+                                        reason="empty")
+            out.append((item.report.path, None, item.empty_reason()))
             continue
         sha, size = info[item.report.path]
         row = catalog_row(item, source_path=item.report.path, sha256=sha, size_bytes=size)
@@ -109,8 +109,10 @@ def ingest(paths: Iterable[str | os.PathLike], store: str | os.PathLike | Survey
     store : path-like or SurveyStore
         The store folder.
     strict : bool
-        Stop at the first bad line (raises :class:`SurveyFormatError`); nothing of this run is
-        committed then, and the store keeps its previous state.
+        Stop at the first bad line or file without any trace line (raises
+        :class:`SurveyFormatError`); nothing of this run is committed then, the store keeps its
+        previous state, and a store this call created is removed. Otherwise such a file is a
+        ``failed`` outcome with its reason.
     workers : int
         Worker processes parsing in parallel (1 = in this process).
     progress : callable(done, total), optional
@@ -130,7 +132,9 @@ def ingest(paths: Iterable[str | os.PathLike], store: str | os.PathLike | Survey
     try:
         return _ingest_files(store, trace_files, plans, strict, workers, batch_bytes, progress)
     except BaseException:
-        if created:  # a store this call made and could not fill: leave nothing behind
+        # a store this call made and never committed to: leave nothing behind (one that got a
+        # catalog, from this call or a concurrent one, stays)
+        if created and not (store.root / "catalog.parquet").exists():
             shutil.rmtree(store.root, ignore_errors=True)
         raise
 
@@ -163,14 +167,19 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
         results = []
         if workers > 1 and len(chunks) > 1:
             # spawn, not fork: the parent already runs pyarrow's thread pool
-            with ProcessPoolExecutor(max_workers=workers,
-                                     mp_context=multiprocessing.get_context("spawn")) as pool:
+            pool = ProcessPoolExecutor(max_workers=workers,
+                                       mp_context=multiprocessing.get_context("spawn"))
+            try:
                 futures = [pool.submit(_parse_and_write, str(store.root), *zip(*c), strict,
                                        batch_bytes) for c in chunks]
                 for fut in futures:
                     res = fut.result()
                     results.extend(res)
                     tick(len(res))
+            except BaseException:  # a bad file (strict), Ctrl-C, SIGTERM: drop queued chunks
+                pool.shutdown(wait=True, cancel_futures=True)
+                raise
+            pool.shutdown()
         else:
             for c in chunks:
                 res = _parse_and_write(str(store.root), *map(list, zip(*c)), strict, batch_bytes)

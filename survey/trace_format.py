@@ -151,6 +151,18 @@ class Trace:
     waypoints: pd.DataFrame
     report: ParseReport = field(default_factory=ParseReport)
 
+    @property
+    def is_empty(self) -> bool:
+        """No sensor sample, waypoint, Wi-Fi or BLE row: an empty file, or not a trace file."""
+        return not (len(self.sensors) or len(self.waypoints) or len(self.wifi) or len(self.ble))
+
+    def empty_reason(self) -> str:
+        """Why :attr:`is_empty` holds, with the reader's first problem line."""
+        r = self.report
+        return (f"no sensor sample, waypoint or scan in {r.lines_total} lines ({r.bad_total} "
+                "bad): empty, or not a trace file"
+                + (f" (first problem: {r.messages[0]})" if r.messages else ""))
+
     def stream(self, name: str) -> pd.DataFrame:
         """Rows of one sensor stream (e.g. ``"magnetic_field"``), time-sorted."""
         if name not in STREAM_NAMES:

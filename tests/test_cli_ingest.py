@@ -44,6 +44,23 @@ def test_strict_exits_1_with_file_and_line(tmp_path):
     assert not (tmp_path / "s").exists()  # the store this run created is not left half made
 
 
+def test_strict_refuses_an_empty_file_and_commits_nothing(tmp_path):
+    (tmp_path / "in").mkdir()
+    write_trace(tmp_path / "in" / "w.txt", small_trace(trace_id="w"))
+    (tmp_path / "in" / "x_empty.txt").write_text("")
+    result = CliRunner().invoke(main, ["ingest", str(tmp_path / "in"), "--store",
+                                       str(tmp_path / "s"), "--strict"])
+    assert result.exit_code == 1 and "x_empty.txt: no sensor sample" in result.output
+    assert not (tmp_path / "s").exists()
+    ingest_ok = CliRunner().invoke(main, ["ingest", str(tmp_path / "in" / "w.txt"), "--store",
+                                          str(tmp_path / "s")])
+    assert ingest_ok.exit_code == 0
+    again = CliRunner().invoke(main, ["ingest", str(tmp_path / "in"), "--store",
+                                      str(tmp_path / "s"), "--strict"])
+    assert again.exit_code == 1  # an existing store is kept as it was
+    assert list(SurveyStore.open(tmp_path / "s").catalog()["trace_id"]) == ["w"]
+
+
 def test_empty_or_foreign_files_are_not_walks(tmp_path):
     """An empty file or a file with no trace line fails (named, exit 1) instead of becoming a
     walk with no data; a folder without any trace file is an error and creates no store."""

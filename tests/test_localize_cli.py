@@ -89,11 +89,16 @@ def test_localize_reports_a_failing_walk_and_goes_on(truth_bundles, tmp_path):  
             "--no-plot", "--particles", "100"]
     res = CliRunner().invoke(main, args)
     assert res.exit_code == 1
-    assert f"error: {junk}:" in res.output and "1 of 2 walk(s) failed" in res.output
+    assert f"error: {junk}:" in res.output and "1 failure(s) in 2 walk(s)" in res.output
     tid = good.name.split(".")[0]
     first = (out / f"{tid}.parquet").read_bytes()
     again = CliRunner().invoke(main, args[:3] + args[4:])  # the good walk alone
     assert again.exit_code == 1 and "pass --overwrite" in again.output
+    (out / f"{tid}.parquet").unlink()  # the plot is an output too
+    (out / f"{tid}.png").write_bytes(b"keep")
+    plotted = CliRunner().invoke(main, [a for a in args[:3] + args[4:] if a != "--no-plot"])
+    assert plotted.exit_code == 1 and f"{tid}.png exists" in plotted.output
+    assert (out / f"{tid}.png").read_bytes() == b"keep"
     again = CliRunner().invoke(main, args[:3] + args[4:] + ["--overwrite"])
     assert again.exit_code == 0, again.output
     assert (out / f"{tid}.parquet").read_bytes() == first  # same seed, same bytes
@@ -101,6 +106,24 @@ def test_localize_reports_a_failing_walk_and_goes_on(truth_bundles, tmp_path):  
     res = CliRunner().invoke(main, ["localize", str(truth_bundles["F1"]), str(junk), "-o",
                                     str(nothing)])
     assert res.exit_code == 1 and not nothing.exists()
+
+
+def test_evaluate_goes_on_past_a_bad_walk_and_a_failing_method(truth_bundles,  # noqa: F811
+                                                                tmp_path):
+    """A junk file is an error (as in localize), and a method that cannot run on the bundle
+    (radio without fingerprints) fails alone: the other rows keep every walk."""
+    walks = sorted(F1_WALKS.glob("*.txt.gz"))[:2]
+    junk = tmp_path / "junk.txt"
+    junk.write_text("not a trace\n")
+    res = CliRunner().invoke(main, ["evaluate", str(truth_bundles["F1"]), *map(str, walks),
+                                    str(junk), "--methods", "pdr,radio", "--start", "waypoint"])
+    assert res.exit_code == 1
+    assert f"error: {junk}: no sensor sample, waypoint or scan" in res.output
+    assert f"error: {walks[0]} (radio):" in res.output
+    assert "3 failure(s) in 3 walk(s)" in res.output
+    rows = {ln.split()[0]: ln.split() for ln in res.output.splitlines()
+            if ln.startswith(("pdr ", "radio "))}
+    assert int(rows["pdr"][1]) > 5 and int(rows["radio"][1]) == 0
 
 
 def test_evaluate_usage_errors_and_plot_folder(truth_bundles, tmp_path):  # noqa: F811

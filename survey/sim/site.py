@@ -493,9 +493,12 @@ def ensure_sample_site(out_dir: str | Path) -> Path:
     is atomic, so a present ``truth/site.json`` means a complete site; a concurrent caller
     that publishes first wins."""
     out_dir = Path(out_dir)
-    if not (out_dir / "truth" / "site.json").exists():
+    # a site generated before the planned routes got their own name is simulated again
+    stale = ((out_dir / "truth" / "site.json").exists()
+             and not (out_dir / "F1" / "planned_routes.geojson").exists())
+    if stale or not (out_dir / "truth" / "site.json").exists():
         try:
-            simulate_site(PRESETS["sample"], out_dir)
+            simulate_site(PRESETS["sample"], out_dir, overwrite=stale)
         except PublishError:
             if not (out_dir / "truth" / "site.json").exists():
                 raise
