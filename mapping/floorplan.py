@@ -57,11 +57,23 @@ class FloorPlan:
         return shapely.difference(self.outline, self.obstacles)
 
 
-def _features(path: Path) -> list[dict]:
+def _read_json(path: Path, what: str) -> object:
+    """The content of a JSON file; a :class:`FloorPlanError` naming the file (and the line of
+    a syntax error) when it cannot be read or parsed."""
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError) as err:
-        raise FloorPlanError(f"{path}: not a readable GeoJSON file ({err})") from err
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        raise FloorPlanError(f"{path}: cannot read {what} ({err})") from err
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as err:
+        raise FloorPlanError(f"{path}:{err.lineno}: not valid JSON ({err.msg})") from err
+    except RecursionError as err:  # absurdly deep nesting
+        raise FloorPlanError(f"{path}: not {what} (nested too deeply)") from err
+
+
+def _features(path: Path) -> list[dict]:
+    data = _read_json(path, "a GeoJSON floor plan")
     feats = data.get("features") if isinstance(data, dict) else None
     if not feats:
         raise FloorPlanError(f"{path}: a floor plan needs a FeatureCollection with features")
@@ -101,16 +113,7 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
     if outline is None or outline.geom_type not in ("Polygon", "MultiPolygon"):
         raise FloorPlanError(f"{geo}: feature {outline_idx} (the outline) is not a polygon")
     if info.exists():
-        try:
-            text = info.read_text()
-        except (OSError, UnicodeDecodeError) as err:
-            raise FloorPlanError(f"{info}: cannot read ({err})") from err
-        try:
-            meta = json.loads(text)
-        except json.JSONDecodeError as err:
-            raise FloorPlanError(f"{info}:{err.lineno}: not valid JSON ({err.msg})") from err
-        except RecursionError as err:  # absurdly deep nesting
-            raise FloorPlanError(f"{info}: not a floor_info file (nested too deeply)") from err
+        meta = _read_json(info, "a floor_info file")
         try:
             meta = meta["map_info"]
             width, height = float(meta["width"]), float(meta["height"])

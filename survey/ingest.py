@@ -167,19 +167,18 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
         results = []
         if workers > 1 and len(chunks) > 1:
             # spawn, not fork: the parent already runs pyarrow's thread pool
-            pool = ProcessPoolExecutor(max_workers=workers,
-                                       mp_context=multiprocessing.get_context("spawn"))
-            try:
-                futures = [pool.submit(_parse_and_write, str(store.root), *zip(*c), strict,
-                                       batch_bytes) for c in chunks]
-                for fut in futures:
-                    res = fut.result()
-                    results.extend(res)
-                    tick(len(res))
-            except BaseException:  # a bad file (strict), Ctrl-C, SIGTERM: drop queued chunks
-                pool.shutdown(wait=True, cancel_futures=True)
-                raise
-            pool.shutdown()
+            with ProcessPoolExecutor(max_workers=workers,
+                                     mp_context=multiprocessing.get_context("spawn")) as pool:
+                try:
+                    futures = [pool.submit(_parse_and_write, str(store.root), *zip(*c), strict,
+                                           batch_bytes) for c in chunks]
+                    for fut in futures:
+                        res = fut.result()
+                        results.extend(res)
+                        tick(len(res))
+                except BaseException:  # a bad file (strict), Ctrl-C, SIGTERM: drop the queue
+                    pool.shutdown(cancel_futures=True)
+                    raise
         else:
             for c in chunks:
                 res = _parse_and_write(str(store.root), *map(list, zip(*c)), strict, batch_bytes)
