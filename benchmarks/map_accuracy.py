@@ -30,15 +30,21 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--floors", nargs="*", default=["F1", "F2", "F3"])
     ap.add_argument("--store", type=Path, default=None)
+    ap.add_argument("--interpolator", default=None,
+                    help="indoormap's interpolator (default: the build's default)")
     args = ap.parse_args()
     if not all((SITE / f / "path_data_files").is_dir() for f in args.floors):
         print(f"skipped: {SITE} not available")
         return 0
+    from mapping.build import BuildParams, build_smoothing
     from mapping.floorplan import read_floor_plan
     from mapping.grid import grid_for_extent, reachable_mask
-    from mapping.build import BuildParams, build_smoothing
-    from mapping.holdout import default_pipelines, floor_samples_with_baseline_positions, \
-        leave_one_walk_out
+    from mapping.holdout import (
+        default_pipelines,
+        floor_samples_with_baseline_positions,
+        leave_one_walk_out,
+    )
+    from mapping.interpolate import RasterParams
     from mapping.levelling import apply_session_residuals, fit_session_residuals
     from survey.ingest import ingest
     from survey.process_store import process_store
@@ -59,7 +65,8 @@ def main() -> int:
             samples = floor_samples_with_baseline_positions(store, f)
             grid = grid_for_extent(plans[f].width_m, plans[f].height_m, 0.5)
             mask = reachable_mask(grid, plans[f].reachable)
-            params = BuildParams()
+            params = BuildParams() if args.interpolator is None else \
+                BuildParams(raster=RasterParams(method=args.interpolator))
             levelled = apply_session_residuals(samples, fit_session_residuals(
                 samples, params.levelling))
             chosen, _ = build_smoothing(samples, levelled, grid, mask, params)

@@ -34,7 +34,7 @@ from .grid import grid_for_extent, reachable_mask
 from .field_layers import FIELD_LAYERS, field_rasters, floor_steps, levelling_samples, \
     reduce_field
 from .holdout import BANDWIDTH_CANDIDATES_M, choose_smoothing
-from .interpolate import RasterParams, raster
+from .interpolate import DEGREE, RasterParams, raster
 from .levelling import LevellingParams, empty_residuals, fit_session_residuals
 from .radio_build import RadioParams, SiteRadio, build_site_radio
 
@@ -48,7 +48,7 @@ class BuildParams:
     """Map-building parameters (lengths in m)."""
 
     cell_m: float = 0.5
-    #: when the chosen kernel bandwidth is below ``2 * cell_m``, raster (and choose again) on
+    #: when the chosen kernel bandwidth is at most ``2 * cell_m``, raster (and choose again) on
     #: cells of this size (m), so that the cells resolve the kernel (``cell_m`` keeps it)
     min_cell_m: float = 0.25
     raster: RasterParams = field(default_factory=RasterParams)
@@ -94,10 +94,10 @@ def build_smoothing(samples: pd.DataFrame, field_enu: np.ndarray, grid, mask,
 
 def raster_cell_m(params: BuildParams, bandwidth_m: float) -> float:
     """Cell size (m) of a floor rastered with ``bandwidth_m``: ``params.cell_m``, or
-    ``params.min_cell_m`` when the kernel is narrower than two cells (the finest cells, where
-    the choice is made again: a local plane often picks a wider kernel on coarse cells than
-    the fine cells then support)."""
-    return float(params.cell_m if bandwidth_m >= 2 * params.cell_m
+    ``params.min_cell_m`` when the kernel is two cells wide or narrower (the finest cells,
+    where the choice is made again: a local polynomial often picks a wider kernel on coarse
+    cells than the fine cells then support)."""
+    return float(params.cell_m if bandwidth_m > 2 * params.cell_m
                  else min(params.cell_m, params.min_cell_m))
 
 
@@ -184,7 +184,7 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
         cell_m = raster_cell_m(params, bw)
         if cell_m < grid.cell_m:
             # a kernel this narrow is judged on cells that resolve it: choose again there
-            say(f"{floor}: a {bw:g} m kernel is narrower than two {grid.cell_m:g} m cells; "
+            say(f"{floor}: a {bw:g} m kernel is at most two {grid.cell_m:g} m cells wide; "
                 f"rastering on {cell_m:g} m cells instead (BuildParams.min_cell_m)")
             grid = grid_for_extent(plan.width_m, plan.height_m, cell_m)
             mask = reachable_mask(grid, plan.reachable)
@@ -225,9 +225,12 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
     build_time = params.build_time or _time_text(end_ms)
     first = cat.loc[walks["trace_id"].iloc[0]]
     metrics = {"coverage": coverage(grid, mask, reduction.support), "n_walks": int(len(walks)),
+               "interpolator": raster_params.method,
                "bandwidth_m": raster_params.bandwidth_m, "prior_walks": raster_params.prior_walks,
                "slope_ridge": raster_params.slope_ridge
-               if raster_params.method == "local_linear" else None,
+               if DEGREE.get(raster_params.method, 0) >= 1 else None,
+               "curvature_ridge": raster_params.curvature_ridge
+               if DEGREE.get(raster_params.method, 0) == 2 else None,
                "smoothing_cv_shape_rmse_ut": smoothing_scores,
                "n_samples": reduction.n_samples, "heading_offset_floor_median_deg": global_offset}
     tables = {"source_walks": pa.Table.from_pandas(walks, preserve_index=False),

@@ -58,12 +58,14 @@ def floors_of(path: Path) -> list[Path]:
               help="Also publish every bundle into this registry and make it current.")
 @click.option("--cell", "cell_m", type=click.FloatRange(0.0, 100.0, min_open=True), default=0.5,
               show_default=True,
-              help="Raster cell size (m). When the cross-validated smoothing kernel is narrower "
-                   "than two cells, the floor is rastered on 0.25 m cells instead "
+              help="Raster cell size (m). When the cross-validated smoothing kernel is at most "
+                   "two cells wide, the floor is rastered on 0.25 m cells instead "
                    "(BuildParams.min_cell_m; the log says so).")
-@click.option("--interpolator", type=click.Choice(["local_linear", "kernel", "linear"]),
-              default="local_linear",
-              show_default=True)
+@click.option("--interpolator",
+              type=click.Choice(["local_quadratic", "local_linear", "kernel", "linear"]),
+              default="local_quadratic", show_default=True,
+              help="Kernel-weighted local quadratic, plane or constant (bandwidth, shrinkage "
+                   "and ridges chosen by cross-validation over walks), or Delaunay-linear.")
 @click.option("--build-time", default=None, callback=_iso_time,
               help="Build time written to the manifest, ISO 8601 (e.g. 2026-11-22T10:00:00Z; "
                    "default: end of the newest walk, so rebuilding the same data gives the same "

@@ -20,6 +20,8 @@ NaN far from its support; ``coverage`` reports the share each pipeline predicts)
 
 from __future__ import annotations
 
+import math
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from itertools import product
@@ -31,6 +33,7 @@ from numpy.typing import NDArray
 from localize.bundle import Grid, sample_grid
 
 from .interpolate import (
+    DEGREE,
     CellStats,
     RasterParams,
     cell_stats,
@@ -268,6 +271,9 @@ BANDWIDTH_CANDIDATES_M = (0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0)
 PRIOR_WALKS_CANDIDATES = (0.1, 0.5, 2.0, 8.0)
 #: slope ridges (``RasterParams.slope_ridge``) tried with every pair for ``local_linear``
 SLOPE_RIDGE_CANDIDATES = (0.1, 1.0, 10.0, 100.0)
+#: curvature ridges (``RasterParams.curvature_ridge``) tried with every triple for
+#: ``local_quadratic``; ``inf`` is the local plane, so the cross-validation chooses the degree
+CURVATURE_RIDGE_CANDIDATES = (0.1, 1.0, 10.0, 100.0, math.inf)
 #: the cross-validation uses every n-th sample (the build takes the same ones)
 BANDWIDTH_SUBSAMPLE = 5
 
@@ -275,23 +281,28 @@ BANDWIDTH_SUBSAMPLE = 5
 def choose_smoothing(grid: Grid, mask: NDArray[np.bool_], x: NDArray, y: NDArray,
                      values: NDArray, walk: NDArray, base: RasterParams, *,
                      candidates=BANDWIDTH_CANDIDATES_M, prior_candidates=PRIOR_WALKS_CANDIDATES,
-                     ridge_candidates=SLOPE_RIDGE_CANDIDATES, folds: int = 5,
+                     ridge_candidates=SLOPE_RIDGE_CANDIDATES,
+                     curvature_candidates=CURVATURE_RIDGE_CANDIDATES, folds: int = 5,
                      subsample: int = BANDWIDTH_SUBSAMPLE
                      ) -> tuple[RasterParams, dict[str, float]]:
-    """Kernel bandwidth (m), shrinkage (``prior_walks``) and, for ``local_linear``, slope ridge
-    with the lowest grouped k-fold shape RMSE (uT; folds of whole walks).
+    """Kernel bandwidth (m), shrinkage (``prior_walks``) and, for a local polynomial, slope
+    ridge (and curvature ridge) with the lowest grouped k-fold shape RMSE (uT; folds of whole
+    walks).
 
     How much to smooth depends on how well the survey was positioned and how consistent the
     walks are (sub-metre bandwidth and almost no shrinkage on clean simulated walks, 3 m and
     strong shrinkage on the real traces), so it is measured, not assumed. Returns ``base``
-    (a kernel method) with the chosen ``bandwidth_m``, ``prior_walks`` and ``slope_ridge``,
-    and the score of every candidate, keyed ``"<bandwidth_m>/<prior_walks>"`` (``kernel``) or
-    ``"<bandwidth_m>/<prior_walks>/<slope_ridge>"`` (``local_linear``).
+    (a kernel method) with the chosen ``bandwidth_m``, ``prior_walks``, ``slope_ridge`` and
+    ``curvature_ridge`` (``local_quadratic`` becomes ``local_linear`` where the plane, an
+    infinite curvature ridge, scores best), and the score of every candidate, keyed
+    ``"<bandwidth_m>/<prior_walks>[/<slope_ridge>[/<curvature_ridge>]]"`` (the parameters the
+    method has).
     """
     if not base.kernel_based:
         raise ValueError(f"choose_smoothing: {base.method!r} has no bandwidth to choose")
-    local_linear = base.method == "local_linear"
-    ridges = tuple(ridge_candidates) if local_linear else (None,)
+    degree = DEGREE[base.method]
+    ridges = tuple(ridge_candidates) if degree >= 1 else (None,)
+    curvatures = tuple(curvature_candidates) if degree == 2 else (None,)
     x, y, values = x[::subsample], y[::subsample], values[::subsample]
     walk_code = np.unique(np.asarray(walk)[::subsample], return_inverse=True)[1]
     n_walks = walk_code.max() + 1 if len(walk_code) else 0
@@ -305,30 +316,98 @@ def choose_smoothing(grid: Grid, mask: NDArray[np.bool_], x: NDArray, y: NDArray
     train = [total - cell_stats(grid, cell[fold_of_pair == g], mean[fold_of_pair == g])
              for g in range(n_folds)]
     held_out = [group[walk_code] == g for g in range(n_folds)]
-    residuals = {k: [] for k in product(candidates, prior_candidates, ridges)}
-    for bw in candidates:
+    lookups = [_Lookup(grid, mask, x[sel], y[sel]) for sel in held_out]
+    keys = list(product(candidates, prior_candidates, ridges, curvatures))
+    per_bandwidth = len(keys) // len(candidates)  # keys run bandwidth-major
+    squares, counts = np.zeros(len(keys)), np.zeros(len(keys))
+    for b, bw in enumerate(candidates):
+        rows = slice(b * per_bandwidth, (b + 1) * per_bandwidth)
         for g in range(n_folds):
-            sums = kernel_sums(grid, mask, train[g], bw, base.max_distance_m,
-                               local_linear=local_linear)
+            sums = kernel_sums(grid, mask, train[g], bw, base.max_distance_m, degree=degree,
+                               cells=lookups[g].cells)
             mu = prior_of(train[g])[0]
             sel = held_out[g]
-            for pw, ridge in product(prior_candidates, ridges):
-                vals = kernel_mean(sums, pw, mu, ridge)
-                residuals[(bw, pw, ridge)].append(
-                    sample_grid(grid, mask, vals, x[sel], y[sel]) - values[sel])
-    walks_of = np.concatenate([walk_code[sel] for sel in held_out])
-    scores: dict[tuple, float] = {}
-    for key, parts in residuals.items():
-        r = np.concatenate(parts)
-        ok = np.isfinite(r)
-        r, wk = r[ok], walks_of[ok]
-        med = pd.Series(r).groupby(wk).transform("median").to_numpy()
-        scores[key] = float(np.sqrt(np.mean((r - med) ** 2))) if len(r) else np.inf
-    # ties go to the smoother map (larger bandwidth, more shrinkage, flatter plane)
-    bw, pw, ridge = min(scores, key=lambda k: (scores[k], -k[0], -k[1],
-                                                -(k[2] if k[2] is not None else 0.0)))
+            residuals = np.empty((per_bandwidth, int(sel.sum())))
+            for i, (pw, ridge, curv) in enumerate(product(prior_candidates, ridges,
+                                                          curvatures)):
+                residuals[i] = lookups[g](kernel_mean(sums, pw, mu, ridge, curv or 0.0)) \
+                    - values[sel]
+            # a walk is held out in one fold only: its median residual is that fold's
+            sq, n = _centred_squares(residuals, walk_code[sel])
+            squares[rows] += sq
+            counts[rows] += n
+    scores = dict(zip(keys, np.where(counts > 0, np.sqrt(squares / np.maximum(counts, 1)),
+                                     np.inf)))
+    # ties go to the smoother map (larger bandwidth, more shrinkage, flatter fit)
+    bw, pw, ridge, curv = min(keys, key=lambda k: (scores[k], -k[0], -k[1],
+                                                   *(-(v or 0.0) for v in k[2:])))
     chosen = replace(base, bandwidth_m=bw, prior_walks=pw)
-    if local_linear:
+    if ridge is not None:
         chosen = replace(chosen, slope_ridge=ridge)
-    return chosen, {"/".join(f"{v:g}" for v in k if v is not None): s
+    if curv is not None:
+        chosen = replace(chosen, method="local_linear") if math.isinf(curv) else \
+            replace(chosen, curvature_ridge=curv)
+    return chosen, {"/".join(f"{v:g}" for v in k if v is not None): float(s)
                     for k, s in scores.items()}
+
+
+class _Lookup:
+    """:func:`localize.bundle.sample_grid` at fixed points (m) for many rasters: the cells and
+    weights are found once. ``cells``: what the lookups read (each point's cell and the four
+    around it), shape ``grid.shape``."""
+
+    def __init__(self, grid: Grid, mask: NDArray[np.bool_], x_m: NDArray, y_m: NDArray):
+        row, col, inside = grid.cell_of(x_m, y_m)
+        self.own = np.flatnonzero(inside)
+        self.own = self.own[mask[row[self.own], col[self.own]]]
+        self.own_cell = row[self.own] * grid.width + col[self.own]
+        fx = (np.asarray(x_m)[self.own] - grid.x0_m) / grid.cell_m - 0.5
+        fy = (np.asarray(y_m)[self.own] - grid.y0_m) / grid.cell_m - 0.5
+        j0, i0 = np.floor(fx).astype(np.int64), np.floor(fy).astype(np.int64)
+        wx, wy = fx - j0, fy - i0
+        corners, weights = [], []
+        for di, dj, w in ((0, 0, (1 - wy) * (1 - wx)), (0, 1, (1 - wy) * wx),
+                          (1, 0, wy * (1 - wx)), (1, 1, wy * wx)):
+            i, j = i0 + di, j0 + dj
+            ic, jc = np.clip(i, 0, grid.height - 1), np.clip(j, 0, grid.width - 1)
+            ok = (i >= 0) & (i < grid.height) & (j >= 0) & (j < grid.width) & mask[ic, jc]
+            corners.append(ic * grid.width + jc)
+            weights.append(np.where(ok, w, 0.0))
+        self.corner = np.stack(corners, 1)
+        self.weight = np.stack(weights, 1)
+        self.n = len(np.asarray(x_m))
+        self.cells = np.zeros(grid.shape, dtype=bool)
+        self.cells.flat[self.own_cell] = True
+        self.cells.flat[self.corner[self.weight > 0]] = True
+
+    def __call__(self, values: NDArray) -> NDArray[np.float64]:
+        """Bilinear values at the points (NaN where ``sample_grid`` gives NaN)."""
+        flat = values.ravel()
+        v = flat[self.corner].astype(np.float64)
+        w = np.where(np.isfinite(v), self.weight, 0.0)
+        wsum = w.sum(axis=1)
+        good = np.isfinite(flat[self.own_cell]) & (wsum > 0)
+        out = np.full(self.n, np.nan)
+        out[self.own[good]] = (np.nan_to_num(v[good]) * w[good]).sum(axis=1) / wsum[good]
+        return out
+
+
+def _centred_squares(residuals: NDArray[np.float64], walk: NDArray[np.int64]
+                     ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Per row of ``residuals`` (candidates x points, NaN = not predicted): the sum of squares
+    after each walk's median residual is removed, and the count of values (the shape RMSE is
+    the root of their ratio)."""
+    some = np.isfinite(residuals).any(axis=0)  # points no candidate predicts count nowhere
+    order = np.argsort(walk[some], kind="stable")
+    r = residuals[:, some][:, order]
+    bounds = np.flatnonzero(np.diff(walk[some][order])) + 1
+    centred = np.empty_like(r)
+    for start, stop in zip(np.r_[0, bounds], np.r_[bounds, r.shape[1]]):
+        part = r[:, start:stop]
+        if part.shape[1] and np.isfinite(part).all():
+            centred[:, start:stop] = part - np.median(part, axis=1, keepdims=True)
+            continue
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # a walk with no value in a row
+            centred[:, start:stop] = part - np.nanmedian(part, axis=1, keepdims=True)
+    return np.nansum(centred ** 2, axis=1), np.isfinite(centred).sum(axis=1)

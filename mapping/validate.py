@@ -60,7 +60,7 @@ from survey.field_features import circular_median_deg, wrap_deg
 
 from . import holdout
 from .build import BuildParams, heading_raster_for
-from .interpolate import CellStats, RasterParams, cell_stats, walk_cell_means
+from .interpolate import INTERPOLATORS, CellStats, RasterParams, cell_stats, walk_cell_means
 from .levelling import LevellingParams, apply_session_residuals
 
 
@@ -439,7 +439,9 @@ def _bundle_raster_params(bundle: MapBundle) -> tuple[RasterParams, RasterParams
     bw = metrics.get("bandwidth_m")
     if bw is not None:
         chosen = {"bandwidth_m": float(bw)}
-        for name in ("prior_walks", "slope_ridge"):
+        if metrics.get("interpolator") in INTERPOLATORS:
+            chosen["method"] = metrics["interpolator"]
+        for name in ("prior_walks", "slope_ridge", "curvature_ridge"):
             if metrics.get(name) is not None:
                 chosen[name] = float(metrics[name])
         raster = replace(raster, **chosen)

@@ -110,9 +110,12 @@ def test_walk_by_walk_layers_equal_the_in_memory_rasters(store):
     assert auto.metrics["prior_walks"] == chosen.prior_walks
     assert auto.metrics["smoothing_cv_shape_rmse_ut"] == scores
     assert auto.metrics["slope_ridge"] == chosen.slope_ridge
-    assert len(scores) == 8 * 4 * 4  # bandwidths x shrinkages x slope ridges
-    # a kernel narrower than two cells is rastered (and chosen again) on cells of half its width
-    assert chosen.bandwidth_m < 2 * params.cell_m  # the simulated walks are well positioned
+    assert auto.metrics["interpolator"] == chosen.method
+    if chosen.method == "local_quadratic":
+        assert auto.metrics["curvature_ridge"] == chosen.curvature_ridge
+    assert len(scores) == 8 * 4 * 4 * 5  # bandwidths x shrinkages x slope x curvature ridges
+    # a kernel at most two cells wide is rastered (and chosen again) on cells of half its width
+    assert chosen.bandwidth_m <= 2 * params.cell_m  # the simulated walks are well positioned
     fine = build_floor(store, plan, floor="F1", params=replace(params, auto_bandwidth=True))
     assert fine.grid.cell_m == params.min_cell_m
     assert fine.metrics["bandwidth_m"] <= 2 * chosen.bandwidth_m
