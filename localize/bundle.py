@@ -240,44 +240,89 @@ def sample_grid(grid: Grid, mask: NDArray[np.bool_], values: NDArray, x_m: Array
     angle : bool
         Values are angles in degrees: interpolate unit vectors, return [0, 360).
     """
-    x = np.asarray(x_m, dtype=np.float64)
-    y = np.asarray(y_m, dtype=np.float64)
-    shape = np.broadcast(x, y).shape
-    x, y = np.broadcast_to(x, shape).ravel(), np.broadcast_to(y, shape).ravel()
-    g = grid
-    row, col, inside = g.cell_of(x, y)
-    own = np.full(x.shape, np.nan)
-    ok = inside & mask[row, col]
-    own[ok] = values[row[ok], col[ok]]
-    ok &= np.isfinite(own)
-    fx = (x - g.x0_m) / g.cell_m - 0.5
-    fy = (y - g.y0_m) / g.cell_m - 0.5
-    j0, i0 = np.floor(fx).astype(np.int64), np.floor(fy).astype(np.int64)
-    wx, wy = fx - j0, fy - i0
-    acc = np.zeros((x.size, 2 if angle else 1))
-    wsum = np.zeros(x.size)
-    for di, dj, w in ((0, 0, (1 - wy) * (1 - wx)), (0, 1, (1 - wy) * wx),
-                      (1, 0, wy * (1 - wx)), (1, 1, wy * wx)):
-        i, j = i0 + di, j0 + dj
-        valid = ok & (i >= 0) & (i < g.height) & (j >= 0) & (j < g.width)
-        ic, jc = np.clip(i, 0, g.height - 1), np.clip(j, 0, g.width - 1)
-        v = values[ic, jc].astype(np.float64)
-        valid &= mask[ic, jc] & np.isfinite(v)
-        w = np.where(valid, w, 0.0)
-        v = np.where(valid, v, 0.0)
+    return BilinearLookup.at(grid, mask, x_m, y_m)(values, angle=angle)
+
+
+@dataclass(frozen=True)
+class BilinearLookup:
+    """:func:`sample_grid` at fixed points for any raster of one grid and mask: the cells and
+    weights are found once (a cross-validation reads hundreds of candidate rasters at the
+    same held-out points).
+
+    Per point (n of them, flattened): ``own`` its flat cell index and ``own_ok`` whether that
+    cell is on the grid and the mask; ``corner`` (n, 4) the flat indices of the four cells
+    around it, ``weight`` (n, 4) their bilinear weights and ``valid`` (n, 4) whether each is
+    on the grid and the mask; ``shape`` the points' broadcast shape."""
+
+    own: NDArray[np.int64]
+    own_ok: NDArray[np.bool_]
+    corner: NDArray[np.int64]
+    weight: NDArray[np.float64]
+    valid: NDArray[np.bool_]
+    shape: tuple[int, ...]
+
+    @classmethod
+    def at(cls, grid: Grid, mask: NDArray[np.bool_], x_m: ArrayLike, y_m: ArrayLike
+           ) -> BilinearLookup:
+        """The lookup at the points ``x_m``, ``y_m`` (m, broadcastable)."""
+        x = np.asarray(x_m, dtype=np.float64)
+        y = np.asarray(y_m, dtype=np.float64)
+        shape = np.broadcast(x, y).shape
+        x, y = np.broadcast_to(x, shape).ravel(), np.broadcast_to(y, shape).ravel()
+        g = grid
+        row, col, inside = g.cell_of(x, y)
+        own_ok = inside & mask[row, col]
+        fx = (x - g.x0_m) / g.cell_m - 0.5
+        fy = (y - g.y0_m) / g.cell_m - 0.5
+        j0, i0 = np.floor(fx).astype(np.int64), np.floor(fy).astype(np.int64)
+        wx, wy = fx - j0, fy - i0
+        corner, weight, valid = [], [], []
+        for di, dj, w in ((0, 0, (1 - wy) * (1 - wx)), (0, 1, (1 - wy) * wx),
+                          (1, 0, wy * (1 - wx)), (1, 1, wy * wx)):
+            i, j = i0 + di, j0 + dj
+            ic, jc = np.clip(i, 0, g.height - 1), np.clip(j, 0, g.width - 1)
+            corner.append(ic * g.width + jc)
+            weight.append(w)
+            valid.append((i >= 0) & (i < g.height) & (j >= 0) & (j < g.width) & mask[ic, jc])
+        return cls(row * g.width + col, own_ok, np.stack(corner, 1), np.stack(weight, 1),
+                   np.stack(valid, 1), shape)
+
+    def cells(self, grid: Grid) -> NDArray[np.bool_]:
+        """The cells the lookup reads (grid shape): the points' own and their corners."""
+        out = np.zeros(grid.shape, dtype=bool)
+        out.flat[self.own[self.own_ok]] = True
+        out.flat[self.corner[self.valid & self.own_ok[:, None]]] = True
+        return out
+
+    def __call__(self, values: NDArray, *, angle: bool = False) -> NDArray[np.float64]:
+        """Bilinear values of the raster ``values`` (the grid's shape; NaN = no data) at the
+        points: NaN off the mask and where the point's own cell has no value; angles (deg)
+        as unit vectors with ``angle=True``."""
+        flat = np.asarray(values).ravel()
+        n = len(self.own)
+        own = np.full(n, np.nan)
+        own[self.own_ok] = flat[self.own[self.own_ok]]
+        ok = self.own_ok & np.isfinite(own)
+        acc = np.zeros((n, 2 if angle else 1))
+        wsum = np.zeros(n)
+        for c in range(4):
+            v = flat[self.corner[:, c]].astype(np.float64)
+            valid = ok & self.valid[:, c] & np.isfinite(v)
+            w = np.where(valid, self.weight[:, c], 0.0)
+            v = np.where(valid, v, 0.0)
+            if angle:
+                acc[:, 0] += w * np.sin(np.radians(v))
+                acc[:, 1] += w * np.cos(np.radians(v))
+            else:
+                acc[:, 0] += w * v
+            wsum += w
+        out = np.full(n, np.nan)
+        good = ok & (wsum > 0)
         if angle:
-            acc[:, 0] += w * np.sin(np.radians(v))
-            acc[:, 1] += w * np.cos(np.radians(v))
+            out[good] = np.mod(np.degrees(np.arctan2(acc[good, 0], acc[good, 1])), 360.0)
         else:
-            acc[:, 0] += w * v
-        wsum += w
-    out = np.full(x.size, np.nan)
-    good = ok & (wsum > 0)
-    if angle:
-        out[good] = np.mod(np.degrees(np.arctan2(acc[good, 0], acc[good, 1])), 360.0)
-    else:
-        out[good] = acc[good, 0] / wsum[good]
-    return out.reshape(shape)
+            out[good] = acc[good, 0] / wsum[good]
+        return out.reshape(self.shape)
 
 
 def read_manifest(path: Path) -> dict:

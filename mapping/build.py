@@ -224,13 +224,12 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
     end_ms = float(cat.loc[walks["trace_id"], "end_ms"].max())
     build_time = params.build_time or _time_text(end_ms)
     first = cat.loc[walks["trace_id"].iloc[0]]
+    degree = DEGREE.get(raster_params.method, 0)  # 0 also for the Delaunay-linear method
     metrics = {"coverage": coverage(grid, mask, reduction.support), "n_walks": int(len(walks)),
                "interpolator": raster_params.method,
                "bandwidth_m": raster_params.bandwidth_m, "prior_walks": raster_params.prior_walks,
-               "slope_ridge": raster_params.slope_ridge
-               if DEGREE.get(raster_params.method, 0) >= 1 else None,
-               "curvature_ridge": raster_params.curvature_ridge
-               if DEGREE.get(raster_params.method, 0) == 2 else None,
+               "slope_ridge": raster_params.slope_ridge if degree >= 1 else None,
+               "curvature_ridge": raster_params.curvature_ridge if degree == 2 else None,
                "smoothing_cv_shape_rmse_ut": smoothing_scores,
                "n_samples": reduction.n_samples, "heading_offset_floor_median_deg": global_offset}
     tables = {"source_walks": pa.Table.from_pandas(walks, preserve_index=False),

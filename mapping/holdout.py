@@ -30,7 +30,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from localize.bundle import Grid, sample_grid
+from localize.bundle import BilinearLookup, Grid, sample_grid
 
 from .interpolate import (
     DEGREE,
@@ -316,7 +316,7 @@ def choose_smoothing(grid: Grid, mask: NDArray[np.bool_], x: NDArray, y: NDArray
     train = [total - cell_stats(grid, cell[fold_of_pair == g], mean[fold_of_pair == g])
              for g in range(n_folds)]
     held_out = [group[walk_code] == g for g in range(n_folds)]
-    lookups = [_Lookup(grid, mask, x[sel], y[sel]) for sel in held_out]
+    lookups = [BilinearLookup.at(grid, mask, x[sel], y[sel]) for sel in held_out]
     keys = list(product(candidates, prior_candidates, ridges, curvatures))
     per_bandwidth = len(keys) // len(candidates)  # keys run bandwidth-major
     squares, counts = np.zeros(len(keys)), np.zeros(len(keys))
@@ -324,7 +324,7 @@ def choose_smoothing(grid: Grid, mask: NDArray[np.bool_], x: NDArray, y: NDArray
         rows = slice(b * per_bandwidth, (b + 1) * per_bandwidth)
         for g in range(n_folds):
             sums = kernel_sums(grid, mask, train[g], bw, base.max_distance_m, degree=degree,
-                               cells=lookups[g].cells)
+                               cells=lookups[g].cells(grid))
             mu = prior_of(train[g])[0]
             sel = held_out[g]
             residuals = np.empty((per_bandwidth, int(sel.sum())))
@@ -349,47 +349,6 @@ def choose_smoothing(grid: Grid, mask: NDArray[np.bool_], x: NDArray, y: NDArray
             replace(chosen, curvature_ridge=curv)
     return chosen, {"/".join(f"{v:g}" for v in k if v is not None): float(s)
                     for k, s in scores.items()}
-
-
-class _Lookup:
-    """:func:`localize.bundle.sample_grid` at fixed points (m) for many rasters: the cells and
-    weights are found once. ``cells``: what the lookups read (each point's cell and the four
-    around it), shape ``grid.shape``."""
-
-    def __init__(self, grid: Grid, mask: NDArray[np.bool_], x_m: NDArray, y_m: NDArray):
-        row, col, inside = grid.cell_of(x_m, y_m)
-        self.own = np.flatnonzero(inside)
-        self.own = self.own[mask[row[self.own], col[self.own]]]
-        self.own_cell = row[self.own] * grid.width + col[self.own]
-        fx = (np.asarray(x_m)[self.own] - grid.x0_m) / grid.cell_m - 0.5
-        fy = (np.asarray(y_m)[self.own] - grid.y0_m) / grid.cell_m - 0.5
-        j0, i0 = np.floor(fx).astype(np.int64), np.floor(fy).astype(np.int64)
-        wx, wy = fx - j0, fy - i0
-        corners, weights = [], []
-        for di, dj, w in ((0, 0, (1 - wy) * (1 - wx)), (0, 1, (1 - wy) * wx),
-                          (1, 0, wy * (1 - wx)), (1, 1, wy * wx)):
-            i, j = i0 + di, j0 + dj
-            ic, jc = np.clip(i, 0, grid.height - 1), np.clip(j, 0, grid.width - 1)
-            ok = (i >= 0) & (i < grid.height) & (j >= 0) & (j < grid.width) & mask[ic, jc]
-            corners.append(ic * grid.width + jc)
-            weights.append(np.where(ok, w, 0.0))
-        self.corner = np.stack(corners, 1)
-        self.weight = np.stack(weights, 1)
-        self.n = len(np.asarray(x_m))
-        self.cells = np.zeros(grid.shape, dtype=bool)
-        self.cells.flat[self.own_cell] = True
-        self.cells.flat[self.corner[self.weight > 0]] = True
-
-    def __call__(self, values: NDArray) -> NDArray[np.float64]:
-        """Bilinear values at the points (NaN where ``sample_grid`` gives NaN)."""
-        flat = values.ravel()
-        v = flat[self.corner].astype(np.float64)
-        w = np.where(np.isfinite(v), self.weight, 0.0)
-        wsum = w.sum(axis=1)
-        good = np.isfinite(flat[self.own_cell]) & (wsum > 0)
-        out = np.full(self.n, np.nan)
-        out[self.own[good]] = (np.nan_to_num(v[good]) * w[good]).sum(axis=1) / wsum[good]
-        return out
 
 
 def _centred_squares(residuals: NDArray[np.float64], walk: NDArray[np.int64]

@@ -238,12 +238,13 @@ def kernel_mean(sums: KernelSums, prior_walks: float, prior_mean: float,
         if sums.gram is None:
             raise ValueError("kernel_mean: slope_ridge needs sums of degree 1 or 2")
         k = sums.rhs.shape[1]
-        ridge = np.array([lam, slope_ridge, slope_ridge, curvature_ridge, curvature_ridge,
-                          curvature_ridge][:k]) * np.array([1.0] + [sums.peak] * (k - 1))
+        plane = np.isinf(curvature_ridge)  # the quadratic's leading terms alone
+        curvature = 0.0 if plane else curvature_ridge
+        ridge = np.array([lam] + [slope_ridge * sums.peak] * 2
+                         + [curvature * sums.peak] * 3)[:k]
         mean = np.full(sums.n.shape, np.nan)
-        mean[sums.covered] = ridge_intercepts(sums.gram, sums.rhs, np.nan_to_num(ridge),
-                                              lam * prior_mean,
-                                              3 if np.isinf(curvature_ridge) else k)
+        mean[sums.covered] = ridge_intercepts(sums.gram, sums.rhs, ridge, lam * prior_mean,
+                                              3 if plane else k)
     return np.where(sums.covered, mean, np.nan).astype(np.float32)
 
 

@@ -9,12 +9,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from localize.bundle import Grid, sample_grid
+from localize.bundle import BilinearLookup, Grid, sample_grid
 from mapping.holdout import (
     CURVATURE_RIDGE_CANDIDATES,
     SLOPE_RIDGE_CANDIDATES,
     _centred_squares,
-    _Lookup,
     choose_smoothing,
 )
 from mapping.interpolate import (
@@ -153,13 +152,14 @@ def test_cross_validation_shortcuts_match_the_plain_computation():
     mask[:, 60:64] = False
     px = np.r_[x[::7] + 0.1, -1.0, 0.05, 29.99, 15.4]
     py = np.r_[y[::7] - 0.05, 3.0, 0.05, 9.99, 3.0]
-    look = _Lookup(GRID, mask, px, py)
+    look = BilinearLookup.at(GRID, mask, px, py)
     full = kernel_mean(kernel_sums(GRID, mask, stats, 1.0, 3.0, degree=2), 0.5, 40.0, 1.0, 1.0)
     want = sample_grid(GRID, mask, full, px, py)
     assert np.isfinite(want).sum() > 100 and np.isnan(want).sum() >= 3
     np.testing.assert_allclose(look(full), want, rtol=1e-12)
     # values made only at the cells the lookup reads give the same lookups
-    part = kernel_mean(kernel_sums(GRID, mask, stats, 1.0, 3.0, degree=2, cells=look.cells),
+    part = kernel_mean(kernel_sums(GRID, mask, stats, 1.0, 3.0, degree=2,
+                                   cells=look.cells(GRID)),
                        0.5, 40.0, 1.0, 1.0)
     assert np.isfinite(part).sum() < 0.5 * np.isfinite(full).sum()
     np.testing.assert_array_equal(look(part), look(full))
