@@ -147,6 +147,7 @@ def _read_walk(path: Path):
         The file holds no sensor sample, waypoint or scan (empty, or not a trace file).
     """
     from survey.errors import SurveyFormatError
+    from survey.trace_format import bad_lines_summary
     from survey.trace_reader import read_trace
 
     trace = read_trace(path)
@@ -154,8 +155,7 @@ def _read_walk(path: Path):
         raise SurveyFormatError(trace.empty_reason(), path=str(path), reason="empty")
     r = trace.report
     if r.bad_total:
-        click.echo(f"warning: {path}: {r.bad_total} bad line(s) skipped"
-                   + (f"; first: {r.messages[0]}" if r.messages else ""), err=True)
+        click.echo(f"warning: {path}: {bad_lines_summary(r.bad, r.messages)}", err=True)
     return trace
 
 

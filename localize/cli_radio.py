@@ -63,7 +63,7 @@ def _csv(rows: list[dict], columns: list[str]) -> None:
               help="Scans in the sequence estimate (this scan and the ones before it).")
 def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
     """Predicted floor per scan and per walk (CSV) from the site bundle's floor model."""
-    from localize.cli import _read_walk, _walks
+    from localize.cli import _read_walk, _WalkFailures, _walks
     from localize.floor_classifier import FloorClassifier
 
     site = _site_bundle(site_path)
@@ -72,8 +72,11 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
         raise LocalizationError(f"{site.path}: the site bundle has no floor model (the survey "
                                 "had no Wi-Fi or BLE rows)")
     kind = (site.manifest.get("metrics", {}).get("floor_model") or {}).get("kind", "wifi")
-    rows, n_right, n_scans = [], 0, 0
-    for f in _walks(walks):
+    rows: list[dict] = []
+    counts = {"right": 0, "scans": 0}
+    failures = _WalkFailures()
+
+    def one(f: Path) -> None:
         trace = _read_walk(f)
         recorded = trace.header.floor_name or ""
         scans = _scans(trace, kind)
@@ -90,8 +93,8 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
                          "p_floor": float(np.exp(lp[i].max())) if ok[i] else "",
                          "window_floor": str(model.floors[np.argmax(seq.sum(axis=0))])
                          if len(seq) else "", "recorded_floor": recorded})
-            n_scans += 1
-            n_right += bool(recorded) and floor == recorded
+            counts["scans"] += 1
+            counts["right"] += bool(recorded) and floor == recorded
         walk_floor = str(model.floors[np.argmax(lp[ok].sum(axis=0))]) if ok.any() else ""
         rows.append({"level": "walk", "trace_id": trace.trace_id, "t_ms": "",
                      "n_known": int(ok.sum()), "floor": walk_floor, "p_floor": "",
@@ -99,11 +102,16 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
         if not ok.any():
             click.echo(f"{trace.trace_id}: no {kind} scan hears a transmitter the floor model "
                        "knows; floor unknown", err=True)
+
+    files = _walks(walks)
+    for f in files:
+        failures.run(f, lambda f=f: one(f))
     _csv(rows, ["level", "trace_id", "t_ms", "n_known", "floor", "p_floor", "window_floor",
                 "recorded_floor"])
-    if n_scans:
-        click.echo(f"{n_scans} scans; {100 * n_right / n_scans:.2f} % on the floor the trace "
-                   "files name", err=True)
+    if counts["scans"]:
+        click.echo(f"{counts['scans']} scans; {100 * counts['right'] / counts['scans']:.2f} % "
+                   "on the floor the trace files name", err=True)
+    failures.exit_if_any(len(files))
 
 
 @click.command("wifi-locate")
@@ -122,7 +130,14 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
                         calibration: str, smoothing: str) -> None:
     """Wi-Fi (or BLE) position per scan (CSV) from the fingerprints of BUNDLE (a floor bundle
     or a folder of bundles: the walk's floor, else the site floor model, picks one)."""
-    from localize.cli import _open_maps, _positioner, _read_walk, _walks, radio_for_walk
+    from localize.cli import (
+        _open_maps,
+        _positioner,
+        _read_walk,
+        _WalkFailures,
+        _walks,
+        radio_for_walk,
+    )
     from localize.radio_match import WalkSmoothing
     from survey.step_summaries import step_summaries, waypoints_of
 
@@ -135,13 +150,15 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
                                      f"{calibration!r}") from err
         given = (k, b)
     maps = _open_maps(bundle_path)
-    rows = []
-    for f in _walks(walks):
+    rows: list[dict] = []
+    failures = _WalkFailures()
+
+    def one(f: Path) -> None:
         trace = _read_walk(f)
         scans = _scans(trace, kind)
         if not scans:
             click.echo(f"{trace.trace_id}: no {kind} scans", err=True)
-            continue
+            return
         bundle = maps.select(step_summaries(trace))
         pos = _positioner(bundle, kind)
         if pos is None:
@@ -176,4 +193,9 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
                    f"located; calibration {how}"
                    + (f"; error vs waypoint track median {np.median(e):.2f} m" if len(e) else ""),
                    err=True)
+
+    files = _walks(walks)
+    for f in files:
+        failures.run(f, lambda f=f: one(f))
     _csv(rows, ["trace_id", "floor", "t_ms", "n_known", "x_m", "y_m", "sigma_m", "error_m"])
+    failures.exit_if_any(len(files))

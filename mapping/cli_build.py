@@ -12,7 +12,8 @@ import click
 import numpy as np
 
 from localize.bundle import load_bundle
-from survey.errors import IndoormapError
+from survey.errors import IndoormapError, PublishError
+from survey.trace_format import bad_lines_summary
 
 from .build import BuildParams, build_floor
 from .bundle_writer import write_bundle
@@ -93,7 +94,7 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
     site_target = out / SITE_BUNDLE
     for name, target in [*targets.items(), (SITE_BUNDLE, site_target)]:
         if target.exists() and not overwrite:
-            raise click.UsageError(f"{target} exists; pass --overwrite to replace it")
+            raise PublishError(f"{target} exists; pass --overwrite to replace it")
     plans = {f.name: read_floor_plan(f) for f in floors}  # a bad plan fails before the work
     with tempfile.TemporaryDirectory(prefix="indoormap-build-") as tmp:
         store_path = store_dir or Path(tmp) / "store"
@@ -105,12 +106,10 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
         summary = ingest([f / "path_data_files" for f in floors], store_path)
         for o in summary.failed:
             say(f"  unreadable: {o.path}: {o.detail}")
-        bad = sum(summary.bad.values())
-        if bad:
-            say(f"  {bad} bad line(s) skipped (" + ", ".join(
-                f"{k} {v}" for k, v in sorted(summary.bad.items())) + "); first:")
-            for m in summary.messages[:5]:
-                say(f"    {m}")
+        if summary.bad:
+            say(f"  {bad_lines_summary(summary.bad, summary.messages)}")
+            for m in summary.messages[1:5]:
+                say(f"    then: {m}")
         store = SurveyStore.open(store_path)
         cat = store.catalog()
         reachable = {(s, fl): plans[fl].reachable for s, fl in

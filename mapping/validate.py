@@ -57,6 +57,7 @@ from scipy.sparse import csgraph
 from localize.bundle import Grid, MapBundle, load_bundle
 from survey.errors import IndoormapError
 from survey.field_features import circular_median_deg, wrap_deg
+from survey.trace_format import bad_lines_summary
 
 from . import holdout
 from .build import BuildParams, heading_raster_for
@@ -1047,9 +1048,8 @@ def data_quality_section(bundle: MapBundle, fd: FloorData, th: dict, params: Val
         if t_bad is not None and share > t_bad:
             msgs = json.loads(r.messages_json or "[]")
             findings.append(Finding(
-                "bad_lines", "fail", f"walk {r.trace_id}: {r.n_bad_lines} bad lines "
-                f"({100 * share:.1f} %; {', '.join(f'{k} {v}' for k, v in rec['bad'].items())})"
-                + (f"; first: {msgs[0]}" if msgs else ""), "data_quality", walk=r.trace_id,
+                "bad_lines", "fail", f"walk {r.trace_id} ({100 * share:.1f} % of its lines): "
+                + bad_lines_summary(rec["bad"], msgs), "data_quality", walk=r.trace_id,
                 value=share, threshold=t_bad))
     out["lines"] = lines
     out["lines_total"] = {k: int(sum(d[k] for d in lines)) for k in

@@ -10,6 +10,7 @@ the columns listed in the ``*_COLUMNS`` constants below, sorted by time.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import pandas as pd
@@ -90,6 +91,16 @@ class TraceHeader:
     app_version: str | None = None
     sensors: list[SensorInfo] = field(default_factory=list)
     extra: dict[str, str] = field(default_factory=dict)
+
+
+def bad_lines_summary(bad: Mapping[str, int], messages: Sequence[str] = ()) -> str:
+    """One line on skipped bad lines: ``"N bad line(s) skipped (reason n, ...); first: msg"``
+    (the wording every command uses: ingest, build, localize, validate)."""
+    total = int(sum(bad.values()))
+    text = f"{total} bad line(s) skipped"
+    if bad:
+        text += " (" + ", ".join(f"{k} {v}" for k, v in sorted(bad.items())) + ")"
+    return text + (f"; first: {messages[0]}" if messages else "")
 
 
 @dataclass

@@ -162,7 +162,7 @@ def test_build_cli_twice_identical_bytes(tmp_path):
     files = sorted(p.relative_to(a) for p in a.rglob("*") if p.is_file())
     assert files and all((a / f).read_bytes() == (b / f).read_bytes() for f in files)
     again = runner.invoke(main, ["build", str(SITE / "F2"), "-o", str(tmp_path / "a")])
-    assert again.exit_code == 2 and "--overwrite" in again.output
+    assert again.exit_code == 1 and "exists; pass --overwrite" in again.output
     info = runner.invoke(main, ["bundle", "info", str(a)])
     assert info.exit_code == 0 and "layer strength" in info.output and "floor F2" in info.output
     site = runner.invoke(main, ["bundle", "info", str(tmp_path / "a" / "_site")])

@@ -221,6 +221,20 @@ def test_walk_without_wifi(built, tmp_path):
     assert [r["floor"] for r in _rows(res.stdout) if r["level"] == "walk"] == [""]
 
 
+def test_radio_commands_report_a_failing_walk_and_go_on(built, tmp_path):
+    """A bad trace among good ones: `floor` and `wifi-locate` name it with its reason, still
+    print the good walk's rows, and exit 1."""
+    good = min((SITE / "F2" / "path_data_files").glob("*.txt*"))
+    junk = tmp_path / "junk.txt"
+    junk.write_text("not a trace\n")
+    runner = CliRunner()
+    for cmd in ("floor", "wifi-locate"):
+        res = runner.invoke(main, [cmd, str(built), str(junk), str(good)])
+        assert res.exit_code == 1, res.output
+        assert f"error: {junk}:" in res.stderr and "1 failure(s) in 2 walk(s)" in res.stderr
+        assert {r["trace_id"] for r in _rows(res.stdout)} == {good.name.split(".")[0]}
+
+
 def test_site_without_wifi_builds_without_radio_tables(tmp_path):
     """A floor folder whose walks carry no Wi-Fi and no BLE: bundles without radio tables."""
     floor = tmp_path / "site" / "F1"
@@ -238,7 +252,7 @@ def test_site_without_wifi_builds_without_radio_tables(tmp_path):
     assert res.exit_code == 0, res.output
     assert "no floor model" in res.output
     # what the reader skipped is said, as `indoormap ingest` says it
-    assert "3 bad line(s) skipped (non_numeric 3); first:" in res.output
+    assert "3 bad line(s) skipped (non_numeric 3); first: " in res.output
     assert f"unreadable: {floor / 'path_data_files' / 'empty.txt'}: no sensor sample" \
         in res.output
     b = load_bundle(out / "F1")

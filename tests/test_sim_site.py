@@ -166,6 +166,12 @@ def test_existing_output_needs_overwrite(sample):
     _, out, _ = sample
     with pytest.raises(PublishError):
         simulate_site(SiteParams.preset_params("sample"), out)
+    from survey.cli import main
+
+    before = _digests(out)
+    res = CliRunner().invoke(main, ["simulate", str(out)])  # the CLI says so before any work
+    assert res.exit_code == 1 and f"{out} exists; pass --overwrite" in res.output
+    assert _digests(out) == before
 
 
 def test_different_seed_different_files(tmp_path):

@@ -25,8 +25,12 @@ def simulate(out_dir: Path, preset: str, seed: int | None, overwrite: bool) -> N
     from .site import SiteParams, simulate_site
 
     t0 = time.perf_counter()
-    # indoormap's errors (PublishError: OUT_DIR exists, SimulationError) propagate to the main
-    # group, which prints them on one line and exits with code 1
+    from ..errors import PublishError
+
+    # indoormap's errors (PublishError, SimulationError) propagate to the main group, which
+    # prints them on one line and exits with code 1
+    if out_dir.exists() and not overwrite:
+        raise PublishError(f"{out_dir} exists; pass --overwrite to replace it")
     params = SiteParams.preset_params(preset, seed=seed)
     site = simulate_site(params, out_dir, overwrite=overwrite)
     elapsed = time.perf_counter() - t0
