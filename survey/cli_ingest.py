@@ -7,6 +7,7 @@ import sys
 import click
 
 from .ingest import IngestSummary, ingest
+from .progress import progress
 
 
 @click.command("ingest")
@@ -22,13 +23,8 @@ def ingest_command(paths: tuple[str, ...], store_dir: str, strict: bool, workers
     """Ingest survey traces (.txt, .txt.gz; folders are searched) and walk plans (.geojson)
     into the Parquet survey store STORE. Files already stored (same sha256) are skipped; a
     changed file replaces its old rows."""
-    with click.progressbar(length=1, label="ingest", file=sys.stderr,
-                           show_pos=True) as bar:
-        def progress(done: int, total: int) -> None:
-            bar.length = total
-            bar.update(done - bar.pos)
-
-        summary = ingest(paths, store_dir, strict=strict, workers=workers, progress=progress)
+    with progress("ingest", unit="files") as update:
+        summary = ingest(paths, store_dir, strict=strict, workers=workers, progress=update)
     click.echo(format_summary(summary))
     if summary.failed:
         sys.exit(1)

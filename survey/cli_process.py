@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import click
 
 from .process_store import process_store, processed_catalog, processed_table
+from .progress import progress
 from .store import SurveyStore
 
 
@@ -45,12 +45,9 @@ def process_command(store_dir: str, site: str | None, floor: str | None,
         name = Path(fp).name if Path(fp).is_dir() else Path(fp).parent.name
         for s in cat.loc[cat["floor"] == name, "site"].unique():
             reachable[(s, name)] = plan.reachable
-    with click.progressbar(length=max(len(cat), 1), label="process", file=sys.stderr) as bar:
-        def progress(done: int, total: int) -> None:
-            bar.update(done - bar.pos)
-
+    with progress("process", len(cat), unit="walks") as update:
         report = process_store(store, site=site, floor=floor, reachable=reachable,
-                               progress=progress)
+                               progress=update)
     click.echo(f"walks: processed {len(report.processed)}, unchanged {len(report.unchanged)}, "
                f"skipped {len(report.skipped)}")
     for tid, reason in report.skipped.items():

@@ -26,6 +26,7 @@ def test_ingest_prints_summary_and_is_idempotent(tmp_path):
     assert result.exit_code == 0, result.output
     out = result.output
     assert "files:    new 2" in out
+    assert "ingest: 2/2 files" in result.stderr  # progress in a log, not only a bare label
     assert "TYPE_BLUE" in out and "field_count" in out
     assert "w2.txt:2: TYPE_WIFI needs 5 values, got 1" in out
     assert len(SurveyStore.open(tmp_path / "store").catalog()) == 2
@@ -95,3 +96,17 @@ def test_store_that_is_not_a_store_exits_1(tmp_path):
     result = CliRunner().invoke(main, ["ingest", str(tmp_path / "w.txt"), "--store",
                                        str(tmp_path / "notastore")])
     assert result.exit_code == 1 and "not a survey store" in result.output
+
+
+def test_progress_off_a_terminal_prints_about_every_tenth():
+    import io
+
+    from survey.progress import progress
+
+    log = io.StringIO()  # not a terminal
+    with progress("process", 25, unit="walks", file=log) as update:
+        for i in range(1, 26):
+            update(i, 25)
+    lines = log.getvalue().splitlines()
+    assert lines[0] == "process: 2/25 walks" and lines[-1] == "process: 25/25 walks"
+    assert 10 <= len(lines) <= 13 and len(set(lines)) == len(lines)
