@@ -1031,13 +1031,13 @@ def _rssi_devices(bundle: MapBundle) -> dict:
     return {"source": None, "rows": [], "note": "the bundle has no device RSSI table"}
 
 
-def data_quality_section(bundle: MapBundle, fd: FloorData, th: dict, params: ValidateParams,
-                         findings: list[Finding], arrays: dict) -> dict:
-    out: dict = {}
-    # lines
-    lines = []
-    t_bad = th.get("bad_line_share_max")
-    for r in fd.catalog.itertuples(index=False):
+def line_accounts(catalog: pd.DataFrame, bad_share_max: float | None
+                  ) -> tuple[list[dict], list[Finding]]:
+    """Per walk of a store catalog: its lines, bad lines, skipped lines and dropped rows (with
+    the counts by reason), and a ``bad_lines`` finding for every walk whose share of bad lines
+    exceeds ``bad_share_max`` (None: no check)."""
+    lines, findings = [], []
+    for r in catalog.itertuples(index=False):
         share = r.n_bad_lines / max(r.n_lines, 1)
         rec = {"trace_id": r.trace_id, "n_lines": int(r.n_lines),
                "n_bad_lines": int(r.n_bad_lines), "n_skipped_lines": int(r.n_skipped_lines),
@@ -1045,14 +1045,21 @@ def data_quality_section(bundle: MapBundle, fd: FloorData, th: dict, params: Val
                "skipped": json.loads(r.skipped_json or "{}"),
                "dropped": json.loads(r.dropped_json or "{}")}
         lines.append(rec)
-        if t_bad is not None and share > t_bad:
+        if bad_share_max is not None and share > bad_share_max:
             msgs = json.loads(r.messages_json or "[]")
             findings.append(Finding(
                 "bad_lines", "fail", f"walk {r.trace_id} ({100 * share:.1f} % of its lines): "
                 + bad_lines_summary(rec["bad"], msgs), "data_quality", walk=r.trace_id,
-                value=share, threshold=t_bad))
-    out["lines"] = lines
-    out["lines_total"] = {k: int(sum(d[k] for d in lines)) for k in
+                value=share, threshold=bad_share_max))
+    return lines, findings
+
+
+def data_quality_section(bundle: MapBundle, fd: FloorData, th: dict, params: ValidateParams,
+                         findings: list[Finding], arrays: dict) -> dict:
+    out: dict = {}
+    out["lines"], line_findings = line_accounts(fd.catalog, th.get("bad_line_share_max"))
+    findings.extend(line_findings)
+    out["lines_total"] = {k: int(sum(d[k] for d in out["lines"])) for k in
                           ("n_lines", "n_bad_lines", "n_skipped_lines", "n_dropped_rows")}
     # walks skipped by processing or not processed
     processed = set(fd.pcat["trace_id"])

@@ -31,6 +31,7 @@ from mapping.validate import (
     DEFAULT_THRESHOLDS,
     ValidateParams,
     ValidationError,
+    line_accounts,
     load_thresholds,
     walking_distance,
 )
@@ -361,3 +362,22 @@ def test_metrics_json_radio_equals_heldout_radio(sites, reports):
         walk = walk[np.isfinite(walk)]
         assert len(walk) == len(e)
         assert k["walk_median_error_m"] == pytest.approx(float(np.median(walk)), rel=1e-12)
+
+
+def test_line_accounts_flag_walks_with_too_many_bad_lines():
+    """A walk over the bad-line share is a finding that names the walk, its share, the reasons
+    and the first bad line; one under it is only counted."""
+    catalog = pd.DataFrame({
+        "trace_id": ["clean", "damaged"], "n_lines": [1000, 1000], "n_bad_lines": [1, 30],
+        "n_skipped_lines": [5, 0], "n_dropped_rows": [0, 2],
+        "bad_json": ['{"non_numeric": 1}', '{"field_count": 10, "non_numeric": 20}'],
+        "skipped_json": ['{"TYPE_BLUE": 5}', "{}"], "dropped_json": ["{}", '{"dup": 2}'],
+        "messages_json": ['["a.txt:7: x"]', '["b.txt:12: TYPE_WIFI needs 5 values, got 1"]']})
+    lines, findings = line_accounts(catalog, 0.01)
+    assert [r["n_bad_lines"] for r in lines] == [1, 30]
+    assert lines[1]["bad"] == {"field_count": 10, "non_numeric": 20}
+    assert [f.walk for f in findings] == ["damaged"]
+    assert findings[0].message == (
+        "walk damaged (3.0 % of its lines): 30 bad line(s) skipped (field_count 10, "
+        "non_numeric 20); first: b.txt:12: TYPE_WIFI needs 5 values, got 1")
+    assert line_accounts(catalog, None)[1] == []
