@@ -73,7 +73,6 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
                                 "had no Wi-Fi or BLE rows)")
     kind = (site.manifest.get("metrics", {}).get("floor_model") or {}).get("kind", "wifi")
     rows: list[dict] = []
-    counts = {"right": 0, "scans": 0}
     failures = _WalkFailures()
 
     def one(f: Path) -> None:
@@ -84,21 +83,21 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
         lp = model.log_proba(rssi)
         ok = np.isfinite(lp).all(axis=1)
         n_known = np.isfinite(rssi).sum(axis=1)
+        mine = []  # the walk's rows, added once it is through
         for i, scan in enumerate(scans):
             lo = max(0, i - window + 1)
             seq = lp[lo:i + 1][ok[lo:i + 1]]
             floor = str(model.floors[np.argmax(lp[i])]) if ok[i] else ""
-            rows.append({"level": "scan", "trace_id": trace.trace_id, "t_ms": scan.t_ms,
+            mine.append({"level": "scan", "trace_id": trace.trace_id, "t_ms": scan.t_ms,
                          "n_known": int(n_known[i]), "floor": floor,
                          "p_floor": float(np.exp(lp[i].max())) if ok[i] else "",
                          "window_floor": str(model.floors[np.argmax(seq.sum(axis=0))])
                          if len(seq) else "", "recorded_floor": recorded})
-            counts["scans"] += 1
-            counts["right"] += bool(recorded) and floor == recorded
         walk_floor = str(model.floors[np.argmax(lp[ok].sum(axis=0))]) if ok.any() else ""
-        rows.append({"level": "walk", "trace_id": trace.trace_id, "t_ms": "",
+        mine.append({"level": "walk", "trace_id": trace.trace_id, "t_ms": "",
                      "n_known": int(ok.sum()), "floor": walk_floor, "p_floor": "",
                      "window_floor": "", "recorded_floor": recorded})
+        rows.extend(mine)
         if not ok.any():
             click.echo(f"{trace.trace_id}: no {kind} scan hears a transmitter the floor model "
                        "knows; floor unknown", err=True)
@@ -108,9 +107,12 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
         failures.run(f, lambda f=f: one(f))
     _csv(rows, ["level", "trace_id", "t_ms", "n_known", "floor", "p_floor", "window_floor",
                 "recorded_floor"])
-    if counts["scans"]:
-        click.echo(f"{counts['scans']} scans; {100 * counts['right'] / counts['scans']:.2f} % "
-                   "on the floor the trace files name", err=True)
+    scan_rows = [r for r in rows if r["level"] == "scan"]
+    if scan_rows:
+        right = sum(bool(r["recorded_floor"]) and r["floor"] == r["recorded_floor"]
+                    for r in scan_rows)
+        click.echo(f"{len(scan_rows)} scans; {100 * right / len(scan_rows):.2f} % on the floor "
+                   "the trace files name", err=True)
     failures.exit_if_any(len(files))
 
 
