@@ -95,7 +95,7 @@ class TraceHeader:
 
 def bad_lines_summary(bad: Mapping[str, int], messages: Sequence[str] = ()) -> str:
     """One line on skipped bad lines: ``"N bad line(s) skipped (reason n, ...); first: msg"``
-    (the wording every command uses: ingest, build, localize, validate)."""
+    (build, localize and validate say it so; ingest prints the same counts as a table)."""
     total = int(sum(bad.values()))
     text = f"{total} bad line(s) skipped"
     if bad:
