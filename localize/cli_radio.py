@@ -1,6 +1,8 @@
 """``indoormap floor`` and ``indoormap wifi-locate``: the radio maps of bundles applied to walks.
 
-Both print CSV on standard output (progress and notes on standard error):
+Both print CSV on standard output, each walk's rows as soon as the walk is through (progress
+and notes on standard error); a walk that fails is reported with its file and reason, the others
+go on, and the exit code is then 1:
 
 - ``floor SITE_BUNDLE WALK...``: per scan ``level=scan`` rows (floor of the scan alone and of the
   last ``--window`` scans) and one ``level=walk`` row per walk (all its scans), with the floor
@@ -45,14 +47,22 @@ def _site_bundle(path: Path):
                             "`indoormap build` writes one beside the floor bundles")
 
 
-def _csv(rows: list[dict], columns: list[str]) -> None:
-    import csv
+class _CsvRows:
+    """CSV on standard output: the header at once, then each walk's rows as soon as the walk
+    is through (a long run shows its results as it goes; a walk that fails prints none)."""
 
-    w = csv.DictWriter(sys.stdout, fieldnames=columns, lineterminator="\n",
-                       extrasaction="ignore")
-    w.writeheader()
-    for r in rows:
-        w.writerow({k: (f"{v:.3f}" if isinstance(v, float) else v) for k, v in r.items()})
+    def __init__(self, columns: list[str]) -> None:
+        import csv
+
+        self._writer = csv.DictWriter(sys.stdout, fieldnames=columns, lineterminator="\n",
+                                      extrasaction="ignore")
+        self._writer.writeheader()
+
+    def write(self, rows: list[dict]) -> None:
+        for r in rows:
+            self._writer.writerow({k: (f"{v:.3f}" if isinstance(v, float) else v)
+                                   for k, v in r.items()})
+        sys.stdout.flush()
 
 
 @click.command("floor")
@@ -72,7 +82,9 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
         raise LocalizationError(f"{site.path}: the site bundle has no floor model (the survey "
                                 "had no Wi-Fi or BLE rows)")
     kind = (site.manifest.get("metrics", {}).get("floor_model") or {}).get("kind", "wifi")
-    rows: list[dict] = []
+    out = _CsvRows(["level", "trace_id", "t_ms", "n_known", "floor", "p_floor", "window_floor",
+                    "recorded_floor"])
+    scan_rows: list[dict] = []
     failures = _WalkFailures()
 
     def one(f: Path) -> None:
@@ -83,7 +95,7 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
         lp = model.log_proba(rssi)
         ok = np.isfinite(lp).all(axis=1)
         n_known = np.isfinite(rssi).sum(axis=1)
-        mine = []  # the walk's rows, added once it is through
+        mine = []  # the walk's rows, written once it is through
         for i, scan in enumerate(scans):
             lo = max(0, i - window + 1)
             seq = lp[lo:i + 1][ok[lo:i + 1]]
@@ -97,7 +109,8 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
         mine.append({"level": "walk", "trace_id": trace.trace_id, "t_ms": "",
                      "n_known": int(ok.sum()), "floor": walk_floor, "p_floor": "",
                      "window_floor": "", "recorded_floor": recorded})
-        rows.extend(mine)
+        out.write(mine)
+        scan_rows.extend(r for r in mine if r["level"] == "scan")
         if not ok.any():
             click.echo(f"{trace.trace_id}: no {kind} scan hears a transmitter the floor model "
                        "knows; floor unknown", err=True)
@@ -105,9 +118,6 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
     files = _walks(walks)
     for f in files:
         failures.run(f, lambda f=f: one(f))
-    _csv(rows, ["level", "trace_id", "t_ms", "n_known", "floor", "p_floor", "window_floor",
-                "recorded_floor"])
-    scan_rows = [r for r in rows if r["level"] == "scan"]
     if scan_rows:
         right = sum(bool(r["recorded_floor"]) and r["floor"] == r["recorded_floor"]
                     for r in scan_rows)
@@ -152,7 +162,7 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
                                      f"{calibration!r}") from err
         given = (k, b)
     maps = _open_maps(bundle_path)
-    rows: list[dict] = []
+    out = _CsvRows(["trace_id", "floor", "t_ms", "n_known", "x_m", "y_m", "sigma_m", "error_m"])
     failures = _WalkFailures()
 
     def one(f: Path) -> None:
@@ -181,6 +191,7 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
             truth[inside, 0] = np.interp(t[inside], t_wp, xy_wp[:, 0])
             truth[inside, 1] = np.interp(t[inside], t_wp, xy_wp[:, 1])
         err = np.hypot(*(fixes.xy_m - truth).T)
+        rows = []
         for i, scan in enumerate(scans):
             rows.append({"trace_id": trace.trace_id, "floor": bundle.manifest.get("floor_name",
                                                                                  ""),
@@ -189,6 +200,7 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
                          "y_m": float(fixes.xy_m[i, 1]) if np.isfinite(fixes.xy_m[i, 1]) else "",
                          "sigma_m": float(fixes.sigma_m[i]) if np.isfinite(fixes.sigma_m[i])
                          else "", "error_m": float(err[i]) if np.isfinite(err[i]) else ""})
+        out.write(rows)
         e = err[np.isfinite(err)]
         click.echo(f"{trace.trace_id}: {len(scans)} {kind} scans on "
                    f"{bundle.manifest.get('floor_name', '')}, {int(np.isfinite(fixes.xy_m[:, 0]).sum())} "
@@ -199,5 +211,4 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
     files = _walks(walks)
     for f in files:
         failures.run(f, lambda f=f: one(f))
-    _csv(rows, ["trace_id", "floor", "t_ms", "n_known", "x_m", "y_m", "sigma_m", "error_m"])
     failures.exit_if_any(len(files))

@@ -223,7 +223,7 @@ def test_walk_without_wifi(built, tmp_path):
 
 def test_radio_commands_report_a_failing_walk_and_go_on(built, tmp_path):
     """A bad trace among good ones: `floor` and `wifi-locate` name it with its reason, still
-    print the good walk's rows, and exit 1."""
+    print the good walk's rows (as soon as it is through), and exit 1."""
     good = min((SITE / "F2" / "path_data_files").glob("*.txt*"))
     junk = tmp_path / "junk.txt"
     junk.write_text("not a trace\n")
@@ -233,6 +233,16 @@ def test_radio_commands_report_a_failing_walk_and_go_on(built, tmp_path):
         assert res.exit_code == 1, res.output
         assert f"error: {junk}:" in res.stderr and "1 failure(s) in 2 walk(s)" in res.stderr
         assert {r["trace_id"] for r in _rows(res.stdout)} == {good.name.split(".")[0]}
+        # rows are written as each walk is through: the good walk's come before a later failure
+        walks = tmp_path / "walks"  # walks run in path order: the good one, then the bad
+        walks.mkdir(exist_ok=True)
+        shutil.copy(good, walks / good.name)
+        shutil.copy(junk, walks / "z_junk.txt")
+        later = runner.invoke(main, [cmd, str(built), str(walks)])
+        assert later.exit_code == 1
+        tid = good.name.split(".")[0]
+        assert later.output.rindex(f"{tid},") < later.output.index(
+            f"error: {walks / 'z_junk.txt'}:")
 
 
 def test_site_without_wifi_builds_without_radio_tables(tmp_path):
