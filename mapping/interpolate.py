@@ -160,8 +160,9 @@ class KernelSums:
     vary (:func:`kernel_mean`, :func:`kernel_std`).
 
     ``covered``: the cells that get a value: the reachable cells within ``max_distance_m`` of a
-    surveyed cell (the others are NaN), or those of them asked for. For a local polynomial of degree 1 or 2 (k = 3 or 6 terms ``1, dx, dy[, dx^2,
-    dx dy, dy^2]``, offsets in m from the cell), at the covered cells in row-major order:
+    surveyed cell (the others are NaN), or those of them asked for. For a local polynomial of
+    degree 1 or 2 (k = 3 or 6 terms ``1, dx, dy[, dx^2, dx dy, dy^2]``, offsets in m from the
+    cell), at the covered cells in row-major order:
     ``gram``, shape (n_covered, k, k), the kernel-weighted ``sum w t_i t_j``, and ``rhs``,
     shape (n_covered, k), the kernel-weighted ``sum w v t_i``."""
 

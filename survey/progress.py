@@ -32,13 +32,13 @@ def progress(label: str, total: int = 1, *, unit: str = "",
 
             yield update_bar
         return
-    state = {"shown": 0}
+    shown = 0  # the last count printed
 
     def update_log(done: int, n: int) -> None:
+        nonlocal shown
         step = max(n // 10, 1)
-        due = done >= n or done // step > state["shown"] // step
-        if due and done != state["shown"]:
+        if (done >= n or done // step > shown // step) and done != shown:
             click.echo(f"{label}: {done}/{n}" + (f" {unit}" if unit else ""), file=out)
-            state["shown"] = done
+            shown = done
 
     yield update_log
