@@ -81,6 +81,7 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
     and OUT/_site (floor model, device table, AP selection report)."""
     from survey.ingest import ingest
     from survey.process_store import process_store
+    from survey.progress import progress
     from survey.store import SurveyStore
 
     from .interpolate import RasterParams
@@ -103,7 +104,9 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
             click.echo(msg, err=True)
 
         say(f"ingest {len(floors)} floor(s) into {store_path}")
-        summary = ingest([f / "path_data_files" for f in floors], store_path)
+        with progress("ingest", unit="files") as update:
+            summary = ingest([f / "path_data_files" for f in floors], store_path,
+                             progress=update)
         for o in summary.failed:
             say(f"  unreadable: {o.path}: {o.detail}")
         if summary.bad:
@@ -115,8 +118,8 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
         reachable = {(s, fl): plans[fl].reachable for s, fl in
                      cat[["site", "floor"]].drop_duplicates().itertuples(index=False)
                      if fl in plans}
-        say("process walks")
-        report = process_store(store, reachable=reachable)
+        with progress("process", len(cat), unit="walks") as update:
+            report = process_store(store, reachable=reachable, progress=update)
         source_of = dict(zip(cat["trace_id"], cat["source_path"]))
         for tid, reason in report.skipped.items():
             say(f"  skipped {source_of.get(tid, tid)}: {reason}")
