@@ -45,8 +45,20 @@ def floors_of(path: Path) -> list[Path]:
     floors = sorted(p for p in path.iterdir() if p.is_dir() and _is_floor_dir(p))
     if not floors:
         raise click.UsageError(f"{path}: neither a floor folder (geojson_map.json) nor a site "
-                               "folder of floors")
+                               "folder of floors; give a folder of traces a floor plan with "
+                               "--plan")
     return floors
+
+
+def floor_of_traces(catalog, summary, source: Path) -> str:
+    """The one floor of the traces an ingest read from ``source`` (a ``--plan`` build without
+    ``--floor``); a usage error when they are of none or several."""
+    ids = {o.trace_id for o in summary.outcomes if o.status != "failed"}
+    names = sorted(catalog.loc[catalog["trace_id"].isin(ids), "floor"].astype(str).unique())
+    if len(names) != 1:
+        found = f"walks of floors {', '.join(names)}" if names else "no readable walks"
+        raise click.UsageError(f"{source}: {found}; name the plan's floor with --floor")
+    return names[0]
 
 
 @click.command("build")
@@ -71,14 +83,24 @@ def floors_of(path: Path) -> list[Path]:
               help="Build time written to the manifest, ISO 8601 (e.g. 2026-11-22T10:00:00Z; "
                    "default: end of the newest walk, so rebuilding the same data gives the same "
                    "bytes).")
+@click.option("--plan", "plan_file", default=None,
+              type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              help="Build one floor with this floor plan; SOURCE is then any folder of that "
+                   "floor's traces and walk plans. GeoJSON in metres (lon/lat with a "
+                   "floor_info.json beside it) or a DXF drawing (layers OUTLINE, OBSTACLES, "
+                   "WALLS and the like; docs/processing_and_mapping.md).")
+@click.option("--floor", "floor_name", default=None,
+              help="With --plan: the floor's name as its traces give it (default: the one "
+                   "floor of SOURCE's traces).")
 @click.option("--overwrite", is_flag=True, help="Replace existing output bundles.")
 def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir: Path | None,
                   cell_m: float, interpolator: str, build_time: str | None,
-                  overwrite: bool) -> None:
+                  plan_file: Path | None, floor_name: str | None, overwrite: bool) -> None:
     """Build map bundles from a floor folder (floor_info.json, geojson_map.json,
-    path_data_files/) or a site folder of floors: ingest, process, level, interpolate, publish
-    atomically. Writes OUT/<floor> per floor (rasters, Wi-Fi/BLE fingerprints, device table)
-    and OUT/_site (floor model, device table, AP selection report)."""
+    path_data_files/), a site folder of floors, or (with --plan) a folder of one floor's
+    traces: ingest, process, level, interpolate, publish atomically. Writes OUT/<floor> per
+    floor (rasters, Wi-Fi/BLE fingerprints, device table) and OUT/_site (floor model, device
+    table, AP selection report)."""
     from survey.ingest import ingest
     from survey.process_store import process_store
     from survey.progress import progress
@@ -86,27 +108,39 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
 
     from .interpolate import RasterParams
 
-    floors = floors_of(source)
     params = BuildParams(cell_m=cell_m, raster=RasterParams(method=interpolator),
                          build_time=build_time)
     if out.exists() and not out.is_dir():
         raise click.UsageError(f"{out} is a file; -o/--out needs a folder")
-    targets = {f.name: out / f.name for f in floors}
+    if plan_file is None:
+        if floor_name is not None:
+            raise click.UsageError("--floor names the floor of a --plan build; a floor folder "
+                                   "is named by itself")
+        floors = floors_of(source)
+        inputs = [f / "path_data_files" for f in floors]
+        # a bad plan fails before the work
+        plans = {f.name: read_floor_plan(f) for f in floors}
+    else:
+        inputs = [source]
+        plan = read_floor_plan(plan_file)
+        plans = {floor_name: plan} if floor_name is not None else {}
     site_target = out / SITE_BUNDLE
-    for name, target in [*targets.items(), (SITE_BUNDLE, site_target)]:
-        if target.exists() and not overwrite:
-            raise PublishError(f"{target} exists; pass --overwrite to replace it")
-    plans = {f.name: read_floor_plan(f) for f in floors}  # a bad plan fails before the work
+
+    def check_targets() -> None:
+        for target in [*(out / name for name in plans), site_target]:
+            if target.exists() and not overwrite:
+                raise PublishError(f"{target} exists; pass --overwrite to replace it")
+
+    check_targets()
     with tempfile.TemporaryDirectory(prefix="indoormap-build-") as tmp:
         store_path = store_dir or Path(tmp) / "store"
 
         def say(msg: str) -> None:
             click.echo(msg, err=True)
 
-        say(f"ingest {len(floors)} floor(s) into {store_path}")
+        say(f"ingest {', '.join(map(str, inputs))} into {store_path}")
         with progress("ingest", unit="files") as update:
-            summary = ingest([f / "path_data_files" for f in floors], store_path,
-                             progress=update)
+            summary = ingest(inputs, store_path, progress=update)
         for o in summary.failed:
             say(f"  unreadable: {o.path}: {o.detail}")
         if summary.bad:
@@ -115,6 +149,9 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
                 say(f"    then: {m}")
         store = SurveyStore.open(store_path)
         cat = store.catalog()
+        if not plans:  # --plan without --floor: the floor of SOURCE's traces
+            plans = {floor_of_traces(cat, summary, source): plan}
+            check_targets()
         reachable = {(s, fl): plans[fl].reachable for s, fl in
                      cat[["site", "floor"]].drop_duplicates().itertuples(index=False)
                      if fl in plans}
@@ -124,23 +161,23 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
         for tid, reason in report.skipped.items():
             say(f"  skipped {source_of.get(tid, tid)}: {reason}")
         registry = Registry(registry_dir) if registry_dir else None
-        radio = build_site_radio(store, [f.name for f in floors], params=params.radio,
-                                 progress=say)
+        radio = build_site_radio(store, list(plans), params=params.radio, progress=say)
         site_id, site_build_time, site_walks = "", "", []
-        for f in floors:
-            content = build_floor(store, plans[f.name], floor=f.name, params=params,
-                                  radio=radio, progress=say)
+        for name, plan in plans.items():
+            target = out / name
+            content = build_floor(store, plan, floor=name, params=params, radio=radio,
+                                  progress=say)
             site_id = content.site_id
             site_build_time = max(site_build_time, content.build["build_time"])
             site_walks += content.build["source_walks"]
-            bundle_id = write_bundle(targets[f.name], content, overwrite=overwrite)
+            bundle_id = write_bundle(target, content, overwrite=overwrite)
             cov = content.metrics["coverage"]
-            click.echo(f"{f.name}: bundle {bundle_id[:16]} -> {targets[f.name]} "
+            click.echo(f"{name}: bundle {bundle_id[:16]} -> {target} "
                        f"({content.metrics['n_walks']} walks; reachable area within 2 m of a "
                        f"sample: {100 * cov['within_2m']:.0f} %)")
             if registry:
-                entry = registry.publish(targets[f.name])
-                click.echo(f"  published as {content.site_id}/{f.name} #{entry['seq']}")
+                entry = registry.publish(target)
+                click.echo(f"  published as {content.site_id}/{name} #{entry['seq']}")
         site_content = radio.site_content(site_id, build={
             "build_time": site_build_time, "seed": params.seed,
             "source_walks": sorted(site_walks, key=lambda w: w["trace_id"])})

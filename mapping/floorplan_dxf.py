@@ -1,9 +1,9 @@
 """DXF floor plans (walls and obstacles by layer), read with ezdxf.
 
-Closed polylines (LWPOLYLINE, POLYLINE), circles and hatches' outer paths on the outline layer
-make the floor outline (the largest one if several); closed shapes on obstacle layers are
-obstacles; open polylines and LINE entities on wall layers become walls of ``wall_width_m``.
-Reachable area = outline minus obstacles minus walls. Coordinates are taken in metres, scaled by
+Closed polylines (LWPOLYLINE, POLYLINE), circles and hatches (their loops even-odd: an inner
+loop is a hole) on the outline layer make the floor outline (the largest one if several); closed
+shapes on obstacle layers are obstacles; open polylines and LINE entities on wall layers become
+walls of ``wall_width_m`` (a hatch there is taken as the wall's area). Reachable area = outline minus obstacles minus walls. Coordinates are taken in metres, scaled by
 the drawing's ``$INSUNITS`` when it says millimetres, centimetres or feet.
 """
 
@@ -88,4 +88,21 @@ def _entity_geometry(e, scale: float, wall_width_m: float | None):
     if kind == "CIRCLE":
         c = e.dxf.center
         return shapely.Point(c.x * scale, c.y * scale).buffer(e.dxf.radius * scale)
+    if kind == "HATCH":
+        return _hatch_area(e, scale)
     return None
+
+
+def _hatch_area(hatch, scale: float):
+    """The area a hatch fills: its boundary loops (arcs and splines flattened to 1 cm of the
+    drawing's unit) combined even-odd, so that an inner loop is a hole; None without loops."""
+    from ezdxf import path
+
+    area = None
+    for loop in path.from_hatch(hatch):
+        pts = [(v.x * scale, v.y * scale) for v in loop.flattening(0.01)]
+        if len(pts) < 3:
+            continue
+        poly = shapely.make_valid(shapely.Polygon(pts))
+        area = poly if area is None else shapely.symmetric_difference(area, poly)
+    return area

@@ -22,14 +22,24 @@ def _require_walks(selected, everything, site: str | None, floor: str | None) ->
         param_hint="--site/--floor")
 
 
+def plan_floor_name(path: Path) -> str:
+    """The floor a ``--floor-plan`` is for: a folder's name, the name of the folder holding a
+    ``geojson_map.json``, else the file's name without its suffix (``plans/F2.dxf``: F2)."""
+    if path.is_dir() or path.name == "geojson_map.json":
+        return (path if path.is_dir() else path.parent).resolve().name
+    return path.stem
+
+
 @click.command("process")
 @click.option("--store", "store_dir", required=True, type=click.Path(file_okay=False,
                                                                      exists=True))
 @click.option("--site", default=None, help="Only this site (id or partition name).")
 @click.option("--floor", default=None, help="Only this floor (name or id).")
 @click.option("--floor-plan", "floor_plans", multiple=True, type=click.Path(exists=True),
-              help="A floor folder (geojson_map.json [+ floor_info.json]) whose reachable area "
-                   "flags legs leaving it; its folder name is the floor. Repeatable.")
+              help="A floor plan whose reachable area flags legs leaving it: a floor folder "
+                   "(geojson_map.json [+ floor_info.json]; the folder's name is the floor) or "
+                   "a plan file (GeoJSON, DXF; the file's name without suffix is the floor). "
+                   "Repeatable.")
 def process_command(store_dir: str, site: str | None, floor: str | None,
                     floor_plans: tuple[str, ...]) -> None:
     """Position every sample, scan and beacon row along its walk, calibrate the magnetometer,
@@ -42,8 +52,13 @@ def process_command(store_dir: str, site: str | None, floor: str | None,
     _require_walks(cat, store.traces(None, None), site, floor)
     for fp in floor_plans:
         plan = read_floor_plan(fp)
-        name = Path(fp).name if Path(fp).is_dir() else Path(fp).parent.name
-        for s in cat.loc[cat["floor"] == name, "site"].unique():
+        name = plan_floor_name(Path(fp))
+        sites = cat.loc[cat["floor"] == name, "site"].unique()
+        if not len(sites):
+            click.echo(f"warning: {fp}: no walks of floor {name!r} to check against this plan "
+                       f"(floors: {', '.join(sorted(cat['floor'].astype(str).unique()))})",
+                       err=True)
+        for s in sites:
             reachable[(s, name)] = plan.reachable
     with progress("process", len(cat), unit="walks") as update:
         report = process_store(store, site=site, floor=floor, reachable=reachable,

@@ -222,3 +222,52 @@ def test_sigterm_during_build_leaves_no_litter(tmp_path):
     proc.communicate(timeout=120)
     assert proc.returncode == 128 + signal.SIGTERM
     assert not list(tmp.glob("indoormap-build-*")) and not (tmp_path / "out").exists()
+
+
+def _dxf_of(plan, path: Path) -> None:
+    """``plan`` (metres) drawn as a DXF: the outline on layer OUTLINE, obstacles on SHOPS."""
+    import ezdxf
+    import shapely
+
+    doc = ezdxf.new()
+    doc.header["$INSUNITS"] = 6  # metres
+    msp = doc.modelspace()
+    for layer, geom in (("OUTLINE", plan.outline), ("SHOPS", plan.obstacles)):
+        for poly in shapely.get_parts(geom):
+            msp.add_lwpolyline(list(poly.exterior.coords)[:-1], close=True,
+                               dxfattribs={"layer": layer})
+    doc.saveas(path)
+
+
+def test_build_cli_with_a_dxf_plan_and_a_folder_of_traces(tmp_path):
+    """``build TRACES --plan plan.dxf``: a floor drawn in CAD builds like its floor folder; the
+    floor's name comes from the traces, or from --floor when they hold several."""
+    plan = read_floor_plan(SITE / "F2")
+    _dxf_of(plan, tmp_path / "F2.dxf")
+    runner = CliRunner()
+    traces = SITE / "F2" / "path_data_files"
+    res = runner.invoke(main, ["build", str(traces), "--plan", str(tmp_path / "F2.dxf"),
+                               "-o", str(tmp_path / "dxf")])
+    assert res.exit_code == 0, res.output
+    folder = runner.invoke(main, ["build", str(SITE / "F2"), "-o", str(tmp_path / "folder")])
+    assert folder.exit_code == 0, folder.output
+    a, b = load_bundle(tmp_path / "dxf" / "F2"), load_bundle(tmp_path / "folder" / "F2")
+    assert a.manifest["floor_name"] == "F2"
+    assert a.manifest["bundle_id"] == b.manifest["bundle_id"]  # the same plan, the same bytes
+    # traces of two floors: the floor must be named
+    two = tmp_path / "two"
+    two.mkdir()
+    for f in ("F1", "F2"):
+        shutil.copytree(SITE / f / "path_data_files", two / f)
+    res = runner.invoke(main, ["build", str(two), "--plan", str(tmp_path / "F2.dxf"),
+                               "-o", str(tmp_path / "x")])
+    assert res.exit_code == 2 and "walks of floors F1, F2; name the plan's floor" in res.output
+    assert not (tmp_path / "x").exists()
+    res = runner.invoke(main, ["build", str(two), "--plan", str(tmp_path / "F2.dxf"),
+                               "--floor", "F2", "-o", str(tmp_path / "x")])
+    assert res.exit_code == 0, res.output
+    assert (load_bundle(tmp_path / "x" / "F2").manifest["build"]["source_walks"]
+            == b.manifest["build"]["source_walks"])
+    res = runner.invoke(main, ["build", str(SITE / "F2"), "--floor", "F2",
+                               "-o", str(tmp_path / "y")])
+    assert res.exit_code == 2 and "--floor names the floor of a --plan build" in res.output

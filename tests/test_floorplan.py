@@ -53,12 +53,24 @@ def test_dxf_plan_with_walls_and_obstacles(tmp_path):
     msp.add_line((10000, 0), (10000, 6000), dxfattribs={"layer": "walls"})
     msp.add_circle((15000, 4000), 500, dxfattribs={"layer": "pillars"})
     msp.add_line((0, 0), (1, 1), dxfattribs={"layer": "text"})  # other layers are ignored
+    # a hatched column block with a hole (a light well), its outer loop an arc-edged path
+    hatch = msp.add_hatch(dxfattribs={"layer": "COLUMNS"})
+    edges = hatch.paths.add_edge_path()
+    edges.add_line((16000, 6500), (18000, 6500))
+    edges.add_arc((18000, 7000), 500, -90, 90)  # bulges to x = 18.5 m
+    edges.add_line((18000, 7500), (16000, 7500))
+    edges.add_line((16000, 7500), (16000, 6500))
+    hatch.paths.add_polyline_path([(16500, 6800), (17000, 6800), (17000, 7200), (16500, 7200)],
+                                  is_closed=True)
     doc.saveas(tmp_path / "plan.dxf")
     plan = read_floor_plan(tmp_path / "plan.dxf")
     assert (plan.width_m, plan.height_m) == pytest.approx((20.0, 8.0))
-    expected = 160 - 12 - 0.2 * 6 - np.pi * 0.25
+    hatched = 2 * 1 + np.pi * 0.25 / 2 - 0.5 * 0.4
+    expected = 160 - 12 - 0.2 * 6 - np.pi * 0.25 - hatched
     assert plan.reachable.area == pytest.approx(expected, rel=0.01)
     assert not plan.reachable.contains(shapely.Point(10.0, 3.0))  # the wall
+    assert not plan.reachable.contains(shapely.Point(18.3, 7.0))  # inside the hatch's arc
+    assert plan.reachable.contains(shapely.Point(16.75, 7.0))  # the hatch's hole
     (tmp_path / "bad.dxf").write_text("not a dxf")
     with pytest.raises(FloorPlanError, match="bad.dxf"):
         read_floor_plan(tmp_path / "bad.dxf")

@@ -7,6 +7,7 @@ from pathlib import Path
 from click.testing import CliRunner
 
 from survey.cli import main
+from survey.cli_process import plan_floor_name
 from survey.ingest import ingest
 from survey.process_store import processed_catalog, processed_table
 from survey.trace_reader import read_trace
@@ -53,3 +54,27 @@ def test_process_without_processing_says_so(tmp_path):
     ingest([sorted((SITE / "F1" / "path_data_files").glob("*.txt.gz"))[0]], tmp_path / "s")
     res = CliRunner().invoke(main, ["survey-report", "--store", str(tmp_path / "s")])
     assert res.exit_code == 1 and "not processed yet" in res.output
+
+
+def test_floor_plan_files_name_their_floor(tmp_path):
+    """``--floor-plan plans/F1.dxf`` is F1's plan (legs leaving it are flagged); a plan for a
+    floor without walks is said so, not silently ignored."""
+    import ezdxf
+
+    assert plan_floor_name(SITE / "F1") == "F1"
+    assert plan_floor_name(SITE / "F1" / "geojson_map.json") == "F1"
+    assert plan_floor_name(Path("plans/F2.dxf")) == "F2"
+    (tmp_path / "plans").mkdir()
+    for name in ("F1", "F7"):  # a 2 m square in a corner: every leg leaves it
+        doc = ezdxf.new()
+        doc.modelspace().add_lwpolyline([(0, 0), (2, 0), (2, 2), (0, 2)], close=True,
+                                        dxfattribs={"layer": "OUTLINE"})
+        doc.saveas(tmp_path / "plans" / f"{name}.dxf")
+    ingest(sorted((SITE / "F1" / "path_data_files").glob("*.txt.gz"))[:1], tmp_path / "store")
+    res = CliRunner().invoke(main, ["process", "--store", str(tmp_path / "store"),
+                                    "--floor-plan", str(tmp_path / "plans" / "F1.dxf"),
+                                    "--floor-plan", str(tmp_path / "plans" / "F7.dxf")])
+    assert res.exit_code == 0, res.output
+    assert "F7.dxf: no walks of floor 'F7' to check against this plan (floors: F1)" in res.output
+    legs = processed_table(tmp_path / "store", "legs")
+    assert legs["flags"].str.contains("off_floor").all()
