@@ -175,6 +175,7 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
     say(f"{floor}: {reduction.n_samples} samples")
     raster_params, heading_params, smoothing_scores = params.raster, params.heading_raster, {}
     if params.auto_bandwidth and params.raster.kernel_based:
+        say(f"{floor}: cross-validating the smoothing over walks")
         raster_params, smoothing_scores = choose_smoothing(
             grid, mask, reduction.cv_x_m, reduction.cv_y_m, reduction.cv_strength_ut,
             reduction.cv_walk, params.raster, subsample=1)
