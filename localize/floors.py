@@ -105,8 +105,10 @@ class SiteMaps:
                     votes[f] = votes.get(f, 0) + 1
             if votes:
                 best = max(votes, key=votes.get)
-                if best in self.bundles:
-                    return self.bundles[best]
+                # the model's floors are the floor names the survey recorded (or ids)
+                found = self._by_name.get(best) or self.bundles.get(best)
+                if found is not None:
+                    return found
                 raise LocalizationError(f"{where}: the floor model says floor {best}, which "
                                         "has no bundle")
         if len(self.bundles) == 1:

@@ -286,3 +286,23 @@ def test_localize_auto_start_falls_back_to_the_first_waypoint(built, tmp_path):
     res = CliRunner().invoke(main, ["localize", str(built), str(no_wifi), "-o",
                                     str(tmp_path / "radio"), "--start", "radio"])
     assert res.exit_code == 1 and "no Wi-Fi/BLE fix" in res.output
+
+
+def test_walk_without_a_floor_header_gets_its_floor_from_the_floor_model(built, tmp_path):
+    """A trace without its header lines names no floor: the site bundle's floor model (which
+    speaks floor names) picks the floor bundle (keyed by floor id)."""
+    import gzip
+
+    import pandas as pd
+
+    walk = sorted((SITE / "F2" / "path_data_files").glob("*.txt.gz"))[0]
+    lines = gzip.decompress(walk.read_bytes()).decode().splitlines(keepends=True)
+    bare = tmp_path / "bare.txt"
+    bare.write_text("".join(ln for ln in lines if not ln.startswith("#")))
+    res = CliRunner().invoke(main, ["localize", str(built), str(bare), "-o",
+                                    str(tmp_path / "loc"), "--no-plot", "--particles", "100"])
+    assert res.exit_code == 0, res.output
+    f2 = load_bundle(built / "F2")
+    track = pd.read_parquet(tmp_path / "loc" / "bare.parquet")
+    row, col, inside = f2.grid.cell_of(track["x_m"].to_numpy(), track["y_m"].to_numpy())
+    assert inside.all() and f2.mask[row, col].mean() > 0.9
