@@ -330,7 +330,8 @@ def read_manifest(path: Path) -> dict:
     try:
         if mpath.stat().st_size > MAX_MANIFEST_BYTES:
             raise BundleIntegrityError(f"{mpath}: manifest too large")
-        manifest = json.loads(mpath.read_text(encoding="utf-8"))
+        manifest = json.loads(mpath.read_text(encoding="utf-8"),
+                              parse_constant=_refuse_constant)
     except FileNotFoundError as err:
         raise BundleError(f"{path}: not a map bundle (no manifest.json)") from err
     except (OSError, UnicodeDecodeError, ValueError) as err:
@@ -342,7 +343,55 @@ def read_manifest(path: Path) -> dict:
                           f"supported (this indoormap reads version {SCHEMA_VERSION})")
     if manifest.get("bundle_id") != bundle_id_of(manifest):
         raise BundleIntegrityError(f"{mpath}: bundle id does not match the manifest content")
+    check_manifest_layout(manifest, mpath)
     return manifest
+
+
+def _refuse_constant(name: str) -> float:
+    raise ValueError(f"non-finite number {name}")
+
+
+def _member_entry(value, what: str, mpath: Path, members: dict) -> None:
+    if not isinstance(value, str) or value not in members:
+        raise BundleIntegrityError(f"{mpath}: {what} {value!r} is not a listed member")
+
+
+def check_manifest_layout(manifest: dict, mpath: Path) -> None:
+    """The manifest's fields have the types every reader relies on, and every file it points
+    at (mask, layers, tables) is one of its checksummed members.
+
+    Raises
+    ------
+    BundleIntegrityError
+        Naming the first field that is missing or malformed.
+    """
+    def need(ok: bool, field: str) -> None:
+        if not ok:
+            raise BundleIntegrityError(f"{mpath}: field {field!r} is missing or malformed")
+
+    for key in ("site_id", "floor_id", "kind", "software_version"):
+        need(isinstance(manifest.get(key), str), key)
+    need(isinstance(manifest.get("build"), dict), "build")
+    members = manifest.get("members")
+    need(isinstance(members, dict) and all(
+        isinstance(m, dict) and isinstance(m.get("size"), int)
+        and isinstance(m.get("sha256"), str) for m in members.values()), "members")
+    tables = manifest.get("tables", {})
+    need(isinstance(tables, dict) and all(isinstance(t, dict) for t in tables.values()),
+         "tables")
+    for name, meta in tables.items():
+        _member_entry(meta.get("file"), f"table {name!r} file", mpath, members)
+    if manifest.get("grid") is None:
+        return
+    need(isinstance(manifest["grid"], dict), "grid")
+    _member_entry(manifest.get("mask"), "mask", mpath, members)
+    layers = manifest.get("layers")
+    need(isinstance(layers, dict) and all(
+        isinstance(m, dict) and isinstance(m.get("unit"), str) for m in layers.values()),
+        "layers")
+    for name, meta in layers.items():
+        for key in ("file", "std_file"):
+            _member_entry(meta.get(key), f"layer {name!r} {key}", mpath, members)
 
 
 def verify_bundle_dir(path: Path, manifest: dict) -> None:
@@ -404,5 +453,8 @@ def load_bundle(path: str | os.PathLike) -> MapBundle:
                     raise BundleIntegrityError(f"{path}: layer {name} {key} has shape "
                                                f"{arr.shape} {arr.dtype}, expected {grid.shape}"
                                                " float32")
+                if np.isinf(arr).any():
+                    raise BundleIntegrityError(f"{path}: layer {name} {key} holds infinite "
+                                               "values (NaN is the only nodata)")
                 target[name] = arr
     return MapBundle(path, manifest, grid, mask, layers, std)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -12,10 +13,12 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 import pytest
+from click.testing import CliRunner
 
 from localize.bundle import Grid, load_bundle, sample_grid
 from mapping.bundle_writer import BundleContent, Layer, write_bundle
 from mapping.registry import Registry
+from survey.cli import main
 from survey.errors import BundleError, BundleIntegrityError, RegistryError
 
 
@@ -151,6 +154,77 @@ def test_structural_tampering_is_refused(tmp_path, bundle_dir, attack):
         load_bundle(bundle_dir)
 
 
+def _set(m: dict, path: str, value) -> None:
+    """Set (or with value None, delete) the manifest field at dotted ``path``."""
+    *parents, last = path.split(".")
+    for key in parents:
+        m = m[key]
+    if value is None:
+        del m[last]
+    else:
+        m[last] = value
+
+
+@pytest.mark.parametrize("field, value, match", [
+    ("members.mask.npy", "x", "'members' is missing or malformed"),
+    ("layers.azimuth.file", None, "layer 'azimuth' file None is not a listed member"),
+    ("mask", None, "mask None is not a listed member"),
+    ("layers", ["a"], "'layers' is missing or malformed"),
+    ("site_id", None, "'site_id' is missing or malformed"),
+    ("build", None, "'build' is missing or malformed"),
+    ("tables", [1], "'tables' is missing or malformed"),
+    # a table outside the bundle, by path or by a name the members do not list
+    ("tables.walks.file", "../outside.parquet", "table 'walks' file '../outside.parquet' is "
+                                                "not a listed member"),
+])
+def test_a_manifest_with_a_valid_id_but_malformed_fields_is_refused(bundle_dir, field, value,
+                                                                     match):
+    """Someone who rewrites the manifest can recompute its id: every reader (load, verify,
+    info, diff) still gets a clear integrity error naming the field, not a traceback."""
+    from localize.bundle import bundle_id_of
+
+    m_path = bundle_dir / "manifest.json"
+    manifest = json.loads(m_path.read_text())
+    if field.startswith("members."):
+        manifest["members"]["mask.npy"] = value
+    else:
+        _set(manifest, field, value)
+    manifest["bundle_id"] = bundle_id_of(manifest)
+    m_path.write_text(json.dumps(manifest))
+    with pytest.raises(BundleIntegrityError, match=re.escape(match)):
+        load_bundle(bundle_dir)
+    res = CliRunner().invoke(main, ["bundle", "verify", str(bundle_dir)])
+    assert res.exit_code == 1 and "FAILED" in res.output and "Traceback" not in res.output
+
+
+def test_non_finite_numbers_in_a_manifest_are_refused(bundle_dir):
+    m_path = bundle_dir / "manifest.json"
+    text, n = re.subn(r'"cell_m":\s*0\.5', '"cell_m": NaN', m_path.read_text(), count=1)
+    assert n == 1
+    m_path.write_text(text)
+    with pytest.raises(BundleIntegrityError, match="non-finite number NaN"):
+        load_bundle(bundle_dir)
+
+
+def test_infinite_layer_values_are_refused(bundle_dir):
+    import hashlib
+
+    from localize.bundle import bundle_id_of
+
+    m_path = bundle_dir / "manifest.json"
+    manifest = json.loads(m_path.read_text())
+    name = manifest["layers"]["strength"]["file"]
+    arr = np.load(bundle_dir / name)
+    arr[0, 0] = np.inf
+    np.save(bundle_dir / name, arr)
+    data = (bundle_dir / name).read_bytes()
+    manifest["members"][name] = {"sha256": hashlib.sha256(data).hexdigest(), "size": len(data)}
+    manifest["bundle_id"] = bundle_id_of(manifest)
+    m_path.write_text(json.dumps(manifest))
+    with pytest.raises(BundleIntegrityError, match="infinite values"):
+        load_bundle(bundle_dir)
+
+
 def test_not_a_bundle(tmp_path):
     with pytest.raises(BundleError, match="no manifest.json"):
         load_bundle(tmp_path)
@@ -216,10 +290,6 @@ def test_registry_versions_move_forward(tmp_path):
 
 def test_registry_command_line(tmp_path):
     """publish / list / use (by #seq or id prefix; --rollback to go back) / a non-registry."""
-    from click.testing import CliRunner
-
-    from survey.cli import main
-
     write_bundle(tmp_path / "v1", _content(0.0))
     write_bundle(tmp_path / "v2", _content(1.0))
     reg, run = str(tmp_path / "reg"), CliRunner().invoke
