@@ -17,7 +17,8 @@ from survey.trace_format import bad_lines_summary
 
 from .build import BuildParams, build_floor
 from .bundle_writer import write_bundle
-from .floorplan import read_floor_plan
+from .floorplan import FloorPlan, read_floor_plan
+from .grid import grid_for_extent
 from .radio_build import build_site_radio, format_share
 from .registry import SITE_BUNDLE, Registry
 
@@ -32,6 +33,26 @@ def _iso_time(ctx: click.Context, param: click.Parameter, text: str | None) -> s
         raise click.BadParameter(f"{text!r} is not an ISO 8601 time such as "
                                  "2026-11-22T10:00:00Z", param_hint="--build-time") from err
     return text
+
+
+def _finite(ctx: click.Context, param: click.Parameter, value: float) -> float:
+    """A float option checked for NaN (click's ranges let it through)."""
+    if not np.isfinite(value):
+        raise click.BadParameter(f"{value} is not a number", param=param)
+    return value
+
+
+def check_grids(plans: dict[Path, FloorPlan], params: BuildParams) -> None:
+    """Every floor's grid (plans by the path they were read from), at the finest cells the
+    build may use, within :data:`mapping.grid.MAX_GRID_CELLS`; else a usage error naming the
+    plan and ``--cell``."""
+    cell_m = min(params.cell_m, params.min_cell_m)
+    for path, plan in plans.items():
+        try:
+            grid_for_extent(plan.width_m, plan.height_m, cell_m)
+        except ValueError as err:
+            raise click.UsageError(f"{path}: {err}; raise --cell or check the plan's "
+                                   "size") from err
 
 
 def _is_floor_dir(p: Path) -> bool:
@@ -70,7 +91,7 @@ def floor_of_traces(catalog, summary, source: Path) -> str:
 @click.option("--registry", "registry_dir", type=click.Path(path_type=Path), default=None,
               help="Also publish every bundle into this registry and make it current.")
 @click.option("--cell", "cell_m", type=click.FloatRange(0.0, 100.0, min_open=True), default=0.5,
-              show_default=True,
+              show_default=True, callback=_finite,
               help="Raster cell size (m). When the cross-validated smoothing kernel is at most "
                    "two cells wide, the floor is rastered on 0.25 m cells instead "
                    "(BuildParams.min_cell_m; the log says so).")
@@ -124,6 +145,8 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
         inputs = [source]
         plan = read_floor_plan(plan_file)
         plans = {floor_name: plan} if floor_name is not None else {}
+    check_grids({f: plans[f.name] for f in floors} if plan_file is None else {plan_file: plan},
+                params)
     site_target = out / SITE_BUNDLE
 
     def check_targets() -> None:

@@ -32,6 +32,10 @@ class FloorPlanError(IndoormapError, ValueError):
     """A floor plan cannot be read or makes no sense."""
 
 
+#: Largest floor side (m) a plan may have.
+MAX_FLOOR_SIDE_M = 20_000.0
+
+
 @dataclass(frozen=True)
 class FloorPlan:
     """A floor plan in the map frame (metres, x east, y north).
@@ -75,9 +79,26 @@ def _read_json(path: Path, what: str) -> object:
 def _features(path: Path) -> list[dict]:
     data = _read_json(path, "a GeoJSON floor plan")
     feats = data.get("features") if isinstance(data, dict) else None
-    if not feats:
+    if not feats or not isinstance(feats, list):
         raise FloorPlanError(f"{path}: a floor plan needs a FeatureCollection with features")
+    for i, f in enumerate(feats):
+        if not isinstance(f, dict) or not isinstance(f.get("properties") or {}, dict):
+            raise FloorPlanError(f"{path}: feature {i} is not a GeoJSON feature (an object "
+                                 "with an object of properties)")
     return feats
+
+
+def checked_size(path: Path, width_m: float, height_m: float) -> tuple[float, float]:
+    """``(width_m, height_m)`` of a floor, refused unless finite, positive and at most
+    :data:`MAX_FLOOR_SIDE_M` (a floor_info.json typo would otherwise ask for a raster of
+    terabytes)."""
+    if not (np.isfinite(width_m) and np.isfinite(height_m) and width_m > 0 and height_m > 0):
+        raise FloorPlanError(f"{path}: floor size {width_m} x {height_m} m is not a positive, "
+                             "finite size")
+    if max(width_m, height_m) > MAX_FLOOR_SIDE_M:
+        raise FloorPlanError(f"{path}: floor size {width_m:g} x {height_m:g} m is over "
+                             f"{MAX_FLOOR_SIDE_M:g} m on a side; a floor plan in metres?")
+    return float(width_m), float(height_m)
 
 
 def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
@@ -109,6 +130,9 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
             geoms.append(shape(f["geometry"]) if f.get("geometry") else None)
         except (KeyError, ValueError, TypeError, AttributeError) as err:
             raise FloorPlanError(f"{geo}: feature {i} has an invalid geometry ({err})") from err
+    for i, g in enumerate(geoms):
+        if g is not None and not np.isfinite(shapely.get_coordinates(g)).all():
+            raise FloorPlanError(f"{geo}: feature {i} has non-finite coordinates")
     outline = geoms[outline_idx]
     if outline is None or outline.geom_type not in ("Polygon", "MultiPolygon"):
         raise FloorPlanError(f"{geo}: feature {outline_idx} (the outline) is not a polygon")
@@ -120,9 +144,10 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
         except (ValueError, KeyError, TypeError) as err:
             raise FloorPlanError(f"{info}: needs map_info.width and map_info.height ({err})") \
                 from err
+        width, height = checked_size(info, width, height)
         lon0, lat0, lon1, lat1 = outline.bounds
-        if lon1 <= lon0 or lat1 <= lat0 or width <= 0 or height <= 0:
-            raise FloorPlanError(f"{geo}: degenerate outline bounds or floor size")
+        if lon1 <= lon0 or lat1 <= lat0:
+            raise FloorPlanError(f"{geo}: degenerate outline bounds")
         sx, sy = width / (lon1 - lon0), height / (lat1 - lat0)
 
         def to_m(coords: np.ndarray) -> np.ndarray:
@@ -131,8 +156,7 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
         geoms = [None if g is None else shapely.transform(g, to_m) for g in geoms]
         outline = geoms[outline_idx]
     else:
-        minx, miny, maxx, maxy = outline.bounds
-        width, height = maxx, maxy
+        width, height = checked_size(geo, *outline.bounds[2:])
     keep = obstacle_filter or (lambda props: True)
     obstacles = [g for i, (g, f) in enumerate(zip(geoms, feats))
                  if i != outline_idx and g is not None

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import shapely
 
-from .floorplan import FloorPlan, FloorPlanError
+from .floorplan import FloorPlan, FloorPlanError, checked_size
 
 _UNIT_TO_M = {0: 1.0, 1: 0.0254, 2: 0.3048, 4: 0.001, 5: 0.01, 6: 1.0}
 
@@ -65,7 +65,7 @@ def read_dxf_floor_plan(path: str | os.PathLike, *,
         outline = shapely.affinity.translate(outline, -minx, -miny)
         obstacles = shapely.affinity.translate(obstacles, -minx, -miny)
         minx, miny, maxx, maxy = outline.bounds
-    return FloorPlan(shapely.make_valid(outline), obstacles, maxx, maxy)
+    return FloorPlan(shapely.make_valid(outline), obstacles, *checked_size(path, maxx, maxy))
 
 
 def _entity_geometry(e, scale: float, wall_width_m: float | None):

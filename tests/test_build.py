@@ -175,6 +175,9 @@ def test_build_cli_twice_identical_bytes(tmp_path):
 
 @pytest.mark.parametrize("args, message", [
     (["--cell", "0"], "Invalid value for '--cell'"),
+    (["--cell", "nan"], "Invalid value for '--cell': nan is not a number"),
+    (["--cell", "0.001"], "F2: a 40 x 25 m floor at 0.001 m cells is 1,000,000,000 cells, over "
+                          "the limit of 20,000,000; raise --cell"),
     (["--build-time", "yesterday"], "not an ISO 8601 time"),
     (["-o", "FILE"], "is a file; -o/--out needs a folder"),
 ])
@@ -198,6 +201,28 @@ def test_a_broken_floor_info_is_named_with_its_line(tmp_path):
     res = CliRunner().invoke(main, ["build", str(floor), "-o", str(tmp_path / "out")])
     assert res.exit_code == 1
     assert f"{floor / 'floor_info.json'}:2: not valid JSON" in res.output
+
+
+@pytest.mark.parametrize("info, plan_edit, message", [
+    ('{"map_info": {"width": 1e9, "height": 1e9}}', None, "floor_info.json: floor size 1e+09 x "
+     "1e+09 m is over 20000 m on a side"),
+    ('{"map_info": {"width": NaN, "height": 25}}', None, "is not a positive, finite size"),
+    (None, lambda t: t.replace("]]", "], [NaN, 1.0]]", 1), "feature 0 has non-finite "
+                                                             "coordinates"),
+    (None, lambda t: '{"type": "FeatureCollection", "features": [1, 2]}',
+     "feature 0 is not a GeoJSON feature"),
+])
+def test_bad_floor_plan_values_are_named_before_any_work(tmp_path, info, plan_edit, message):
+    floor = tmp_path / "F2"
+    shutil.copytree(SITE / "F2", floor)
+    if info is not None:
+        (floor / "floor_info.json").write_text(info)
+    if plan_edit is not None:
+        geo = floor / "geojson_map.json"
+        geo.write_text(plan_edit(geo.read_text()))
+    res = CliRunner().invoke(main, ["build", str(floor), "-o", str(tmp_path / "out")])
+    assert res.exit_code == 1 and message in res.output, res.output
+    assert "ingest" not in res.output and "Traceback" not in res.output
 
 
 def test_sigterm_during_build_leaves_no_litter(tmp_path):
