@@ -35,6 +35,14 @@ def _safe(name: str) -> str:
     return name
 
 
+def _read_record(path: Path):
+    """A registry JSON file's content; a :class:`RegistryError` naming it when damaged."""
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as err:
+        raise RegistryError(f"{path}: damaged registry file ({err})") from err
+
+
 class Registry:
     """Bundles of many sites and floors under one folder."""
 
@@ -48,13 +56,25 @@ class Registry:
         path = self._floor(site, floor) / "history.json"
         if not path.exists():
             return []
-        return json.loads(path.read_text())
+        history = _read_record(path)
+        if not isinstance(history, list) or not all(
+                isinstance(h, dict) and isinstance(h.get("bundle_id"), str)
+                and isinstance(h.get("seq"), int) for h in history):
+            raise RegistryError(f"{path}: not a registry history (a list of versions with "
+                                "bundle_id and seq)")
+        return history
 
     def current(self, site: str, floor: str) -> dict | None:
         path = self._floor(site, floor) / "CURRENT"
         if not path.exists():
             return None
-        return json.loads(path.read_text())
+        cur = _read_record(path)
+        if not isinstance(cur, dict) or not isinstance(cur.get("bundle_id"), str):
+            raise RegistryError(f"{path}: not a registry pointer (an object with bundle_id)")
+        if not (path.parent / "versions" / _safe(cur["bundle_id"])).is_dir():
+            raise RegistryError(f"{path}: points at version {cur['bundle_id'][:16]}, which "
+                                "the registry does not hold")
+        return cur
 
     def open(self, site: str, floor: str, bundle_id: str | None = None) -> MapBundle:
         """Load (and verify) the current version, or a given one."""

@@ -22,8 +22,8 @@ def _terminated(signum: int, frame) -> None:
 
 
 class _Group(click.Group):
-    """Maps indoormap's own errors to a one-line message and exit code 1; a SIGTERM unwinds
-    like Ctrl-C does."""
+    """Maps indoormap's own errors and the operating system's (a read-only or full disk, no
+    permission) to a one-line message and exit code 1; a SIGTERM unwinds like Ctrl-C does."""
 
     def invoke(self, ctx: click.Context):
         # only where SIGTERM would kill us anyway: an embedding program's handler (or its
@@ -36,6 +36,10 @@ class _Group(click.Group):
             return super().invoke(ctx)
         except IndoormapError as err:
             click.echo(f"error: {err}", err=True)
+            sys.exit(1)
+        except OSError as err:  # the machine's refusal: read-only, permissions, disk full
+            where = f"{err.filename}: " if err.filename else ""
+            click.echo(f"error: {where}{err.strerror or err}", err=True)
             sys.exit(1)
         finally:
             if ours:

@@ -288,6 +288,27 @@ def test_registry_versions_move_forward(tmp_path):
         reg.open("site", "F1", e2["bundle_id"])
 
 
+@pytest.mark.parametrize("name, text, message", [
+    ("history.json", "garbage", "history.json: damaged registry file"),
+    ("history.json", '{"x": 1}', "history.json: not a registry history"),
+    ("CURRENT", "garbage", "CURRENT: damaged registry file"),
+    ("CURRENT", '{"bundle_id": "' + "ab" * 32 + '", "seq": 9}',
+     "CURRENT: points at version abababababababab, which the registry does not hold"),
+])
+def test_a_damaged_registry_is_named(tmp_path, name, text, message):
+    """list, use and publish on a registry whose history or pointer was damaged: a one-line
+    error naming the file (exit 1), never a traceback or a silent "no current version"."""
+    write_bundle(tmp_path / "v1", _content(0.0))
+    reg = tmp_path / "reg"
+    Registry(reg).publish(tmp_path / "v1")
+    (reg / "site" / "F1" / name).write_text(text)
+    for args in (["list", str(reg)], ["use", str(reg), "site/F1", "#1"],
+                 ["publish", str(tmp_path / "v1"), "--registry", str(reg)]):
+        res = CliRunner().invoke(main, ["bundle", *args])
+        assert res.exit_code == 1 and message in res.output, (args, res.output)
+        assert "Traceback" not in res.output
+
+
 def test_registry_command_line(tmp_path):
     """publish / list / use (by #seq or id prefix; --rollback to go back) / a non-registry."""
     write_bundle(tmp_path / "v1", _content(0.0))

@@ -98,6 +98,18 @@ def test_store_that_is_not_a_store_exits_1(tmp_path):
     assert result.exit_code == 1 and "not a survey store" in result.output
 
 
+def test_an_output_the_system_refuses_is_one_line_naming_it(tmp_path):
+    """An operating-system refusal (here: a path under a file; also a read-only disk, no
+    permission, a full disk) is exit 1 with the path and the reason, not a traceback."""
+    (tmp_path / "FILE").write_text("keep me")
+    write_trace(tmp_path / "w.txt", small_trace())
+    res = CliRunner().invoke(main, ["ingest", str(tmp_path / "w.txt"), "--store",
+                                    str(tmp_path / "FILE" / "store")])
+    assert res.exit_code == 1
+    assert res.output == f"error: {tmp_path / 'FILE' / 'store'}: Not a directory\n"
+    assert (tmp_path / "FILE").read_text() == "keep me"
+
+
 def test_progress_off_a_terminal_prints_about_every_tenth():
     import io
 
