@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import sys
 import tempfile
+from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
 
@@ -80,6 +81,23 @@ def floor_of_traces(catalog, summary, source: Path) -> str:
         found = f"walks of floors {', '.join(names)}" if names else "no readable walks"
         raise click.UsageError(f"{source}: {found}; name the plan's floor with --floor")
     return names[0]
+
+
+def check_floor_names(catalog, floor: str, folder: Path, say: Callable[[str], None]) -> None:
+    """The traces read from ``folder`` for ``floor``: a usage error when none of them is of
+    that floor (the folder is named otherwise than the traces' floor), a note of those left
+    out because they are of another floor."""
+    src = catalog["source_path"].astype(str)
+    mine = catalog[src.str.startswith(str(folder.resolve())) | src.str.startswith(str(folder))]
+    other = mine[(mine["floor"] != floor) & (mine["floor_id"] != floor)]
+    if len(mine) and len(other) == len(mine):
+        names = ", ".join(sorted(other["floor"].astype(str).unique()))
+        raise click.UsageError(f"{folder}: its walks are recorded as floor {names}, not "
+                               f"{floor}; name the floor folder after it, or build with --plan "
+                               "and --floor")
+    if len(other):
+        say(f"  left out of {floor}: {len(other)} walk(s) in {folder} recorded as floor "
+            f"{', '.join(sorted(other['floor'].astype(str).unique()))}")
 
 
 @click.command("build")
@@ -175,6 +193,9 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
         if not plans:  # --plan without --floor: the floor of SOURCE's traces
             plans = {floor_of_traces(cat, summary, source): plan}
             check_targets()
+        else:
+            for name, folder in zip(plans, inputs):
+                check_floor_names(cat, name, folder, say)
         reachable = {(s, fl): plans[fl].reachable for s, fl in
                      cat[["site", "floor"]].drop_duplicates().itertuples(index=False)
                      if fl in plans}

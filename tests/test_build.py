@@ -225,6 +225,27 @@ def test_bad_floor_plan_values_are_named_before_any_work(tmp_path, info, plan_ed
     assert "ingest" not in res.output and "Traceback" not in res.output
 
 
+def test_a_floor_folder_named_otherwise_than_its_walks(tmp_path):
+    """A floor folder whose walks are recorded as another floor is a usage error saying which
+    floor; walks of another floor among the right ones are left out with a note."""
+    floor = tmp_path / "floor1"
+    shutil.copytree(SITE / "F1", floor)
+    res = CliRunner().invoke(main, ["build", str(floor), "-o", str(tmp_path / "out")])
+    assert res.exit_code == 2, res.output
+    assert "its walks are recorded as floor F1, not floor1" in res.output
+    assert not (tmp_path / "out").exists()
+    f2 = tmp_path / "F2"
+    shutil.copytree(SITE / "F2", f2)
+    stray = sorted((SITE / "F1" / "path_data_files").glob("*.txt.gz"))[0]
+    shutil.copy(stray, f2 / "path_data_files")
+    res = CliRunner().invoke(main, ["build", str(f2), "-o", str(tmp_path / "out")])
+    assert res.exit_code == 0, res.output
+    assert "left out of F2: 1 walk(s) in" in res.output and "recorded as floor F1" in res.output
+    assert stray.name.split(".")[0] not in {
+        w["trace_id"] for w in load_bundle(tmp_path / "out" / "F2").manifest["build"]
+        ["source_walks"]}
+
+
 def test_sigterm_during_build_leaves_no_litter(tmp_path):
     """A build killed with SIGTERM (a job scheduler's stop) unwinds: its temporary store is
     removed and no output bundle appears."""
