@@ -16,6 +16,7 @@ the command then exits with status 1.
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 
@@ -105,6 +106,8 @@ def _parse_start(start: str) -> str | tuple[float, float]:
         return start
     try:
         x, y = (float(v) for v in start.split(","))
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise ValueError("not finite")
     except ValueError as err:
         raise click.BadParameter(f"must be auto, waypoint, radio or X,Y (m); got {start!r}",
                                  param_hint="--start") from err

@@ -16,6 +16,7 @@ go on, and the exit code is then 1:
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 
@@ -157,9 +158,12 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
     if calibration not in ("auto", "none"):
         try:
             k, b = (float(v) for v in calibration.split(","))
+            if not (math.isfinite(k) and math.isfinite(b) and k > 0):
+                raise ValueError("K > 0 and B finite")
         except ValueError as err:
-            raise click.BadParameter(f"--calibration must be auto, none or K,B; got "
-                                     f"{calibration!r}") from err
+            raise click.BadParameter(f"must be auto, none or K,B with K > 0 and B finite "
+                                     f"(dB); got {calibration!r}",
+                                     param_hint="--calibration") from err
         given = (k, b)
     maps = _open_maps(bundle_path)
     out = _CsvRows(["trace_id", "floor", "t_ms", "n_known", "x_m", "y_m", "sigma_m", "error_m"])

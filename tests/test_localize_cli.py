@@ -44,9 +44,10 @@ def test_localize_errors_exit_1(truth_bundles, tmp_path):  # noqa: F811
     assert res.exit_code == 1
     assert "floor" in res.output
     f1_walk = min((SAMPLE / "F1" / "path_data_files").glob("*.txt.gz"))
-    res = CliRunner().invoke(main, ["localize", str(truth_bundles["F1"]), str(f1_walk), "-o",
-                                    str(tmp_path), "--start", "nonsense"])
-    assert res.exit_code == 2, res.output
+    for start in ("nonsense", "nan,nan", "1,inf"):
+        res = CliRunner().invoke(main, ["localize", str(truth_bundles["F1"]), str(f1_walk),
+                                        "-o", str(tmp_path), "--start", start])
+        assert res.exit_code == 2 and "Invalid value for --start" in res.output, res.output
 
 
 def test_evaluate_prints_errors_and_cdfs(truth_bundles, tmp_path):  # noqa: F811

@@ -205,9 +205,10 @@ def test_wifi_locate_command(built, tmp_path):
     assert alone.exit_code == 0, alone.output
     err_alone = np.array([float(r["error_m"]) for r in _rows(alone.stdout) if r["error_m"]])
     assert len(err_alone) == len(err) and not np.allclose(err_alone, err)
-    given = runner.invoke(main, ["wifi-locate", "--calibration", "1.1,x", str(built / "F2"),
-                                 str(SITE / "F2" / "path_data_files")])
-    assert given.exit_code == 2 and "K,B" in given.output
+    for bad in ("1.1,x", "0,0", "-5,3", "1,nan"):  # usage errors before any walk is read
+        given = runner.invoke(main, ["wifi-locate", "--calibration", bad, str(built / "F2"),
+                                     str(SITE / "F2" / "path_data_files")])
+        assert given.exit_code == 2 and "K,B with K > 0" in given.output, given.output
 
 
 def test_walk_without_wifi(built, tmp_path):
