@@ -196,7 +196,7 @@ class MapBundle:
         tables = self.manifest.get("tables", {})
         if name not in tables:
             raise BundleError(f"{self.path}: no table {name!r}; has {sorted(tables)}")
-        return pq.read_table(self.path / tables[name]["file"])
+        return pq.read_table(self.path / tables[name]["file"], page_checksum_verification=True)
 
     def has_table(self, name: str) -> bool:
         return name in self.manifest.get("tables", {})

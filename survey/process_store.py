@@ -25,14 +25,14 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pyarrow.compute as pc
-import pyarrow.parquet as pq
 
 from .errors import ProcessingError
 from .magcal import MagCalResult, fit_ellipsoid
 from .process import ProcessedWalk, ProcessParams, calibration_sessions, process_walk, \
     reported_bias
 from .publish import atomic_write_bytes, crash_point, fsync_dir
-from .store import SurveyStore, _arrow_column, _parquet_bytes, part_path
+from .store import (SurveyStore, _arrow_column, _parquet_bytes, part_path,
+                    read_parquet_checked)
 
 _MAG_COLUMNS = ["stream", "t_ms", "x", "y", "z", "bx", "by", "bz"]
 PROCESSED_TABLES = ("samples", "steps", "legs", "wifi", "ble")
@@ -103,7 +103,8 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
     root = store.root / "processed"
     cat = store.traces(site, floor)
     pcat_path = root / "catalog.parquet"
-    old = pd.read_parquet(pcat_path) if pcat_path.exists() else pd.DataFrame(
+    old = read_parquet_checked(pcat_path, what="processed catalog").to_pandas() \
+        if pcat_path.exists() else pd.DataFrame(
         {c: pd.Series([], dtype="str") for c in PROCESSED_CATALOG_COLUMNS})
     psha = params_sha256(params)
     report = ProcessReport()
@@ -197,7 +198,7 @@ def processed_catalog(store: SurveyStore | str) -> pd.DataFrame:
     path = store.root / "processed" / "catalog.parquet"
     if not path.exists():
         raise ProcessingError(f"{store.root}: not processed yet; run `indoormap process`")
-    cat = pd.read_parquet(path)
+    cat = read_parquet_checked(path, what="processed catalog").to_pandas()
     cat["summary"] = [json.loads(s) for s in cat["summary_json"]]
     return cat
 
@@ -225,9 +226,9 @@ def processed_part(store: SurveyStore | str, name: str, walk: pd.Series, *,
     if name not in PROCESSED_TABLES:
         raise ProcessingError(f"unknown processed table {name!r}; expected {PROCESSED_TABLES}")
     store = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
-    table = pq.read_table(store.root / "processed" / part_path(
+    table = read_parquet_checked(store.root / "processed" / part_path(
         name, walk["site"], walk["floor"], walk["trace_id"], walk["sha256"]),
-        columns=None if columns is None else list(columns))
+        None if columns is None else list(columns), what="processed part")
     if text_as_category:
         for i, f in enumerate(table.schema):
             if pa.types.is_string(f.type) or pa.types.is_large_string(f.type):

@@ -103,6 +103,16 @@ def catalog_row(trace: Trace, *, source_path: str, sha256: str, size_bytes: int,
     }
 
 
+def read_parquet_checked(path: Path, columns: list[str] | None = None, *,
+                         what: str = "part file") -> pa.Table:
+    """A store Parquet file with its page checksums verified; a :class:`StoreError` naming
+    the file when it is missing, unreadable or corrupted."""
+    try:
+        return pq.read_table(path, columns=columns, page_checksum_verification=True)
+    except (OSError, pa.ArrowException) as err:
+        raise StoreError(f"{path}: missing, unreadable or corrupted {what} ({err})") from err
+
+
 def _parquet_bytes(table: pa.Table) -> bytes:
     """Parquet with page checksums; dictionary encoding only for text (floats gain nothing)."""
     text = [f.name for f in table.schema
@@ -209,10 +219,7 @@ class SurveyStore:
         path = self.root / "catalog.parquet"
         if not path.exists():
             return pd.DataFrame({c: pd.Series([], dtype=t) for c, t in CATALOG_COLUMNS.items()})
-        try:
-            return pq.read_table(path).to_pandas()
-        except (OSError, pa.ArrowException) as err:
-            raise StoreError(f"{path}: unreadable catalog ({err})") from err
+        return read_parquet_checked(path, what="catalog").to_pandas()
 
     def traces(self, site: str | None = None, floor: str | None = None) -> pd.DataFrame:
         """Catalog rows, optionally of one site and/or floor (partition names or ids)."""
@@ -250,11 +257,8 @@ class SurveyStore:
         get = row.get if isinstance(row, dict) else lambda k: getattr(row, k)
         path = self.root / part_path(name, get("site"), get("floor"), get("trace_id"),
                                      get("sha256"))
-        try:
-            return pq.read_table(path, columns=None if columns is None
-                                 else ["trace_id", *[c for c in columns if c != "trace_id"]])
-        except (OSError, pa.ArrowException) as err:
-            raise StoreError(f"{path}: missing or unreadable part file ({err})") from err
+        return read_parquet_checked(path, None if columns is None
+                                    else ["trace_id", *[c for c in columns if c != "trace_id"]])
 
     # ---- writing ----------------------------------------------------------------------------
 
