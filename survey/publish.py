@@ -2,8 +2,8 @@
 
 Every output indoormap writes goes through here: content is written into a temporary sibling,
 fsynced, moved into place with :func:`os.replace`, and the parent directory is fsynced. A crash at
-any point leaves either the old output or the new one, plus at most a ``.tmp-*`` sibling that the
-next publish to the same parent removes.
+any point leaves either the old output or the new one, plus at most a ``.tmp-<pid>-*`` sibling
+that the next publish to the same parent removes once that process is gone.
 
 Tests inject crashes with the ``INDOORMAP_CRASH_AT`` environment variable: when it names a crash
 point passed to :func:`crash_point`, the process exits immediately with ``os._exit(70)``.
@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import secrets
 import shutil
 import tempfile
 from collections.abc import Iterator
@@ -63,13 +64,42 @@ def _fsync_tree(root: Path) -> None:
         fsync_dir(dirpath)
 
 
-def remove_stale_temporaries(parent: str | os.PathLike) -> int:
-    """Remove ``.tmp-*`` leftovers of crashed publishes in ``parent``; returns how many."""
+#: Marks this process's temporaries apart from those of a dead process that had its pid.
+_PROCESS_TOKEN = secrets.token_hex(4)
+
+
+def tmp_prefix(prefix: str = TMP_PREFIX) -> str:
+    """``prefix`` plus this process's id and token: temporaries say who made them, so that
+    cleaning up after a crash never removes the work in progress of a live process."""
+    return f"{prefix}{os.getpid()}-{_PROCESS_TOKEN}-"
+
+
+def _owner_alive(name: str, prefix: str) -> bool:
+    """Whether the process that made a temporary (``<prefix><pid>-<token>-...``) still runs."""
+    pid, _, rest = name[len(prefix):].partition("-")
+    if not pid.isdigit() or int(pid) >= 2**22:
+        return False  # no owner recorded: a leftover of an older indoormap
+    if int(pid) == os.getpid():
+        return rest.startswith(_PROCESS_TOKEN + "-")  # else a dead process had our pid
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # another user's live process
+    return True
+
+
+def remove_stale_temporaries(parent: str | os.PathLike, prefix: str = TMP_PREFIX) -> int:
+    """Remove ``prefix*`` leftovers of crashed or killed processes in ``parent`` (those whose
+    process no longer runs); returns how many."""
     parent = Path(parent)
     if not parent.is_dir():
         return 0
     n = 0
-    for p in parent.glob(TMP_PREFIX + "*"):
+    for p in parent.glob(prefix + "*"):
+        if _owner_alive(p.name, prefix):
+            continue
         if p.is_dir() and not p.is_symlink():
             shutil.rmtree(p, ignore_errors=True)
         else:
@@ -88,7 +118,7 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes, *, overwrite: bool 
     if path.exists() and not overwrite:
         raise PublishError(f"{path}: exists; pass overwrite=True (CLI: --overwrite) to replace it")
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=TMP_PREFIX, dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=tmp_prefix(), dir=path.parent)
     try:
         os.fchmod(fd, FILE_MODE)
         with os.fdopen(fd, "wb") as fh:
@@ -119,7 +149,7 @@ def atomic_directory(target: str | os.PathLike, *, overwrite: bool = False,
         raise PublishError(f"{target}: exists; pass overwrite=True (CLI: --overwrite) to replace it")
     target.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_temporaries(target.parent)
-    tmp = Path(tempfile.mkdtemp(prefix=TMP_PREFIX, dir=target.parent))
+    tmp = Path(tempfile.mkdtemp(prefix=tmp_prefix(), dir=target.parent))
     os.chmod(tmp, DIR_MODE)
     try:
         yield tmp
@@ -127,7 +157,7 @@ def atomic_directory(target: str | os.PathLike, *, overwrite: bool = False,
         _fsync_tree(tmp)
         crash_point(f"{crash_prefix}:before-rename")
         if target.exists():
-            old = Path(tempfile.mkdtemp(prefix=TMP_PREFIX, dir=target.parent))
+            old = Path(tempfile.mkdtemp(prefix=tmp_prefix(), dir=target.parent))
             os.replace(target, old / "old")
             os.replace(tmp, target)
             shutil.rmtree(old, ignore_errors=True)

@@ -38,3 +38,28 @@ def test_atomic_directory_all_or_nothing(tmp_path):
         (tmp / "y.txt").write_text("3")
     assert sorted(p.name for p in target.iterdir()) == ["y.txt"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+def test_stale_temporaries_are_those_of_processes_gone(tmp_path):
+    """Cleaning up after a crash removes the temporaries of dead processes (and of a dead
+    process that had this process's pid) but never a live process's work in progress."""
+    import subprocess
+    import sys
+
+    from survey.publish import remove_stale_temporaries, tmp_prefix
+
+    dead_pid = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead_pid.wait()
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    try:
+        names = {"mine": tmp_prefix() + "a", "live": f".tmp-{live.pid}-0123abcd-b",
+                 "dead": f".tmp-{dead_pid.pid}-0123abcd-c",
+                 "reused pid": f".tmp-{os.getpid()}-0123abcd-d", "old format": ".tmp-xyz"}
+        for name in names.values():
+            (tmp_path / name).mkdir()
+        assert remove_stale_temporaries(tmp_path) == 3
+        assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+            [names["mine"], names["live"]])
+    finally:
+        live.kill()
+        live.wait()
