@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
+import shutil
 import sys
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from datetime import datetime
 from pathlib import Path
 
@@ -14,6 +16,7 @@ import numpy as np
 
 from localize.bundle import load_bundle
 from survey.errors import IndoormapError, PublishError
+from survey.publish import remove_stale_temporaries, replace_together, tmp_prefix
 from survey.trace_format import bad_lines_summary
 
 from .build import BuildParams, build_floor
@@ -100,6 +103,27 @@ def check_floor_names(catalog, floor: str, folder: Path, say: Callable[[str], No
             f"{', '.join(sorted(other['floor'].astype(str).unique()))}")
 
 
+#: Prefix of a build's temporary survey store in the system's temporary folder.
+TMP_STORE_PREFIX = "indoormap-build-"
+
+
+@contextlib.contextmanager
+def staging_folder(out: Path) -> Iterator[Path]:
+    """A temporary folder inside ``out`` (created if missing) where a build writes its
+    bundles before they are moved into place together; removed on the way out, and so is
+    ``out`` when this created it and it stayed empty (a failed build leaves nothing)."""
+    created = not out.exists()
+    out.mkdir(parents=True, exist_ok=True)
+    remove_stale_temporaries(out)
+    stage = Path(tempfile.mkdtemp(prefix=tmp_prefix(), dir=out))
+    try:
+        yield stage
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+        if created and not any(out.iterdir()):
+            out.rmdir()
+
+
 @click.command("build")
 @click.argument("source", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("-o", "--out", "out", required=True, type=click.Path(path_type=Path),
@@ -173,7 +197,9 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
                 raise PublishError(f"{target} exists; pass --overwrite to replace it")
 
     check_targets()
-    with tempfile.TemporaryDirectory(prefix="indoormap-build-") as tmp:
+    remove_stale_temporaries(tempfile.gettempdir(), prefix=TMP_STORE_PREFIX)
+    with staging_folder(out) as stage, \
+            tempfile.TemporaryDirectory(prefix=tmp_prefix(TMP_STORE_PREFIX)) as tmp:
         store_path = store_dir or Path(tmp) / "store"
 
         def say(msg: str) -> None:
@@ -206,34 +232,36 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
             say(f"  skipped {source_of.get(tid, tid)}: {reason}")
         registry = Registry(registry_dir) if registry_dir else None
         radio = build_site_radio(store, list(plans), params=params.radio, progress=say)
-        site_id, site_build_time, site_walks = "", "", []
+        site_id, site_build_time, site_walks, done = "", "", [], []
         for name, plan in plans.items():
-            target = out / name
             content = build_floor(store, plan, floor=name, params=params, radio=radio,
                                   progress=say)
             site_id = content.site_id
             site_build_time = max(site_build_time, content.build["build_time"])
             site_walks += content.build["source_walks"]
-            bundle_id = write_bundle(target, content, overwrite=overwrite)
+            bundle_id = write_bundle(stage / name, content)
             cov = content.metrics["coverage"]
-            click.echo(f"{name}: bundle {bundle_id[:16]} -> {target} "
-                       f"({content.metrics['n_walks']} walks; reachable area within 2 m of a "
-                       f"sample: {100 * cov['within_2m']:.0f} %)")
-            if registry:
-                entry = registry.publish(target)
-                click.echo(f"  published as {content.site_id}/{name} #{entry['seq']}")
+            done.append((name, f"{name}: bundle {bundle_id[:16]} -> {out / name} "
+                               f"({content.metrics['n_walks']} walks; reachable area within "
+                               f"2 m of a sample: {100 * cov['within_2m']:.0f} %)"))
         site_content = radio.site_content(site_id, build={
             "build_time": site_build_time, "seed": params.seed,
             "source_walks": sorted(site_walks, key=lambda w: w["trace_id"])})
-        site_bundle_id = write_bundle(site_target, site_content, overwrite=overwrite)
+        site_bundle_id = write_bundle(stage / SITE_BUNDLE, site_content)
         fm = site_content.metrics["floor_model"]
         acc = ("no floor model (no radio rows)" if fm is None else
                f"floor model: {len(fm['floors'])} floors, cross-validated per scan "
                + format_share(fm["cv_scan_accuracy"]))
-        click.echo(f"site: bundle {site_bundle_id[:16]} -> {site_target} ({acc})")
-        if registry:
-            entry = registry.publish(site_target)
-            click.echo(f"  published as {site_content.site_id}/{SITE_BUNDLE} #{entry['seq']}")
+        done.append((SITE_BUNDLE, f"site: bundle {site_bundle_id[:16]} -> {site_target} "
+                                  f"({acc})"))
+        # the floors and their site bundle change together, once all are built
+        replace_together([(stage / name, out / name) for name, _ in done],
+                         overwrite=overwrite)
+        for name, line in done:
+            click.echo(line)
+            if registry:
+                entry = registry.publish(out / name)
+                click.echo(f"  published as {site_id}/{name} #{entry['seq']}")
 
 
 @click.group("bundle")

@@ -168,3 +168,29 @@ def atomic_directory(target: str | os.PathLike, *, overwrite: bool = False,
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+def replace_together(moves: list[tuple[Path, Path]], *, overwrite: bool = False) -> None:
+    """Move finished directories (each staged in a temporary folder on the targets' file
+    system) onto their targets one right after the other, so that a set of outputs made to
+    go together (a site's floor bundles and its site bundle) changes at once: a crash while
+    they are being made leaves the old set whole; only one between these renames (a few
+    milliseconds) can leave a mix. Replaced targets are deleted after all moved."""
+    for _, target in moves:
+        if target.exists() and not overwrite:
+            raise PublishError(f"{target}: exists; pass overwrite=True (CLI: --overwrite) to "
+                               "replace it")
+    if not moves:
+        return
+    parents = {target.parent for _, target in moves}
+    aside = Path(tempfile.mkdtemp(prefix=tmp_prefix(), dir=moves[0][1].parent))
+    try:
+        for i, (staged, target) in enumerate(moves):
+            if target.exists():
+                os.replace(target, aside / str(i))
+            os.replace(staged, target)
+            crash_point(f"replace_together:after-{i}")
+        for parent in parents:
+            fsync_dir(parent)
+    finally:
+        shutil.rmtree(aside, ignore_errors=True)

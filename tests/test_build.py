@@ -246,6 +246,41 @@ def test_a_floor_folder_named_otherwise_than_its_walks(tmp_path):
         ["source_walks"]}
 
 
+def test_a_build_killed_before_its_last_bundle_leaves_the_old_set(tmp_path, monkeypatch):
+    """A floor's bundle and its site bundle change together: a build that dies after writing
+    the floor's new bundle but before the site's leaves both old ones (before: a new floor
+    bundle next to the old site bundle, each verifying on its own); the next build cleans the
+    dead build's staging folder and temporary store."""
+    import os
+    import subprocess
+    import sys
+    import tempfile
+
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp))
+    out = tmp_path / "out"
+    old = CliRunner().invoke(main, ["build", str(SITE / "F2"), "-o", str(out)])
+    assert old.exit_code == 0, old.output
+    ids = {n: load_bundle(out / n).bundle_id for n in ("F2", "_site")}
+    killed = subprocess.run(
+        [sys.executable, "-m", "survey.cli", "build", str(SITE / "F2"), "-o", str(out),
+         "--overwrite", "--build-time", "2030-01-01T00:00:00Z"], capture_output=True,
+        env={**os.environ, "INDOORMAP_CRASH_AT": "bundle:after-rename", "TMPDIR": str(tmp)},
+        cwd=Path(__file__).resolve().parents[1])
+    assert killed.returncode == 70  # died right after the floor's bundle was complete
+    assert {n: load_bundle(out / n).bundle_id for n in ("F2", "_site")} == ids
+    assert [p.name for p in out.iterdir() if p.name.startswith(".tmp-")]  # the dead stage
+    assert list(tmp.glob("indoormap-build-*"))  # and its store
+    again = CliRunner().invoke(main, ["build", str(SITE / "F2"), "-o", str(out), "--overwrite",
+                                      "--build-time", "2030-01-01T00:00:00Z"])
+    assert again.exit_code == 0, again.output
+    assert sorted(p.name for p in out.iterdir()) == ["F2", "_site"]
+    assert not list(tmp.iterdir())
+    assert all(load_bundle(out / n).manifest["build"]["build_time"] == "2030-01-01T00:00:00Z"
+               for n in ("F2", "_site"))
+
+
 def test_sigterm_during_build_leaves_no_litter(tmp_path):
     """A build killed with SIGTERM (a job scheduler's stop) unwinds: its temporary store is
     removed and no output bundle appears."""
