@@ -412,10 +412,15 @@ def verify_bundle_dir(path: Path, manifest: dict) -> None:
             raise BundleIntegrityError(f"{path}: member {name} does not match its checksum "
                                        "(changed or corrupted)")
         listed.add(os.path.normpath(p))
+    folders = {os.path.normpath(q) for m in listed for q in Path(m).parents}
     for dirpath, dirnames, filenames in os.walk(path):
         for d in dirnames:
             if Path(dirpath, d).is_symlink():
                 raise BundleIntegrityError(f"{path}: link {Path(dirpath, d)} in bundle")
+            sub = os.path.normpath(os.path.join(dirpath, d))
+            if sub not in folders:
+                raise BundleIntegrityError(f"{path}: folder {os.path.relpath(sub, path)} holds "
+                                           "no member of the manifest")
         for f in filenames:
             q = os.path.normpath(os.path.join(dirpath, f))
             if q != os.path.normpath(path / "manifest.json") and q not in listed:

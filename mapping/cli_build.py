@@ -195,6 +195,9 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
         for target in [*(out / name for name in plans), site_target]:
             if target.exists() and not overwrite:
                 raise PublishError(f"{target} exists; pass --overwrite to replace it")
+            if target.exists() and not (target / "manifest.json").is_file():
+                raise PublishError(f"{target} exists and is not a map bundle; --overwrite "
+                                   "replaces bundles only, move it away first")
 
     check_targets()
     remove_stale_temporaries(tempfile.gettempdir(), prefix=TMP_STORE_PREFIX)

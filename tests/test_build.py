@@ -165,6 +165,12 @@ def test_build_cli_twice_identical_bytes(tmp_path):
     assert files and all((a / f).read_bytes() == (b / f).read_bytes() for f in files)
     again = runner.invoke(main, ["build", str(SITE / "F2"), "-o", str(tmp_path / "a")])
     assert again.exit_code == 1 and "exists; pass --overwrite" in again.output
+    (tmp_path / "c" / "F2").mkdir(parents=True)  # not a bundle: --overwrite leaves it alone
+    (tmp_path / "c" / "F2" / "notes.txt").write_text("keep me")
+    other = runner.invoke(main, ["build", str(SITE / "F2"), "-o", str(tmp_path / "c"),
+                                 "--overwrite"])
+    assert other.exit_code == 1 and "is not a map bundle" in other.output
+    assert (tmp_path / "c" / "F2" / "notes.txt").read_text() == "keep me"
     info = runner.invoke(main, ["bundle", "info", str(a)])
     assert info.exit_code == 0 and "layer strength" in info.output and "floor F2" in info.output
     site = runner.invoke(main, ["bundle", "info", str(tmp_path / "a" / "_site")])

@@ -105,8 +105,8 @@ def test_every_flipped_byte_is_rejected(tmp_path, bundle_dir):
     assert tried > 300
 
 
-@pytest.mark.parametrize("attack", ["extra", "missing", "symlink", "dotdot", "absolute",
-                                    "schema", "npy_object"])
+@pytest.mark.parametrize("attack", ["extra", "empty_folder", "missing", "symlink", "dotdot",
+                                    "absolute", "schema", "npy_object"])
 def test_structural_tampering_is_refused(tmp_path, bundle_dir, attack):
     m_path = bundle_dir / "manifest.json"
     manifest = json.loads(m_path.read_text())
@@ -119,6 +119,9 @@ def test_structural_tampering_is_refused(tmp_path, bundle_dir, attack):
     if attack == "extra":
         (bundle_dir / "layers" / "evil.npy").write_bytes(b"x")
         match = "not listed"
+    elif attack == "empty_folder":
+        (bundle_dir / "layers" / "more").mkdir()
+        match = "folder layers/more holds no member"
     elif attack == "missing":
         (bundle_dir / "layers" / "azimuth_std.npy").unlink()
         match = "missing"

@@ -174,6 +174,17 @@ def test_existing_output_needs_overwrite(sample):
     assert _digests(out) == before
 
 
+def test_overwrite_replaces_only_a_simulated_site(tmp_path):
+    """--overwrite on a folder that is not a simulated site (a typo in OUT_DIR) keeps it."""
+    from survey.cli import main
+
+    (tmp_path / "thesis").mkdir()
+    (tmp_path / "thesis" / "chapter1.tex").write_text("keep me")
+    res = CliRunner().invoke(main, ["simulate", str(tmp_path / "thesis"), "--overwrite"])
+    assert res.exit_code == 1 and "is not a simulated site" in res.output
+    assert (tmp_path / "thesis" / "chapter1.tex").read_text() == "keep me"
+
+
 def test_different_seed_different_files(tmp_path):
     small = {"n_floors": 1, "walks_per_floor": 2, "walk_duration_s": (20.0, 25.0),
              "walks_without_wifi": 0}

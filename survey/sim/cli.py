@@ -31,6 +31,10 @@ def simulate(out_dir: Path, preset: str, seed: int | None, overwrite: bool) -> N
     # prints them on one line and exits with code 1
     if out_dir.exists() and not overwrite:
         raise PublishError(f"{out_dir} exists; pass --overwrite to replace it")
+    if out_dir.exists() and any(out_dir.iterdir()) \
+            and not (out_dir / "truth" / "site.json").is_file():
+        raise PublishError(f"{out_dir} exists and is not a simulated site; --overwrite "
+                           "replaces simulated sites only, move it away first")
     params = SiteParams.preset_params(preset, seed=seed)
     site = simulate_site(params, out_dir, overwrite=overwrite)
     elapsed = time.perf_counter() - t0
