@@ -8,6 +8,9 @@ from pathlib import Path
 
 import click
 
+from survey.errors import PublishError
+from survey.publish import atomic_directory
+
 
 @click.command("validate")
 @click.argument("bundle", type=click.Path(exists=True, file_okay=False, path_type=Path))
@@ -34,10 +37,11 @@ import click
                    "(figures then differ from benchmarks/map_accuracy.py).")
 @click.option("--no-holdout", is_flag=True, help="Skip the held-out evaluation.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress messages.")
+@click.option("--overwrite", is_flag=True, help="Replace an existing report folder.")
 def validate_command(bundle: Path, store_dir: Path | None, out_dir: Path,
                      thresholds_file: Path | None, floor_dir: Path | None,
                      holdout_subsample: int, holdout_folds: int, no_baseline: bool,
-                     no_holdout: bool, quiet: bool) -> None:
+                     no_holdout: bool, quiet: bool, overwrite: bool) -> None:
     """Validate a floor's map BUNDLE: coverage, consistency, held-out accuracy, predicted
     localization quality, calibration, data quality. Writes REPORT_DIR/report.html (one
     self-contained file), metrics.json and figures/*.png.
@@ -53,6 +57,12 @@ def validate_command(bundle: Path, store_dir: Path | None, out_dir: Path,
         write_metrics,
     )
 
+    if out_dir.exists() and any(out_dir.iterdir()):  # said before minutes of work
+        if not overwrite:
+            raise PublishError(f"{out_dir} exists; pass --overwrite to replace it")
+        if not (out_dir / "metrics.json").is_file():
+            raise PublishError(f"{out_dir} exists and is not a validation report; --overwrite "
+                               "replaces reports only, move it away first")
     try:
         thresholds = load_thresholds(thresholds_file)
     except ValidationError as err:
@@ -69,13 +79,15 @@ def validate_command(bundle: Path, store_dir: Path | None, out_dir: Path,
     result = validate_bundle(bundle, store_dir, thresholds=thresholds, params=params,
                              floor_dir=floor_dir, progress=say)
     say("figures and report")
-    try:
-        from mapping.report_html import write_report
-    except ImportError as err:  # matplotlib missing: the verdict and metrics still stand
-        report = write_metrics(result, out_dir)
-        click.echo(f"warning: no HTML report or figures ({err}); wrote {report}", err=True)
-    else:
-        report = write_report(result, out_dir)
+    with atomic_directory(out_dir, overwrite=True) as tmp:  # the whole report, or the old one
+        try:
+            from mapping.report_html import write_report
+        except ImportError as err:  # matplotlib missing: the verdict and metrics still stand
+            report = out_dir / write_metrics(result, tmp).name
+            click.echo(f"warning: no HTML report or figures ({err}); wrote {report}",
+                       err=True)
+        else:
+            report = out_dir / write_report(result, tmp).name
     for line in summary_lines(result):
         click.echo(line)
     click.echo(f"report: {report} ({time.perf_counter() - t0:.0f} s)")

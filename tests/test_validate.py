@@ -242,6 +242,28 @@ def test_without_store_checks_the_bundle_alone(sites, tmp_path):
     assert (tmp_path / "r" / "report.html").exists() or not HAS_MPL
 
 
+def test_a_report_is_replaced_whole_and_only_when_asked(sites, tmp_path):
+    """An existing report is kept without --overwrite (said before any work); with it, the
+    new report replaces the old folder in one move. A folder that is no report is kept."""
+    _, bundle, _ = sites["clean"]
+    out = tmp_path / "r"
+    first, _ = _validate(bundle, None, out)
+    assert first.exit_code == 0, first.output
+    (out / "old-note.txt").write_text("from the first run")
+    again, _ = _validate(bundle, None, out)
+    assert again.exit_code == 1 and f"{out} exists; pass --overwrite" in again.output
+    assert (out / "old-note.txt").exists()
+    replaced, metrics = _validate(bundle, None, out, "--overwrite")
+    assert replaced.exit_code == 0 and metrics["verdict"] == "pass"
+    assert not (out / "old-note.txt").exists()  # the folder was replaced, not written into
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".tmp-")]
+    (tmp_path / "docs").mkdir()
+    (tmp_path / "docs" / "a.txt").write_text("keep me")
+    other, _ = _validate(bundle, None, tmp_path / "docs", "--overwrite")
+    assert other.exit_code == 1 and "is not a validation report" in other.output
+    assert (tmp_path / "docs" / "a.txt").read_text() == "keep me"
+
+
 def test_usage_errors_exit_2(tmp_path):
     res = CliRunner().invoke(main, ["validate", str(tmp_path / "missing"), "-o",
                                     str(tmp_path / "o")])
