@@ -331,7 +331,7 @@ def read_manifest(path: Path) -> dict:
         if mpath.stat().st_size > MAX_MANIFEST_BYTES:
             raise BundleIntegrityError(f"{mpath}: manifest too large")
         manifest = json.loads(mpath.read_text(encoding="utf-8"),
-                              parse_constant=_refuse_constant)
+                              parse_constant=_refuse_constant, parse_float=_finite_float)
     except FileNotFoundError as err:
         raise BundleError(f"{path}: not a map bundle (no manifest.json)") from err
     except (OSError, UnicodeDecodeError, ValueError) as err:
@@ -349,6 +349,13 @@ def read_manifest(path: Path) -> dict:
 
 def _refuse_constant(name: str) -> float:
     raise ValueError(f"non-finite number {name}")
+
+
+def _finite_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):  # 1e999
+        raise ValueError(f"non-finite number {text}")
+    return value
 
 
 def _member_entry(value, what: str, mpath: Path, members: dict) -> None:
@@ -371,24 +378,29 @@ def check_manifest_layout(manifest: dict, mpath: Path) -> None:
 
     for key in ("site_id", "floor_id", "kind", "software_version"):
         need(isinstance(manifest.get(key), str), key)
-    need(isinstance(manifest.get("build"), dict), "build")
+    build = manifest.get("build")
+    need(isinstance(build, dict) and isinstance(build.get("params", {}), dict), "build")
+    walks = build.get("source_walks", [])
+    need(isinstance(walks, list) and all(isinstance(w, dict) and isinstance(
+        w.get("trace_id"), str) for w in walks), "build.source_walks")
     members = manifest.get("members")
     need(isinstance(members, dict) and all(
         isinstance(m, dict) and isinstance(m.get("size"), int)
         and isinstance(m.get("sha256"), str) for m in members.values()), "members")
     tables = manifest.get("tables", {})
-    need(isinstance(tables, dict) and all(isinstance(t, dict) for t in tables.values()),
-         "tables")
+    need(isinstance(tables, dict) and all(isinstance(t, dict) and isinstance(t.get("rows"), int)
+                                          for t in tables.values()), "tables")
     for name, meta in tables.items():
         _member_entry(meta.get("file"), f"table {name!r} file", mpath, members)
     if manifest.get("grid") is None:
         return
     need(isinstance(manifest["grid"], dict), "grid")
+    Grid.from_dict(manifest["grid"])  # finite, positive, whole numbers of cells
     _member_entry(manifest.get("mask"), "mask", mpath, members)
     layers = manifest.get("layers")
     need(isinstance(layers, dict) and all(
-        isinstance(m, dict) and isinstance(m.get("unit"), str) for m in layers.values()),
-        "layers")
+        isinstance(m, dict) and isinstance(m.get("unit"), str)
+        and m.get("kind") in ("scalar", "angle") for m in layers.values()), "layers")
     for name, meta in layers.items():
         for key in ("file", "std_file"):
             _member_entry(meta.get(key), f"layer {name!r} {key}", mpath, members)
@@ -443,7 +455,7 @@ def load_bundle(path: str | os.PathLike) -> MapBundle:
         raise BundleIntegrityError(f"{path}: a bundle folder may not be a link")
     manifest = read_manifest(path)
     verify_bundle_dir(path, manifest)
-    grid = Grid.from_dict(manifest["grid"]) if manifest.get("grid") else None
+    grid = Grid.from_dict(manifest["grid"]) if manifest.get("grid") is not None else None
     mask = None
     layers: dict[str, np.ndarray] = {}
     std: dict[str, np.ndarray] = {}

@@ -109,7 +109,8 @@ def _parse_start(start: str) -> str | tuple[float, float]:
         if not (math.isfinite(x) and math.isfinite(y)):
             raise ValueError("not finite")
     except ValueError as err:
-        raise click.BadParameter(f"must be auto, waypoint, radio or X,Y (m); got {start!r}",
+        raise click.BadParameter(f"must be auto, waypoint, radio or X,Y (finite, m); got "
+                                 f"{start!r}",
                                  param_hint="--start") from err
     return x, y
 

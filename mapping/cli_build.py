@@ -47,13 +47,12 @@ def _finite(ctx: click.Context, param: click.Parameter, value: float) -> float:
 
 
 def check_grids(plans: dict[Path, FloorPlan], params: BuildParams) -> None:
-    """Every floor's grid (plans by the path they were read from), at the finest cells the
-    build may use, within :data:`mapping.grid.MAX_GRID_CELLS`; else a usage error naming the
-    plan and ``--cell``."""
-    cell_m = min(params.cell_m, params.min_cell_m)
+    """Every floor's grid (plans by the path they were read from) at ``--cell`` within
+    :data:`mapping.grid.MAX_GRID_CELLS`; else a usage error naming the plan and ``--cell``
+    (the finer cells of narrow kernels are skipped where they would exceed it)."""
     for path, plan in plans.items():
         try:
-            grid_for_extent(plan.width_m, plan.height_m, cell_m)
+            grid_for_extent(plan.width_m, plan.height_m, params.cell_m)
         except ValueError as err:
             raise click.UsageError(f"{path}: {err}; raise --cell or check the plan's "
                                    "size") from err
@@ -80,13 +79,16 @@ def floor_of_traces(catalog, summary, source: Path) -> str:
     ``--floor``); a usage error when they are of none or several."""
     ids = {o.trace_id for o in summary.outcomes if o.status != "failed"}
     names = sorted(catalog.loc[catalog["trace_id"].isin(ids), "floor"].astype(str).unique())
-    if len(names) != 1:
-        found = f"walks of floors {', '.join(names)}" if names else "no readable walks"
-        raise click.UsageError(f"{source}: {found}; name the plan's floor with --floor")
+    if not names:
+        raise click.UsageError(f"{source}: no readable walks to build a floor from")
+    if len(names) > 1:
+        raise click.UsageError(f"{source}: walks of floors {', '.join(names)}; name the "
+                               "plan's floor with --floor")
     return names[0]
 
 
-def check_floor_names(catalog, floor: str, folder: Path, say: Callable[[str], None]) -> None:
+def check_floor_names(catalog, floor: str, folder: Path, say: Callable[[str], None], *,
+                      planned: bool = False) -> None:
     """The traces read from ``folder`` for ``floor``: a usage error when none of them is of
     that floor (the folder is named otherwise than the traces' floor), a note of those left
     out because they are of another floor."""
@@ -95,9 +97,10 @@ def check_floor_names(catalog, floor: str, folder: Path, say: Callable[[str], No
     other = mine[(mine["floor"] != floor) & (mine["floor_id"] != floor)]
     if len(mine) and len(other) == len(mine):
         names = ", ".join(sorted(other["floor"].astype(str).unique()))
+        fix = ("give --floor that name" if planned else
+               "name the floor folder after it, or build with --plan and --floor")
         raise click.UsageError(f"{folder}: its walks are recorded as floor {names}, not "
-                               f"{floor}; name the floor folder after it, or build with --plan "
-                               "and --floor")
+                               f"{floor}; {fix}")
     if len(other):
         say(f"  left out of {floor}: {len(other)} walk(s) in {folder} recorded as floor "
             f"{', '.join(sorted(other['floor'].astype(str).unique()))}")
@@ -184,6 +187,11 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
         # a bad plan fails before the work
         plans = {f.name: read_floor_plan(f) for f in floors}
     else:
+        if floor_name is not None and (floor_name == SITE_BUNDLE or floor_name.startswith(".")
+                                       or not floor_name.strip() or "/" in floor_name
+                                       or "\\" in floor_name):
+            raise click.BadParameter(f"{floor_name!r} cannot name a floor bundle folder",
+                                     param_hint="--floor")
         inputs = [source]
         plan = read_floor_plan(plan_file)
         plans = {floor_name: plan} if floor_name is not None else {}
@@ -224,7 +232,7 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
             check_targets()
         else:
             for name, folder in zip(plans, inputs):
-                check_floor_names(cat, name, folder, say)
+                check_floor_names(cat, name, folder, say, planned=plan_file is not None)
         reachable = {(s, fl): plans[fl].reachable for s, fl in
                      cat[["site", "floor"]].drop_duplicates().itertuples(index=False)
                      if fl in plans}

@@ -97,7 +97,9 @@ def checked_size(path: Path, width_m: float, height_m: float) -> tuple[float, fl
                              "finite size")
     if max(width_m, height_m) > MAX_FLOOR_SIDE_M:
         raise FloorPlanError(f"{path}: floor size {width_m:g} x {height_m:g} m is over "
-                             f"{MAX_FLOOR_SIDE_M:g} m on a side; a floor plan in metres?")
+                             f"{MAX_FLOOR_SIDE_M:g} m on a side (the map frame runs from (0, 0) "
+                             "to the plan's largest coordinates: a plan in metres, near the "
+                             "origin?)")
     return float(width_m), float(height_m)
 
 

@@ -3,8 +3,9 @@
 Closed polylines (LWPOLYLINE, POLYLINE), circles and hatches (their loops even-odd: an inner
 loop is a hole) on the outline layer make the floor outline (the largest one if several); closed
 shapes on obstacle layers are obstacles; open polylines and LINE entities on wall layers become
-walls of ``wall_width_m`` (a hatch there is taken as the wall's area). Reachable area = outline minus obstacles minus walls. Coordinates are taken in metres, scaled by
-the drawing's ``$INSUNITS`` when it says millimetres, centimetres or feet.
+walls of ``wall_width_m`` (a hatch there is taken as the wall's area). Reachable area = outline
+minus obstacles minus walls. Coordinates are taken in metres, scaled by the drawing's
+``$INSUNITS`` when it says millimetres, centimetres or feet.
 """
 
 from __future__ import annotations
@@ -94,8 +95,8 @@ def _entity_geometry(e, scale: float, wall_width_m: float | None):
 
 
 def _hatch_area(hatch, scale: float):
-    """The area a hatch fills: its boundary loops (arcs and splines flattened to 1 cm of the
-    drawing's unit) combined even-odd, so that an inner loop is a hole; None without loops."""
+    """The area a hatch fills: its boundary loops (arcs and splines flattened to within 0.01
+    drawing units) combined even-odd, so that an inner loop is a hole; None without loops."""
     from ezdxf import path
 
     area = None

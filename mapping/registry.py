@@ -69,8 +69,10 @@ class Registry:
         if not path.exists():
             return None
         cur = _read_record(path)
-        if not isinstance(cur, dict) or not isinstance(cur.get("bundle_id"), str):
-            raise RegistryError(f"{path}: not a registry pointer (an object with bundle_id)")
+        if not isinstance(cur, dict) or not isinstance(cur.get("bundle_id"), str) \
+                or not isinstance(cur.get("seq"), int):
+            raise RegistryError(f"{path}: not a registry pointer (an object with bundle_id "
+                                "and seq)")
         if not (path.parent / "versions" / _safe(cur["bundle_id"])).is_dir():
             raise RegistryError(f"{path}: points at version {cur['bundle_id'][:16]}, which "
                                 "the registry does not hold")
@@ -142,7 +144,12 @@ class Registry:
         entry = next((h for h in history if h["bundle_id"] == bundle_id), None)
         if entry is None:
             raise RegistryError(f"{site}/{floor}: version {bundle_id} is not published")
-        cur = self.current(site, floor)
+        try:
+            cur = self.current(site, floor)
+        except RegistryError:
+            # a damaged or dangling pointer is repaired by pointing it at a version; which one
+            # was current is unknown, so anything but the newest counts as a rollback
+            cur = {"seq": max(h["seq"] for h in history)}
         if cur is not None and entry["seq"] < cur["seq"] and not allow_rollback:
             raise RegistryError(
                 f"{site}/{floor}: version {bundle_id[:12]} (#{entry['seq']}) is older than the "

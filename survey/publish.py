@@ -173,24 +173,41 @@ def atomic_directory(target: str | os.PathLike, *, overwrite: bool = False,
 def replace_together(moves: list[tuple[Path, Path]], *, overwrite: bool = False) -> None:
     """Move finished directories (each staged in a temporary folder on the targets' file
     system) onto their targets one right after the other, so that a set of outputs made to
-    go together (a site's floor bundles and its site bundle) changes at once: a crash while
-    they are being made leaves the old set whole; only one between these renames (a few
-    milliseconds) can leave a mix. Replaced targets are deleted after all moved."""
+    go together (a site's floor bundles and its site bundle) changes at once.
+
+    A crash while the set is being made leaves the old set whole. If a move fails (or the
+    process is interrupted by an exception) the moves done so far are undone, so the old set
+    is back. Only a kill in the milliseconds of the moves themselves can leave a mix, or an
+    old target aside in a ``.tmp-*`` folder. Replaced targets are deleted after all moved.
+    """
     for _, target in moves:
         if target.exists() and not overwrite:
             raise PublishError(f"{target}: exists; pass overwrite=True (CLI: --overwrite) to "
                                "replace it")
     if not moves:
         return
-    parents = {target.parent for _, target in moves}
     aside = Path(tempfile.mkdtemp(prefix=tmp_prefix(), dir=moves[0][1].parent))
+    done: list[tuple[Path, Path, Path | None]] = []  # (staged, target, old target's place)
     try:
         for i, (staged, target) in enumerate(moves):
+            old = None
             if target.exists():
-                os.replace(target, aside / str(i))
+                old = aside / str(i)
+                os.replace(target, old)
+            done.append((staged, target, old))
             os.replace(staged, target)
             crash_point(f"replace_together:after-{i}")
-        for parent in parents:
-            fsync_dir(parent)
+    except BaseException:
+        for staged, target, old in reversed(done):  # undo: the old set comes back
+            with contextlib.suppress(OSError):
+                if target.exists() and not staged.exists():
+                    os.replace(target, staged)
+                if old is not None:
+                    os.replace(old, target)
+        with contextlib.suppress(OSError):
+            aside.rmdir()  # empty once every old target is back
+        raise
     finally:
-        shutil.rmtree(aside, ignore_errors=True)
+        for parent in {target.parent for _, target in moves}:
+            fsync_dir(parent)
+    shutil.rmtree(aside, ignore_errors=True)

@@ -355,6 +355,10 @@ def test_build_cli_with_a_dxf_plan_and_a_folder_of_traces(tmp_path):
     assert res.exit_code == 0, res.output
     assert (load_bundle(tmp_path / "x" / "F2").manifest["build"]["source_walks"]
             == b.manifest["build"]["source_walks"])
+    for bad in ("_site", "../x", ""):  # names that are no floor bundle folder of OUT
+        res = runner.invoke(main, ["build", str(two), "--plan", str(tmp_path / "F2.dxf"),
+                                   "--floor", bad, "-o", str(tmp_path / "z")])
+        assert res.exit_code == 2 and "cannot name a floor bundle folder" in res.output
     res = runner.invoke(main, ["build", str(SITE / "F2"), "--floor", "F2",
                                "-o", str(tmp_path / "y")])
     assert res.exit_code == 2 and "--floor names the floor of a --plan build" in res.output

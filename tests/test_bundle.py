@@ -176,6 +176,10 @@ def _set(m: dict, path: str, value) -> None:
     ("site_id", None, "'site_id' is missing or malformed"),
     ("build", None, "'build' is missing or malformed"),
     ("tables", [1], "'tables' is missing or malformed"),
+    ("tables.walks.rows", None, "'tables' is missing or malformed"),
+    ("layers.azimuth.kind", None, "'layers' is missing or malformed"),
+    ("build.source_walks", [1], "'build.source_walks' is missing or malformed"),
+    ("build.params", [1], "'build' is missing or malformed"),
     # a table outside the bundle, by path or by a name the members do not list
     ("tables.walks.file", "../outside.parquet", "table 'walks' file '../outside.parquet' is "
                                                 "not a listed member"),
@@ -198,15 +202,20 @@ def test_a_manifest_with_a_valid_id_but_malformed_fields_is_refused(bundle_dir, 
         load_bundle(bundle_dir)
     res = CliRunner().invoke(main, ["bundle", "verify", str(bundle_dir)])
     assert res.exit_code == 1 and "FAILED" in res.output and "Traceback" not in res.output
+    for command in (["info", str(bundle_dir)], ["diff", str(bundle_dir), str(bundle_dir)]):
+        res = CliRunner().invoke(main, ["bundle", *command])
+        assert res.exit_code == 1 and match in res.output, res.output
 
 
 def test_non_finite_numbers_in_a_manifest_are_refused(bundle_dir):
     m_path = bundle_dir / "manifest.json"
-    text, n = re.subn(r'"cell_m":\s*0\.5', '"cell_m": NaN', m_path.read_text(), count=1)
-    assert n == 1
-    m_path.write_text(text)
-    with pytest.raises(BundleIntegrityError, match="non-finite number NaN"):
-        load_bundle(bundle_dir)
+    original = m_path.read_text()
+    for number in ("NaN", "Infinity", "1e999"):
+        text, n = re.subn(r'"cell_m":\s*0\.5', f'"cell_m": {number}', original, count=1)
+        assert n == 1
+        m_path.write_text(text)
+        with pytest.raises(BundleIntegrityError, match=f"non-finite number {number}"):
+            load_bundle(bundle_dir)
 
 
 def test_infinite_layer_values_are_refused(bundle_dir):
@@ -300,16 +309,26 @@ def test_registry_versions_move_forward(tmp_path):
 ])
 def test_a_damaged_registry_is_named(tmp_path, name, text, message):
     """list, use and publish on a registry whose history or pointer was damaged: a one-line
-    error naming the file (exit 1), never a traceback or a silent "no current version"."""
+    error naming the file (exit 1), never a traceback or a silent "no current version". A
+    damaged pointer is repaired by pointing it at the newest version (older ones need
+    --rollback: which one was current is unknown)."""
     write_bundle(tmp_path / "v1", _content(0.0))
+    write_bundle(tmp_path / "v2", _content(1.0))
     reg = tmp_path / "reg"
     Registry(reg).publish(tmp_path / "v1")
+    Registry(reg).publish(tmp_path / "v2")
     (reg / "site" / "F1" / name).write_text(text)
-    for args in (["list", str(reg)], ["use", str(reg), "site/F1", "#1"],
-                 ["publish", str(tmp_path / "v1"), "--registry", str(reg)]):
-        res = CliRunner().invoke(main, ["bundle", *args])
-        assert res.exit_code == 1 and message in res.output, (args, res.output)
-        assert "Traceback" not in res.output
+    res = CliRunner().invoke(main, ["bundle", "list", str(reg)])
+    assert res.exit_code == 1 and message in res.output and "Traceback" not in res.output
+    use_old = CliRunner().invoke(main, ["bundle", "use", str(reg), "site/F1", "#1"])
+    use_new = CliRunner().invoke(main, ["bundle", "use", str(reg), "site/F1", "#2"])
+    if name == "history.json":  # no way to know the versions: every command refuses
+        for res in (use_old, use_new):
+            assert res.exit_code == 1 and message in res.output
+    else:
+        assert use_old.exit_code == 1 and "rolling back needs" in use_old.output
+        assert use_new.exit_code == 0, use_new.output
+        assert Registry(reg).current("site", "F1")["seq"] == 2
 
 
 def test_registry_command_line(tmp_path):

@@ -63,3 +63,26 @@ def test_stale_temporaries_are_those_of_processes_gone(tmp_path):
     finally:
         live.kill()
         live.wait()
+
+
+def test_replace_together_undoes_its_moves_when_one_fails(tmp_path):
+    """Two outputs that go together: when the second move fails, the first is moved back and
+    both old outputs are in place again (the set never ends up half new, half missing)."""
+    from survey.publish import replace_together
+
+    for name in ("a", "b"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "v").write_text("old")
+    stage = tmp_path / "stage"
+    (stage / "a").mkdir(parents=True)
+    (stage / "a" / "v").write_text("new")  # stage/b is missing: its move fails
+    with pytest.raises(OSError):
+        replace_together([(stage / "a", tmp_path / "a"), (stage / "b", tmp_path / "b")],
+                         overwrite=True)
+    assert [(tmp_path / n / "v").read_text() for n in ("a", "b")] == ["old", "old"]
+    (stage / "b").mkdir()
+    (stage / "b" / "v").write_text("new")
+    replace_together([(stage / "a", tmp_path / "a"), (stage / "b", tmp_path / "b")],
+                     overwrite=True)
+    assert [(tmp_path / n / "v").read_text() for n in ("a", "b")] == ["new", "new"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "b", "stage"]
