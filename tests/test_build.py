@@ -209,6 +209,7 @@ def test_a_broken_floor_info_is_named_with_its_line(tmp_path):
     assert f"{floor / 'floor_info.json'}:2: not valid JSON" in res.output
 
 
+@pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")  # the NaN
 @pytest.mark.parametrize("info, plan_edit, message", [
     ('{"map_info": {"width": 1e9, "height": 1e9}}', None, "floor_info.json: floor size 1e+09 x "
      "1e+09 m is over 20000 m on a side"),
