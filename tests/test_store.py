@@ -173,10 +173,10 @@ def test_crash_during_ingest_leaves_a_consistent_store(tmp_path, point):
 def test_a_corrupted_part_file_is_named_not_read(tmp_path):
     """A flipped byte inside a stored Parquet page: the page checksum written at ingest is
     verified on read (without it, pyarrow decodes most such flips into wrong numbers)."""
-    trace = sorted((Path(__file__).resolve().parents[1] / "data" / "sample_site" / "F1"
-                    / "path_data_files").glob("*.txt.gz"))[0]
+    trace = min((Path(__file__).resolve().parents[1] / "data" / "sample_site" / "F1"
+                 / "path_data_files").glob("*.txt.gz"))
     ingest([trace], tmp_path / "s")
-    part = sorted((tmp_path / "s").glob("sensors/**/*.parquet"))[0]
+    part = min((tmp_path / "s").glob("sensors/**/*.parquet"))
     data = bytearray(part.read_bytes())
     data[len(data) // 2] ^= 0x10
     part.write_bytes(bytes(data))
