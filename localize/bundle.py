@@ -80,8 +80,10 @@ class Grid:
     @classmethod
     def from_dict(cls, d: dict) -> Grid:
         try:
-            return cls(float(d["x0_m"]), float(d["y0_m"]), float(d["cell_m"]), int(d["width"]),
-                       int(d["height"]))
+            if not all(isinstance(d[k], int) for k in ("width", "height")):
+                raise ValueError("width and height must be whole numbers of cells")
+            return cls(float(d["x0_m"]), float(d["y0_m"]), float(d["cell_m"]), d["width"],
+                       d["height"])
         except (KeyError, TypeError, ValueError) as err:
             raise BundleError(f"manifest grid is malformed: {err}") from err
 
@@ -395,7 +397,10 @@ def check_manifest_layout(manifest: dict, mpath: Path) -> None:
     if manifest.get("grid") is None:
         return
     need(isinstance(manifest["grid"], dict), "grid")
-    Grid.from_dict(manifest["grid"])  # finite, positive, whole numbers of cells
+    try:
+        Grid.from_dict(manifest["grid"])  # finite, positive, whole numbers of cells
+    except BundleError as err:
+        raise BundleIntegrityError(f"{mpath}: {err}") from err
     _member_entry(manifest.get("mask"), "mask", mpath, members)
     layers = manifest.get("layers")
     need(isinstance(layers, dict) and all(

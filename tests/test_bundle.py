@@ -180,6 +180,7 @@ def _set(m: dict, path: str, value) -> None:
     ("layers.azimuth.kind", None, "'layers' is missing or malformed"),
     ("build.source_walks", [1], "'build.source_walks' is missing or malformed"),
     ("build.params", [1], "'build' is missing or malformed"),
+    ("grid.width", 24.5, "manifest grid is malformed: width and height must be whole"),
     # a table outside the bundle, by path or by a name the members do not list
     ("tables.walks.file", "../outside.parquet", "table 'walks' file '../outside.parquet' is "
                                                 "not a listed member"),
