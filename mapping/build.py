@@ -30,7 +30,7 @@ from survey.store import SurveyStore
 
 from .bundle_writer import BundleContent, Layer
 from .floorplan import FloorPlan
-from .grid import MAX_GRID_CELLS, grid_for_extent, reachable_mask
+from .grid import grid_for_extent, reachable_mask
 from .field_layers import FIELD_LAYERS, field_rasters, floor_steps, levelling_samples, \
     reduce_field
 from .holdout import BANDWIDTH_CANDIDATES_M, choose_smoothing
@@ -183,15 +183,17 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
         say(f"{floor}: {raster_params.describe()}, chosen by 5-fold cross-validation "
             "over walks")
         cell_m = raster_cell_m(params, bw)
-        fine_cells = np.ceil(plan.width_m / cell_m) * np.ceil(plan.height_m / cell_m)
-        if cell_m < grid.cell_m and fine_cells > MAX_GRID_CELLS:
-            say(f"{floor}: a {bw:g} m kernel would be rastered on {cell_m:g} m cells, but "
-                f"that grid is over {MAX_GRID_CELLS:,} cells: kept {grid.cell_m:g} m cells")
-        elif cell_m < grid.cell_m:
+        fine = None
+        if cell_m < grid.cell_m:
+            try:
+                fine = grid_for_extent(plan.width_m, plan.height_m, cell_m)
+            except ValueError as err:  # over the grid cap
+                say(f"{floor}: kept {grid.cell_m:g} m cells for a {bw:g} m kernel ({err})")
+        if fine is not None:
             # a kernel this narrow is judged on cells that resolve it: choose again there
             say(f"{floor}: a {bw:g} m kernel is at most two {grid.cell_m:g} m cells wide; "
                 f"rastering on {cell_m:g} m cells instead (BuildParams.min_cell_m)")
-            grid = grid_for_extent(plan.width_m, plan.height_m, cell_m)
+            grid = fine
             mask = reachable_mask(grid, plan.reachable)
             reduction = reduce_field(store, pcat, grid, residuals)
             release_free_memory()

@@ -10,12 +10,14 @@ import tempfile
 from collections.abc import Callable, Iterator
 from datetime import datetime
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 import numpy as np
+import pandas as pd
 
 from localize.bundle import load_bundle
-from survey.errors import IndoormapError, PublishError
+from survey.errors import IndoormapError, PublishError, RegistryError
 from survey.publish import remove_stale_temporaries, replace_together, tmp_prefix
 from survey.trace_format import bad_lines_summary
 
@@ -24,7 +26,10 @@ from .bundle_writer import write_bundle
 from .floorplan import FloorPlan, read_floor_plan
 from .grid import grid_for_extent
 from .radio_build import build_site_radio, format_share
-from .registry import SITE_BUNDLE, Registry
+from .registry import SITE_BUNDLE, Registry, safe_name
+
+if TYPE_CHECKING:  # an annotation: ingest is imported when a build runs
+    from survey.ingest import IngestSummary
 
 
 def _iso_time(ctx: click.Context, param: click.Parameter, text: str | None) -> str | None:
@@ -74,11 +79,19 @@ def floors_of(path: Path) -> list[Path]:
     return floors
 
 
-def floor_of_traces(catalog, summary, source: Path) -> str:
+def ingested_from(catalog: pd.DataFrame, summary: IngestSummary, folder: Path
+                  ) -> pd.DataFrame:
+    """Catalog rows of the walks an ingest read (or found already stored) under ``folder``."""
+    root = folder.resolve()
+    ids = {o.trace_id for o in summary.outcomes
+           if o.status != "failed" and Path(o.path).resolve().is_relative_to(root)}
+    return catalog[catalog["trace_id"].isin(ids)]
+
+
+def floor_of_traces(catalog: pd.DataFrame, summary: IngestSummary, source: Path) -> str:
     """The one floor of the traces an ingest read from ``source`` (a ``--plan`` build without
     ``--floor``); a usage error when they are of none or several."""
-    ids = {o.trace_id for o in summary.outcomes if o.status != "failed"}
-    names = sorted(catalog.loc[catalog["trace_id"].isin(ids), "floor"].astype(str).unique())
+    names = sorted(ingested_from(catalog, summary, source)["floor"].astype(str).unique())
     if not names:
         raise click.UsageError(f"{source}: no readable walks to build a floor from")
     if len(names) > 1:
@@ -87,13 +100,13 @@ def floor_of_traces(catalog, summary, source: Path) -> str:
     return names[0]
 
 
-def check_floor_names(catalog, floor: str, folder: Path, say: Callable[[str], None], *,
-                      planned: bool = False) -> None:
+def check_floor_names(catalog: pd.DataFrame, summary: IngestSummary, floor: str,
+                      folder: Path, say: Callable[[str], None], *, planned: bool = False
+                      ) -> None:
     """The traces read from ``folder`` for ``floor``: a usage error when none of them is of
     that floor (the folder is named otherwise than the traces' floor), a note of those left
     out because they are of another floor."""
-    src = catalog["source_path"].astype(str)
-    mine = catalog[src.str.startswith(str(folder.resolve())) | src.str.startswith(str(folder))]
+    mine = ingested_from(catalog, summary, folder)
     other = mine[(mine["floor"] != floor) & (mine["floor_id"] != floor)]
     if len(mine) and len(other) == len(mine):
         names = ", ".join(sorted(other["floor"].astype(str).unique()))
@@ -184,19 +197,21 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
                                    "is named by itself")
         floors = floors_of(source)
         inputs = [f / "path_data_files" for f in floors]
-        # a bad plan fails before the work
-        plans = {f.name: read_floor_plan(f) for f in floors}
+        read_from = {f: read_floor_plan(f) for f in floors}  # a bad plan fails before the work
+        plans = {f.name: plan for f, plan in read_from.items()}
     else:
-        if floor_name is not None and (floor_name == SITE_BUNDLE or floor_name.startswith(".")
-                                       or not floor_name.strip() or "/" in floor_name
-                                       or "\\" in floor_name):
-            raise click.BadParameter(f"{floor_name!r} cannot name a floor bundle folder",
-                                     param_hint="--floor")
+        if floor_name is not None:
+            try:
+                if safe_name(floor_name) == SITE_BUNDLE:
+                    raise RegistryError(SITE_BUNDLE)
+            except RegistryError as err:
+                raise click.BadParameter(f"{floor_name!r} cannot name a floor bundle folder",
+                                         param_hint="--floor") from err
         inputs = [source]
         plan = read_floor_plan(plan_file)
+        read_from = {plan_file: plan}
         plans = {floor_name: plan} if floor_name is not None else {}
-    check_grids({f: plans[f.name] for f in floors} if plan_file is None else {plan_file: plan},
-                params)
+    check_grids(read_from, params)
     site_target = out / SITE_BUNDLE
 
     def check_targets() -> None:
@@ -232,7 +247,8 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
             check_targets()
         else:
             for name, folder in zip(plans, inputs):
-                check_floor_names(cat, name, folder, say, planned=plan_file is not None)
+                check_floor_names(cat, summary, name, folder, say,
+                                  planned=plan_file is not None)
         reachable = {(s, fl): plans[fl].reachable for s, fl in
                      cat[["site", "floor"]].drop_duplicates().itertuples(index=False)
                      if fl in plans}

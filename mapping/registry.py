@@ -29,7 +29,8 @@ SITE_BUNDLE = "_site"
 registry and beside the floor bundles of ``indoormap build``."""
 
 
-def _safe(name: str) -> str:
+def safe_name(name: str) -> str:
+    """``name`` if it can name one folder (a site, floor or version); else a RegistryError."""
     if not name or "/" in name or "\\" in name or name in (".", "..") or name.startswith("."):
         raise RegistryError(f"invalid site or floor name {name!r}")
     return name
@@ -50,7 +51,7 @@ class Registry:
         self.root = Path(root)
 
     def _floor(self, site: str, floor: str) -> Path:
-        return self.root / _safe(site) / _safe(floor)
+        return self.root / safe_name(site) / safe_name(floor)
 
     def history(self, site: str, floor: str) -> list[dict]:
         path = self._floor(site, floor) / "history.json"
@@ -73,7 +74,7 @@ class Registry:
                 or not isinstance(cur.get("seq"), int):
             raise RegistryError(f"{path}: not a registry pointer (an object with bundle_id "
                                 "and seq)")
-        if not (path.parent / "versions" / _safe(cur["bundle_id"])).is_dir():
+        if not (path.parent / "versions" / safe_name(cur["bundle_id"])).is_dir():
             raise RegistryError(f"{path}: points at version {cur['bundle_id'][:16]}, which "
                                 "the registry does not hold")
         return cur
@@ -85,7 +86,7 @@ class Registry:
             if cur is None:
                 raise RegistryError(f"{self.root}: no bundle published for {site}/{floor}")
             bundle_id = cur["bundle_id"]
-        path = self._floor(site, floor) / "versions" / _safe(bundle_id)
+        path = self._floor(site, floor) / "versions" / safe_name(bundle_id)
         if not path.is_dir():
             raise RegistryError(f"{self.root}: {site}/{floor} has no version {bundle_id}")
         return load_bundle(path)
