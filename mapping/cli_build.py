@@ -211,6 +211,9 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
         plan = read_floor_plan(plan_file)
         read_from = {plan_file: plan}
         plans = {floor_name: plan} if floor_name is not None else {}
+    for plan_read in read_from.values():
+        for repair in plan_read.repairs:
+            click.echo(f"warning: {repair}", err=True)
     check_grids(read_from, params)
     site_target = out / SITE_BUNDLE
 
@@ -221,6 +224,15 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
             if target.exists() and not (target / "manifest.json").is_file():
                 raise PublishError(f"{target} exists and is not a map bundle; --overwrite "
                                    "replaces bundles only, move it away first")
+        others = sorted(p.name for p in out.iterdir()
+                        if (p / "manifest.json").is_file() and p.name not in plans
+                        and p.name != SITE_BUNDLE and not p.name.startswith(".")) \
+            if plans and out.is_dir() else []
+        if others and site_target.exists():
+            click.echo(f"warning: {site_target} will model floor{'s' * (len(plans) > 1)} "
+                       f"{', '.join(plans)} only; the bundles of {', '.join(others)} in {out} "
+                       "stay but drop out of its floor model (build the site folder to model "
+                       "every floor)", err=True)
 
     check_targets()
     remove_stale_temporaries(tempfile.gettempdir(), prefix=TMP_STORE_PREFIX)

@@ -48,17 +48,32 @@ class FloorPlan:
         Union of obstacle polygons (shops, walls, pillars).
     width_m, height_m : float
         Extent of the map frame.
+    repairs : tuple of str
+        What the reader mended: one line per invalid polygon (a self-intersecting outline, say)
+        that was made valid, naming the feature and GEOS's reason. Worth showing the user: a
+        bow-tie outline is built as the two triangles it encloses.
     """
 
     outline: shapely.Geometry
     obstacles: shapely.Geometry
     width_m: float
     height_m: float
+    repairs: tuple[str, ...] = ()
 
     @property
     def reachable(self) -> shapely.Geometry:
         """Outline minus obstacles."""
         return shapely.difference(self.outline, self.obstacles)
+
+
+def made_valid(geom: shapely.Geometry, what: str, repairs: list[str]) -> shapely.Geometry:
+    """``geom`` made valid by shapely; when it was not, a line naming ``what`` and GEOS's
+    reason (e.g. ``Self-intersection[3 4]``) is appended to ``repairs``."""
+    if shapely.is_valid(geom):
+        return geom
+    repairs.append(f"{what} is not a valid polygon ({shapely.is_valid_reason(geom)}); "
+                   "repaired by shapely's make_valid")
+    return shapely.make_valid(geom)
 
 
 def _read_json(path: Path, what: str) -> object:
@@ -160,10 +175,12 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
     else:
         width, height = checked_size(geo, *outline.bounds[2:])
     keep = obstacle_filter or (lambda props: True)
-    obstacles = [g for i, (g, f) in enumerate(zip(geoms, feats))
+    repairs: list[str] = []
+    outline = made_valid(outline, f"{geo}: feature {outline_idx} (the outline)", repairs)
+    obstacles = [made_valid(g, f"{geo}: feature {i}", repairs)
+                 for i, (g, f) in enumerate(zip(geoms, feats))
                  if i != outline_idx and g is not None
                  and g.geom_type in ("Polygon", "MultiPolygon")
                  and keep(f.get("properties") or {})]
-    obstacle_union = shapely.union_all([shapely.make_valid(g) for g in obstacles]) \
-        if obstacles else shapely.Polygon()
-    return FloorPlan(shapely.make_valid(outline), obstacle_union, width, height)
+    obstacle_union = shapely.union_all(obstacles) if obstacles else shapely.Polygon()
+    return FloorPlan(outline, obstacle_union, width, height, tuple(repairs))

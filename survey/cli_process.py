@@ -52,6 +52,8 @@ def process_command(store_dir: str, site: str | None, floor: str | None,
     _require_walks(cat, store.traces(None, None), site, floor)
     for fp in floor_plans:
         plan = read_floor_plan(fp)
+        for repair in plan.repairs:
+            click.echo(f"warning: {repair}", err=True)
         name = plan_floor_name(Path(fp))
         sites = cat.loc[cat["floor"] == name, "site"].unique()
         if not len(sites):

@@ -232,6 +232,21 @@ def test_bad_floor_plan_values_are_named_before_any_work(tmp_path, info, plan_ed
     assert "ingest" not in res.output and "Traceback" not in res.output
 
 
+def test_a_repaired_floor_plan_is_said_before_the_work(tmp_path):
+    floor = tmp_path / "F2"
+    shutil.copytree(SITE / "F2", floor)
+    geo = floor / "geojson_map.json"
+    fc = json.loads(geo.read_text())
+    ring = fc["features"][0]["geometry"]["coordinates"][0][0]  # a MultiPolygon's first ring
+    ring[1], ring[2] = ring[2], ring[1]  # the outline's rectangle becomes a bow tie
+    geo.write_text(json.dumps(fc))
+    res = CliRunner().invoke(main, ["build", str(floor), "-o", str(tmp_path / "out"),
+                                    "--cell", "0.001"])  # stops at the grid check
+    assert res.exit_code == 2, res.output
+    assert (f"warning: {geo}: feature 0 (the outline) is not a valid polygon "
+            "(Self-intersection") in res.output
+
+
 def test_a_floor_folder_named_otherwise_than_its_walks(tmp_path):
     """A floor folder whose walks are recorded as another floor is a usage error saying which
     floor; walks of another floor among the right ones are left out with a note."""
@@ -356,6 +371,14 @@ def test_build_cli_with_a_dxf_plan_and_a_folder_of_traces(tmp_path):
     assert res.exit_code == 0, res.output
     assert (load_bundle(tmp_path / "x" / "F2").manifest["build"]["source_walks"]
             == b.manifest["build"]["source_walks"])
+    assert "warning" not in res.output
+    # into an OUT that holds another floor's bundle: its _site will not model that floor
+    shutil.copytree(tmp_path / "folder" / "F2", tmp_path / "x" / "F1")
+    res = runner.invoke(main, ["build", str(two), "--plan", str(tmp_path / "F2.dxf"),
+                               "--floor", "F2", "-o", str(tmp_path / "x"), "--overwrite"])
+    assert res.exit_code == 0, res.output
+    assert (f"warning: {tmp_path / 'x' / '_site'} will model floor F2 only; the bundles of F1 "
+            f"in {tmp_path / 'x'} stay") in res.output
     for bad in ("_site", "../x", ""):  # names that are no floor bundle folder of OUT
         res = runner.invoke(main, ["build", str(two), "--plan", str(tmp_path / "F2.dxf"),
                                    "--floor", bad, "-o", str(tmp_path / "z")])

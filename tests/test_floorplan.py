@@ -74,3 +74,29 @@ def test_dxf_plan_with_walls_and_obstacles(tmp_path):
     (tmp_path / "bad.dxf").write_text("not a dxf")
     with pytest.raises(FloorPlanError, match="bad.dxf"):
         read_floor_plan(tmp_path / "bad.dxf")
+
+
+def test_a_self_intersecting_outline_is_repaired_and_said(tmp_path):
+    bow_tie = [[0, 0], [10, 4], [10, 0], [0, 4], [0, 0]]  # two triangles touching at (5, 2)
+    fc = {"type": "FeatureCollection", "features": [
+        {"type": "Feature", "properties": {},
+         "geometry": {"type": "Polygon", "coordinates": [bow_tie]}},
+        {"type": "Feature", "properties": {},
+         "geometry": {"type": "Polygon", "coordinates": [[[1, 1], [2, 1], [2, 3], [1, 3],
+                                                          [1, 1]]]}}]}
+    (tmp_path / "plan.geojson").write_text(json.dumps(fc))
+    plan = read_floor_plan(tmp_path / "plan.geojson")
+    assert plan.outline.area == pytest.approx(20.0)  # the two triangles, 10 m2 each
+    assert len(plan.repairs) == 1
+    assert "plan.geojson: feature 0 (the outline)" in plan.repairs[0]
+    assert "Self-intersection" in plan.repairs[0]
+    assert read_floor_plan(SITE / "F1").repairs == ()  # a valid plan has nothing to say
+
+    doc = ezdxf.new()
+    doc.modelspace().add_lwpolyline([(0, 0), (10, 4), (10, 0), (0, 4)], close=True,
+                                    dxfattribs={"layer": "OUTLINE"})
+    doc.saveas(tmp_path / "plan.dxf")
+    plan = read_floor_plan(tmp_path / "plan.dxf")
+    assert plan.outline.area == pytest.approx(20.0)
+    assert len(plan.repairs) == 1 and "LWPOLYLINE" in plan.repairs[0]
+    assert "layer OUTLINE" in plan.repairs[0] and "Self-intersection" in plan.repairs[0]
