@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import shutil
 import sys
 import tempfile
@@ -81,10 +82,13 @@ def floors_of(path: Path) -> list[Path]:
 
 def ingested_from(catalog: pd.DataFrame, summary: IngestSummary, folder: Path
                   ) -> pd.DataFrame:
-    """Catalog rows of the walks an ingest read (or found already stored) under ``folder``."""
-    root = folder.resolve()
+    """Catalog rows of the walks an ingest read (or found already stored) under ``folder``.
+
+    Paths are compared as found, not resolved: a folder of symbolic links to traces elsewhere
+    (a subset of a survey, say) holds those traces."""
+    root = Path(os.path.abspath(folder))
     ids = {o.trace_id for o in summary.outcomes
-           if o.status != "failed" and Path(o.path).resolve().is_relative_to(root)}
+           if o.status != "failed" and Path(os.path.abspath(o.path)).is_relative_to(root)}
     return catalog[catalog["trace_id"].isin(ids)]
 
 
@@ -119,6 +123,42 @@ def check_floor_names(catalog: pd.DataFrame, summary: IngestSummary, floor: str,
             f"{', '.join(sorted(other['floor'].astype(str).unique()))}")
 
 
+def excluded_walks(catalog: pd.DataFrame, summary: IngestSummary, inputs: list[Path],
+                   exclude: tuple[str, ...], say: Callable[[str], None]) -> set[str]:
+    """Trace ids a build leaves out: the walks of a ``--store`` that are not under its input
+    folders (said), and those ``--exclude`` names by trace id or file name (``@FILE``: one
+    per line); a usage error names an ``--exclude`` that matches no walk."""
+    used = set().union(*(set(ingested_from(catalog, summary, f)["trace_id"]) for f in inputs))
+    outside = set(catalog["trace_id"]) - used
+    if outside:
+        say(f"  left out: {len(outside)} walk(s) of the store not under "
+            f"{', '.join(map(str, inputs))}")
+    names = []
+    for item in exclude:
+        if item.startswith("@"):
+            try:
+                text = Path(item[1:]).read_text(encoding="utf-8")
+            except (OSError, UnicodeDecodeError) as err:
+                raise click.BadParameter(f"cannot read {item[1:]} ({err})",
+                                         param_hint="--exclude") from err
+            names += [n.strip() for n in text.splitlines() if n.strip()
+                      and not n.lstrip().startswith("#")]
+        else:
+            names.append(item)
+    file_names = catalog["source_path"].astype(str).map(lambda p: Path(p).name)
+    stems = file_names.str.replace(r"\.txt(\.gz)?$", "", regex=True)
+    dropped = set()
+    for name in names:
+        hit = catalog["trace_id"].eq(name) | file_names.eq(name) | stems.eq(name)
+        if not hit.any():
+            raise click.BadParameter(f"{name!r} is no walk of this build (a trace id or a "
+                                     "trace file's name)", param_hint="--exclude")
+        dropped |= set(catalog.loc[hit, "trace_id"])
+    if dropped:
+        say(f"  excluded: {len(dropped & used)} walk(s) (--exclude)")
+    return outside | dropped
+
+
 #: Prefix of a build's temporary survey store in the system's temporary folder.
 TMP_STORE_PREFIX = "indoormap-build-"
 
@@ -145,7 +185,8 @@ def staging_folder(out: Path) -> Iterator[Path]:
 @click.option("-o", "--out", "out", required=True, type=click.Path(path_type=Path),
               help="Output folder: one bundle folder per floor (OUT/<floor>).")
 @click.option("--store", "store_dir", type=click.Path(path_type=Path), default=None,
-              help="Survey store to use (default: a temporary store of SOURCE's traces).")
+              help="Survey store to ingest SOURCE into and keep (default: a temporary "
+                   "store). Only SOURCE's walks are built; others in the store are left out.")
 @click.option("--registry", "registry_dir", type=click.Path(path_type=Path), default=None,
               help="Also publish every bundle into this registry and make it current.")
 @click.option("--cell", "cell_m", type=click.FloatRange(0.0, 100.0, min_open=True), default=0.5,
@@ -171,10 +212,15 @@ def staging_folder(out: Path) -> Iterator[Path]:
 @click.option("--floor", "floor_name", default=None,
               help="With --plan: the floor's name as its traces give it (default: the one "
                    "floor of SOURCE's traces).")
+@click.option("--exclude", multiple=True, metavar="WALK",
+              help="Leave this walk out of the maps: a trace id or a trace file's name, or "
+                   "@FILE with one per line (walks held out for `indoormap evaluate`). "
+                   "Repeatable.")
 @click.option("--overwrite", is_flag=True, help="Replace existing output bundles.")
 def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir: Path | None,
                   cell_m: float, interpolator: str, build_time: str | None,
-                  plan_file: Path | None, floor_name: str | None, overwrite: bool) -> None:
+                  plan_file: Path | None, floor_name: str | None, exclude: tuple[str, ...],
+                  overwrite: bool) -> None:
     """Build map bundles from a floor folder (floor_info.json, geojson_map.json,
     path_data_files/), a site folder of floors, or (with --plan) a folder of one floor's
     traces: ingest, process, level, interpolate, publish atomically. Writes OUT/<floor> per
@@ -261,6 +307,7 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
             for name, folder in zip(plans, inputs):
                 check_floor_names(cat, summary, name, folder, say,
                                   planned=plan_file is not None)
+        left_out = excluded_walks(cat, summary, inputs, exclude, say)
         reachable = {(s, fl): plans[fl].reachable for s, fl in
                      cat[["site", "floor"]].drop_duplicates().itertuples(index=False)
                      if fl in plans}
@@ -270,11 +317,12 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
         for tid, reason in report.skipped.items():
             say(f"  skipped {source_of.get(tid, tid)}: {reason}")
         registry = Registry(registry_dir) if registry_dir else None
-        radio = build_site_radio(store, list(plans), params=params.radio, progress=say)
+        radio = build_site_radio(store, list(plans), params=params.radio,
+                                 exclude_walks=left_out, progress=say)
         site_id, site_build_time, site_walks, done = "", "", [], []
         for name, plan in plans.items():
             content = build_floor(store, plan, floor=name, params=params, radio=radio,
-                                  progress=say)
+                                  exclude_walks=left_out, progress=say)
             site_id = content.site_id
             site_build_time = max(site_build_time, content.build["build_time"])
             site_walks += content.build["source_walks"]

@@ -386,3 +386,32 @@ def test_build_cli_with_a_dxf_plan_and_a_folder_of_traces(tmp_path):
     res = runner.invoke(main, ["build", str(SITE / "F2"), "--floor", "F2",
                                "-o", str(tmp_path / "y")])
     assert res.exit_code == 2 and "--floor names the floor of a --plan build" in res.output
+
+
+def test_build_from_a_subset_of_walks_builds_that_subset(tmp_path):
+    """A folder of symbolic links to some of a floor's traces builds from those walks; a kept
+    store's other walks and the walks named by --exclude stay out of the maps (walks held out
+    for evaluation must not leak into them)."""
+    files = sorted((SITE / "F1" / "path_data_files").glob("*.txt.gz"))
+    store = tmp_path / "store"
+    ingest([SITE / "F1" / "path_data_files"], store)  # a store that holds every walk
+    train = tmp_path / "train"
+    train.mkdir()
+    for f in files[:-1]:
+        (train / f.name).symlink_to(f)
+    (tmp_path / "held.txt").write_text(f"# held out\n{files[1].name}\n")
+    res = CliRunner().invoke(main, [
+        "build", str(train), "--plan", str(SITE / "F1" / "geojson_map.json"),
+        "--store", str(store), "--exclude", files[0].name.removesuffix(".txt.gz"),
+        "--exclude", f"@{tmp_path / 'held.txt'}", "-o", str(tmp_path / "out")])
+    assert res.exit_code == 0, res.output
+    assert "left out: 1 walk(s) of the store not under" in res.output
+    assert "excluded: 2 walk(s) (--exclude)" in res.output
+    walks = load_bundle(tmp_path / "out" / "F1").manifest["build"]["source_walks"]
+    assert sorted(w["trace_id"] for w in walks) == sorted(f.name.removesuffix(".txt.gz")
+                                                          for f in files[2:-1])
+    res = CliRunner().invoke(main, [
+        "build", str(train), "--plan", str(SITE / "F1" / "geojson_map.json"),
+        "--exclude", "nosuch", "-o", str(tmp_path / "other")])
+    assert res.exit_code == 2 and "'nosuch' is no walk of this build" in res.output
+    assert not (tmp_path / "other").exists()
