@@ -163,6 +163,17 @@ def _read_walk(path: Path):
     return trace
 
 
+def _warn_if_off_floor(bundle, start_xy: tuple[float, float] | None) -> None:
+    """Warn when a given start (m) is off the bundle's reachable area: the particles drawn
+    there die at their first move and are re-drawn around it."""
+    if start_xy is not None and not bundle.reachable(*start_xy).all():
+        g = bundle.grid
+        click.echo(f"warning: start {start_xy[0]:g},{start_xy[1]:g} is off the reachable area "
+                   f"of {bundle.manifest.get('floor_name') or bundle.floor_id} (x {g.x0_m:g} to "
+                   f"{g.x0_m + g.width * g.cell_m:g} m, y {g.y0_m:g} to "
+                   f"{g.y0_m + g.height * g.cell_m:g} m)", err=True)
+
+
 def _warn_if_source_walk(bundle, trace_id: str) -> None:
     """Warn when the bundle was built from this walk (its errors are then optimistic)."""
     if bundle.has_table("source_walks"):
@@ -199,8 +210,11 @@ class _WalkFailures:
             sys.exit(1)
 
 
-def plot_track(path: Path, bundle, tracks: dict, waypoints_xy=None, title: str = "") -> bool:
-    """Trajectories over the bundle's reachable mask as a PNG; False without matplotlib."""
+def plot_track(path: Path, bundle, tracks: dict, waypoints_xy=None, title: str = "", *,
+               margin_m: float = 8.0) -> bool:
+    """Trajectories over the bundle's reachable mask as a PNG, zoomed to the tracks and
+    waypoints (``margin_m`` around them, within the floor): start (circle) and end (square)
+    of each track, recoveries (x), waypoints with their order; False without matplotlib."""
     try:
         import matplotlib
 
@@ -209,13 +223,37 @@ def plot_track(path: Path, bundle, tracks: dict, waypoints_xy=None, title: str =
     except ImportError:
         return False
     g = bundle.grid
-    fig, ax = plt.subplots(figsize=(8, 8 * g.height / max(g.width, 1) + 0.8))
+    x1, y1 = g.x0_m + g.width * g.cell_m, g.y0_m + g.height * g.cell_m
+    pts = [np.column_stack([np.r_[tr.start.x_m, tr.x_m], np.r_[tr.start.y_m, tr.y_m]])
+           for tr in tracks.values()]
+    if waypoints_xy is not None and len(waypoints_xy):
+        pts.append(np.asarray(waypoints_xy, dtype=float).reshape(-1, 2))
+    pts = np.concatenate(pts) if pts else np.empty((0, 2))
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    lo = np.maximum(pts.min(axis=0) - margin_m, (g.x0_m, g.y0_m)) if len(pts) else (g.x0_m,
+                                                                                   g.y0_m)
+    hi = np.minimum(pts.max(axis=0) + margin_m, (x1, y1)) if len(pts) else (x1, y1)
+    span = np.maximum(np.subtract(hi, lo), 1.0)
+    fig, ax = plt.subplots(figsize=(8, min(8 * span[1] / span[0], 14) + 0.8))
     ax.imshow(np.asarray(bundle.mask), origin="lower", cmap="Greys", alpha=0.35,
-              extent=(g.x0_m, g.x0_m + g.width * g.cell_m, g.y0_m, g.y0_m + g.height * g.cell_m))
+              extent=(g.x0_m, x1, g.y0_m, y1))
     for name, tr in tracks.items():
-        ax.plot(np.r_[tr.start.x_m, tr.x_m], np.r_[tr.start.y_m, tr.y_m], lw=1.2, label=name)
+        xs, ys = np.r_[tr.start.x_m, tr.x_m], np.r_[tr.start.y_m, tr.y_m]
+        (line,) = ax.plot(xs, ys, lw=1.2, label=name)
+        ax.plot(xs[0], ys[0], "o", color=line.get_color(), ms=7, mfc="none")
+        ax.plot(xs[-1], ys[-1], "s", color=line.get_color(), ms=6)
+        if tr.n_recoveries:
+            ax.plot(tr.x_m[tr.recovered], tr.y_m[tr.recovered], "x", color=line.get_color(),
+                    ms=8, label=f"{name}: all particles died, re-drawn")
     if waypoints_xy is not None and len(waypoints_xy):
         ax.plot(waypoints_xy[:, 0], waypoints_xy[:, 1], "k.--", lw=0.6, ms=5, label="waypoints")
+        for i, (wx, wy) in enumerate(waypoints_xy):
+            ax.annotate(str(i + 1), (wx, wy), textcoords="offset points", xytext=(3, 3),
+                        fontsize=6)
+    ax.plot([], [], "ko", mfc="none", label="start")
+    ax.plot([], [], "ks", label="end")
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
     ax.set_xlabel("x east (m)")
     ax.set_ylabel("y north (m)")
     ax.set_aspect("equal")
@@ -301,8 +339,9 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
 
     def one(f: Path) -> None:
         trace = _read_walk(f)
-        target = out / f"{trace.trace_id}.{fmt}"
-        png = out / f"{trace.trace_id}.png"
+        name = f"{trace.trace_id}.smoothed" if smooth else trace.trace_id
+        target = out / f"{name}.{fmt}"
+        png = out / f"{name}.png"
         for existing in (target, png) if plot else (target,):
             if existing.exists() and not overwrite:  # before the work, not after
                 raise LocalizationError(f"{existing} exists; pass --overwrite to replace it")
@@ -311,6 +350,7 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
         _warn_if_source_walk(bundle, trace.trace_id)
         radio = _radio_of(bundle, trace, steps)
         start_xy, how = _start(start_opt, steps, trace, radio)
+        _warn_if_off_floor(bundle, start_xy)
         loc = make_localizer(method, bundle, _params(particles), radio=radio, rng=seed)
         track = loc.run(steps, start_xy=start_xy, smooth=smooth)
         _write_track(track, target, fmt, overwrite=overwrite)
@@ -319,8 +359,10 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
                f"({bundle.manifest.get('floor_name', '')}), start {how}, "
                f"{track.n_recoveries} recoveries -> {target}")
         if plot:
+            kind = "smoothed offline" if smooth else "real time"
             if plot_track(png, bundle, {method: track}, waypoints_of(trace)[1],
-                          title=f"{trace.trace_id} ({method})"):
+                          title=f"{trace.trace_id} on {bundle.manifest.get('floor_name', '')} "
+                                f"({bundle.floor_id[:12]}): {method}, {kind}, start {how}"):
                 msg += f", {png.name}"
             else:
                 msg += " (no plot: matplotlib not installed)"
@@ -349,12 +391,16 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False, path_type=Path),
               default=None, help="Write the error CDFs as a PNG (folders are created).")
+@click.option("--csv", "csv_path", type=click.Path(dir_okay=False, path_type=Path),
+              default=None, help="Write every error as CSV: trace_id, method, waypoint, t_ms, "
+                                 "x_m, y_m (the waypoint), est_x_m, est_y_m, error_m.")
 @click.option("--smooth", is_flag=True,
               help="Also score every particle filter's offline smoothed track "
                    "(rows '<method>+smoothed').")
+@click.option("--overwrite", is_flag=True, help="Replace an existing --plot or --csv file.")
 def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, start: str,
                      particles: int | None, seed: int, plot_path: Path | None,
-                     smooth: bool) -> None:
+                     csv_path: Path | None, smooth: bool, overwrite: bool) -> None:
     """Error at the waypoints of walks (median, p80, mean per method). The bundles should be
     built without these walks (a warning names walks the bundle was built from).
 
@@ -371,6 +417,9 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
     unknown = [m for m in names if m not in METHODS]
     if unknown:
         raise click.BadParameter(f"unknown methods {unknown}; known: {sorted(METHODS)}")
+    for target in (plot_path, csv_path):
+        if target is not None and target.exists() and not overwrite:  # before the work
+            raise LocalizationError(f"{target} exists; pass --overwrite to replace it")
     start_opt = _parse_start(start)
     maps = _open_maps(bundle_path)
     files = _walks(walks)
@@ -378,6 +427,7 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
     rows = [(m, False) for m in names] + [(m, True) for m in names
                                           if smooth and m in PARTICLE_FILTERS]
     errors: dict[str, list[np.ndarray]] = {_row_name(m, sm): [] for m, sm in rows}
+    table: list[dict] = []  # one row per method and waypoint, for --csv
 
     def one(f: Path) -> None:
         trace = _read_walk(f)
@@ -394,20 +444,46 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
             def run(m=m, sm=sm):
                 loc = make_localizer(m, bundle, _params(particles), radio=radio, rng=seed)
                 track = loc.run(steps, start_xy=start_xy, smooth=sm)
-                errors[_row_name(m, sm)].append(waypoint_errors(track, t_wp, xy_wp))
+                err = waypoint_errors(track, t_wp, xy_wp)
+                errors[_row_name(m, sm)].append(err)
+                est = track.at(t_wp)
+                table.extend({"trace_id": trace.trace_id, "method": _row_name(m, sm),
+                              "waypoint": i, "t_ms": int(t_wp[i]), "x_m": xy_wp[i, 0],
+                              "y_m": xy_wp[i, 1], "est_x_m": est[i, 0], "est_y_m": est[i, 1],
+                              "error_m": err[i]} for i in range(len(err)))
             failures.run(f"{f} ({_row_name(m, sm)})", run)
 
     for f in files:
         failures.run(f, lambda f=f: one(f))
-    click.echo(f"{'method':<20}{'n':>6}{'median':>9}{'p80':>9}{'mean':>9}  (m, at waypoints)")
+    if not table:
+        click.echo("no walk was evaluated", err=True)
+        failures.exit_if_any(len(files))
+        sys.exit(1)  # every walk lacked waypoints
+    n_walks = len({r["trace_id"] for r in table})
+    click.echo(f"{'method':<20}{'n':>6}{'median':>9}{'p80':>9}{'mean':>9}  (m, at the "
+               f"waypoints of {n_walks} walk(s))")
     for m, v in errors.items():
         s = summarize(np.concatenate(v) if v else np.empty(0))
         click.echo(f"{m:<20}{s['n']:>6}{s['median']:>9.2f}{s['p80']:>9.2f}{s['mean']:>9.2f}")
+    if csv_path is not None:
+        import pyarrow as pa
+        import pyarrow.csv as pacsv
+
+        from survey.publish import atomic_write_bytes
+
+        sink = pa.BufferOutputStream()
+        pacsv.write_csv(pa.Table.from_pylist(table), sink)
+        csv_path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_bytes(csv_path, sink.getvalue().to_pybytes(), overwrite=overwrite)
+        click.echo(f"errors: {csv_path}", err=True)
     if plot_path is not None:
         from localize.evaluate import plot_cdfs
 
         plot_path.parent.mkdir(parents=True, exist_ok=True)
-        if not plot_cdfs(plot_path, {m: np.concatenate(v) for m, v in errors.items() if v}):
+        title = (f"{bundle_path.name}: {n_walks} walk(s), start {start}"
+                 + (f", {failures.count} failure(s)" if failures.count else ""))
+        if not plot_cdfs(plot_path, {m: np.concatenate(v) for m, v in errors.items() if v},
+                         title=title):
             click.echo("(no plot: matplotlib not installed)", err=True)
     failures.exit_if_any(len(files))
 

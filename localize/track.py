@@ -107,11 +107,14 @@ class Track:
                 "recovered": self.recovered}
 
     def to_arrow(self):
-        """The track as a pyarrow Table (metadata: method, trace id, floor id)."""
+        """The track as a pyarrow Table (metadata: method, smoothed (``true`` for an offline
+        smoothed track), trace id, floor id, start, recoveries)."""
         import pyarrow as pa
 
         table = pa.table(self.to_columns())
-        meta = {"method": self.method, "trace_id": self.trace_id, "floor_id": self.floor_id,
+        meta = {"method": self.method,
+                "smoothed": "true" if self.info.get("smoothed") else "false",
+                "trace_id": self.trace_id, "floor_id": self.floor_id,
                 "start_x_m": repr(self.start.x_m), "start_y_m": repr(self.start.y_m),
                 "n_recoveries": str(self.n_recoveries)}
         return table.replace_schema_metadata({k: str(v) for k, v in meta.items()})

@@ -5,6 +5,7 @@ Exit codes: 0 success, 1 data or validation failure, 2 usage error (click's own)
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import threading
@@ -36,6 +37,10 @@ class _Group(click.Group):
             return super().invoke(ctx)
         except IndoormapError as err:
             click.echo(f"error: {err}", err=True)
+            sys.exit(1)
+        except BrokenPipeError:  # `indoormap ... | head`: the reader has gone, say nothing
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())  # nor at the interpreter's final flush
             sys.exit(1)
         except OSError as err:  # the machine's refusal: read-only, permissions, disk full
             where = f"{err.filename}: " if err.filename else ""

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 import pyarrow.parquet as pq
+import pytest
 from click.testing import CliRunner
 from localize_fixtures import SAMPLE, truth_bundles  # noqa: F401  (fixture)
 
@@ -22,6 +24,7 @@ def test_localize_writes_positions_and_plots(truth_bundles, tmp_path):  # noqa: 
     assert {"step", "t_ms", "x_m", "y_m", "spread_m"} <= set(table.column_names)
     assert table.num_rows > 20 and np.isfinite(table.column("x_m").to_numpy()).all()
     assert table.schema.metadata[b"method"] == b"indoormap"
+    assert table.schema.metadata[b"smoothed"] == b"false"
     assert (tmp_path / "out" / f"{tid}.png").stat().st_size > 1000
     assert "start first waypoint" in res.output
 
@@ -34,6 +37,12 @@ def test_localize_csv_on_a_folder_of_bundles(truth_bundles, tmp_path):  # noqa: 
                                     "--start", "20,10"])
     assert res.exit_code == 0, res.output
     assert "(F2)" in res.output and "start given" in res.output
+    assert "warning: start" not in res.output
+    res = CliRunner().invoke(main, ["localize", str(bundles), str(walk), "-o", str(tmp_path),
+                                    "--format", "csv", "--no-plot", "--method", "pdr",
+                                    "--start", "12,30.5", "--overwrite"])
+    assert res.exit_code == 0, res.output  # a start off the floor's area is said, not refused
+    assert "warning: start 12,30.5 is off the reachable area of F2" in res.output
     assert len(list(tmp_path.glob("*.csv"))) == 1 and not list(tmp_path.glob("*.png"))
 
 
@@ -53,11 +62,25 @@ def test_localize_errors_exit_1(truth_bundles, tmp_path):  # noqa: F811
 def test_evaluate_prints_errors_and_cdfs(truth_bundles, tmp_path):  # noqa: F811
     res = CliRunner().invoke(main, ["evaluate", str(truth_bundles["F1"]), str(F1_WALKS),
                                     "--methods", "indoormap,pdr", "--particles", "150",
-                                    "--plot", str(tmp_path / "cdf.png")])
+                                    "--plot", str(tmp_path / "cdf.png"),
+                                    "--csv", str(tmp_path / "errors.csv")])
     assert res.exit_code == 0, res.output
     lines = {ln.split()[0]: ln.split() for ln in res.output.splitlines() if ln.strip()}
     assert float(lines["indoormap"][2]) < float(lines["pdr"][2])  # median error
     assert (tmp_path / "cdf.png").exists()
+    # every error as a row: the printed medians are those of the table's rows
+    table = pd.read_csv(tmp_path / "errors.csv", dtype={"trace_id": str})
+    assert table["trace_id"].nunique() == len(list(F1_WALKS.glob("*.txt.gz")))
+    for method in ("indoormap", "pdr"):
+        rows = table[table["method"] == method]
+        assert float(lines[method][1]) == len(rows)
+        assert float(lines[method][2]) == pytest.approx(rows["error_m"].median(), abs=0.006)
+    assert np.allclose(np.hypot(table["est_x_m"] - table["x_m"], table["est_y_m"] - table["y_m"]),
+                       table["error_m"])
+    # an existing --plot or --csv is kept unless --overwrite, said before any walk is read
+    res = CliRunner().invoke(main, ["evaluate", str(truth_bundles["F1"]), str(F1_WALKS),
+                                    "--csv", str(tmp_path / "errors.csv")])
+    assert res.exit_code == 1 and "errors.csv exists; pass --overwrite" in res.output
 
 
 def test_smooth_option(truth_bundles, tmp_path):  # noqa: F811
@@ -67,6 +90,8 @@ def test_smooth_option(truth_bundles, tmp_path):  # noqa: F811
                                     "--format", "csv", "--smooth"])
     assert res.exit_code == 0, res.output
     assert "smoothed steps" in res.output
+    tid = walk.name.split(".")[0]
+    assert [f.name for f in tmp_path.iterdir()] == [f"{tid}.smoothed.csv"]  # told apart
     res = CliRunner().invoke(main, ["localize", str(truth_bundles["F1"]), str(walk), "-o",
                                     str(tmp_path), "--method", "pdr", "--smooth"])
     assert res.exit_code == 2 and "particle filter" in res.output
