@@ -389,3 +389,13 @@ def test_killed_publish_keeps_current_version(tmp_path, point):
     versions = tmp_path / "reg" / "site" / "F1" / "versions"
     assert sorted(p.name for p in versions.iterdir()) == sorted([e1["bundle_id"],
                                                                   e2["bundle_id"]])
+
+
+def test_a_reader_that_has_gone_ends_the_command_quietly(bundle_dir):
+    """``indoormap bundle info B | head -1``: a closed pipe is no traceback and no error."""
+    proc = subprocess.Popen([sys.executable, "-m", "survey.cli", "bundle", "info",
+                             str(bundle_dir)], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.close()  # the reader is gone before the first line
+    err = proc.stderr.read()
+    assert proc.wait(timeout=60) == 1
+    assert err == b""
