@@ -69,9 +69,18 @@ def process_command(store_dir: str, site: str | None, floor: str | None,
                f"skipped {len(report.skipped)}")
     for tid, reason in report.skipped.items():
         click.echo(f"  skipped {tid}: {reason}")
-    click.echo("calibration sessions (our pooled fit):")
+    done = processed_catalog(store)
+    done = done[done["trace_id"].isin(cat["trace_id"]) & (done["status"] == "ok")]
+    decision = done["summary"].map(lambda d: d.get("calibration", ""))
+    click.echo("calibration: " + ", ".join(f"{n} {what}" for what, n in
+                                           decision.value_counts().sort_index().items()))
+    # our pooled fit matters only to walks the phone's own calibration did not serve
+    relied = set(done.loc[decision.isin(["own-session-fit", "not-calibrated"]), "session"])
+    if relied:
+        click.echo("calibration sessions needing our pooled fit:")
     for key, s in report.sessions.items():
-        click.echo(f"  {key:<28} {s['status']:<16} {s['reason']}")
+        if key in relied:
+            click.echo(f"  {key:<28} {s['status']:<16} {s['reason']}")
 
 
 @click.command("survey-report")

@@ -23,14 +23,24 @@ def test_process_cli_and_report(tmp_path):
     bad = read_trace(traces[2])
     bad.waypoints = bad.waypoints.iloc[:1]
     write_trace(tmp_path / "in" / "single.txt.gz", bad)
-    ingest([*traces[:2], tmp_path / "in"], tmp_path / "store")
+    # one walk whose phone's calibrated field and bias are implausible: it needs our fit
+    raw = read_trace(traces[1])
+    cal = raw.sensors["stream"] == "magnetic_field"
+    raw.sensors.loc[cal, ["x", "y", "z"]] *= 10
+    raw.sensors.loc[raw.sensors["stream"] == "magnetic_field_uncalibrated",
+                    ["bx", "by", "bz"]] = 500.0
+    write_trace(tmp_path / "in" / "raw.txt.gz", raw)
+    ingest([traces[0], tmp_path / "in"], tmp_path / "store")
     runner = CliRunner()
     res = runner.invoke(main, ["process", "--store", str(tmp_path / "store"),
                                "--floor-plan", str(floor)])
     assert res.exit_code == 0, res.output
     assert "processed 2, unchanged 0, skipped 1" in res.output
     assert "skipped single: a walk needs at least two waypoints" in res.output
-    assert "ill-conditioned" in res.output  # flat-held sessions: our own fit is not applied
+    assert "calibration: 1 device-calibrated, 1 not-calibrated" in res.output
+    # only the session that needed our pooled fit is listed (flat-held: ill-conditioned)
+    listed = res.output.split("needing our pooled fit:\n")[1].strip().splitlines()
+    assert len(listed) == 1 and "ill-conditioned" in listed[0]
     cat = processed_catalog(tmp_path / "store")
     assert sorted(cat["status"]) == ["ok", "ok", "skipped"]
     samples = processed_table(tmp_path / "store", "samples", floor="F1")
@@ -39,6 +49,7 @@ def test_process_cli_and_report(tmp_path):
     assert {"x_m", "y_m", "bssid", "rssi_dbm", "age_ms"} <= set(wifi.columns)
     again = runner.invoke(main, ["process", "--store", str(tmp_path / "store")])
     assert "processed 0, unchanged 3, skipped 0" in again.output  # nothing changed: no work
+    assert "calibration: 1 device-calibrated, 1 not-calibrated" in again.output
     report = runner.invoke(main, ["survey-report", "--store", str(tmp_path / "store"),
                                   "--csv", str(tmp_path / "qa.csv")])
     assert report.exit_code == 0, report.output
