@@ -1477,6 +1477,10 @@ def summary_lines(result: ValidationResult) -> list[str]:
         if hd.get("rmse") is not None:
             lines.append(f"held-out heading offset: RMSE {hd['rmse']:.1f} deg, shape RMSE "
                          f"{hd['shape_rmse']:.1f} deg")
+    warns = [f for f in result.findings if f.severity == "warn"]
+    lines += [f"warning: {f.message}" for f in warns if f.check == "no_store"]
+    if any(f.check != "no_store" for f in warns):
+        lines.append(f"{sum(f.check != 'no_store' for f in warns)} warning(s) in the report")
     fails = result.failed
     if fails:
         lines.append(f"{len(fails)} problem(s):")

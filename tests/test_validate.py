@@ -239,6 +239,7 @@ def test_without_store_checks_the_bundle_alone(sites, tmp_path):
     assert res.exit_code == 0, res.output
     assert "heldout" not in metrics and metrics["coverage"]["source"].startswith("bundle")
     assert any(f["check"] == "no_store" for f in metrics["findings"])
+    assert "warning: no survey store given (--store)" in res.output  # not only in the HTML
     assert (tmp_path / "r" / "report.html").exists() or not HAS_MPL
 
 
