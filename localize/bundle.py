@@ -28,7 +28,7 @@ from pathlib import Path, PurePosixPath
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from survey.errors import BundleError, BundleIntegrityError
+from survey.errors import BundleError, BundleIntegrityError, RegistryError
 
 BUNDLE_FORMAT = "indoormap-map-bundle"
 SCHEMA_VERSION = 1
@@ -445,8 +445,45 @@ def verify_bundle_dir(path: Path, manifest: dict) -> None:
                                            "listed in the manifest")
 
 
+def registry_current(floor_dir: str | os.PathLike) -> tuple[Path, dict] | None:
+    """The current version of a registry's floor folder (``REG/<site>/<floor>``, which holds
+    ``CURRENT``): its bundle folder and the pointer ``{"bundle_id", "seq"}``; None when the
+    folder has no ``CURRENT``.
+
+    Raises
+    ------
+    RegistryError
+        A damaged pointer, or one at a version the registry does not hold.
+    """
+    path = Path(floor_dir) / "CURRENT"
+    if not path.exists():
+        return None
+    try:
+        cur = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as err:
+        raise RegistryError(f"{path}: damaged registry file ({err})") from err
+    if not isinstance(cur, dict) or not isinstance(cur.get("bundle_id"), str) \
+            or not isinstance(cur.get("seq"), int):
+        raise RegistryError(f"{path}: not a registry pointer (an object with bundle_id and "
+                            "seq)")
+    bundle_id = cur["bundle_id"]
+    version = path.parent / "versions" / bundle_id
+    if not bundle_id or bundle_id.startswith(".") or "/" in bundle_id or "\\" in bundle_id \
+            or not version.is_dir():
+        raise RegistryError(f"{path}: points at version {bundle_id[:16]}, which the registry "
+                            "does not hold")
+    return version, cur
+
+
+def is_bundle_dir(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is a bundle folder or a registry floor folder (with ``CURRENT``)."""
+    path = Path(path)
+    return (path / "manifest.json").exists() or (path / "CURRENT").exists()
+
+
 def load_bundle(path: str | os.PathLike) -> MapBundle:
-    """Open and verify a map bundle folder. Arrays are memory-mapped read-only.
+    """Open and verify a map bundle folder, or the current version of a registry's floor folder
+    (``REG/<site>/<floor>``). Arrays are memory-mapped read-only.
 
     Raises
     ------
@@ -456,6 +493,9 @@ def load_bundle(path: str | os.PathLike) -> MapBundle:
         Any member changed, missing, unlisted, unsafe, or with a disallowed array header.
     """
     path = Path(path)
+    if not (path / "manifest.json").exists():
+        current = registry_current(path)
+        path = path if current is None else current[0]
     if path.is_symlink():
         raise BundleIntegrityError(f"{path}: a bundle folder may not be a link")
     manifest = read_manifest(path)

@@ -30,16 +30,18 @@ ONLINE_CALIBRATION_SCANS = 8
 
 
 def _open_maps(path: Path):
-    """Floor bundles (and the site bundle's floor model) of a bundle or a folder of bundles."""
-    from localize.bundle import load_bundle
+    """Floor bundles (and the site bundle's floor model) of a bundle or a folder of bundles;
+    registry folders (``REG/<site>/<floor>``, ``REG/<site>``) give their current versions."""
+    from localize.bundle import is_bundle_dir, load_bundle
     from localize.floor_classifier import FloorClassifier
     from localize.floors import SiteMaps
 
-    if (path / "manifest.json").exists():
+    if is_bundle_dir(path):
         return SiteMaps([load_bundle(path)])
-    subs = [load_bundle(p) for p in sorted(path.iterdir()) if (p / "manifest.json").exists()]
+    subs = [load_bundle(p) for p in sorted(path.iterdir()) if is_bundle_dir(p)]
     if not subs:
-        raise LocalizationError(f"{path}: neither a bundle nor a folder of bundles")
+        raise LocalizationError(f"{path}: neither a bundle nor a folder of bundles (nor a "
+                                "registry's site folder)")
     site = [b for b in subs if b.manifest.get("kind") == "site"]
     model = FloorClassifier.from_bundle(site[0]) if site else None
     return SiteMaps([b for b in subs if b.manifest.get("kind") != "site"], floor_model=model)

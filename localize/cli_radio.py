@@ -35,12 +35,12 @@ def _scans(trace, kind: str):
 
 
 def _site_bundle(path: Path):
-    from localize.bundle import load_bundle
+    from localize.bundle import is_bundle_dir, load_bundle
 
     from mapping.registry import SITE_BUNDLE
 
     for cand in (path, path / SITE_BUNDLE):
-        if (cand / "manifest.json").exists():
+        if is_bundle_dir(cand):
             b = load_bundle(cand)
             if b.manifest.get("kind") == "site":
                 return b

@@ -391,9 +391,18 @@ def bundle_info(path: Path, as_json: bool) -> None:
 @bundle_group.command("verify")
 @click.argument("paths", nargs=-1, required=True, type=click.Path(path_type=Path))
 def bundle_verify(paths: tuple[Path, ...]) -> None:
-    """Verify bundles (every member's checksum, schema, no unlisted files). Exit 1 if any fails."""
+    """Verify bundles (every member's checksum, schema, no unlisted files). A folder of
+    bundles (what `build -o` writes, a registry's site folder) is verified bundle by bundle; a
+    registry's floor folder by its current version. Exit 1 if any fails."""
+    from localize.bundle import is_bundle_dir
+
     bad = 0
+    expanded = []
     for p in paths:
+        held = sorted(q for q in p.iterdir() if is_bundle_dir(q)) \
+            if p.is_dir() and not is_bundle_dir(p) else []
+        expanded += held or [p]
+    for p in expanded:
         try:
             b = load_bundle(p)
             click.echo(f"ok      {p} ({b.bundle_id[:16]})")

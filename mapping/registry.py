@@ -19,7 +19,7 @@ import os
 import shutil
 from pathlib import Path
 
-from localize.bundle import MapBundle, load_bundle, read_manifest
+from localize.bundle import MapBundle, load_bundle, read_manifest, registry_current
 from survey.errors import RegistryError
 from survey.publish import atomic_directory, atomic_write_bytes, crash_point
 
@@ -66,18 +66,9 @@ class Registry:
         return history
 
     def current(self, site: str, floor: str) -> dict | None:
-        path = self._floor(site, floor) / "CURRENT"
-        if not path.exists():
-            return None
-        cur = _read_record(path)
-        if not isinstance(cur, dict) or not isinstance(cur.get("bundle_id"), str) \
-                or not isinstance(cur.get("seq"), int):
-            raise RegistryError(f"{path}: not a registry pointer (an object with bundle_id "
-                                "and seq)")
-        if not (path.parent / "versions" / safe_name(cur["bundle_id"])).is_dir():
-            raise RegistryError(f"{path}: points at version {cur['bundle_id'][:16]}, which "
-                                "the registry does not hold")
-        return cur
+        """The current version's pointer ``{"bundle_id", "seq"}``, None before any."""
+        found = registry_current(self._floor(site, floor))
+        return None if found is None else found[1]
 
     def open(self, site: str, floor: str, bundle_id: str | None = None) -> MapBundle:
         """Load (and verify) the current version, or a given one."""

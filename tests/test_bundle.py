@@ -363,6 +363,31 @@ def test_registry_command_line(tmp_path):
     assert res.exit_code == 2 and "not a registry" in res.output
 
 
+
+def test_a_registry_floor_folder_opens_its_current_version(tmp_path):
+    """Every command that reads a bundle takes ``REG/<site>/<floor>`` for its current
+    version, and ``bundle verify`` takes a folder of bundles (``build -o``'s OUT, a registry's
+    site folder) and checks each."""
+    write_bundle(tmp_path / "out" / "v1", _content(0.0))
+    write_bundle(tmp_path / "out" / "v2", _content(1.0))
+    reg = tmp_path / "reg"
+    Registry(reg).publish(tmp_path / "out" / "v1")
+    e2 = Registry(reg).publish(tmp_path / "out" / "v2")
+    floor = reg / "site" / "F1"
+    assert load_bundle(floor).bundle_id == e2["bundle_id"]
+    res = CliRunner().invoke(main, ["bundle", "info", str(floor)])
+    assert res.exit_code == 0 and e2["bundle_id"] in res.output, res.output
+    res = CliRunner().invoke(main, ["bundle", "verify", str(tmp_path / "out"), str(reg / "site")])
+    assert res.exit_code == 0, res.output
+    assert [ln.split()[:2] for ln in res.output.splitlines()] == [
+        ["ok", str(tmp_path / "out" / "v1")], ["ok", str(tmp_path / "out" / "v2")],
+        ["ok", str(floor)]]
+    (tmp_path / "out" / "v1" / "mask.npy").write_bytes(b"x")  # one bad bundle in the folder
+    res = CliRunner().invoke(main, ["bundle", "verify", str(tmp_path / "out")])
+    assert res.exit_code == 1 and f"FAILED  {tmp_path / 'out' / 'v1'}" in res.output
+    assert f"ok      {tmp_path / 'out' / 'v2'}" in res.output
+
+
 REG_CRASH = """
 import sys
 sys.path.insert(0, sys.argv[3])

@@ -46,6 +46,23 @@ def test_localize_csv_on_a_folder_of_bundles(truth_bundles, tmp_path):  # noqa: 
     assert len(list(tmp_path.glob("*.csv"))) == 1 and not list(tmp_path.glob("*.png"))
 
 
+def test_localize_on_a_registry_site_folder(truth_bundles, tmp_path):  # noqa: F811
+    """A registry's site folder is a folder of floor bundles: each floor's current version."""
+    from mapping.registry import Registry
+
+    reg = Registry(tmp_path / "reg")
+    for f in ("F1", "F2"):
+        reg.publish(truth_bundles[f])
+    from localize.bundle import load_bundle
+
+    site = tmp_path / "reg" / load_bundle(truth_bundles["F1"]).site_id
+    walk = min((SAMPLE / "F2" / "path_data_files").glob("*.txt.gz"))
+    res = CliRunner().invoke(main, ["localize", str(site), str(walk), "-o", str(tmp_path / "o"),
+                                    "--no-plot", "--method", "pdr", "--start", "20,10"])
+    assert res.exit_code == 0, res.output
+    assert "(F2)" in res.output
+
+
 def test_localize_errors_exit_1(truth_bundles, tmp_path):  # noqa: F811
     walk = min((SAMPLE / "F2" / "path_data_files").glob("*.txt.gz"))
     res = CliRunner().invoke(main, ["localize", str(truth_bundles["F1"]), str(walk), "-o",
