@@ -384,8 +384,33 @@ def bundle_info(path: Path, as_json: bool) -> None:
                        if finite.size else f"  layer {name}: empty")
     for name, meta in m.get("tables", {}).items():
         click.echo(f"  table {name:<15} {meta['rows']} rows")
+    for line in _metric_lines(m):
+        click.echo(f"  {line}")
     click.echo(f"  built {m['build'].get('build_time')} from "
                f"{len(m['build'].get('source_walks', []))} walks")
+
+
+def _metric_lines(manifest: dict) -> list[str]:
+    """What a floor bundle's build chose and reached, a line each: the smoothing picked by
+    cross-validation and the survey's coverage of the reachable area."""
+    mt = manifest.get("metrics") or {}
+    lines = []
+    if isinstance(mt.get("interpolator"), str):
+        scores = mt.get("smoothing_cv_shape_rmse_ut") or {}
+        best = min(scores.values()) if scores else None
+        parts = [mt["interpolator"]] + [
+            f"{label} {mt[key]:g}{unit}" for key, label, unit in (
+                ("bandwidth_m", "bandwidth", " m"), ("prior_walks", "shrinkage", " walks"),
+                ("slope_ridge", "slope ridge", ""), ("curvature_ridge", "curvature ridge", ""))
+            if isinstance(mt.get(key), (int, float))]
+        lines.append("smoothing " + ", ".join(parts)
+                     + (f" (cross-validated shape RMSE {best:.2f} uT)" if best else ""))
+    cov = mt.get("coverage")
+    if isinstance(cov, dict) and cov:
+        lines.append("reachable area near a sample: " + ", ".join(
+            f"{100 * v:.0f} % within {k.removeprefix('within_').removesuffix('m')} m"
+            for k, v in cov.items() if isinstance(v, (int, float))))
+    return lines
 
 
 @bundle_group.command("verify")
@@ -423,6 +448,17 @@ def bundle_diff(a: Path, b: Path) -> None:
     if ma["bundle_id"] == mb["bundle_id"]:
         click.echo("identical")
         return
+    for tag, m in (("a", ma), ("b", mb)):
+        what = "site bundle" if m.get("kind") == "site" else f"floor {m.get('floor_name', '?')}"
+        click.echo(f"{tag}: {m['bundle_id'][:16]} site {m['site_id'][:12]} {what}, built "
+                   f"{m['build'].get('build_time')}")
+    if ma["site_id"] != mb["site_id"] or ma.get("floor_id") != mb.get("floor_id") \
+            or ma.get("kind") != mb.get("kind"):
+        click.echo("warning: these bundles are of different sites, floors or kinds; what "
+                   "follows compares unrelated maps", err=True)
+    for la, lb in zip(_metric_lines(ma), _metric_lines(mb)):
+        if la != lb:
+            click.echo(f"{la}\n  -> {lb}")
     wa = {w["trace_id"] for w in ma["build"].get("source_walks", [])}
     wb = {w["trace_id"] for w in mb["build"].get("source_walks", [])}
     click.echo(f"walks: {len(wa & wb)} shared, {len(wb - wa)} added, {len(wa - wb)} removed")
@@ -435,6 +471,10 @@ def bundle_diff(a: Path, b: Path) -> None:
             where = ("changed" if name in ma["members"] and name in mb["members"]
                      else f"only in {'a' if name in ma['members'] else 'b'}")
             click.echo(f"member {name}: {where}")
+    if ba.grid != bb.grid and ba.grid is not None and bb.grid is not None:
+        click.echo(f"grid: {ba.grid.width} x {ba.grid.height} cells of {ba.grid.cell_m} m -> "
+                   f"{bb.grid.width} x {bb.grid.height} of {bb.grid.cell_m} m (layers not "
+                   "compared cell by cell)")
     if ba.grid == bb.grid:
         for name in sorted(set(ba.layers) & set(bb.layers)):
             d = np.asarray(bb.layers[name], float) - np.asarray(ba.layers[name], float)

@@ -173,6 +173,10 @@ def test_build_cli_twice_identical_bytes(tmp_path):
     assert (tmp_path / "c" / "F2" / "notes.txt").read_text() == "keep me"
     info = runner.invoke(main, ["bundle", "info", str(a)])
     assert info.exit_code == 0 and "layer strength" in info.output and "floor F2" in info.output
+    assert "smoothing local_" in info.output and "bandwidth" in info.output  # what CV chose
+    assert " % within 2 m" in info.output
+    diff = runner.invoke(main, ["bundle", "diff", str(a), str(tmp_path / "a" / "_site")])
+    assert diff.exit_code == 0 and "of different sites, floors or kinds" in diff.output
     site = runner.invoke(main, ["bundle", "info", str(tmp_path / "a" / "_site")])
     assert site.exit_code == 0 and "site-level bundle" in site.output
     verify = runner.invoke(main, ["bundle", "verify", str(a), str(tmp_path)])
