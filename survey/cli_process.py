@@ -6,8 +6,10 @@ from pathlib import Path
 
 import click
 
+from .errors import PublishError
 from .process_store import process_store, processed_catalog, processed_table
 from .progress import progress
+from .publish import atomic_write_bytes
 from .store import SurveyStore
 
 
@@ -90,9 +92,17 @@ def process_command(store_dir: str, site: str | None, floor: str | None,
 @click.option("--floor", default=None)
 @click.option("--csv", "csv_path", type=click.Path(dir_okay=False), default=None,
               help="Also write the table as CSV.")
+@click.option("--overwrite", is_flag=True, help="Replace an existing --csv file.")
 def survey_report_command(store_dir: str, site: str | None, floor: str | None,
-                          csv_path: str | None) -> None:
-    """Per-walk QA: steps, length, flagged legs, step model, calibration decision, headings."""
+                          csv_path: str | None, overwrite: bool) -> None:
+    """Per-walk QA, a row per walk: status; steps; length_m (positioned track, m); legs and
+    flagged legs (between waypoints; reasons at the end); step_k (the walk's Weinberg step
+    factor K, step length = K (a_max - a_min)^(1/4), m / (m/s2)^(1/4)); calibration (the
+    magnetometer calibration used); heading_offset_deg (median compass minus walking
+    direction, deg); ufh_share (share of steps with the phone held flat and forward); session
+    (calibration session)."""
+    if csv_path and Path(csv_path).exists() and not overwrite:
+        raise PublishError(f"{csv_path} exists; pass --overwrite to replace it")
     everything = cat = processed_catalog(store_dir)
     if site is not None:
         cat = cat[cat["site"] == site]
@@ -116,7 +126,8 @@ def survey_report_command(store_dir: str, site: str | None, floor: str | None,
     table = pd.DataFrame(rows)
     if csv_path:
         Path(csv_path).parent.mkdir(parents=True, exist_ok=True)
-        table.to_csv(csv_path, index=False)
+        atomic_write_bytes(Path(csv_path), table.to_csv(index=False).encode(),
+                           overwrite=overwrite)
     with pd.option_context("display.max_rows", None, "display.width", 200,
                            "display.max_colwidth", 40):
         click.echo(table.to_string(index=False))

@@ -55,6 +55,9 @@ def test_process_cli_and_report(tmp_path):
     assert report.exit_code == 0, report.output
     assert "device-calibrated" in report.output and "flagged legs by reason" in report.output
     assert (tmp_path / "qa.csv").read_text().startswith("trace_id,floor,status,steps")
+    again = runner.invoke(main, ["survey-report", "--store", str(tmp_path / "store"),
+                                 "--csv", str(tmp_path / "qa.csv")])
+    assert again.exit_code == 1 and "qa.csv exists; pass --overwrite" in again.output
     for command in ("process", "survey-report"):  # a floor the store does not hold
         res = runner.invoke(main, [command, "--store", str(tmp_path / "store"), "--floor", "F9"])
         assert res.exit_code == 2 and "no walks for floor F9; the store has" in res.output
