@@ -217,11 +217,8 @@ def plot_track(path: Path, bundle, tracks: dict, waypoints_xy=None, title: str =
     """Trajectories over the bundle's reachable mask as a PNG, zoomed to the tracks and
     waypoints (``margin_m`` around them, within the floor): start (circle) and end (square)
     of each track, recoveries (x), waypoints with their order; False without matplotlib."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+    try:  # the object API: no pyplot state, the caller's backend (a notebook's) untouched
+        from matplotlib.figure import Figure
     except ImportError:
         return False
     g = bundle.grid
@@ -236,7 +233,8 @@ def plot_track(path: Path, bundle, tracks: dict, waypoints_xy=None, title: str =
                                                                                    g.y0_m)
     hi = np.minimum(pts.max(axis=0) + margin_m, (x1, y1)) if len(pts) else (x1, y1)
     span = np.maximum(np.subtract(hi, lo), 1.0)
-    fig, ax = plt.subplots(figsize=(8, min(8 * span[1] / span[0], 14) + 0.8))
+    fig = Figure(figsize=(8, min(8 * span[1] / span[0], 14) + 0.8))
+    ax = fig.subplots()
     ax.imshow(np.asarray(bundle.mask), origin="lower", cmap="Greys", alpha=0.35,
               extent=(g.x0_m, x1, g.y0_m, y1))
     for name, tr in tracks.items():
@@ -263,7 +261,6 @@ def plot_track(path: Path, bundle, tracks: dict, waypoints_xy=None, title: str =
     ax.legend(fontsize=7, loc="best")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return True
 
 

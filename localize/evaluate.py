@@ -54,14 +54,12 @@ def summarize(errors_m: ArrayLike) -> dict[str, float]:
 
 def plot_cdfs(path: str | Path, errors: dict[str, NDArray], title: str = "") -> bool:
     """Error CDFs per method as a PNG; False without matplotlib."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+    try:  # the object API: no pyplot state, the caller's backend (a notebook's) untouched
+        from matplotlib.figure import Figure
     except ImportError:
         return False
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig = Figure(figsize=(6, 4))
+    ax = fig.subplots()
     for name, e in errors.items():
         e = np.sort(np.asarray(e)[np.isfinite(e)])
         if e.size:
@@ -73,5 +71,4 @@ def plot_cdfs(path: str | Path, errors: dict[str, NDArray], title: str = "") -> 
     ax.set_title(title, fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return True

@@ -22,12 +22,10 @@ import json
 import math
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.colors import BoundaryNorm, ListedColormap, TwoSlopeNorm
+from matplotlib.figure import Figure
+from matplotlib.image import imread
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch, Rectangle
 
@@ -58,7 +56,7 @@ class FloorCanvas:
         if fdir is not None and (Path(fdir) / "floor_image.png").exists():
             try:
                 info = json.loads((Path(fdir) / "floor_info.json").read_text())["map_info"]
-                img = plt.imread(Path(fdir) / "floor_image.png")
+                img = imread(Path(fdir) / "floor_image.png")
                 if img.ndim == 3:
                     rgb = img[..., :3]
                     gray = rgb @ np.array([0.299, 0.587, 0.114])
@@ -102,7 +100,7 @@ class FloorCanvas:
                        alpha=alpha, zorder=2)
         cax = cax if cax is not None else getattr(ax, "_cax", None)
         cb = ax.figure.colorbar(im, cax=cax) if cax is not None else \
-            plt.colorbar(im, ax=ax, fraction=0.035, pad=0.02)
+            ax.figure.colorbar(im, ax=ax, fraction=0.035, pad=0.02)
         cb.ax.tick_params(labelsize=7)
         if label:
             cb.set_label(label, fontsize=7)
@@ -121,7 +119,7 @@ def _panels(canvas: FloorCanvas, n: int, ncols: int, panel_w: float = 4.8):
     cell_w = _LEFT + map_w + _CB_GAP + _CB_W + _CB_LABELS
     cell_h = _TITLE + map_h + _BOTTOM
     fw, fh = cell_w * ncols, cell_h * nrows
-    fig = plt.figure(figsize=(fw, fh))
+    fig = Figure(figsize=(fw, fh))
     axes = []
     for k in range(n):
         r, c = divmod(k, ncols)
@@ -136,7 +134,6 @@ def _panels(canvas: FloorCanvas, n: int, ncols: int, panel_w: float = 4.8):
 def _png(fig) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=DPI)
-    plt.close(fig)
     return buf.getvalue()
 
 
@@ -166,7 +163,7 @@ def fig_overview(result: ValidationResult, canvas: FloorCanvas, numbers: dict) -
     map_w = 9.0
     map_h = map_w / canvas.aspect
     fw, fh = map_w + 0.9, map_h + 0.5 + 1.0
-    fig = plt.figure(figsize=(fw, fh))
+    fig = Figure(figsize=(fw, fh))
     ax = fig.add_axes((0.65 / fw, 0.95 / fh, map_w / fw, map_h / fh))
     canvas.base(ax)
     handles = []
@@ -329,7 +326,7 @@ def fig_consistency(result: ValidationResult, canvas: FloorCanvas) -> bytes | No
     map_h = map_w / canvas.aspect
     fh = max(map_h, 3.6) + _TITLE + _BOTTOM
     fw = _LEFT + map_w + _CB_GAP + _CB_W + _CB_LABELS + 1.0 + 3.3 + 1.6 + 3.3 + 0.3
-    fig = plt.figure(figsize=(fw, fh))
+    fig = Figure(figsize=(fw, fh))
     y0 = _BOTTOM / fh
     ax = fig.add_axes((_LEFT / fw, y0, map_w / fw, map_h / fh))
     ax._cax = fig.add_axes(((_LEFT + map_w + _CB_GAP) / fw, y0, _CB_W / fw, map_h / fh))
@@ -425,7 +422,8 @@ def fig_cdfs(result: ValidationResult) -> bytes | None:
         if layer not in layers:
             layers.append(layer)
     n = len(layers) + (radio is not None)
-    fig, axes = plt.subplots(1, n, figsize=(4.6 * n, 3.6), squeeze=False)
+    fig = Figure(figsize=(4.6 * n, 3.6))
+    axes = fig.subplots(1, n, squeeze=False)
     fig.subplots_adjust(left=0.6 / (4.6 * n), right=1 - 0.15 / (4.6 * n), bottom=0.15,
                         top=0.9, wspace=0.25)
     colors = {"constant map (floor mean)": "#999999", OURS: "#d7191c"}

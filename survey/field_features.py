@@ -195,6 +195,17 @@ def wrap_deg(angle_deg: ArrayLike) -> NDArray[np.float64]:
     return np.where(w >= 180.0, -180.0, w)  # float rounding of tiny negatives
 
 
+def unwrap_deg(angle_deg: ArrayLike) -> NDArray[np.float64]:
+    """Unwrap a sequence of angles (deg, shape (n,)) so that consecutive finite values differ
+    by less than 180 deg; NaN stays NaN and does not break the unwrapping of the values after
+    it (``np.unwrap`` turns everything after a NaN into NaN)."""
+    a = np.asarray(angle_deg, dtype=np.float64)
+    out = np.full(a.shape, np.nan)
+    ok = np.isfinite(a)
+    out[ok] = np.degrees(np.unwrap(np.radians(a[ok])))
+    return out
+
+
 def _prepare(angle_deg: ArrayLike, weights: ArrayLike | None,
              axis: int | None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     a = np.asarray(angle_deg, dtype=np.float64)

@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from .attitude import AttitudeParams, classify_attitude
 from .errors import ProcessingError
-from .field_features import circular_median_deg, field_features, wrap_deg
+from .field_features import circular_median_deg, field_features, unwrap_deg, wrap_deg
 from .magcal import MagCalResult
 from .positions import PositionParams, clean_waypoints, positions_along_walk
 from .rotation import heading_deg, interpolate_rotation_vector, rotation_matrices, tilt_deg
@@ -254,8 +254,11 @@ def process_walk(trace_id: str, sensors: pd.DataFrame, waypoints: pd.DataFrame,
     mid = 0.5 * (step_start + st)
 
     # Headings: gyro (relative, immune to magnetic anomalies) and compass (rotation vector).
-    compass_unwrapped = np.degrees(np.unwrap(np.radians(heading_deg(rot))))
+    compass_unwrapped = unwrap_deg(heading_deg(rot))
     good = np.isfinite(compass_unwrapped)
+    if not good.any():
+        raise ProcessingError(f"{trace_id}: the rotation vector gives no heading (phone "
+                              "upright?)")
     compass_step = np.mod(np.interp(mid, rot_t[good], compass_unwrapped[good]), 360.0)
     gyro = gyro_heading_deg(sensors, rot_t, rot)
     if gyro is not None:

@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 from localize.steps import RadioScan, StepSummaries, attitude_codes, ble_transmitter_ids
 from survey.attitude import AttitudeParams, classify_attitude
 from survey.errors import ProcessingError
-from survey.field_features import field_features
+from survey.field_features import field_features, unwrap_deg
 from survey.process import _stream, calibrated_field, gyro_heading_deg
 from survey.rotation import heading_deg, interpolate_rotation_vector, rotation_matrices
 from survey.steps import detect_steps
@@ -173,7 +173,7 @@ def step_summaries(trace: Trace, params: StepSummaryParams = StepSummaryParams()
     start = _cycle_bounds(st, params.max_cycle_ms)
     mid = 0.5 * (start + st)
 
-    compass = np.degrees(np.unwrap(np.radians(heading_deg(rot))))
+    compass = unwrap_deg(heading_deg(rot))
     good = np.isfinite(compass)
     if not good.any():
         raise ProcessingError(f"{tid}: the rotation vector gives no heading (phone upright?)")
@@ -206,9 +206,9 @@ def step_summaries(trace: Trace, params: StepSummaryParams = StepSummaryParams()
 
     strength = cycle_mean(feats.strength_ut)
     polar = cycle_mean(feats.polar_deg)
-    az = np.radians(np.nan_to_num(feats.azimuth_deg))
-    azimuth = np.mod(np.degrees(np.arctan2(cycle_mean(np.sin(az)), cycle_mean(np.cos(az)))),
-                     360.0)
+    az = np.radians(feats.azimuth_deg)  # an undefined azimuth adds nothing to the mean
+    azimuth = np.mod(np.degrees(np.arctan2(cycle_mean(np.nan_to_num(np.sin(az))),
+                                           cycle_mean(np.nan_to_num(np.cos(az))))), 360.0)
     raw_strength = np.linalg.norm(mag_dev, axis=1)
     offsets = np.concatenate([[0], np.cumsum(cnt)]).astype(np.int64)
     raw = np.concatenate([raw_strength[a:b] for a, b in zip(lo, hi)]) if len(st) else \

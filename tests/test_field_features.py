@@ -150,3 +150,13 @@ def test_circular_median_matches_definition_and_is_robust():
     assert circular_median_deg([350.0, 355.0, 5.0]) == pytest.approx(355.0)
     assert np.isnan(circular_median_deg([]))
     assert np.isnan(circular_median_deg([np.nan, np.nan]))
+
+
+def test_unwrap_deg_carries_on_past_a_missing_heading():
+    """A heading that is undefined for one sample (phone's y axis vertical) must not turn the
+    rest of the walk's compass into NaN, as ``np.unwrap`` alone does."""
+    from survey.field_features import unwrap_deg
+
+    got = unwrap_deg([10.0, 20.0, np.nan, 30.0, 40.0, 350.0, 10.0])
+    np.testing.assert_allclose(got, [10, 20, np.nan, 30, 40, -10, 10], atol=1e-9)
+    assert np.isnan(np.unwrap(np.radians([10.0, np.nan, 30.0]))[2])  # why the helper exists

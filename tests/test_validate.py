@@ -7,9 +7,11 @@ from __future__ import annotations
 import html
 import importlib.util
 import json
+import os
 import re
 import shutil
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -404,3 +406,19 @@ def test_line_accounts_flag_walks_with_too_many_bad_lines():
         "walk damaged (3.0 % of its lines): 30 bad line(s) skipped (field_count 10, "
         "non_numeric 20); first: b.txt:12: TYPE_WIFI needs 5 values, got 1")
     assert line_accounts(catalog, None)[1] == []
+
+
+def test_plotting_leaves_the_callers_matplotlib_backend_alone(tmp_path):
+    """In a notebook the inline backend must survive importing the report module and making
+    the package's plots (they use matplotlib's object API, not pyplot's global state)."""
+    pytest.importorskip("matplotlib")
+    code = ("import matplotlib, numpy as np\n"
+            "import mapping.report_html\n"
+            "from localize.evaluate import plot_cdfs\n"
+            f"assert plot_cdfs({str(tmp_path / 'cdf.png')!r}, {{'a': np.arange(5.0)}})\n"
+            "print(matplotlib.get_backend())\n")
+    env = {**os.environ, "MPLBACKEND": "svg"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=env, check=False)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "svg" and (tmp_path / "cdf.png").stat().st_size > 1000
