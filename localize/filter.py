@@ -117,10 +117,6 @@ class BaseLocalizer:
     def step(self, s: StepSummary) -> Estimate:
         raise NotImplementedError
 
-    @property
-    def started(self) -> bool:
-        return self._last is not None
-
     # -- batch ---------------------------------------------------------------------------
     def check(self, steps: StepSummaries) -> None:
         """Refuse walks this method cannot localize on its bundle (see

@@ -119,11 +119,3 @@ class FloorClassifier:
         f = self.floors_of([scan])[0]
         return f or None
 
-    def floor_of_sequence(self, scans: Sequence[RadioScan | None]) -> str | None:
-        """Floor of a sequence (e.g. a walk): the largest sum of per-scan log-probabilities;
-        None when no scan hears a known transmitter."""
-        lp = self.log_proba(self.scan_matrix(scans))
-        ok = np.isfinite(lp).all(axis=1)
-        if not ok.any():
-            return None
-        return str(self.floors[np.argmax(lp[ok].sum(axis=0))])

@@ -95,27 +95,6 @@ class KnnRadioPositioner:
             r[i, [index[k] for k in s.keys.tolist()]] = s.rssi_dbm
         return cls(keys, xy_m, r, **kw)
 
-    @classmethod
-    def from_table(cls, table, **kw) -> KnnRadioPositioner:
-        """References from a long pyarrow table with columns ``ref`` (int), ``x_m``, ``y_m``,
-        ``key`` (str) and ``rssi_dbm`` (one row per reference and transmitter)."""
-        need = {"ref", "x_m", "y_m", "key", "rssi_dbm"}
-        missing = need - set(table.column_names)
-        if missing:
-            raise LocalizationError(f"fingerprint table lacks columns {sorted(missing)}")
-        ref = np.asarray(table.column("ref").to_numpy(), dtype=np.int64)
-        keys_col = np.asarray(table.column("key").to_pylist()).astype(str)
-        x = table.column("x_m").to_numpy()
-        y = table.column("y_m").to_numpy()
-        rssi = table.column("rssi_dbm").to_numpy().astype(np.float64)
-        refs, ref_i = np.unique(ref, return_inverse=True)
-        keys, key_i = np.unique(keys_col, return_inverse=True)
-        xy = np.zeros((len(refs), 2))
-        xy[ref_i, 0], xy[ref_i, 1] = x, y
-        r = np.full((len(refs), len(keys)), np.nan)
-        r[ref_i, key_i] = rssi
-        return cls(keys, xy, r, **kw)
-
     def _vector(self, scan: RadioScan) -> tuple[NDArray[np.float32], int]:
         scan = scan.fresh(KNN_MAX_AGE_MS)
         v = np.full(len(self.keys_), self.missing_dbm, dtype=np.float32)

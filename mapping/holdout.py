@@ -45,8 +45,6 @@ from .interpolate import (
 )
 from .levelling import LevellingParams, apply_session_residuals, fit_session_residuals
 
-LAYER_COLUMNS = {"strength": "strength_ut", "horizontal": "horizontal_ut",
-                 "vertical": "vertical_ut"}
 TRACK_STEP_M = 0.7
 
 

@@ -255,12 +255,6 @@ class WeightedKNN(_Matcher):
             return dist
         return smoothed_distances(dist, self.neighbours_, self.neighbour_mix)
 
-    def distances(self, scans: ScanSet) -> NDArray[np.float64]:
-        """Signal distance of every scan to every reference point, shape (S, R)."""
-        dense = self._check()
-        rssi, age = align_scans(scans, dense.aps)
-        return self._dist(rssi, age)
-
     def _power(self) -> float:
         return self.weight_power
 

@@ -60,7 +60,6 @@ def _newline_ends(buf, words, n):  # pragma: no cover - compiled
 
 # Powers of ten exactly representable as float64 (10**22 is the largest).
 _POW10 = np.array([10.0 ** k for k in range(23)])
-_MAX_EXACT = 2**53
 FLOAT, INT = 0, 1
 
 

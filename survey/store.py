@@ -57,10 +57,6 @@ def _safe_component(value: str | None, fallback: str) -> str:
     return ("_" + text[1:]) if text.startswith(".") else text[:80]
 
 
-def sha256_bytes(data: bytes) -> str:
-    return hashlib.sha256(data).hexdigest()
-
-
 def file_sha256(path: str | os.PathLike) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as fh:

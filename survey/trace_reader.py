@@ -96,7 +96,6 @@ _ARROW_KIND = {"f": pa.float64(), "i": pa.int64(), "s": pa.string()}
 # Record types with the same value layout are parsed together as one block ("group").
 _TYPE_LIST: list[str] = [*CALIBRATED_STREAMS, *UNCALIBRATED_STREAMS, "TYPE_WIFI",
                          "TYPE_BEACON", "TYPE_WAYPOINT"]
-_TYPE_INDEX: dict[str, int] = {k: i for i, k in enumerate(_TYPE_LIST)}
 _GROUP_OF_INDEX = np.array([0] * len(CALIBRATED_STREAMS) + [1] * len(UNCALIBRATED_STREAMS)
                            + [2, 3, 4], dtype=np.int32)
 _GROUP_SPECS = [_SPECS["TYPE_ACCELEROMETER"], _SPECS["TYPE_ACCELEROMETER_UNCALIBRATED"],

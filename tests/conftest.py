@@ -9,7 +9,6 @@ from pathlib import Path
 
 import pytest
 
-from factories import small_trace
 from survey.sim.site import ensure_sample_site
 
 REPO = Path(__file__).resolve().parents[1]
@@ -24,8 +23,3 @@ def ilc_floor():
     if not (floor / "path_data_files").is_dir():
         pytest.skip("../shared/ilc is not available")
     return floor
-
-
-@pytest.fixture
-def trace_factory():
-    return small_trace

@@ -24,7 +24,6 @@ import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 import shapely
 from shapely.geometry import box, mapping, shape
 
@@ -179,9 +178,3 @@ def build(site: Path, work: Path, floor: str = "F1") -> tuple[Path, Path]:
     return bundle, store
 
 
-def truth_walk_xy(site: Path) -> dict[str, np.ndarray]:
-    import pandas as pd
-
-    truth = json.loads((site / "truth" / "site.json").read_text())
-    return {w["trace_id"]: pd.read_parquet(site / w["truth_path"])[["x_m", "y_m"]].to_numpy()
-            for w in truth["walks"]}

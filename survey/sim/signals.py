@@ -52,8 +52,3 @@ def raised_cosine_ramp(x: np.ndarray, width: float) -> np.ndarray:
 def wrap_deg(angle_deg: np.ndarray | float) -> np.ndarray:
     """Wrap angles to [-180, 180) degrees."""
     return (np.asarray(angle_deg, dtype=np.float64) + 180.0) % 360.0 - 180.0
-
-
-def azimuth_deg(east: np.ndarray, north: np.ndarray) -> np.ndarray:
-    """Azimuth of a horizontal vector, degrees clockwise from north, in [0, 360)."""
-    return np.degrees(np.arctan2(east, north)) % 360.0
