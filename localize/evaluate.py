@@ -29,8 +29,12 @@ def waypoint_errors(track: Track, t_ms: ArrayLike, xy_m: ArrayLike) -> NDArray[n
 
 
 def step_errors(track: Track, true_xy_m: ArrayLike) -> NDArray[np.float64]:
-    """Distance (m) between each step's estimate and the true position at that step."""
+    """Distance (m) between each step's estimate and the true position at that step
+    (``true_xy_m`` shape (m, 2), one row per step of the track)."""
     ref = np.asarray(true_xy_m, dtype=np.float64).reshape(-1, 2)
+    if len(ref) != len(track):
+        raise ValueError(f"step_errors: {len(ref)} true positions for a track of {len(track)} "
+                         "steps")
     return np.hypot(track.x_m - ref[:, 0], track.y_m - ref[:, 1])
 
 

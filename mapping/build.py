@@ -192,7 +192,8 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
         if fine is not None:
             # a kernel this narrow is judged on cells that resolve it: choose again there
             say(f"{floor}: a {bw:g} m kernel is at most two {grid.cell_m:g} m cells wide; "
-                f"rastering on {cell_m:g} m cells instead (BuildParams.min_cell_m)")
+                f"rastering on {cell_m:g} m cells instead (BuildParams.min_cell_m) and "
+                "cross-validating again there")
             grid = fine
             mask = reachable_mask(grid, plan.reachable)
             reduction = reduce_field(store, pcat, grid, residuals)

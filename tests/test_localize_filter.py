@@ -208,3 +208,14 @@ def test_other_bad_calls(f1_bundle, sim_walks):  # noqa: F811
         FilterParams(weight_mode="magic")
     with pytest.raises(LocalizationError):
         make_localizer("nope", f1_bundle)
+
+
+def test_step_errors_needs_one_true_position_per_step():
+    from localize.track import Estimate, Track
+
+    z = np.zeros(3)
+    track = Track(z, np.array([0.0, 1.0, 2.0]), z, z, np.ones(3), np.zeros(3, bool),
+                  Estimate(0.0, 0.0, 0.0))
+    np.testing.assert_allclose(step_errors(track, [[0, 0], [1, 1], [2, 0]]), [0, 1, 0])
+    with pytest.raises(ValueError, match="1 true positions for a track of 3 steps"):
+        step_errors(track, [[0.0, 0.0]])  # before: broadcast against every step
