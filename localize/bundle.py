@@ -491,6 +491,8 @@ def load_bundle(path: str | os.PathLike) -> MapBundle:
         Not a bundle, unknown schema version, malformed grid.
     BundleIntegrityError
         Any member changed, missing, unlisted, unsafe, or with a disallowed array header.
+    RegistryError
+        A registry floor folder whose ``CURRENT`` is damaged or points at no version.
     """
     path = Path(path)
     if not (path / "manifest.json").exists():

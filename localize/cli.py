@@ -229,10 +229,12 @@ def plot_track(path: Path, bundle, tracks: dict, waypoints_xy=None, title: str =
         pts.append(np.asarray(waypoints_xy, dtype=float).reshape(-1, 2))
     pts = np.concatenate(pts) if pts else np.empty((0, 2))
     pts = pts[np.isfinite(pts).all(axis=1)]
-    lo = np.maximum(pts.min(axis=0) - margin_m, (g.x0_m, g.y0_m)) if len(pts) else (g.x0_m,
-                                                                                   g.y0_m)
-    hi = np.minimum(pts.max(axis=0) + margin_m, (x1, y1)) if len(pts) else (x1, y1)
-    span = np.maximum(np.subtract(hi, lo), 1.0)
+    lo, hi = np.array([g.x0_m, g.y0_m]), np.array([x1, y1])
+    if len(pts):  # every point in view; the margin around them stops at the floor's edge
+        p_lo, p_hi = pts.min(axis=0), pts.max(axis=0)
+        lo = np.maximum(p_lo - margin_m, np.minimum(lo, p_lo))
+        hi = np.minimum(p_hi + margin_m, np.maximum(hi, p_hi))
+    span = np.maximum(hi - lo, 1.0)
     fig = Figure(figsize=(8, min(8 * span[1] / span[0], 14) + 0.8))
     ax = fig.subplots()
     ax.imshow(np.asarray(bundle.mask), origin="lower", cmap="Greys", alpha=0.35,
@@ -297,7 +299,8 @@ def _params(particles: int | None):
 @click.argument("walks", nargs=-1, required=True, type=click.Path(exists=True))
 @click.option("-o", "--out", "out", required=True, type=click.Path(file_okay=False,
                                                                    path_type=Path),
-              help="Output folder: <trace_id>.parquet|csv and <trace_id>.png per walk.")
+              help="Output folder: <trace_id>.parquet|csv and <trace_id>.png per walk "
+                   "(<trace_id>.smoothed.* with --smooth).")
 @click.option("--method", default="indoormap", show_default=True,
               type=click.Choice(["indoormap", "pf_no_mag", "magpp_gaussian", "magicol_dtw",
                                  "pdr", "radio"]))
@@ -391,7 +394,8 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False, path_type=Path),
               default=None, help="Write the error CDFs as a PNG (folders are created).")
 @click.option("--csv", "csv_path", type=click.Path(dir_okay=False, path_type=Path),
-              default=None, help="Write every error as CSV: trace_id, method, waypoint, t_ms, "
+              default=None, help="Write every error as CSV: trace_id, method, waypoint (1 = "
+                                 "the walk's first), t_ms, "
                                  "x_m, y_m (the waypoint), est_x_m, est_y_m, error_m.")
 @click.option("--smooth", is_flag=True,
               help="Also score every particle filter's offline smoothed track "
@@ -439,6 +443,7 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
         _warn_if_source_walk(bundle, trace.trace_id)
         radio = _radio_of(bundle, trace, steps)
         start_xy, _ = _start(start_opt, steps, trace, radio)
+        _warn_if_off_floor(bundle, start_xy)
         for m, sm in rows:  # a method failing on this walk leaves the others' rows alone
             def run(m=m, sm=sm):
                 loc = make_localizer(m, bundle, _params(particles), radio=radio, rng=seed)
@@ -447,7 +452,7 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
                 errors[_row_name(m, sm)].append(err)
                 est = track.at(t_wp)
                 table.extend({"trace_id": trace.trace_id, "method": _row_name(m, sm),
-                              "waypoint": i, "t_ms": int(t_wp[i]), "x_m": xy_wp[i, 0],
+                              "waypoint": i + 1, "t_ms": int(t_wp[i]), "x_m": xy_wp[i, 0],
                               "y_m": xy_wp[i, 1], "est_x_m": est[i, 0], "est_y_m": est[i, 1],
                               "error_m": err[i]} for i in range(len(err)))
             failures.run(f"{f} ({_row_name(m, sm)})", run)

@@ -145,17 +145,18 @@ def excluded_walks(catalog: pd.DataFrame, summary: IngestSummary, inputs: list[P
                       and not n.lstrip().startswith("#")]
         else:
             names.append(item)
-    file_names = catalog["source_path"].astype(str).map(lambda p: Path(p).name)
+    mine = catalog[catalog["trace_id"].isin(used)]
+    file_names = mine["source_path"].astype(str).map(lambda p: Path(p).name)
     stems = file_names.str.replace(r"\.txt(\.gz)?$", "", regex=True)
     dropped = set()
     for name in names:
-        hit = catalog["trace_id"].eq(name) | file_names.eq(name) | stems.eq(name)
+        hit = mine["trace_id"].eq(name) | file_names.eq(name) | stems.eq(name)
         if not hit.any():
             raise click.BadParameter(f"{name!r} is no walk of this build (a trace id or a "
                                      "trace file's name)", param_hint="--exclude")
-        dropped |= set(catalog.loc[hit, "trace_id"])
+        dropped |= set(mine.loc[hit, "trace_id"])
     if dropped:
-        say(f"  excluded: {len(dropped & used)} walk(s) (--exclude)")
+        say(f"  excluded: {len(dropped)} walk(s) (--exclude)")
     return outside | dropped
 
 
@@ -274,7 +275,7 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
                         if (p / "manifest.json").is_file() and p.name not in plans
                         and p.name != SITE_BUNDLE and not p.name.startswith(".")) \
             if plans and out.is_dir() else []
-        if others and site_target.exists():
+        if others:
             click.echo(f"warning: {site_target} will model floor{'s' * (len(plans) > 1)} "
                        f"{', '.join(plans)} only; the bundles of {', '.join(others)} in {out} "
                        "stay but drop out of its floor model (build the site folder to model "
@@ -384,17 +385,18 @@ def bundle_info(path: Path, as_json: bool) -> None:
                        if finite.size else f"  layer {name}: empty")
     for name, meta in m.get("tables", {}).items():
         click.echo(f"  table {name:<15} {meta['rows']} rows")
-    for line in _metric_lines(m):
+    for line in _metric_lines(m).values():
         click.echo(f"  {line}")
     click.echo(f"  built {m['build'].get('build_time')} from "
                f"{len(m['build'].get('source_walks', []))} walks")
 
 
-def _metric_lines(manifest: dict) -> list[str]:
-    """What a floor bundle's build chose and reached, a line each: the smoothing picked by
-    cross-validation and the survey's coverage of the reachable area."""
+def _metric_lines(manifest: dict) -> dict[str, str]:
+    """What a floor bundle's build chose and reached, a line each (keyed ``smoothing``,
+    ``coverage``): the smoothing picked by cross-validation and the survey's coverage of the
+    reachable area."""
     mt = manifest.get("metrics") or {}
-    lines = []
+    lines = {}
     if isinstance(mt.get("interpolator"), str):
         scores = mt.get("smoothing_cv_shape_rmse_ut") or {}
         best = min(scores.values()) if scores else None
@@ -403,13 +405,13 @@ def _metric_lines(manifest: dict) -> list[str]:
                 ("bandwidth_m", "bandwidth", " m"), ("prior_walks", "shrinkage", " walks"),
                 ("slope_ridge", "slope ridge", ""), ("curvature_ridge", "curvature ridge", ""))
             if isinstance(mt.get(key), (int, float))]
-        lines.append("smoothing " + ", ".join(parts)
-                     + (f" (cross-validated shape RMSE {best:.2f} uT)" if best else ""))
+        lines["smoothing"] = ("smoothing " + ", ".join(parts)
+                              + (f" (cross-validated shape RMSE {best:.2f} uT)" if best else ""))
     cov = mt.get("coverage")
     if isinstance(cov, dict) and cov:
-        lines.append("reachable area near a sample: " + ", ".join(
+        lines["coverage"] = "reachable area near a sample: " + ", ".join(
             f"{100 * v:.0f} % within {k.removeprefix('within_').removesuffix('m')} m"
-            for k, v in cov.items() if isinstance(v, (int, float))))
+            for k, v in cov.items() if isinstance(v, (int, float)))
     return lines
 
 
@@ -456,9 +458,10 @@ def bundle_diff(a: Path, b: Path) -> None:
             or ma.get("kind") != mb.get("kind"):
         click.echo("warning: these bundles are of different sites, floors or kinds; what "
                    "follows compares unrelated maps", err=True)
-    for la, lb in zip(_metric_lines(ma), _metric_lines(mb)):
-        if la != lb:
-            click.echo(f"{la}\n  -> {lb}")
+    la, lb = _metric_lines(ma), _metric_lines(mb)
+    for key in sorted(set(la) | set(lb)):
+        if la.get(key) != lb.get(key):
+            click.echo(f"{la.get(key, f'{key}: none')}\n  -> {lb.get(key, f'{key}: none')}")
     wa = {w["trace_id"] for w in ma["build"].get("source_walks", [])}
     wb = {w["trace_id"] for w in mb["build"].get("source_walks", [])}
     click.echo(f"walks: {len(wa & wb)} shared, {len(wb - wa)} added, {len(wa - wb)} removed")

@@ -195,11 +195,16 @@ def heldout_radio(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: li
 
 
 def _site_floor_model(bundle: MapBundle) -> dict | None:
-    from localize.bundle import read_manifest
+    """The floor model's metrics of the site bundle beside ``bundle``: ``OUT/_site`` of a
+    build, or the current ``REG/<site>/_site`` of a registry version."""
+    from localize.bundle import read_manifest, registry_current
 
     from .registry import SITE_BUNDLE
 
     site = bundle.path.parent / SITE_BUNDLE
+    if bundle.path.parent.name == "versions":  # REG/<site>/<floor>/versions/<id>
+        found = registry_current(bundle.path.parents[2] / SITE_BUNDLE)
+        site = found[0] if found else site
     if not (site / "manifest.json").exists():
         return None
     m = read_manifest(site)

@@ -74,10 +74,12 @@ def process_command(store_dir: str, site: str | None, floor: str | None,
     done = processed_catalog(store)
     done = done[done["trace_id"].isin(cat["trace_id"]) & (done["status"] == "ok")]
     decision = done["summary"].map(lambda d: d.get("calibration", ""))
-    click.echo("calibration: " + ", ".join(f"{n} {what}" for what, n in
-                                           decision.value_counts().sort_index().items()))
+    if len(done):
+        click.echo("calibration: " + ", ".join(f"{n} {what}" for what, n in
+                                               decision.value_counts().sort_index().items()))
     # our pooled fit matters only to walks the phone's own calibration did not serve
     relied = set(done.loc[decision.isin(["own-session-fit", "not-calibrated"]), "session"])
+    relied &= set(report.sessions)
     if relied:
         click.echo("calibration sessions needing our pooled fit:")
     for key, s in report.sessions.items():
@@ -98,9 +100,9 @@ def survey_report_command(store_dir: str, site: str | None, floor: str | None,
     """Per-walk QA, a row per walk: status; steps; length_m (positioned track, m); legs and
     flagged legs (between waypoints; reasons at the end); step_k (the walk's Weinberg step
     factor K, step length = K (a_max - a_min)^(1/4), m / (m/s2)^(1/4)); calibration (the
-    magnetometer calibration used); heading_offset_deg (median compass minus walking
-    direction, deg); ufh_share (share of steps with the phone held flat and forward); session
-    (calibration session)."""
+    magnetometer calibration used; for a skipped walk, why it was skipped);
+    heading_offset_deg (median compass minus walking direction, deg); ufh_share (share of
+    steps with the phone held flat and forward); session (calibration session)."""
     if csv_path and Path(csv_path).exists() and not overwrite:
         raise PublishError(f"{csv_path} exists; pass --overwrite to replace it")
     everything = cat = processed_catalog(store_dir)

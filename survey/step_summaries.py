@@ -209,6 +209,7 @@ def step_summaries(trace: Trace, params: StepSummaryParams = StepSummaryParams()
     az = np.radians(feats.azimuth_deg)  # an undefined azimuth adds nothing to the mean
     azimuth = np.mod(np.degrees(np.arctan2(cycle_mean(np.nan_to_num(np.sin(az))),
                                            cycle_mean(np.nan_to_num(np.cos(az))))), 360.0)
+    azimuth[~(cycle_mean(np.isfinite(az).astype(np.float64)) > 0)] = np.nan  # none defined
     raw_strength = np.linalg.norm(mag_dev, axis=1)
     offsets = np.concatenate([[0], np.cumsum(cnt)]).astype(np.int64)
     raw = np.concatenate([raw_strength[a:b] for a, b in zip(lo, hi)]) if len(st) else \

@@ -177,6 +177,16 @@ def test_build_cli_twice_identical_bytes(tmp_path):
     assert " % within 2 m" in info.output
     diff = runner.invoke(main, ["bundle", "diff", str(a), str(tmp_path / "a" / "_site")])
     assert diff.exit_code == 0 and "of different sites, floors or kinds" in diff.output
+    # from a registry, a floor's site bundle is the registry's current _site
+    from mapping.radio_validation import _site_floor_model
+    from mapping.registry import Registry
+
+    reg = Registry(tmp_path / "reg")
+    for name in ("F2", "_site"):
+        reg.publish(tmp_path / "a" / name)
+    floor = tmp_path / "reg" / load_bundle(a).site_id / "F2"
+    model = load_bundle(tmp_path / "a" / "_site").manifest["metrics"]["floor_model"]
+    assert model is not None and _site_floor_model(load_bundle(floor)) == model
     site = runner.invoke(main, ["bundle", "info", str(tmp_path / "a" / "_site")])
     assert site.exit_code == 0 and "site-level bundle" in site.output
     verify = runner.invoke(main, ["bundle", "verify", str(a), str(tmp_path)])
@@ -414,6 +424,8 @@ def test_build_from_a_subset_of_walks_builds_that_subset(tmp_path):
     walks = load_bundle(tmp_path / "out" / "F1").manifest["build"]["source_walks"]
     assert sorted(w["trace_id"] for w in walks) == sorted(f.name.removesuffix(".txt.gz")
                                                           for f in files[2:-1])
+    site_walks = load_bundle(tmp_path / "out" / "_site").manifest["build"]["source_walks"]
+    assert site_walks == walks  # the fingerprints' and floor model's walks too
     res = CliRunner().invoke(main, [
         "build", str(train), "--plan", str(SITE / "F1" / "geojson_map.json"),
         "--exclude", "nosuch", "-o", str(tmp_path / "other")])

@@ -104,11 +104,13 @@ def test_smooth_option(truth_bundles, tmp_path):  # noqa: F811
     walk = min(F1_WALKS.glob("*.txt.gz"))
     res = CliRunner().invoke(main, ["localize", str(truth_bundles["F1"]), str(walk), "-o",
                                     str(tmp_path), "--particles", "150", "--no-plot",
-                                    "--format", "csv", "--smooth"])
+                                    "--smooth"])
     assert res.exit_code == 0, res.output
     assert "smoothed steps" in res.output
     tid = walk.name.split(".")[0]
-    assert [f.name for f in tmp_path.iterdir()] == [f"{tid}.smoothed.csv"]  # told apart
+    assert [f.name for f in tmp_path.iterdir()] == [f"{tid}.smoothed.parquet"]  # told apart
+    meta = pq.read_table(tmp_path / f"{tid}.smoothed.parquet").schema.metadata
+    assert meta[b"smoothed"] == b"true"
     res = CliRunner().invoke(main, ["localize", str(truth_bundles["F1"]), str(walk), "-o",
                                     str(tmp_path), "--method", "pdr", "--smooth"])
     assert res.exit_code == 2 and "particle filter" in res.output

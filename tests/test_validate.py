@@ -409,8 +409,9 @@ def test_line_accounts_flag_walks_with_too_many_bad_lines():
 
 
 def test_plotting_leaves_the_callers_matplotlib_backend_alone(tmp_path):
-    """In a notebook the inline backend must survive importing the report module and making
-    the package's plots (they use matplotlib's object API, not pyplot's global state)."""
+    """In a notebook the inline backend must survive importing the report module (which
+    once switched it to Agg at import) and drawing the error CDFs (matplotlib's object API,
+    not pyplot's global state)."""
     pytest.importorskip("matplotlib")
     code = ("import matplotlib, numpy as np\n"
             "import mapping.report_html\n"
