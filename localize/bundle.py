@@ -445,6 +445,21 @@ def verify_bundle_dir(path: Path, manifest: dict) -> None:
                                            "listed in the manifest")
 
 
+def safe_name(name: str) -> str:
+    """``name`` if it can name one folder (a site, floor or version); else a RegistryError."""
+    if not name or "/" in name or "\\" in name or name in (".", "..") or name.startswith("."):
+        raise RegistryError(f"invalid site or floor name {name!r}")
+    return name
+
+
+def read_registry_record(path: Path):
+    """A registry JSON file's content; a :class:`RegistryError` naming it when damaged."""
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as err:
+        raise RegistryError(f"{path}: damaged registry file ({err})") from err
+
+
 def registry_current(floor_dir: str | os.PathLike) -> tuple[Path, dict] | None:
     """The current version of a registry's floor folder (``REG/<site>/<floor>``, which holds
     ``CURRENT``): its bundle folder and the pointer ``{"bundle_id", "seq"}``; None when the
@@ -458,20 +473,15 @@ def registry_current(floor_dir: str | os.PathLike) -> tuple[Path, dict] | None:
     path = Path(floor_dir) / "CURRENT"
     if not path.exists():
         return None
-    try:
-        cur = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError) as err:
-        raise RegistryError(f"{path}: damaged registry file ({err})") from err
+    cur = read_registry_record(path)
     if not isinstance(cur, dict) or not isinstance(cur.get("bundle_id"), str) \
             or not isinstance(cur.get("seq"), int):
         raise RegistryError(f"{path}: not a registry pointer (an object with bundle_id and "
                             "seq)")
-    bundle_id = cur["bundle_id"]
-    version = path.parent / "versions" / bundle_id
-    if not bundle_id or bundle_id.startswith(".") or "/" in bundle_id or "\\" in bundle_id \
-            or not version.is_dir():
-        raise RegistryError(f"{path}: points at version {bundle_id[:16]}, which the registry "
-                            "does not hold")
+    version = path.parent / "versions" / safe_name(cur["bundle_id"])
+    if not version.is_dir():
+        raise RegistryError(f"{path}: points at version {cur['bundle_id'][:16]}, which the "
+                            "registry does not hold")
     return version, cur
 
 

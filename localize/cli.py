@@ -24,6 +24,7 @@ import click
 import numpy as np
 
 from localize.errors import LocalizationError
+from survey.publish import refuse_to_replace
 
 #: Scans of a walk used to calibrate an unknown phone's RSSI online.
 ONLINE_CALIBRATION_SCANS = 8
@@ -345,8 +346,7 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
         target = out / f"{name}.{fmt}"
         png = out / f"{name}.png"
         for existing in (target, png) if plot else (target,):
-            if existing.exists() and not overwrite:  # before the work, not after
-                raise LocalizationError(f"{existing} exists; pass --overwrite to replace it")
+            refuse_to_replace(existing, overwrite)  # before the work, not after
         steps = step_summaries(trace)
         bundle = maps.select(steps)
         _warn_if_source_walk(bundle, trace.trace_id)
@@ -421,8 +421,8 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
     if unknown:
         raise click.BadParameter(f"unknown methods {unknown}; known: {sorted(METHODS)}")
     for target in (plot_path, csv_path):
-        if target is not None and target.exists() and not overwrite:  # before the work
-            raise LocalizationError(f"{target} exists; pass --overwrite to replace it")
+        if target is not None:
+            refuse_to_replace(target, overwrite)  # before the work
     start_opt = _parse_start(start)
     maps = _open_maps(bundle_path)
     files = _walks(walks)

@@ -19,7 +19,12 @@ import pandas as pd
 
 from localize.bundle import load_bundle
 from survey.errors import IndoormapError, PublishError, RegistryError
-from survey.publish import remove_stale_temporaries, replace_together, tmp_prefix
+from survey.publish import (
+    refuse_to_replace,
+    remove_stale_temporaries,
+    replace_together,
+    tmp_prefix,
+)
 from survey.trace_format import bad_lines_summary
 
 from .build import BuildParams, build_floor
@@ -266,8 +271,7 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
 
     def check_targets() -> None:
         for target in [*(out / name for name in plans), site_target]:
-            if target.exists() and not overwrite:
-                raise PublishError(f"{target} exists; pass --overwrite to replace it")
+            refuse_to_replace(target, overwrite)
             if target.exists() and not (target / "manifest.json").is_file():
                 raise PublishError(f"{target} exists and is not a map bundle; --overwrite "
                                    "replaces bundles only, move it away first")

@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from survey.errors import PublishError
-from survey.publish import atomic_directory
+from survey.publish import atomic_directory, refuse_to_replace
 
 
 @click.command("validate")
@@ -58,8 +58,7 @@ def validate_command(bundle: Path, store_dir: Path | None, out_dir: Path,
     )
 
     if out_dir.exists() and any(out_dir.iterdir()):  # said before minutes of work
-        if not overwrite:
-            raise PublishError(f"{out_dir} exists; pass --overwrite to replace it")
+        refuse_to_replace(out_dir, overwrite)
         if not (out_dir / "metrics.json").is_file():
             raise PublishError(f"{out_dir} exists and is not a validation report; --overwrite "
                                "replaces reports only, move it away first")

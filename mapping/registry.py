@@ -19,7 +19,14 @@ import os
 import shutil
 from pathlib import Path
 
-from localize.bundle import MapBundle, load_bundle, read_manifest, registry_current
+from localize.bundle import (
+    MapBundle,
+    load_bundle,
+    read_manifest,
+    read_registry_record,
+    registry_current,
+    safe_name,
+)
 from survey.errors import RegistryError
 from survey.publish import atomic_directory, atomic_write_bytes, crash_point
 
@@ -27,21 +34,6 @@ from survey.publish import atomic_directory, atomic_write_bytes, crash_point
 SITE_BUNDLE = "_site"
 """Name under which a site's site-level bundle (floor model, device table) is kept, in a
 registry and beside the floor bundles of ``indoormap build``."""
-
-
-def safe_name(name: str) -> str:
-    """``name`` if it can name one folder (a site, floor or version); else a RegistryError."""
-    if not name or "/" in name or "\\" in name or name in (".", "..") or name.startswith("."):
-        raise RegistryError(f"invalid site or floor name {name!r}")
-    return name
-
-
-def _read_record(path: Path):
-    """A registry JSON file's content; a :class:`RegistryError` naming it when damaged."""
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError) as err:
-        raise RegistryError(f"{path}: damaged registry file ({err})") from err
 
 
 class Registry:
@@ -57,7 +49,7 @@ class Registry:
         path = self._floor(site, floor) / "history.json"
         if not path.exists():
             return []
-        history = _read_record(path)
+        history = read_registry_record(path)
         if not isinstance(history, list) or not all(
                 isinstance(h, dict) and isinstance(h.get("bundle_id"), str)
                 and isinstance(h.get("seq"), int) for h in history):

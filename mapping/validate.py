@@ -1479,8 +1479,9 @@ def summary_lines(result: ValidationResult) -> list[str]:
                          f"{hd['shape_rmse']:.1f} deg")
     warns = [f for f in result.findings if f.severity == "warn"]
     lines += [f"warning: {f.message}" for f in warns if f.check == "no_store"]
-    if any(f.check != "no_store" for f in warns):
-        lines.append(f"{sum(f.check != 'no_store' for f in warns)} warning(s) in the report")
+    others = sum(f.check != "no_store" for f in warns)
+    if others:
+        lines.append(f"{others} warning(s) in the report")
     fails = result.failed
     if fails:
         lines.append(f"{len(fails)} problem(s):")

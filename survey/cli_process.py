@@ -6,10 +6,9 @@ from pathlib import Path
 
 import click
 
-from .errors import PublishError
 from .process_store import process_store, processed_catalog, processed_table
 from .progress import progress
-from .publish import atomic_write_bytes
+from .publish import atomic_write_bytes, refuse_to_replace
 from .store import SurveyStore
 
 
@@ -103,8 +102,8 @@ def survey_report_command(store_dir: str, site: str | None, floor: str | None,
     magnetometer calibration used; for a skipped walk, why it was skipped);
     heading_offset_deg (median compass minus walking direction, deg); ufh_share (share of
     steps with the phone held flat and forward); session (calibration session)."""
-    if csv_path and Path(csv_path).exists() and not overwrite:
-        raise PublishError(f"{csv_path} exists; pass --overwrite to replace it")
+    if csv_path:
+        refuse_to_replace(csv_path, overwrite)
     everything = cat = processed_catalog(store_dir)
     if site is not None:
         cat = cat[cat["site"] == site]

@@ -108,6 +108,13 @@ def remove_stale_temporaries(parent: str | os.PathLike, prefix: str = TMP_PREFIX
     return n
 
 
+def refuse_to_replace(path: str | os.PathLike, overwrite: bool) -> None:
+    """A :class:`PublishError` when a command's output ``path`` exists and ``--overwrite``
+    was not given; commands call it before any work."""
+    if not overwrite and Path(path).exists():
+        raise PublishError(f"{path} exists; pass --overwrite to replace it")
+
+
 def atomic_write_bytes(path: str | os.PathLike, data: bytes, *, overwrite: bool = False,
                        sync_dir: bool = True) -> None:
     """Write ``data`` to ``path`` atomically (temp file, fsync, rename, dir fsync).

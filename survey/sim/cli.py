@@ -26,11 +26,11 @@ def simulate(out_dir: Path, preset: str, seed: int | None, overwrite: bool) -> N
 
     t0 = time.perf_counter()
     from ..errors import PublishError
+    from ..publish import refuse_to_replace
 
     # indoormap's errors (PublishError, SimulationError) propagate to the main group, which
     # prints them on one line and exits with code 1
-    if out_dir.exists() and not overwrite:
-        raise PublishError(f"{out_dir} exists; pass --overwrite to replace it")
+    refuse_to_replace(out_dir, overwrite)
     if out_dir.exists() and any(out_dir.iterdir()) \
             and not (out_dir / "truth" / "site.json").is_file():
         raise PublishError(f"{out_dir} exists and is not a simulated site; --overwrite "
