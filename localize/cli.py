@@ -23,12 +23,9 @@ from pathlib import Path
 import click
 import numpy as np
 
+from localize.cli_common import WalkFailures, read_walk, trace_files
 from localize.errors import LocalizationError
 from survey.publish import refuse_to_replace
-
-#: Scans of a walk used to calibrate an unknown phone's RSSI online.
-ONLINE_CALIBRATION_SCANS = 8
-
 
 def _open_maps(path: Path):
     """Floor bundles (and the site bundle's floor model) of a bundle or a folder of bundles;
@@ -48,64 +45,11 @@ def _open_maps(path: Path):
     return SiteMaps([b for b in subs if b.manifest.get("kind") != "site"], floor_model=model)
 
 
-_POSITIONERS: dict[tuple[str, str], object] = {}
-
-
-def _positioner(bundle, kind: str):
-    """The bundle's ``kind`` positioner, built once per bundle id (bundles are content-addressed,
-    so the cache cannot go stale) rather than once per walk."""
-    from localize.fingerprint_positioner import FingerprintPositioner
-
-    key = (bundle.bundle_id, kind)
-    if key not in _POSITIONERS:
-        if len(_POSITIONERS) >= 16:
-            _POSITIONERS.clear()
-        _POSITIONERS[key] = FingerprintPositioner.from_bundle(bundle, kind)
-    return _POSITIONERS[key]
-
-
-def radio_for_walk(bundle, device_model: str | None, scans, *, kind: str | None = None
-                   ) -> tuple[object | None, str]:
-    """The bundle's Wi-Fi (else BLE, or ``kind``) positioner, calibrated for the walk's phone,
-    and how.
-
-    A phone model in the bundle's device table (fitted on Wi-Fi) uses its stored ``k, b``; any
-    other phone, and BLE, is calibrated online from the first
-    :data:`ONLINE_CALIBRATION_SCANS` scans of ``scans`` (same kind). Returns ``(None, "")``
-    when the bundle has no fingerprints of that kind.
-    """
-    pos, kind = next(((p, k) for k in ([kind] if kind else ["wifi", "ble"])
-                      if (p := _positioner(bundle, k)) is not None), (None, ""))
-    if pos is None:
-        return None, ""
-    known = pos.for_device(bundle, device_model or "") if kind == "wifi" else None
-    if known is not None:
-        return known, f"device table ({device_model}: k={known.rssi_k:.3f}, " \
-                      f"b={known.rssi_b:+.1f} dB)"
-    first = [s for s in (scans or []) if s is not None][:ONLINE_CALIBRATION_SCANS]
-    if not first:
-        return pos, "uncalibrated (no scan to calibrate from)"
-    cal = pos.online_calibration(first)
-    return pos.with_calibration(cal.k, cal.b), \
-        f"online from {cal.n_scans} scans (k={cal.k:.3f}, b={cal.b:+.1f} dB)"
-
-
-def _radio_of(bundle, trace, steps):
-    return radio_for_walk(bundle, trace.header.model, steps.scans)[0]
-
-
-def _walks(paths: tuple[str, ...]) -> list[Path]:
-    from survey.trace_reader import find_trace_files
-
-    files = find_trace_files(paths)
-    if not files:
-        raise click.UsageError("no trace files (.txt, .txt.gz) found in the given paths")
-    return files
-
-
 def _parse_start(start: str) -> str | tuple[float, float]:
     """``--start``'s value checked before any walk is read: a keyword or ``(x, y)`` (m)."""
-    if start in ("auto", "waypoint", "radio"):
+    from localize.start import START_POLICIES
+
+    if start in START_POLICIES:
         return start
     try:
         x, y = (float(v) for v in start.split(","))
@@ -116,54 +60,6 @@ def _parse_start(start: str) -> str | tuple[float, float]:
                                  f"{start!r}",
                                  param_hint="--start") from err
     return x, y
-
-
-def _start(start: str | tuple[float, float], steps, trace, radio
-           ) -> tuple[tuple[float, float] | None, str]:
-    """Start position and how it was chosen; None = let the localizer use the radio fix."""
-    from localize.filter import first_radio_fix
-    from survey.step_summaries import waypoints_of
-
-    if not isinstance(start, str):
-        return start, "given"
-    if start == "radio":
-        if radio is None:
-            raise LocalizationError("--start radio needs a bundle with Wi-Fi or BLE "
-                                    "fingerprints (wifi_rp/wifi_fp tables)")
-        return None, "radio"
-    how = "first waypoint"
-    if start == "auto" and radio is not None:
-        if first_radio_fix(radio, steps) is not None:
-            return None, "radio"
-        how = "first waypoint (no Wi-Fi/BLE fix in the walk)"
-    t, xy = waypoints_of(trace)
-    if not len(t):
-        raise LocalizationError(f"{steps.trace_id}: no waypoint to start from"
-                                + (" and no Wi-Fi/BLE fix" if start == "auto" else "")
-                                + "; pass --start X,Y")
-    return (float(xy[0, 0]), float(xy[0, 1])), how
-
-
-def _read_walk(path: Path):
-    """The trace at ``path``; a warning names the file when lines had to be skipped (bad
-    lines, a damaged compressed stream), as ``indoormap ingest`` reports them.
-
-    Raises
-    ------
-    SurveyFormatError
-        The file holds no sensor sample, waypoint or scan (empty, or not a trace file).
-    """
-    from survey.errors import SurveyFormatError
-    from survey.trace_format import bad_lines_summary
-    from survey.trace_reader import read_trace
-
-    trace = read_trace(path)
-    if trace.is_empty:
-        raise SurveyFormatError(trace.empty_reason(), path=str(path), reason="empty")
-    r = trace.report
-    if r.bad_total:
-        click.echo(f"warning: {path}: {bad_lines_summary(r.bad, r.messages)}", err=True)
-    return trace
 
 
 def _warn_if_off_floor(bundle, start_xy: tuple[float, float] | None) -> None:
@@ -184,87 +80,6 @@ def _warn_if_source_walk(bundle, trace_id: str) -> None:
         if trace_id in used:
             click.echo(f"warning: {trace_id} was used to build {bundle.path}; its errors are "
                        "optimistic", err=True)
-
-
-class _WalkFailures:
-    """Walks that could not be read or localized: each is reported with its file and reason,
-    and the walks after it still run."""
-
-    def __init__(self) -> None:
-        self.count = 0
-
-    def run(self, where: str | Path, fn):
-        """``fn()``, or None after reporting an indoormap error (bad trace, no start, ...)
-        under ``where`` (the file, and the method when one method failed)."""
-        from survey.errors import IndoormapError
-
-        try:
-            return fn()
-        except IndoormapError as err:
-            self.count += 1
-            text = str(err)  # reader errors already start with the file
-            click.echo(f"error: {text}" if text.startswith(str(where)) else
-                       f"error: {where}: {text}", err=True)
-            return None
-
-    def exit_if_any(self, total: int) -> None:
-        if self.count:
-            click.echo(f"{self.count} failure(s) in {total} walk(s)", err=True)
-            sys.exit(1)
-
-
-def plot_track(path: Path, bundle, tracks: dict, waypoints_xy=None, title: str = "", *,
-               margin_m: float = 8.0) -> bool:
-    """Trajectories over the bundle's reachable mask as a PNG, zoomed to the tracks and
-    waypoints (``margin_m`` around them, within the floor): start (circle) and end (square)
-    of each track, recoveries (x), waypoints with their order; False without matplotlib."""
-    try:  # the object API: no pyplot state, the caller's backend (a notebook's) untouched
-        from matplotlib.figure import Figure
-    except ImportError:
-        return False
-    g = bundle.grid
-    x1, y1 = g.x0_m + g.width * g.cell_m, g.y0_m + g.height * g.cell_m
-    pts = [np.column_stack([np.r_[tr.start.x_m, tr.x_m], np.r_[tr.start.y_m, tr.y_m]])
-           for tr in tracks.values()]
-    if waypoints_xy is not None and len(waypoints_xy):
-        pts.append(np.asarray(waypoints_xy, dtype=float).reshape(-1, 2))
-    pts = np.concatenate(pts) if pts else np.empty((0, 2))
-    pts = pts[np.isfinite(pts).all(axis=1)]
-    lo, hi = np.array([g.x0_m, g.y0_m]), np.array([x1, y1])
-    if len(pts):  # every point in view; the margin around them stops at the floor's edge
-        p_lo, p_hi = pts.min(axis=0), pts.max(axis=0)
-        lo = np.maximum(p_lo - margin_m, np.minimum(lo, p_lo))
-        hi = np.minimum(p_hi + margin_m, np.maximum(hi, p_hi))
-    span = np.maximum(hi - lo, 1.0)
-    fig = Figure(figsize=(8, min(8 * span[1] / span[0], 14) + 0.8))
-    ax = fig.subplots()
-    ax.imshow(np.asarray(bundle.mask), origin="lower", cmap="Greys", alpha=0.35,
-              extent=(g.x0_m, x1, g.y0_m, y1))
-    for name, tr in tracks.items():
-        xs, ys = np.r_[tr.start.x_m, tr.x_m], np.r_[tr.start.y_m, tr.y_m]
-        (line,) = ax.plot(xs, ys, lw=1.2, label=name)
-        ax.plot(xs[0], ys[0], "o", color=line.get_color(), ms=7, mfc="none")
-        ax.plot(xs[-1], ys[-1], "s", color=line.get_color(), ms=6)
-        if tr.n_recoveries:
-            ax.plot(tr.x_m[tr.recovered], tr.y_m[tr.recovered], "x", color=line.get_color(),
-                    ms=8, label=f"{name}: all particles died, re-drawn")
-    if waypoints_xy is not None and len(waypoints_xy):
-        ax.plot(waypoints_xy[:, 0], waypoints_xy[:, 1], "k.--", lw=0.6, ms=5, label="waypoints")
-        for i, (wx, wy) in enumerate(waypoints_xy):
-            ax.annotate(str(i + 1), (wx, wy), textcoords="offset points", xytext=(3, 3),
-                        fontsize=6)
-    ax.plot([], [], "ko", mfc="none", label="start")
-    ax.plot([], [], "ks", label="end")
-    ax.set_xlim(lo[0], hi[0])
-    ax.set_ylim(lo[1], hi[1])
-    ax.set_xlabel("x east (m)")
-    ax.set_ylabel("y north (m)")
-    ax.set_aspect("equal")
-    ax.set_title(title, fontsize=9)
-    ax.legend(fontsize=7, loc="best")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    return True
 
 
 def _write_track(track, target: Path, fmt: str, overwrite: bool = False) -> None:
@@ -328,6 +143,9 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
     A walk that fails (unreadable, no start, another site) is reported with its file and the
     others go on; the exit status is then 1."""
     from localize.baselines import PARTICLE_FILTERS, make_localizer
+    from localize.plots import plot_track
+    from localize.start import start_position
+    from localize.walk_radio import radio_for_walk
 
     if smooth and method not in PARTICLE_FILTERS:
         raise click.BadParameter(f"--smooth needs a particle filter "
@@ -336,12 +154,12 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
 
     start_opt = _parse_start(start)
     maps = _open_maps(bundle_path)
-    files = _walks(walks)
-    failures = _WalkFailures()
+    files = trace_files(walks)
+    failures = WalkFailures()
     created = not out.exists()
 
     def one(f: Path) -> None:
-        trace = _read_walk(f)
+        trace = read_walk(f)
         name = f"{trace.trace_id}.smoothed" if smooth else trace.trace_id
         target = out / f"{name}.{fmt}"
         png = out / f"{name}.png"
@@ -350,8 +168,8 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
         steps = step_summaries(trace)
         bundle = maps.select(steps)
         _warn_if_source_walk(bundle, trace.trace_id)
-        radio = _radio_of(bundle, trace, steps)
-        start_xy, how = _start(start_opt, steps, trace, radio)
+        radio = radio_for_walk(bundle, trace.header.model, steps.scans)[0]
+        start_xy, how = start_position(start_opt, steps, radio, waypoints_of(trace)[1])
         _warn_if_off_floor(bundle, start_xy)
         loc = make_localizer(method, bundle, _params(particles), radio=radio, rng=seed)
         track = loc.run(steps, start_xy=start_xy, smooth=smooth)
@@ -411,6 +229,8 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
     (and method) and the rest goes on; the exit status is then 1."""
     from localize.baselines import METHODS, PARTICLE_FILTERS, make_localizer
     from localize.evaluate import summarize, waypoint_errors
+    from localize.start import start_position
+    from localize.walk_radio import radio_for_walk
     from survey.step_summaries import step_summaries, waypoints_of
 
     names = [m.strip() for m in methods.split(",") if m.strip()]
@@ -425,15 +245,15 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
             refuse_to_replace(target, overwrite)  # before the work
     start_opt = _parse_start(start)
     maps = _open_maps(bundle_path)
-    files = _walks(walks)
-    failures = _WalkFailures()
+    files = trace_files(walks)
+    failures = WalkFailures()
     rows = [(m, False) for m in names] + [(m, True) for m in names
                                           if smooth and m in PARTICLE_FILTERS]
     errors: dict[str, list[np.ndarray]] = {_row_name(m, sm): [] for m, sm in rows}
     table: list[dict] = []  # one row per method and waypoint, for --csv
 
     def one(f: Path) -> None:
-        trace = _read_walk(f)
+        trace = read_walk(f)
         t_wp, xy_wp = waypoints_of(trace)
         if len(t_wp) == 0:
             click.echo(f"{f}: no waypoints, skipped", err=True)
@@ -441,8 +261,8 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
         steps = step_summaries(trace)
         bundle = maps.select(steps)
         _warn_if_source_walk(bundle, trace.trace_id)
-        radio = _radio_of(bundle, trace, steps)
-        start_xy, _ = _start(start_opt, steps, trace, radio)
+        radio = radio_for_walk(bundle, trace.header.model, steps.scans)[0]
+        start_xy, _ = start_position(start_opt, steps, radio, xy_wp)
         _warn_if_off_floor(bundle, start_xy)
         for m, sm in rows:  # a method failing on this walk leaves the others' rows alone
             def run(m=m, sm=sm):
@@ -481,7 +301,7 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
         atomic_write_bytes(csv_path, sink.getvalue().to_pybytes(), overwrite=overwrite)
         click.echo(f"errors: {csv_path}", err=True)
     if plot_path is not None:
-        from localize.evaluate import plot_cdfs
+        from localize.plots import plot_cdfs
 
         plot_path.parent.mkdir(parents=True, exist_ok=True)
         title = (f"{bundle_path.name}: {n_walks} walk(s), start {start}"

@@ -23,6 +23,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from localize.cli_common import WalkFailures, read_walk, trace_files
 from localize.errors import LocalizationError
 
 
@@ -74,7 +75,6 @@ class _CsvRows:
               help="Scans in the sequence estimate (this scan and the ones before it).")
 def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
     """Predicted floor per scan and per walk (CSV) from the site bundle's floor model."""
-    from localize.cli import _read_walk, _WalkFailures, _walks
     from localize.floor_classifier import FloorClassifier
 
     site = _site_bundle(site_path)
@@ -86,10 +86,10 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
     out = _CsvRows(["level", "trace_id", "t_ms", "n_known", "floor", "p_floor", "window_floor",
                     "recorded_floor"])
     scan_rows: list[dict] = []
-    failures = _WalkFailures()
+    failures = WalkFailures()
 
     def one(f: Path) -> None:
-        trace = _read_walk(f)
+        trace = read_walk(f)
         recorded = trace.header.floor_name or ""
         scans = _scans(trace, kind)
         rssi = model.scan_matrix(scans)
@@ -116,7 +116,7 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
             click.echo(f"{trace.trace_id}: no {kind} scan hears a transmitter the floor model "
                        "knows; floor unknown", err=True)
 
-    files = _walks(walks)
+    files = trace_files(walks)
     for f in files:
         failures.run(f, lambda f=f: one(f))
     if scan_rows:
@@ -143,15 +143,9 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
                         calibration: str, smoothing: str) -> None:
     """Wi-Fi (or BLE) position per scan (CSV) from the fingerprints of BUNDLE (a floor bundle
     or a folder of bundles: the walk's floor, else the site floor model, picks one)."""
-    from localize.cli import (
-        _open_maps,
-        _positioner,
-        _read_walk,
-        _WalkFailures,
-        _walks,
-        radio_for_walk,
-    )
+    from localize.cli import _open_maps
     from localize.radio_match import WalkSmoothing
+    from localize.walk_radio import bundle_positioner, radio_for_walk
     from survey.step_summaries import step_summaries, waypoints_of
 
     given = None
@@ -167,16 +161,16 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
         given = (k, b)
     maps = _open_maps(bundle_path)
     out = _CsvRows(["trace_id", "floor", "t_ms", "n_known", "x_m", "y_m", "sigma_m", "error_m"])
-    failures = _WalkFailures()
+    failures = WalkFailures()
 
     def one(f: Path) -> None:
-        trace = _read_walk(f)
+        trace = read_walk(f)
         scans = _scans(trace, kind)
         if not scans:
             click.echo(f"{trace.trace_id}: no {kind} scans", err=True)
             return
         bundle = maps.select(step_summaries(trace))
-        pos = _positioner(bundle, kind)
+        pos = bundle_positioner(bundle, kind)
         if pos is None:
             raise LocalizationError(f"{bundle.path}: no {kind} fingerprints in this bundle")
         if calibration == "auto":
@@ -212,7 +206,7 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
                    + (f"; error vs waypoint track median {np.median(e):.2f} m" if len(e) else ""),
                    err=True)
 
-    files = _walks(walks)
+    files = trace_files(walks)
     for f in files:
         failures.run(f, lambda f=f: one(f))
     failures.exit_if_any(len(files))

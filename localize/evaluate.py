@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from localize.track import Track
 
-__all__ = ["plot_cdfs", "step_errors", "summarize", "waypoint_errors"]
+__all__ = ["step_errors", "summarize", "waypoint_errors"]
 
 
 def waypoint_errors(track: Track, t_ms: ArrayLike, xy_m: ArrayLike) -> NDArray[np.float64]:
@@ -54,25 +52,3 @@ def summarize(errors_m: ArrayLike) -> dict[str, float]:
     return {"n": int(e.size), "median": float(np.median(e)),
             "p80": float(np.percentile(e, 80)), "mean": float(e.mean()),
             "max": float(e.max())}
-
-
-def plot_cdfs(path: str | Path, errors: dict[str, NDArray], title: str = "") -> bool:
-    """Error CDFs per method as a PNG; False without matplotlib."""
-    try:  # the object API: no pyplot state, the caller's backend (a notebook's) untouched
-        from matplotlib.figure import Figure
-    except ImportError:
-        return False
-    fig = Figure(figsize=(6, 4))
-    ax = fig.subplots()
-    for name, e in errors.items():
-        e = np.sort(np.asarray(e)[np.isfinite(e)])
-        if e.size:
-            ax.plot(e, np.arange(1, e.size + 1) / e.size, label=name)
-    ax.set_xlabel("error (m)")
-    ax.set_ylabel("share")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    ax.set_title(title, fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    return True

@@ -25,7 +25,8 @@ RUNTIME_MODULES = ["localize", "localize.bundle", "localize.errors", "localize.s
                    "localize.maps", "localize.params", "localize.particles", "localize.weights",
                    "localize.update", "localize.resample", "localize.stepper", "localize.filter",
                    "localize.baselines", "localize.engine", "localize.radio", "localize.floors",
-                   "localize.track", "localize.evaluate", "localize.cli"]
+                   "localize.track", "localize.evaluate", "localize.start", "localize.walk_radio",
+                   "localize.plots", "localize.cli_common", "localize.cli"]
 
 
 def test_runtime_imports_no_scipy_pandas_sklearn():

@@ -15,7 +15,7 @@ import pytest
 from click.testing import CliRunner
 
 from localize.bundle import load_bundle
-from localize.cli import radio_for_walk
+from localize.walk_radio import radio_for_walk
 from localize.errors import LocalizationError
 from localize.fingerprint_positioner import FingerprintPositioner, fingerprint_kinds
 from localize.floor_classifier import FloorClassifier

@@ -415,7 +415,7 @@ def test_plotting_leaves_the_callers_matplotlib_backend_alone(tmp_path):
     pytest.importorskip("matplotlib")
     code = ("import matplotlib, numpy as np\n"
             "import mapping.report_html\n"
-            "from localize.evaluate import plot_cdfs\n"
+            "from localize.plots import plot_cdfs\n"
             f"assert plot_cdfs({str(tmp_path / 'cdf.png')!r}, {{'a': np.arange(5.0)}})\n"
             "print(matplotlib.get_backend())\n")
     env = {**os.environ, "MPLBACKEND": "svg"}

@@ -1,0 +1,85 @@
+"""What the localizer's commands (``localize``, ``evaluate``, ``floor``, ``wifi-locate``)
+share: finding trace files, reading a walk with its warnings, and reporting walks that fail
+while the others go on."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, TypeVar
+
+import click
+
+if TYPE_CHECKING:
+    from survey.trace_format import Trace
+
+__all__ = ["WalkFailures", "read_walk", "trace_files"]
+
+T = TypeVar("T")
+
+
+def trace_files(paths: tuple[str, ...]) -> list[Path]:
+    """The trace files (``.txt``, ``.txt.gz``) given or inside the given folders.
+
+    Raises
+    ------
+    click.UsageError
+        None found.
+    """
+    from survey.trace_reader import find_trace_files
+
+    files = find_trace_files(paths)
+    if not files:
+        raise click.UsageError("no trace files (.txt, .txt.gz) found in the given paths")
+    return files
+
+
+def read_walk(path: Path) -> Trace:
+    """The trace at ``path``; a warning names the file when lines had to be skipped (bad
+    lines, a damaged compressed stream), as ``indoormap ingest`` reports them.
+
+    Raises
+    ------
+    SurveyFormatError
+        The file holds no sensor sample, waypoint or scan (empty, or not a trace file).
+    """
+    from survey.errors import SurveyFormatError
+    from survey.trace_format import bad_lines_summary
+    from survey.trace_reader import read_trace
+
+    trace = read_trace(path)
+    if trace.is_empty:
+        raise SurveyFormatError(trace.empty_reason(), path=str(path), reason="empty")
+    r = trace.report
+    if r.bad_total:
+        click.echo(f"warning: {path}: {bad_lines_summary(r.bad, r.messages)}", err=True)
+    return trace
+
+
+class WalkFailures:
+    """Walks that could not be read or localized: each is reported with its file and reason,
+    and the walks after it still run."""
+
+    def __init__(self) -> None:
+        self.count = 0
+
+    def run(self, where: str | Path, fn: Callable[[], T]) -> T | None:
+        """``fn()``, or None after reporting an indoormap error (bad trace, no start, ...)
+        under ``where`` (the file, and the method when one method failed)."""
+        from survey.errors import IndoormapError
+
+        try:
+            return fn()
+        except IndoormapError as err:
+            self.count += 1
+            text = str(err)  # reader errors already start with the file
+            click.echo(f"error: {text}" if text.startswith(str(where)) else
+                       f"error: {where}: {text}", err=True)
+            return None
+
+    def exit_if_any(self, total: int) -> None:
+        """Say how many of ``total`` walks failed and exit with status 1, if any did."""
+        if self.count:
+            click.echo(f"{self.count} failure(s) in {total} walk(s)", err=True)
+            sys.exit(1)

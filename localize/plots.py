@@ -1,0 +1,101 @@
+"""Plots of localization results (PNG, matplotlib's object API: no pyplot state, so a
+notebook's backend is left alone; every function returns False when matplotlib is missing).
+
+- :func:`plot_track`: trajectories over a bundle's reachable mask, with waypoints;
+- :func:`plot_cdfs`: error CDFs per method.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from localize.bundle import MapBundle
+from localize.track import Track
+
+__all__ = ["plot_cdfs", "plot_track"]
+
+
+def plot_track(path: str | Path, bundle: MapBundle, tracks: Mapping[str, Track],
+               waypoints_xy: ArrayLike | None = None, title: str = "", *,
+               margin_m: float = 8.0) -> bool:
+    """Trajectories over the bundle's reachable mask as a PNG, zoomed to the tracks and
+    waypoints (``margin_m`` around them, within the floor): start (circle) and end (square)
+    of each track, recoveries (x), waypoints with their order; False without matplotlib.
+
+    ``tracks``: label -> track; ``waypoints_xy``: shape (k, 2), m, in time order."""
+    try:  # the object API: no pyplot state, the caller's backend (a notebook's) untouched
+        from matplotlib.figure import Figure
+    except ImportError:
+        return False
+    g = bundle.grid
+    x1, y1 = g.x0_m + g.width * g.cell_m, g.y0_m + g.height * g.cell_m
+    pts = [np.column_stack([np.r_[tr.start.x_m, tr.x_m], np.r_[tr.start.y_m, tr.y_m]])
+           for tr in tracks.values()]
+    if waypoints_xy is not None:
+        waypoints_xy = np.asarray(waypoints_xy, dtype=float).reshape(-1, 2)
+        pts.append(waypoints_xy)
+    pts = np.concatenate(pts) if pts else np.empty((0, 2))
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    lo, hi = np.array([g.x0_m, g.y0_m]), np.array([x1, y1])
+    if len(pts):  # every point in view; the margin around them stops at the floor's edge
+        p_lo, p_hi = pts.min(axis=0), pts.max(axis=0)
+        lo = np.maximum(p_lo - margin_m, np.minimum(lo, p_lo))
+        hi = np.minimum(p_hi + margin_m, np.maximum(hi, p_hi))
+    span = np.maximum(hi - lo, 1.0)
+    fig = Figure(figsize=(8, min(8 * span[1] / span[0], 14) + 0.8))
+    ax = fig.subplots()
+    ax.imshow(np.asarray(bundle.mask), origin="lower", cmap="Greys", alpha=0.35,
+              extent=(g.x0_m, x1, g.y0_m, y1))
+    for name, tr in tracks.items():
+        xs, ys = np.r_[tr.start.x_m, tr.x_m], np.r_[tr.start.y_m, tr.y_m]
+        (line,) = ax.plot(xs, ys, lw=1.2, label=name)
+        ax.plot(xs[0], ys[0], "o", color=line.get_color(), ms=7, mfc="none")
+        ax.plot(xs[-1], ys[-1], "s", color=line.get_color(), ms=6)
+        if tr.n_recoveries:
+            ax.plot(tr.x_m[tr.recovered], tr.y_m[tr.recovered], "x", color=line.get_color(),
+                    ms=8, label=f"{name}: all particles died, re-drawn")
+    if waypoints_xy is not None and len(waypoints_xy):
+        ax.plot(waypoints_xy[:, 0], waypoints_xy[:, 1], "k.--", lw=0.6, ms=5, label="waypoints")
+        for i, (wx, wy) in enumerate(waypoints_xy):
+            ax.annotate(str(i + 1), (wx, wy), textcoords="offset points", xytext=(3, 3),
+                        fontsize=6)
+    ax.plot([], [], "ko", mfc="none", label="start")
+    ax.plot([], [], "ks", label="end")
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    ax.set_xlabel("x east (m)")
+    ax.set_ylabel("y north (m)")
+    ax.set_aspect("equal")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    return True
+
+
+def plot_cdfs(path: str | Path, errors: Mapping[str, NDArray[np.float64]], title: str = ""
+              ) -> bool:
+    """Error CDFs per method as a PNG (``errors``: label -> errors in m, NaN ignored); False
+    without matplotlib."""
+    try:  # the object API: no pyplot state, the caller's backend (a notebook's) untouched
+        from matplotlib.figure import Figure
+    except ImportError:
+        return False
+    fig = Figure(figsize=(6, 4))
+    ax = fig.subplots()
+    for name, e in errors.items():
+        e = np.sort(np.asarray(e)[np.isfinite(e)])
+        if e.size:
+            ax.plot(e, np.arange(1, e.size + 1) / e.size, label=name)
+    ax.set_xlabel("error (m)")
+    ax.set_ylabel("share")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    return True
