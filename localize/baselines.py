@@ -18,6 +18,7 @@ from localize.errors import LocalizationError
 from localize.filter import BaseLocalizer, Localizer
 from localize.maps import FilterMap
 from localize.params import FilterParams
+from localize.radio import RadioModel
 from localize.steps import StepSummary
 from localize.track import Estimate
 
@@ -105,7 +106,8 @@ PARTICLE_FILTERS = tuple(_MODES)
 
 
 def make_localizer(method: str, bundle: MapBundle, params: FilterParams | None = None, *,
-                   radio=None, rng: np.random.Generator | int | None = None,
+                   radio: RadioModel | None = None,
+                   rng: np.random.Generator | int | None = None,
                    fmap: FilterMap | None = None) -> BaseLocalizer:
     """Build a localizer of the named method (see :data:`METHODS`).
 

@@ -24,11 +24,15 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from survey.errors import BundleError, BundleIntegrityError, RegistryError
+
+if TYPE_CHECKING:  # an annotation: pyarrow is imported when a table is read
+    import pyarrow as pa
 
 BUNDLE_FORMAT = "indoormap-map-bundle"
 SCHEMA_VERSION = 1
@@ -40,7 +44,7 @@ MAX_MEMBERS = 10_000
 MAX_MANIFEST_BYTES = 16 * 1024**2
 
 
-def canonical_json(obj) -> bytes:
+def canonical_json(obj: object) -> bytes:
     """The byte form hashed for the bundle id (sorted keys, no spaces, UTF-8)."""
     return json.dumps(obj, sort_keys=True, separators=(",", ":"), ensure_ascii=False,
                       allow_nan=False).encode("utf-8")
@@ -191,7 +195,7 @@ class MapBundle:
         """Re-check every member against the manifest (raises BundleIntegrityError)."""
         verify_bundle_dir(self.path, self.manifest)
 
-    def table(self, name: str):
+    def table(self, name: str) -> pa.Table:
         """A bundle table as a pyarrow Table (verified on load)."""
         import pyarrow.parquet as pq
 
@@ -452,7 +456,7 @@ def safe_name(name: str) -> str:
     return name
 
 
-def read_registry_record(path: Path):
+def read_registry_record(path: Path) -> Any:
     """A registry JSON file's content; a :class:`RegistryError` naming it when damaged."""
     try:
         return json.loads(path.read_text(encoding="utf-8"))

@@ -29,6 +29,7 @@ from localize.particles import (
     needed_layers,
     resample,
 )
+from localize.radio import RadioModel
 from localize.smoothing import Genealogy
 from localize.stepper import StepInputs, advance
 from localize.steps import RadioScan, StepSummaries, StepSummary
@@ -45,7 +46,8 @@ def make_rng(rng: np.random.Generator | int | None) -> np.random.Generator:
     return np.random.default_rng(0 if rng is None else rng)
 
 
-def first_radio_fix(radio, steps: StepSummaries) -> tuple[float, float, float, float] | None:
+def first_radio_fix(radio: RadioModel | None, steps: StepSummaries
+                    ) -> tuple[float, float, float, float] | None:
     """``(x, y, sigma, t_ms)`` of the first scan of ``steps`` that ``radio`` (anything with
     ``locate(scan)``) can locate (m, m, m, Unix ms); None without radio, scans or a fix."""
     if radio is None or steps.scans is None:

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -48,12 +49,17 @@ from localize.radio_match import (
 from localize.rssi_calibration import OnlineCalibration, estimate_rssi_calibration
 from localize.steps import RadioScan
 
+if TYPE_CHECKING:  # annotations only
+    import pyarrow as pa
+
+    from localize.bundle import MapBundle
+
 __all__ = ["FingerprintPositioner", "RadioFixes", "fingerprint_kinds"]
 
 RP_TABLE, FP_TABLE, DEVICE_TABLE = "{kind}_rp", "{kind}_fp", "devices"
 
 
-def fingerprint_kinds(bundle) -> list[str]:
+def fingerprint_kinds(bundle: MapBundle) -> list[str]:
     """Radio kinds (``wifi``, ``ble``) whose fingerprint tables the bundle holds."""
     return [k for k in ("wifi", "ble")
             if bundle.has_table(RP_TABLE.format(kind=k)) and bundle.has_table(FP_TABLE.format(
@@ -154,7 +160,7 @@ class FingerprintPositioner:
 
     # -- construction ------------------------------------------------------------------------
     @classmethod
-    def from_tables(cls, rp, fp, **kw) -> FingerprintPositioner:
+    def from_tables(cls, rp: pa.Table, fp: pa.Table, **kw) -> FingerprintPositioner:
         """From the ``<kind>_rp`` and ``<kind>_fp`` tables (pyarrow) of a bundle."""
         need = {"rp": (rp, ("rp_id", "x_m", "y_m")),
                 "fp": (fp, ("rp_id", "ap", "mean_dbm", "var_db2", "detection_rate"))}
@@ -182,7 +188,8 @@ class FingerprintPositioner:
         return cls(aps, xy, mean, var, det, **kw)
 
     @classmethod
-    def from_bundle(cls, bundle, kind: str = "wifi", **kw) -> FingerprintPositioner | None:
+    def from_bundle(cls, bundle: MapBundle, kind: str = "wifi", **kw
+                    ) -> FingerprintPositioner | None:
         """The positioner of a floor bundle's ``kind`` fingerprints; None when it has none."""
         if kind not in fingerprint_kinds(bundle):
             return None
@@ -195,7 +202,7 @@ class FingerprintPositioner:
             raise LocalizationError(f"RSSI calibration needs a finite k > 0 and b; got {k}, {b}")
         return replace(self, rssi_k=float(k), rssi_b=float(b))
 
-    def for_device(self, bundle, device_model: str) -> FingerprintPositioner | None:
+    def for_device(self, bundle: MapBundle, device_model: str) -> FingerprintPositioner | None:
         """Calibrated with the bundle's device table entry of ``device_model``; None when the
         bundle has no device table or does not know the model (calibrate online instead)."""
         if not bundle.has_table(DEVICE_TABLE):

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -17,6 +18,11 @@ from numpy.typing import ArrayLike, NDArray
 from localize.errors import LocalizationError
 from localize.radio_match import scan_rssi_matrix
 from localize.steps import RadioScan
+
+if TYPE_CHECKING:  # annotations only
+    import pyarrow as pa
+
+    from localize.bundle import MapBundle
 
 __all__ = ["FloorClassifier", "floor_log_proba", "level_features"]
 
@@ -69,7 +75,7 @@ class FloorClassifier:
         object.__setattr__(self, "_index", {a: i for i, a in enumerate(self.aps.tolist())})
 
     @classmethod
-    def from_tables(cls, coef_table, intercept_table) -> FloorClassifier:
+    def from_tables(cls, coef_table: pa.Table, intercept_table: pa.Table) -> FloorClassifier:
         """From the ``floor_coef`` and ``floor_intercept`` tables (pyarrow) of a site bundle."""
         for name, table, cols in (("floor_coef", coef_table, ("ap", "floor", "coef")),
                                   ("floor_intercept", intercept_table, ("floor", "intercept"))):
@@ -92,7 +98,7 @@ class FloorClassifier:
         return cls(floors, aps, coef, intercept)
 
     @classmethod
-    def from_bundle(cls, bundle) -> FloorClassifier | None:
+    def from_bundle(cls, bundle: MapBundle) -> FloorClassifier | None:
         """The floor model of a site bundle; None when the bundle has none."""
         if not (bundle.has_table(COEF_TABLE) and bundle.has_table(INTERCEPT_TABLE)):
             return None

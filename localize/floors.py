@@ -13,13 +13,13 @@ from typing import Protocol
 
 from localize.bundle import MapBundle
 from localize.errors import LocalizationError
-from localize.steps import StepSummaries
+from localize.steps import RadioScan, StepSummaries
 
 __all__ = ["FloorModel", "SiteMaps", "check_walk_fits"]
 
 
 class FloorModel(Protocol):
-    def floor_of(self, scan) -> str | None:
+    def floor_of(self, scan: RadioScan) -> str | None:
         """Floor id of a scan, or None when unsure."""
 
 

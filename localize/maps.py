@@ -20,10 +20,11 @@ stops it; a move may still clip the corner of a wall diagonally).
 
 from __future__ import annotations
 
+from collections.abc import Collection, Iterable
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from localize.bundle import MapBundle
 from localize.errors import LocalizationError
@@ -234,7 +235,7 @@ class FilterMap:
                 out = acc[spec.first] / wsum
         return np.where(good, out, np.float32(np.nan))
 
-    def sample(self, key: str, x_m, y_m) -> NDArray[np.float64]:
+    def sample(self, key: str, x_m: ArrayLike, y_m: ArrayLike) -> NDArray[np.float64]:
         """One layer at points (convenience; the filter batches layers with
         :meth:`sample_many`)."""
         return np.asarray(self.sample_many([key], x_m, y_m)[key], dtype=np.float64)
@@ -250,7 +251,8 @@ class FilterMap:
         inv = np.where(good, 1.0 / np.where(good, norm, 1.0), np.nan).astype(s.dtype)
         return s * inv, c * inv
 
-    def sample_many(self, keys, x_m, y_m, vectors=()) -> dict:
+    def sample_many(self, keys: Iterable[str], x_m: ArrayLike, y_m: ArrayLike,
+                    vectors: Collection[str] = ()) -> dict:
         """Several layers at once; each result has the broadcast shape of ``x_m, y_m``.
         Angles in degrees, NaN where undefined (as :meth:`MapBundle.sample`); angle layers
         named in ``vectors`` come as a ``(sin, cos)`` pair instead (see :meth:`vector`)."""

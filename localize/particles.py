@@ -17,10 +17,11 @@ Headings are azimuths (clockwise from map north): a move of length ``L`` along a
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, DTypeLike, NDArray
 
 from localize.errors import LocalizationError
 from localize.maps import FilterMap
@@ -139,7 +140,8 @@ class ParticleState:
         if self.has_lineage:
             self.lineage[...] = np.arange(self.shape[1])
 
-    def cut_lineage(self, rows, idx=slice(None)) -> None:
+    def cut_lineage(self, rows: int | np.integer | NDArray[np.integer],
+                    idx: slice | Sequence[int] | NDArray[np.integer] = slice(None)) -> None:
         """Particles ``idx`` of user ``rows`` were drawn fresh: no ancestor."""
         if self.has_lineage:
             self.data[self._nbase - 1, rows, idx] = -1
@@ -182,12 +184,12 @@ class ParticleState:
 
 
 def _base_property(i: int, name: str, prev: bool = False):
-    def get(self):
+    def get(self: ParticleState) -> NDArray:
         if prev and not self.has_prev:
             raise AttributeError(f"{name}: this state keeps no previous positions")
         return self.data[i]
 
-    def set_(self, value):
+    def set_(self: ParticleState, value: ArrayLike) -> None:
         if prev and not self.has_prev:
             raise AttributeError(f"{name}: this state keeps no previous positions")
         self.data[i] = value
@@ -257,7 +259,7 @@ def scatter_init(fmap: FilterMap, rng: np.random.Generator, n: int, cx: float, c
 
 
 def init_state(fmap: FilterMap, params: FilterParams, rng: np.random.Generator,
-               centers_xy: NDArray, half_widths_m: NDArray, dtype=np.float64,
+               centers_xy: NDArray, half_widths_m: NDArray, dtype: DTypeLike = np.float64,
                n: int | None = None, with_lineage: bool = False) -> ParticleState:
     """Particles of ``u`` users around their start positions, equal weights.
 
@@ -546,7 +548,8 @@ def reinit_rows(st: ParticleState, fmap: FilterMap, params: FilterParams,
 
 
 def inject(st: ParticleState, fmap: FilterMap, params: FilterParams, rng: np.random.Generator,
-           row: int, fraction: float, center_xy, half_width_m: float) -> int:
+           row: int, fraction: float, center_xy: Sequence[float] | NDArray,
+           half_width_m: float) -> int:
     """Replace a random share of one user's particles by fresh ones around a fix.
 
     Guards against a filter locked onto a wrong corridor (a wrong start, or a lost track): the

@@ -13,7 +13,9 @@ the papers is here too, for the probabilistic matcher and the online RSSI calibr
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,14 +30,15 @@ __all__ = ["AGE_DECAY_MS", "AGE_FRESH_MS", "ReferenceMotion", "ReferenceNeighbou
 FloatArray = NDArray[np.float64]
 
 
-def scan_rssi_matrix(scans, index: dict[str, int]) -> FloatArray:
+def scan_rssi_matrix(scans: Sequence[Any], index: dict[str, int]) -> FloatArray:
     """RSSI of scans (objects with ``keys`` and ``rssi_dbm``, e.g. ``RadioScan``; None allowed)
     as a matrix over the transmitters of ``index`` (key -> column), shape (S, len(index))
     (dBm; NaN = not heard, unknown keys ignored)."""
     return scan_matrices(scans, index)[0]
 
 
-def scan_matrices(scans, index: dict[str, int]) -> tuple[FloatArray, FloatArray]:
+def scan_matrices(scans: Sequence[Any], index: dict[str, int]
+                  ) -> tuple[FloatArray, FloatArray]:
     """RSSI (dBm) and row ages (ms) of scans, both laid out as :func:`scan_rssi_matrix`; an age
     is NaN where not heard or where the scan carries no ``age_ms``."""
     rssi = np.full((len(scans), len(index)), np.nan)

@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike, DTypeLike, NDArray
+
+if TYPE_CHECKING:  # an annotation: pyarrow is imported when a track is written
+    import pyarrow as pa
 
 __all__ = ["Estimate", "Track"]
 
@@ -67,7 +71,7 @@ class Track:
 
     @classmethod
     def from_estimates(cls, start: Estimate, estimates: list[Estimate], **kw) -> Track:
-        def col(name, dtype=np.float64):
+        def col(name: str, dtype: DTypeLike = np.float64) -> NDArray:
             return np.array([getattr(e, name) for e in estimates], dtype=dtype)
 
         return cls(col("t_ms"), col("x_m"), col("y_m"), col("spread_m"), col("alive_fraction"),
@@ -106,7 +110,7 @@ class Track:
                 "spread_m": self.spread_m, "alive_fraction": self.alive_fraction,
                 "recovered": self.recovered}
 
-    def to_arrow(self):
+    def to_arrow(self) -> pa.Table:
         """The track as a pyarrow Table (metadata: method, smoothed (``true`` for an offline
         smoothed track), trace id, floor id, start, recoveries)."""
         import pyarrow as pa

@@ -18,7 +18,8 @@ from numpy.typing import NDArray
 from localize.maps import FilterMap
 from localize.params import FilterParams
 from localize.particles import FEATURES, ParticleState
-from localize.steps import AttitudeCode
+from localize.radio import RadioModel
+from localize.steps import AttitudeCode, RadioScan
 from localize.weights import (
     dtw_distance,
     mass_centered_coefficient,
@@ -130,14 +131,16 @@ def magnetic_update(st: ParticleState, fmap: FilterMap, params: FilterParams,
         dtw_update(st, fmap, params, raw_strength_ut)
 
 
-def radio_likelihood(radio, scan, x_m: NDArray, y_m: NDArray) -> NDArray[np.float64] | None:
+def radio_likelihood(radio: RadioModel, scan: RadioScan, x_m: NDArray, y_m: NDArray
+                     ) -> NDArray[np.float64] | None:
     """``radio.likelihood(scan, x, y)`` when the model has one (None otherwise or when the scan
     tells nothing)."""
     like = getattr(radio, "likelihood", None)
     return None if like is None else like(scan, x_m, y_m)
 
 
-def radio_update(st: ParticleState, row: int, radio, scan, params: FilterParams,
+def radio_update(st: ParticleState, row: int, radio: RadioModel, scan: RadioScan,
+                 params: FilterParams,
                  likelihood: NDArray[np.float64] | None = None) -> bool:
     """Multiply row ``row``'s weights by the radio likelihood of ``scan``; True if applied.
 

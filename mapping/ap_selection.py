@@ -23,7 +23,7 @@ work on integer codes of the text columns, never on copies of the table or row-w
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -255,7 +255,7 @@ class APEvidence:
         reasons: dict[str, list[str]] = {a: [] for a in aps}
         details: dict[str, list[str]] = {a: [] for a in aps}
 
-        def flag(mask: pd.Series, reason: str, text) -> None:
+        def flag(mask: pd.Series, reason: str, text: Callable[[str], str]) -> None:
             for a in mask[mask].index:
                 reasons[a].append(reason)
                 details[a].append(text(a))

@@ -14,14 +14,16 @@ source walk, so rebuilding the same data gives the same bytes).
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Iterable
 from dataclasses import asdict, dataclass, field, replace
 from datetime import datetime, timezone
 
 import numpy as np
 import pandas as pd
 import pyarrow as pa
+from numpy.typing import NDArray
 
+from localize.bundle import Grid
 from survey.errors import IndoormapError
 from survey.field_features import circular_median_deg, wrap_deg
 from survey.memory import release_free_memory
@@ -71,7 +73,8 @@ def _time_text(ms: float) -> str:
     return datetime.fromtimestamp(ms / 1000.0, tz=timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
-def coverage(grid, mask, support, distances_m=(1.0, 2.0, 5.0)) -> dict[str, float]:
+def coverage(grid: Grid, mask: NDArray[np.bool_], support: NDArray[np.bool_],
+             distances_m: Iterable[float] = (1.0, 2.0, 5.0)) -> dict[str, float]:
     """Share of reachable cells within each distance of a survey sample (``support``: cells
     holding a sample, bool of the grid's shape)."""
     from scipy import ndimage
@@ -81,7 +84,8 @@ def coverage(grid, mask, support, distances_m=(1.0, 2.0, 5.0)) -> dict[str, floa
     return {f"within_{d:g}m": float((mask & (dist <= d)).sum() / n) for d in distances_m}
 
 
-def build_smoothing(samples: pd.DataFrame, field_enu: np.ndarray, grid, mask,
+def build_smoothing(samples: pd.DataFrame, field_enu: np.ndarray, grid: Grid,
+                    mask: NDArray[np.bool_],
                     params: BuildParams) -> tuple[RasterParams, dict[str, float]]:
     """The kernel bandwidth and shrinkage a build chooses, from the floor's samples in memory:
     grouped cross-validation of the levelled strength over walks

@@ -187,7 +187,7 @@ def field_rasters(grid: Grid, mask: NDArray[np.bool_], reduction: FieldReduction
                                                            NDArray[np.float32]]]:
     """(values, uncertainty) rasters of :data:`FIELD_LAYERS`, as
     :func:`mapping.interpolate.raster` makes them from the samples."""
-    def one(name: str):
+    def one(name: str) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
         cell, mean = reduction.walk_means[name]
         return raster_from_stats(grid, mask, cell_stats(grid, cell, mean), params)
 

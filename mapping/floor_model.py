@@ -34,6 +34,7 @@ from numpy.typing import NDArray
 from scipy import sparse
 
 from localize.floor_classifier import FloorClassifier, floor_log_proba, level_features
+from localize.steps import RadioScan
 
 from .errors import FingerprintError
 from .matching import align_scans
@@ -138,7 +139,7 @@ class FloorModel:
         """The localizer's view of this model (what the site bundle holds)."""
         return FloorClassifier(self.floors, self.aps, self.coef, self.intercept)
 
-    def floor_of(self, scan) -> str | None:
+    def floor_of(self, scan: RadioScan | None) -> str | None:
         """Floor of one scan given as the localizer's ``RadioScan``; None when no
         transmitter is known."""
         return self.classifier().floor_of(scan)

@@ -22,9 +22,10 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from itertools import product
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -44,6 +45,9 @@ from .interpolate import (
     walk_cell_means,
 )
 from .levelling import LevellingParams, apply_session_residuals, fit_session_residuals
+
+if TYPE_CHECKING:  # an annotation only
+    from survey.store import SurveyStore
 
 TRACK_STEP_M = 0.7
 
@@ -99,7 +103,7 @@ def metrics(per_walk: list[tuple[NDArray, NDArray, NDArray, NDArray]]) -> dict[s
         return {}
     o, p, sr = np.concatenate(obs), np.concatenate(pred), np.concatenate(shape_res)
 
-    def corr(a, b):
+    def corr(a: list[NDArray], b: list[NDArray]) -> float:
         a, b = np.concatenate(a), np.concatenate(b)
         if len(a) < 3 or np.std(a) == 0 or np.std(b) == 0:
             return float("nan")
@@ -142,7 +146,8 @@ def _predict_windowed(grid: Grid, mask: NDArray[np.bool_], stats: CellStats,
 
 
 def leave_one_walk_out(samples: pd.DataFrame, grid: Grid, mask: NDArray[np.bool_],
-                       pipelines: list[Pipeline], *, layers=("strength", "vertical"),
+                       pipelines: list[Pipeline], *,
+                       layers: Sequence[str] = ("strength", "vertical"),
                        levelling: LevellingParams = LevellingParams(),
                        levelling_folds: int = 10, subsample: int = 5,
                        progress: Callable[[str], None] | None = None) -> pd.DataFrame:
@@ -232,7 +237,7 @@ def leave_one_walk_out(samples: pd.DataFrame, grid: Grid, mask: NDArray[np.bool_
     return table
 
 
-def floor_samples_with_baseline_positions(store, floor: str, site: str | None = None
+def floor_samples_with_baseline_positions(store: SurveyStore, floor: str, site: str | None = None
                                           ) -> pd.DataFrame:
     """Processed samples of a floor with their session and also their time-linear positions
     (``tl_x_m``, ``tl_y_m``) for the baseline pipeline."""
@@ -278,9 +283,11 @@ BANDWIDTH_SUBSAMPLE = 5
 
 def choose_smoothing(grid: Grid, mask: NDArray[np.bool_], x: NDArray, y: NDArray,
                      values: NDArray, walk: NDArray, base: RasterParams, *,
-                     candidates=BANDWIDTH_CANDIDATES_M, prior_candidates=PRIOR_WALKS_CANDIDATES,
-                     ridge_candidates=SLOPE_RIDGE_CANDIDATES,
-                     curvature_candidates=CURVATURE_RIDGE_CANDIDATES, folds: int = 5,
+                     candidates: Sequence[float] = BANDWIDTH_CANDIDATES_M,
+                     prior_candidates: Sequence[float] = PRIOR_WALKS_CANDIDATES,
+                     ridge_candidates: Sequence[float] = SLOPE_RIDGE_CANDIDATES,
+                     curvature_candidates: Sequence[float] = CURVATURE_RIDGE_CANDIDATES,
+                     folds: int = 5,
                      subsample: int = BANDWIDTH_SUBSAMPLE
                      ) -> tuple[RasterParams, dict[str, float]]:
     """Kernel bandwidth (m), shrinkage (``prior_walks``) and, for a local polynomial, slope

@@ -23,10 +23,12 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from localize.bundle import Grid, MapBundle
 from localize.radio_match import WalkSmoothing
@@ -35,6 +37,9 @@ from .fingerprints import FingerprintDB
 from .matching import default_matcher
 from .radio_build import RadioParams
 from .radio_scans import scan_set
+
+if TYPE_CHECKING:  # an annotation only
+    from survey.store import SurveyStore
 
 __all__ = ["RadioValidationParams", "heldout_radio", "radio_bound", "radio_summary", "walk_folds"]
 
@@ -114,7 +119,7 @@ def radio_bound(db: FingerprintDB, grid: Grid, mask: NDArray[np.bool_], *,
     return np.where(mask, full, np.nan)
 
 
-def walk_folds(walks, folds: int, seed: int = 0) -> list[list[str]]:
+def walk_folds(walks: ArrayLike, folds: int, seed: int = 0) -> list[list[str]]:
     """Walk groups for held-out evaluation: one walk per group (``folds`` 0 or at least the
     number of walks), else ``folds`` groups of walks shuffled with ``seed``."""
     walks = np.unique(np.asarray(walks).astype(str))
@@ -213,7 +218,8 @@ def _site_floor_model(bundle: MapBundle) -> dict | None:
     return (m.get("metrics") or {}).get("floor_model")
 
 
-def radio_summary(bundle: MapBundle, store, floor: str, site: str | None, *,
+def radio_summary(bundle: MapBundle, store: SurveyStore | str | Path | None, floor: str,
+                  site: str | None, *,
                   params: RadioValidationParams = RadioValidationParams()) -> dict:
     """The radio section's figures (JSON-able) plus ``arrays`` for the report's plots.
 

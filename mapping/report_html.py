@@ -23,12 +23,15 @@ import math
 from pathlib import Path
 
 import numpy as np
-from matplotlib.colors import BoundaryNorm, ListedColormap, TwoSlopeNorm
+from matplotlib.axes import Axes
+from matplotlib.colors import BoundaryNorm, Colormap, ListedColormap, Normalize, TwoSlopeNorm
 from matplotlib.figure import Figure
-from matplotlib.image import imread
+from matplotlib.image import AxesImage, imread
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch, Rectangle
+from numpy.typing import ArrayLike
 
+from localize.bundle import Grid
 from survey.publish import atomic_write_bytes
 
 from .validate import THRESHOLD_DOCS, ValidationResult, write_metrics
@@ -74,7 +77,7 @@ class FloorCanvas:
         x0, x1, y0, y1 = self.extent
         return (x1 - x0) / max(y1 - y0, 1e-9)
 
-    def base(self, ax) -> None:
+    def base(self, ax: Axes) -> None:
         if self.image is not None:
             ax.imshow(self.image, extent=self.image_extent, cmap="gray", vmin=0, vmax=1,
                       interpolation="bilinear", zorder=0)
@@ -90,8 +93,10 @@ class FloorCanvas:
         ax.set_xlabel("x (m, east)", fontsize=7)
         ax.set_ylabel("y (m, north)", fontsize=7)
 
-    def raster(self, ax, values, grid=None, *, cmap="viridis", vmin=None, vmax=None, norm=None,
-               label: str = "", alpha: float = 0.9, cax=None):
+    def raster(self, ax: Axes, values: ArrayLike, grid: Grid | None = None, *,
+               cmap: str | Colormap = "viridis", vmin: float | None = None,
+               vmax: float | None = None, norm: Normalize | None = None, label: str = "",
+               alpha: float = 0.9, cax: Axes | None = None) -> AxesImage:
         g = grid or self.grid
         ext = (g.x0_m, g.x0_m + g.width * g.cell_m, g.y0_m, g.y0_m + g.height * g.cell_m)
         im = ax.imshow(np.ma.masked_invalid(np.asarray(values, dtype=float)), origin="lower",
@@ -548,7 +553,7 @@ def _table(headers: list[str], rows: list[list], numeric: set[int] | None = None
     numeric = numeric or set()
     head = "".join(f"<th>{_e(h)}</th>" for h in headers)
 
-    def tr(r):
+    def tr(r: list) -> str:
         return "<tr>" + "".join(
             f"<td class='num'>{c}</td>" if i in numeric else f"<td>{c}</td>"
             for i, c in enumerate(r)) + "</tr>"
@@ -918,7 +923,7 @@ def _section_radio(result) -> str:
                        "median bound (m)"], rows))
     fm = radio.get("floor_model")
     if fm:
-        def pct(v) -> str:
+        def pct(v: float | None) -> str:
             return "n/a" if v is None else f"{100 * v:.2f} %"
 
         out.append(f"<p>Floor model ({_e(fm.get('kind', ''))}, site bundle): "

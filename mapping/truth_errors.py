@@ -8,16 +8,18 @@ object with ``field_earth_ut(x_m, y_m) -> (n, 3)`` (uT, east, north, up) and
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from localize.bundle import Grid
 from survey.field_features import wrap_deg
 
 __all__ = ["TruthErrors", "surveyed_cells", "truth_errors"]
 
 
-def surveyed_cells(grid, true_xy_m: NDArray[np.float64]) -> NDArray[np.bool_]:
+def surveyed_cells(grid: Grid, true_xy_m: NDArray[np.float64]) -> NDArray[np.bool_]:
     """Cells of ``grid`` that the true positions (n, 2) (m) pass through, shape ``grid.shape``."""
     xy = np.asarray(true_xy_m, dtype=np.float64).reshape(-1, 2)
     row, col, inside = grid.cell_of(xy[:, 0], xy[:, 1])
@@ -46,7 +48,8 @@ class TruthErrors:
     surveyed: int
 
 
-def truth_errors(grid, layers: dict, field, true_xy_m: NDArray[np.float64]) -> TruthErrors:
+def truth_errors(grid: Grid, layers: dict, field: Any, true_xy_m: NDArray[np.float64]
+                 ) -> TruthErrors:
     """Errors of the ``strength`` and ``heading_offset`` layers (objects with ``values`` of the
     grid's shape, e.g. :class:`mapping.bundle_writer.Layer`) on the cells the true positions
     (n, 2) (m) cross."""

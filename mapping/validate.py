@@ -47,6 +47,7 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 import pandas as pd
@@ -63,6 +64,11 @@ from . import holdout
 from .build import BuildParams, heading_raster_for
 from .interpolate import INTERPOLATORS, CellStats, RasterParams, cell_stats, walk_cell_means
 from .levelling import LevellingParams, apply_session_residuals
+
+if TYPE_CHECKING:  # an annotation only
+    from survey.store import SurveyStore
+
+_T = TypeVar("_T")
 
 
 class ValidationError(IndoormapError, ValueError):
@@ -391,7 +397,7 @@ class FloorData:
     waypoints: pd.DataFrame
 
 
-def load_floor_data(store, bundle: MapBundle) -> FloorData:
+def load_floor_data(store: SurveyStore | str | Path, bundle: MapBundle) -> FloorData:
     """Processed tables of the bundle's floor from a survey store (samples with time-linear
     positions too, as :func:`mapping.holdout.floor_samples_with_baseline_positions` gives)."""
     from survey.process_store import processed_catalog, processed_table
@@ -726,7 +732,8 @@ def _recording_holdout_metrics():
     calls: list = []
     original = holdout.metrics
 
-    def recording(per_walk):
+    def recording(per_walk: list[tuple[NDArray, NDArray, NDArray, NDArray]]
+                  ) -> dict[str, float]:
         calls.append(per_walk)
         return original(per_walk)
 
@@ -1177,8 +1184,9 @@ def data_quality_section(bundle: MapBundle, fd: FloorData, th: dict, params: Val
 # ----------------------------------------------------------------------------------------------
 # 7. radio
 
-def radio_section(bundle: MapBundle, store, fd: FloorData | None, th: dict,
-                  findings: list[Finding], arrays: dict, rgrid: Grid | None = None) -> dict:
+def radio_section(bundle: MapBundle, store: SurveyStore | str | Path | None,
+                  fd: FloorData | None, th: dict, findings: list[Finding], arrays: dict,
+                  rgrid: Grid | None = None) -> dict:
     """Wi-Fi/BLE held-out positioning, the site's floor accuracy and the radio bound
     (:func:`mapping.radio_validation.radio_summary`); ``{"available": False, "reason": ...}``
     when the bundle has no fingerprints."""
@@ -1219,7 +1227,8 @@ def radio_section(bundle: MapBundle, store, fd: FloorData | None, th: dict,
 # ----------------------------------------------------------------------------------------------
 # the whole validation
 
-def validate_bundle(bundle: MapBundle | str | Path, store=None, *,
+def validate_bundle(bundle: MapBundle | str | Path,
+                    store: SurveyStore | str | Path | None = None, *,
                     thresholds: dict | None = None, params: ValidateParams = ValidateParams(),
                     floor_dir: str | Path | None = None,
                     progress: Callable[[str], None] | None = None) -> ValidationResult:
@@ -1259,7 +1268,7 @@ def validate_bundle(bundle: MapBundle | str | Path, store=None, *,
                    "manifest_metrics": m.get("metrics", {})},
         "params": params.to_dict()}
 
-    def timed(name, fn):
+    def timed(name: str, fn: Callable[[], _T]) -> _T:
         t = time.perf_counter()
         res = fn()
         timings[name] = round(time.perf_counter() - t, 2)

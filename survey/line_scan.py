@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from numpy.typing import NDArray
 
 #: Line kinds returned by :func:`scan_lines`.
 BLANK, HEADER, RECORD, NO_TAB, BAD_TIMESTAMP, BAD_TOKEN, OTHER_TOKEN = range(7)
@@ -237,7 +238,8 @@ def _scan(buf, n, nexts, names, name_lens, group_of_name, n_groups,
 
 
 @numba.njit(cache=True, nogil=True)
-def canonical_macs(offsets, data):  # pragma: no cover - compiled
+def canonical_macs(offsets: NDArray[np.int32],  # pragma: no cover - compiled
+                   data: NDArray[np.uint8]) -> tuple[NDArray[np.uint8], NDArray[np.bool_]]:
     """Lower-case 17-byte ``xx:xx:xx:xx:xx:xx`` strings of an Arrow string array.
 
     ``offsets`` (int32, n + 1) and ``data`` (uint8) are the array's buffers. Returns the
@@ -264,7 +266,10 @@ def canonical_macs(offsets, data):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def best_of_runs(run_key_a, run_key_b, run_key_c, score_a, score_b):  # pragma: no cover
+def best_of_runs(run_key_a: NDArray[np.integer],  # pragma: no cover - compiled
+                 run_key_b: NDArray[np.integer], run_key_c: NDArray[np.integer],
+                 score_a: NDArray[np.integer], score_b: NDArray[np.integer]
+                 ) -> NDArray[np.bool_]:
     """Over rows sorted by the three run keys, mark the first row of each run of equal keys
     with the largest ``(score_a, score_b)`` (earliest row on ties); the rest are duplicates.
 

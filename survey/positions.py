@@ -18,13 +18,16 @@ Each leg gets quality flags (see :data:`FLAGS`).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 import pandas as pd
 from numpy.typing import ArrayLike, NDArray
 
 from .errors import ProcessingError
+
+if TYPE_CHECKING:  # an annotation: shapely is imported when a walk is checked against it
+    import shapely
 
 #: Leg quality flags.
 FLAGS = {
@@ -122,7 +125,7 @@ def positions_along_walk(waypoint_t_ms: ArrayLike, waypoint_xy_m: ArrayLike,
                          step_heading_deg: ArrayLike | None = None,
                          step_weight: ArrayLike | None = None,
                          params: PositionParams = PositionParams(),
-                         reachable=None) -> WalkPositions:
+                         reachable: shapely.Geometry | None = None) -> WalkPositions:
     """Positions (map metres) at ``query_t_ms`` along a walk with ground-truth waypoints.
 
     Parameters

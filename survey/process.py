@@ -21,10 +21,11 @@ from __future__ import annotations
 
 import json
 from dataclasses import asdict, dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from .attitude import AttitudeParams, classify_attitude
 from .errors import ProcessingError
@@ -33,6 +34,9 @@ from .magcal import MagCalResult
 from .positions import PositionParams, clean_waypoints, positions_along_walk
 from .rotation import heading_deg, interpolate_rotation_vector, rotation_matrices, tilt_deg
 from .steps import detect_steps, fit_weinberg, segment_ids, weinberg_length
+
+if TYPE_CHECKING:  # an annotation only
+    import shapely
 
 #: Weinberg constant used when a walk has too few legs to fit its own.
 DEFAULT_WEINBERG_K = 0.4
@@ -62,7 +66,7 @@ class ProcessedWalk:
     track_xy_m: NDArray[np.float64]  # ... and positions (k, 2), map metres
     range_t_ms: tuple[float, float]  # first and last waypoint time
 
-    def position_at(self, t_ms) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    def position_at(self, t_ms: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
         """Positions (n, 2) at times ``t_ms`` and whether each lies in the waypoint range
         (positions outside are NaN)."""
         t = np.asarray(t_ms, dtype=np.float64)
@@ -146,7 +150,7 @@ def calibrated_field(sensors: pd.DataFrame, session_fit: MagCalResult | None = N
     cal = _stream(sensors, "magnetic_field")
     unc = _stream(sensors, "magnetic_field_uncalibrated")
 
-    def plausible(m):
+    def plausible(m: NDArray[np.float64]) -> tuple[np.bool_, np.float64]:
         s = np.median(np.linalg.norm(m, axis=1))
         return lo <= s <= hi, s
 
@@ -220,7 +224,8 @@ def _forward_by_heading(att, compass_minus_walk_deg: NDArray, params: AttitudePa
 
 
 def process_walk(trace_id: str, sensors: pd.DataFrame, waypoints: pd.DataFrame,
-                 params: ProcessParams = ProcessParams(), *, reachable=None,
+                 params: ProcessParams = ProcessParams(), *,
+                 reachable: shapely.Geometry | None = None,
                  session_fit: MagCalResult | None = None) -> ProcessedWalk:
     """Process one walk. See the module docstring for the outputs.
 

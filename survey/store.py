@@ -24,6 +24,7 @@ import re
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -241,7 +242,8 @@ class SurveyStore:
             raise StoreError(f"{self.root}: no traces match site={site!r} floor={floor!r}")
         return _frame(pa.concat_tables(parts, promote_options="permissive"))
 
-    def part(self, name: str, row, columns: list[str] | None = None) -> pd.DataFrame:
+    def part(self, name: str, row: tuple[Any, ...] | dict[str, Any],
+             columns: list[str] | None = None) -> pd.DataFrame:
         """Rows of one table for one trace, ``row`` being its catalog row (a named tuple or
         mapping with ``site``, ``floor``, ``trace_id``, ``sha256``), in time order. Reading walk
         by walk keeps memory bounded by the largest walk, not by the store."""

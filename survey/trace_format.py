@@ -10,7 +10,7 @@ the columns listed in the ``*_COLUMNS`` constants below, sorted by time.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import pandas as pd
@@ -186,6 +186,6 @@ def empty_table(columns: tuple[str, ...], dtypes: dict[str, str]) -> pd.DataFram
     return pd.DataFrame({c: pd.Series([], dtype=dtypes.get(c, "str")) for c in columns})
 
 
-def stream_category(values) -> pd.Categorical:
+def stream_category(values: Iterable[str]) -> pd.Categorical:
     """Stream names as a categorical with the fixed category order :data:`STREAM_NAMES`."""
     return pd.Categorical(values, categories=list(STREAM_NAMES))

@@ -50,7 +50,7 @@ def parse_header(lines: Iterable[bytes]) -> TraceHeader:
 
 
 def _sensor_info(values: dict[str, str]) -> SensorInfo:
-    def num(key):
+    def num(key: str) -> float:
         try:
             return float(values.get(key, "nan"))
         except ValueError:

@@ -34,7 +34,7 @@ def _fmt_str(values) -> np.ndarray:
 
 def header_lines(header: TraceHeader) -> tuple[list[str], list[str]]:
     """Header lines that open the file and the ``endTime`` line that closes it."""
-    def val(v):
+    def val(v: object) -> str:
         return "" if v is None else str(v)
 
     head = []

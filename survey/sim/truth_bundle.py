@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import shapely
+from numpy.typing import NDArray
 
 from localize.bundle import Grid
 from mapping.bundle_writer import BundleContent, Layer, write_bundle
@@ -85,12 +86,12 @@ def truth_bundle(site_dir: str | Path, floor: str, target: str | Path, *, cell_m
     feats = field_features(b)
     az = feats.azimuth_deg if azimuth == "true" else np.mod(feats.azimuth_deg - deviation, 360)
 
-    def raster(v):
+    def raster(v: NDArray[np.float64]) -> NDArray[np.float32]:
         out = np.full(grid.shape, np.nan, dtype=np.float32)
         out[mask] = v
         return out
 
-    def const(v):
+    def const(v: float) -> NDArray[np.float32]:
         out = np.full(grid.shape, np.nan, dtype=np.float32)
         out[mask] = v
         return out
