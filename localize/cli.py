@@ -24,26 +24,7 @@ import click
 import numpy as np
 
 from localize.cli_common import WalkFailures, read_walk, trace_files
-from localize.errors import LocalizationError
 from survey.publish import refuse_to_replace
-
-def _open_maps(path: Path):
-    """Floor bundles (and the site bundle's floor model) of a bundle or a folder of bundles;
-    registry folders (``REG/<site>/<floor>``, ``REG/<site>``) give their current versions."""
-    from localize.bundle import is_bundle_dir, load_bundle
-    from localize.floor_classifier import FloorClassifier
-    from localize.floors import SiteMaps
-
-    if is_bundle_dir(path):
-        return SiteMaps([load_bundle(path)])
-    subs = [load_bundle(p) for p in sorted(path.iterdir()) if is_bundle_dir(p)]
-    if not subs:
-        raise LocalizationError(f"{path}: neither a bundle nor a folder of bundles (nor a "
-                                "registry's site folder)")
-    site = [b for b in subs if b.manifest.get("kind") == "site"]
-    model = FloorClassifier.from_bundle(site[0]) if site else None
-    return SiteMaps([b for b in subs if b.manifest.get("kind") != "site"], floor_model=model)
-
 
 def _parse_start(start: str) -> str | tuple[float, float]:
     """``--start``'s value checked before any walk is read: a keyword or ``(x, y)`` (m)."""
@@ -143,6 +124,7 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
     A walk that fails (unreadable, no start, another site) is reported with its file and the
     others go on; the exit status is then 1."""
     from localize.baselines import PARTICLE_FILTERS, make_localizer
+    from localize.floors import SiteMaps
     from localize.plots import plot_track
     from localize.start import start_position
     from localize.walk_radio import radio_for_walk
@@ -153,7 +135,7 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
     from survey.step_summaries import step_summaries, waypoints_of
 
     start_opt = _parse_start(start)
-    maps = _open_maps(bundle_path)
+    maps = SiteMaps.open(bundle_path)
     files = trace_files(walks)
     failures = WalkFailures()
     created = not out.exists()
@@ -229,6 +211,7 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
     (and method) and the rest goes on; the exit status is then 1."""
     from localize.baselines import METHODS, PARTICLE_FILTERS, make_localizer
     from localize.evaluate import summarize, waypoint_errors
+    from localize.floors import SiteMaps
     from localize.start import start_position
     from localize.walk_radio import radio_for_walk
     from survey.step_summaries import step_summaries, waypoints_of
@@ -244,7 +227,7 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
         if target is not None:
             refuse_to_replace(target, overwrite)  # before the work
     start_opt = _parse_start(start)
-    maps = _open_maps(bundle_path)
+    maps = SiteMaps.open(bundle_path)
     files = trace_files(walks)
     failures = WalkFailures()
     rows = [(m, False) for m in names] + [(m, True) for m in names

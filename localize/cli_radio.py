@@ -143,7 +143,7 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
                         calibration: str, smoothing: str) -> None:
     """Wi-Fi (or BLE) position per scan (CSV) from the fingerprints of BUNDLE (a floor bundle
     or a folder of bundles: the walk's floor, else the site floor model, picks one)."""
-    from localize.cli import _open_maps
+    from localize.floors import SiteMaps
     from localize.radio_match import WalkSmoothing
     from localize.walk_radio import bundle_positioner, radio_for_walk
     from survey.step_summaries import step_summaries, waypoints_of
@@ -159,7 +159,7 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
                                      f"(dB); got {calibration!r}",
                                      param_hint="--calibration") from err
         given = (k, b)
-    maps = _open_maps(bundle_path)
+    maps = SiteMaps.open(bundle_path)
     out = _CsvRows(["trace_id", "floor", "t_ms", "n_known", "x_m", "y_m", "sigma_m", "error_m"])
     failures = WalkFailures()
 

@@ -9,6 +9,7 @@ mapping stage writes one, or :meth:`KnnRadioPositioner.floor_of`), else it refus
 from __future__ import annotations
 
 from collections.abc import Iterable
+from pathlib import Path
 from typing import Protocol
 
 from localize.bundle import MapBundle
@@ -74,6 +75,35 @@ class SiteMaps:
         self.site_id = sites.pop()
         self.floor_model = floor_model
         self._by_name = {b.manifest.get("floor_name", ""): b for b in self.bundles.values()}
+
+    @classmethod
+    def open(cls, path: str | Path) -> SiteMaps:
+        """The floor bundles at ``path``: one floor bundle, a folder of bundles (as
+        ``indoormap build`` writes, with the site bundle ``_site`` whose floor model then
+        picks the floor of walks that name none), or a registry's site or floor folder
+        (``REG/<site>``, ``REG/<site>/<floor>``: their current versions).
+
+        Raises
+        ------
+        LocalizationError
+            Nothing there is a bundle; bundles of several sites or two of one floor.
+        BundleError, RegistryError
+            A damaged bundle or registry pointer (:func:`~localize.bundle.load_bundle`).
+        """
+        from localize.bundle import is_bundle_dir, load_bundle
+        from localize.floor_classifier import FloorClassifier
+
+        path = Path(path)
+        if is_bundle_dir(path):
+            return cls([load_bundle(path)])
+        subs = [load_bundle(p) for p in sorted(path.iterdir()) if is_bundle_dir(p)] \
+            if path.is_dir() else []
+        if not subs:
+            raise LocalizationError(f"{path}: neither a bundle nor a folder of bundles (nor a "
+                                    "registry's site folder)")
+        site = [b for b in subs if b.manifest.get("kind") == "site"]
+        model = FloorClassifier.from_bundle(site[0]) if site else None
+        return cls([b for b in subs if b.manifest.get("kind") != "site"], floor_model=model)
 
     def select(self, steps: StepSummaries) -> MapBundle:
         """The bundle of the walk's floor.

@@ -15,12 +15,13 @@ import pytest
 from click.testing import CliRunner
 
 from localize.bundle import load_bundle
-from localize.walk_radio import radio_for_walk
 from localize.errors import LocalizationError
 from localize.fingerprint_positioner import FingerprintPositioner, fingerprint_kinds
 from localize.floor_classifier import FloorClassifier
+from localize.floors import SiteMaps
 from localize.radio_match import WalkSmoothing
 from localize.steps import RadioScan
+from localize.walk_radio import radio_for_walk
 from mapping.fingerprints import FingerprintDB
 from mapping.floor_model import FloorModel
 from mapping.matching import default_matcher, default_walk_matcher
@@ -307,3 +308,17 @@ def test_walk_without_a_floor_header_gets_its_floor_from_the_floor_model(built, 
     track = pd.read_parquet(tmp_path / "loc" / "bare.parquet")
     row, col, inside = f2.grid.cell_of(track["x_m"].to_numpy(), track["y_m"].to_numpy())
     assert inside.all() and f2.mask[row, col].mean() > 0.9
+
+
+def test_site_maps_open_a_bundle_a_build_folder_or_nothing(built, tmp_path):
+    """A build's output folder gives every floor and the _site's floor model; one floor
+    bundle gives that floor alone; a folder without bundles is refused by name."""
+    site = SiteMaps.open(built)
+    assert sorted(site.bundles) == sorted(load_bundle(built / f).floor_id
+                                          for f in ("F1", "F2"))
+    assert isinstance(site.floor_model, FloorClassifier)
+    one = SiteMaps.open(built / "F1")
+    assert list(one.bundles) == [load_bundle(built / "F1").floor_id] and one.floor_model is None
+    with pytest.raises(LocalizationError, match="neither a bundle nor a folder of bundles"):
+        SiteMaps.open(tmp_path)
+
