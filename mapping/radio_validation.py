@@ -220,11 +220,13 @@ def _site_floor_model(bundle: MapBundle) -> dict | None:
 
 def radio_summary(bundle: MapBundle, store: SurveyStore | str | Path | None, floor: str,
                   site: str | None, *,
-                  params: RadioValidationParams = RadioValidationParams()) -> dict:
+                  params: RadioValidationParams = RadioValidationParams(),
+                  progress: Callable[[str], None] | None = None) -> dict:
     """The radio section's figures (JSON-able) plus ``arrays`` for the report's plots.
 
     ``store``: the survey store the bundle was built from, or None (then only the bound and
-    the site's floor accuracy are reported).
+    the site's floor accuracy are reported). ``progress`` receives a message per held-out
+    fold (the maps are rebuilt for each).
     """
     from .radio_build import site_observations
 
@@ -243,7 +245,8 @@ def radio_summary(bundle: MapBundle, store: SurveyStore | str | Path | None, flo
                      f"grouped {params.folds}-fold by walk")
             device_of = st.catalog().set_index("trace_id")["device_model"].astype(str)
             errors = heldout_radio({k: o for k, o in obs.items() if len(o)}, device_of, [floor],
-                                   walk_folds(walks, folds, params.seed), with_positions=True)
+                                   walk_folds(walks, folds, params.seed), with_positions=True,
+                                   progress=progress)
     fm = _site_floor_model(bundle)
     out["floor_model"] = fm
     out["floor_accuracy"] = None if fm is None else fm.get("cv_scan_accuracy")

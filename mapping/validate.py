@@ -1186,7 +1186,8 @@ def data_quality_section(bundle: MapBundle, fd: FloorData, th: dict, params: Val
 
 def radio_section(bundle: MapBundle, store: SurveyStore | str | Path | None,
                   fd: FloorData | None, th: dict, findings: list[Finding], arrays: dict,
-                  rgrid: Grid | None = None) -> dict:
+                  rgrid: Grid | None = None,
+                  progress: Callable[[str], None] | None = None) -> dict:
     """Wi-Fi/BLE held-out positioning, the site's floor accuracy and the radio bound
     (:func:`mapping.radio_validation.radio_summary`); ``{"available": False, "reason": ...}``
     when the bundle has no fingerprints."""
@@ -1196,7 +1197,8 @@ def radio_section(bundle: MapBundle, store: SurveyStore | str | Path | None,
         return {"available": False, "reason": "radio: the bundle has no Wi-Fi or BLE "
                                               "fingerprints (a survey without radio rows)"}
     floor = fd.floor if fd is not None else (bundle.manifest.get("floor_name") or "")
-    res = radio_summary(bundle, store, floor, fd.site if fd is not None else None)
+    res = radio_summary(bundle, store, floor, fd.site if fd is not None else None,
+                        progress=progress)
     out = {"available": True, **{k: v for k, v in res.items() if k != "arrays"}}
     ra = res.get("arrays", {})
     arrays.update({k: v for k, v in ra.items() if not k.endswith("_error_points")})
@@ -1328,8 +1330,8 @@ def validate_bundle(bundle: MapBundle | str | Path,
                                                                              findings))
     if params.radio:
         say("radio")
-        metrics["radio"] = timed("radio", lambda: radio_section(b, store, fd, th, findings,
-                                                                arrays, rgrid))
+        metrics["radio"] = timed("radio", lambda: radio_section(
+            b, store, fd, th, findings, arrays, rgrid, progress=say))
         if not metrics["radio"].get("available"):
             findings.append(Finding("radio", "info", metrics["radio"]["reason"], "radio"))
     metrics["timings_s"] = {**timings, "total": round(time.perf_counter() - t_start, 2)}
