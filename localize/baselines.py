@@ -40,7 +40,8 @@ class PdrLocalizer(BaseLocalizer):
 
     method = "pdr"
 
-    def __init__(self, bundle: MapBundle, step_length_m: float = 0.7, *, radio=None,
+    def __init__(self, bundle: MapBundle, step_length_m: float = 0.7, *,
+                 radio: RadioModel | None = None,
                  heading_offset_deg: float = 0.0) -> None:
         super().__init__(bundle, radio=radio)
         if not step_length_m > 0:
@@ -67,7 +68,7 @@ class RadioOnlyLocalizer(BaseLocalizer):
 
     method = "radio"
 
-    def __init__(self, bundle: MapBundle, *, radio) -> None:
+    def __init__(self, bundle: MapBundle, *, radio: RadioModel) -> None:
         if radio is None:
             raise LocalizationError("the radio-only method needs a radio model")
         super().__init__(bundle, radio=radio)

@@ -26,6 +26,7 @@ import numpy as np
 from localize.cli_common import WalkFailures, read_walk, trace_files
 from survey.publish import refuse_to_replace
 
+
 def _parse_start(start: str) -> str | tuple[float, float]:
     """``--start``'s value checked before any walk is read: a keyword or ``(x, y)`` (m)."""
     from localize.start import START_POLICIES
@@ -41,6 +42,19 @@ def _parse_start(start: str) -> str | tuple[float, float]:
                                  f"{start!r}",
                                  param_hint="--start") from err
     return x, y
+
+
+def _start_of(start_opt: str | tuple[float, float], steps, radio, waypoints_xy
+              ) -> tuple[tuple[float, float] | None, str]:
+    """:func:`localize.start.start_position`, its errors naming the option to change."""
+    from localize.errors import LocalizationError
+    from localize.start import start_position
+
+    try:
+        return start_position(start_opt, steps, radio, waypoints_xy)
+    except LocalizationError as err:
+        given = start_opt if isinstance(start_opt, str) else "X,Y"
+        raise LocalizationError(f"{err} (--start {given})") from err
 
 
 def _warn_if_off_floor(bundle, start_xy: tuple[float, float] | None) -> None:
@@ -126,7 +140,6 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
     from localize.baselines import PARTICLE_FILTERS, make_localizer
     from localize.floors import SiteMaps
     from localize.plots import plot_track
-    from localize.start import start_position
     from localize.walk_radio import radio_for_walk
 
     if smooth and method not in PARTICLE_FILTERS:
@@ -151,7 +164,7 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
         bundle = maps.select(steps)
         _warn_if_source_walk(bundle, trace.trace_id)
         radio = radio_for_walk(bundle, trace.header.model, steps.scans)[0]
-        start_xy, how = start_position(start_opt, steps, radio, waypoints_of(trace)[1])
+        start_xy, how = _start_of(start_opt, steps, radio, waypoints_of(trace)[1])
         _warn_if_off_floor(bundle, start_xy)
         loc = make_localizer(method, bundle, _params(particles), radio=radio, rng=seed)
         track = loc.run(steps, start_xy=start_xy, smooth=smooth)
@@ -212,7 +225,6 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
     from localize.baselines import METHODS, PARTICLE_FILTERS, make_localizer
     from localize.evaluate import summarize, waypoint_errors
     from localize.floors import SiteMaps
-    from localize.start import start_position
     from localize.walk_radio import radio_for_walk
     from survey.step_summaries import step_summaries, waypoints_of
 
@@ -245,7 +257,7 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
         bundle = maps.select(steps)
         _warn_if_source_walk(bundle, trace.trace_id)
         radio = radio_for_walk(bundle, trace.header.model, steps.scans)[0]
-        start_xy, _ = start_position(start_opt, steps, radio, xy_wp)
+        start_xy, _ = _start_of(start_opt, steps, radio, xy_wp)
         _warn_if_off_floor(bundle, start_xy)
         for m, sm in rows:  # a method failing on this walk leaves the others' rows alone
             def run(m=m, sm=sm):

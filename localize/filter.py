@@ -73,7 +73,7 @@ class BaseLocalizer:
     #: Whether :meth:`run` can smooth offline (particle filters).
     can_smooth = False
 
-    def __init__(self, bundle: MapBundle, *, radio=None) -> None:
+    def __init__(self, bundle: MapBundle, *, radio: RadioModel | None = None) -> None:
         self.bundle = bundle
         self.radio = radio
         self._last: Estimate | None = None
@@ -211,7 +211,8 @@ class Localizer(BaseLocalizer):
     method = "indoormap"
     can_smooth = True
 
-    def __init__(self, bundle: MapBundle, params: FilterParams | None = None, *, radio=None,
+    def __init__(self, bundle: MapBundle, params: FilterParams | None = None, *,
+                 radio: RadioModel | None = None,
                  rng: np.random.Generator | int | None = None, method: str | None = None,
                  fmap: FilterMap | None = None) -> None:
         super().__init__(bundle, radio=radio)

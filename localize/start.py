@@ -57,8 +57,11 @@ def start_position(start: str | Sequence[float], steps: StepSummaries,
         no waypoint.
     """
     if not isinstance(start, str):
-        x, y = (float(v) for v in start)
-        return (x, y), "given"
+        xy = np.asarray(start, dtype=np.float64).ravel()
+        if xy.shape != (2,) or not np.isfinite(xy).all():
+            raise LocalizationError(f"a start position is two finite numbers (x, y) in "
+                                    f"metres, got {start!r}")
+        return (float(xy[0]), float(xy[1])), "given"
     if start not in START_POLICIES:
         raise LocalizationError(f"start must be one of {START_POLICIES} or a position (x, y), "
                                 f"got {start!r}")

@@ -21,7 +21,7 @@ import hashlib
 import json
 import os
 import re
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -242,8 +242,7 @@ class SurveyStore:
             raise StoreError(f"{self.root}: no traces match site={site!r} floor={floor!r}")
         return _frame(pa.concat_tables(parts, promote_options="permissive"))
 
-    def part(self, name: str, row: tuple[Any, ...] | dict[str, Any],
-             columns: list[str] | None = None) -> pd.DataFrame:
+    def part(self, name: str, row: Any, columns: list[str] | None = None) -> pd.DataFrame:
         """Rows of one table for one trace, ``row`` being its catalog row (a named tuple or
         mapping with ``site``, ``floor``, ``trace_id``, ``sha256``), in time order. Reading walk
         by walk keeps memory bounded by the largest walk, not by the store."""
@@ -252,7 +251,7 @@ class SurveyStore:
         return _frame(self._read_part(name, row, columns))
 
     def _read_part(self, name: str, row, columns: list[str] | None = None) -> pa.Table:
-        get = row.get if isinstance(row, dict) else lambda k: getattr(row, k)
+        get = row.get if isinstance(row, Mapping) else lambda k: getattr(row, k)  # or a Series
         path = self.root / part_path(name, get("site"), get("floor"), get("trace_id"),
                                      get("sha256"))
         return read_parquet_checked(path, None if columns is None

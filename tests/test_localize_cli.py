@@ -74,6 +74,12 @@ def test_localize_errors_exit_1(truth_bundles, tmp_path):  # noqa: F811
         res = CliRunner().invoke(main, ["localize", str(truth_bundles["F1"]), str(f1_walk),
                                         "-o", str(tmp_path), "--start", start])
         assert res.exit_code == 2 and "Invalid value for --start" in res.output, res.output
+    # truth bundles carry no fingerprints: a start at the radio fix names the option to change
+    res = CliRunner().invoke(main, ["localize", str(truth_bundles["F1"]), str(f1_walk), "-o",
+                                    str(tmp_path), "--start", "radio"])
+    assert res.exit_code == 1
+    assert "needs a bundle with Wi-Fi or BLE fingerprints" in res.output
+    assert "(--start radio)" in res.output, res.output
 
 
 def test_evaluate_prints_errors_and_cdfs(truth_bundles, tmp_path):  # noqa: F811

@@ -31,6 +31,15 @@ WAYPOINTS = np.array([[1.0, 2.0], [5.0, 2.0]])
 
 def test_given_position_wins():
     assert start_position((3, 4), _steps(["ap1"]), _Radio(), WAYPOINTS) == ((3.0, 4.0), "given")
+    assert start_position(np.array([3.5, 4.0]), _steps(None), None, []) == ((3.5, 4.0),
+                                                                           "given")
+    for bad in ((1.0, 2.0, 3.0), (np.nan, 1.0)):
+        with pytest.raises(LocalizationError, match="two finite numbers"):
+            start_position(bad, _steps(None), None, WAYPOINTS)
+
+
+def test_radio_policy_leaves_the_fix_to_the_localizer():
+    assert start_position("radio", _steps(["ap1"]), _Radio(), WAYPOINTS) == (None, "radio")
 
 
 def test_auto_takes_the_radio_fix_when_a_scan_is_located():

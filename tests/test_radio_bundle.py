@@ -319,6 +319,13 @@ def test_site_maps_open_a_bundle_a_build_folder_or_nothing(built, tmp_path):
     assert isinstance(site.floor_model, FloorClassifier)
     one = SiteMaps.open(built / "F1")
     assert list(one.bundles) == [load_bundle(built / "F1").floor_id] and one.floor_model is None
-    with pytest.raises(LocalizationError, match="neither a bundle nor a folder of bundles"):
-        SiteMaps.open(tmp_path)
-
+    assert list(SiteMaps.open(str(built / "F1")).bundles) == list(one.bundles)
+    (tmp_path / "a_file").write_text("x")
+    for nothing in (tmp_path, tmp_path / "a_file"):
+        with pytest.raises(LocalizationError, match="neither a bundle nor a folder of bundles"):
+            SiteMaps.open(nothing)
+    only_site = tmp_path / "only_site"
+    only_site.mkdir()
+    shutil.copytree(built / "_site", only_site / "_site")
+    with pytest.raises(LocalizationError, match="no floor bundle given"):
+        SiteMaps.open(only_site)
