@@ -259,8 +259,10 @@ RADIO_OPTIONS: dict = {"k": 5}
 
 def fold_radio(kind: str, walks: list[EvalWalk], test: list[str], bundle: MapBundle):
     """The radio model of a fold: ``"bundle"``, the bundle's Wi-Fi fingerprints (what
-    ``indoormap localize`` uses; bundles without them, e.g. truth maps, fall back to the kNN),
-    or ``"knn"``, a kNN over the training walks' scans."""
+    ``indoormap localize`` uses, without its per-phone RSSI calibration: the ILC walks share
+    one phone model, and calibrating online changed the fixes' errors by 0.01 m in session
+    19; bundles without fingerprints, e.g. truth maps, fall back to the kNN), or ``"knn"``, a
+    kNN over the training walks' scans."""
     if kind not in ("bundle", "knn"):
         raise ValueError(f"radio must be 'bundle' or 'knn', got {kind!r}")
     if kind == "bundle":

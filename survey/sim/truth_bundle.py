@@ -86,23 +86,19 @@ def truth_bundle(site_dir: str | Path, floor: str, target: str | Path, *, cell_m
     feats = field_features(b)
     az = feats.azimuth_deg if azimuth == "true" else np.mod(feats.azimuth_deg - deviation, 360)
 
-    def raster(v: NDArray[np.float64]) -> NDArray[np.float32]:
-        out = np.full(grid.shape, np.nan, dtype=np.float32)
-        out[mask] = v
-        return out
-
-    def const(v: float) -> NDArray[np.float32]:
+    def raster(v: NDArray[np.float64] | float) -> NDArray[np.float32]:
+        """Values on the mask (per reachable cell, or one for all), NaN elsewhere."""
         out = np.full(grid.shape, np.nan, dtype=np.float32)
         out[mask] = v
         return out
 
     layers = {
-        "strength": Layer(raster(feats.strength_ut), const(std_ut), "uT"),
-        "horizontal": Layer(raster(feats.horizontal_ut), const(std_ut), "uT"),
-        "vertical": Layer(raster(feats.vertical_ut), const(std_ut), "uT"),
-        "polar": Layer(raster(feats.polar_deg), const(std_deg), "deg"),
-        "azimuth": Layer(raster(az), const(std_deg), "deg", kind="angle"),
-        "heading_offset": Layer(raster(np.mod(-deviation, 360.0)), const(std_deg), "deg",
+        "strength": Layer(raster(feats.strength_ut), raster(std_ut), "uT"),
+        "horizontal": Layer(raster(feats.horizontal_ut), raster(std_ut), "uT"),
+        "vertical": Layer(raster(feats.vertical_ut), raster(std_ut), "uT"),
+        "polar": Layer(raster(feats.polar_deg), raster(std_deg), "deg"),
+        "azimuth": Layer(raster(az), raster(std_deg), "deg", kind="angle"),
+        "heading_offset": Layer(raster(np.mod(-deviation, 360.0)), raster(std_deg), "deg",
                                 kind="angle"),
     }
     content = BundleContent(
