@@ -38,13 +38,13 @@ from localize_eval import (
     RunResult,
     builder_available,
     built_bundle,
+    fold_radio,
     folds_of,
     processed_store,
     real_walks,
     run_fold,
 )
 
-from localize.fingerprint_positioner import FingerprintPositioner
 from localize.params import FilterParams
 
 LAGS = (1, 2, 3, 5, 8)
@@ -65,15 +65,15 @@ def fix_errors(walks, test: list[str], radio) -> list[np.ndarray]:
     return out
 
 
-def lag_correlation(errs: list[np.ndarray], lag: int) -> tuple[float, float, int]:
+def lag_correlation(errs: list[np.ndarray], lag: int) -> tuple[float, float]:
     """(correlation of fix errors ``lag`` scans apart, x and y averaged; median time apart
-    (s); pairs)."""
+    (s))."""
     pairs = [np.c_[e[:-lag], e[lag:]] for e in errs if len(e) > lag]
     if not pairs:
-        return float("nan"), float("nan"), 0
+        return float("nan"), float("nan")
     p = np.concatenate(pairs)
     r = 0.5 * (np.corrcoef(p[:, 0], p[:, 3])[0, 1] + np.corrcoef(p[:, 1], p[:, 4])[0, 1])
-    return float(r), float(np.median(p[:, 5] - p[:, 2])), len(p)
+    return float(r), float(np.median(p[:, 5] - p[:, 2]))
 
 
 def translation_error(errs: list[np.ndarray], k: int | None) -> np.ndarray:
@@ -98,7 +98,7 @@ def report(label: str, errs: list[np.ndarray]) -> None:
           "(median, p80)")
     print("  fix error correlation, k scans apart:  " + "  ".join(
         f"k={k}: {r:.2f} ({dt:.1f} s)" for k in LAGS
-        for r, dt, _ in [lag_correlation(errs, k)]))
+        for r, dt in [lag_correlation(errs, k)]))
     print("  perfect-shape track shifted by the mean error of its first k fixes, and of all "
           "its fixes on the same walks (median, p80 m; walks):")
     for k in (*FIRST_K, None):
@@ -126,18 +126,10 @@ def main(argv=None) -> int:
     pooled, runs = [], {"wifi": RunResult(), "waypoint": RunResult()}
     for fd in floor_dirs:
         walks = real_walks(fd, args.work)
-        folds = folds_of(walks)
-
-        def bundle_of(i, fd=fd, folds=folds):
-            return built_bundle(store, fd, set(folds[i]), args.work, "ilc")
-
         errs = []
-        for i, test in enumerate(folds):
-            b = bundle_of(i)
-            radio = FingerprintPositioner.from_bundle(b, "wifi")
-            if radio is None:
-                print(f"  {fd.name} fold {i + 1}: the bundle has no Wi-Fi fingerprints, skipped")
-                continue
+        for test in folds_of(walks):
+            b = built_bundle(store, fd, set(test), args.work, "ilc")
+            radio = fold_radio("bundle", walks, test, b)  # as localize_accuracy.py
             errs.extend(fix_errors(walks, test, radio))
             if not args.no_filter:
                 for start, res in runs.items():
