@@ -43,7 +43,7 @@ SHARED_SITE = REPO.parent / "shared" / "ilc" / "site1"
 #: "name[variant]" runs a method with other parameters (:data:`VARIANTS`).
 ALL_METHODS = ("indoormap", "indoormap[smoothed]", "indoormap[paper]", "indoormap[weinberg]",
                "pf_no_mag", "pf_no_mag[smoothed]", "magpp_gaussian", "magicol_dtw", "pdr",
-               "pdr@wp0", "radio")
+               "pdr@wp0", "radio", "align", "align[smoothed]")
 
 
 def _variant(name: str, params: FilterParams) -> tuple[str, FilterParams, bool]:

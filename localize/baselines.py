@@ -4,7 +4,9 @@
   compass heading (no map; the ILC baseline uses 0.7 m);
 - :class:`RadioOnlyLocalizer`: the latest Wi-Fi/BLE fix, held until the next scan;
 - the particle-filter variants are :class:`~localize.filter.Localizer` with another
-  ``weight_mode`` (see :data:`METHODS`).
+  ``weight_mode`` (see :data:`METHODS`);
+- ``align``: :class:`~localize.align.WalkAligner`, the step track fitted to the radio fixes
+  and the walls (no particles, no magnetic map).
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from localize.align import WalkAligner
 from localize.bundle import MapBundle
 from localize.errors import LocalizationError
 from localize.filter import BaseLocalizer, Localizer
@@ -22,7 +25,8 @@ from localize.radio import RadioModel
 from localize.steps import StepSummary
 from localize.track import Estimate
 
-__all__ = ["METHODS", "PARTICLE_FILTERS", "PdrLocalizer", "RadioOnlyLocalizer", "make_localizer"]
+__all__ = ["METHODS", "PARTICLE_FILTERS", "PdrLocalizer", "RadioOnlyLocalizer", "SMOOTHABLE",
+           "make_localizer"]
 
 
 class PdrLocalizer(BaseLocalizer):
@@ -98,12 +102,15 @@ METHODS: dict[str, str] = {
     "magicol_dtw": "particle filter, DTW of raw magnetometer strengths (Magicol-style)",
     "pdr": "dead reckoning, fixed 0.7 m steps along the compass",
     "radio": "Wi-Fi/BLE positioner alone",
+    "align": "step track aligned to the radio fixes and the walls (localize.align)",
 }
 
 _MODES = {"indoormap": "mass_centered", "pf_no_mag": "none", "magpp_gaussian": "gaussian",
           "magicol_dtw": "dtw"}
 #: The particle-filter methods (they can also smooth offline, :mod:`localize.smoothing`).
 PARTICLE_FILTERS = tuple(_MODES)
+#: The methods that can also locate a walk offline (``run(steps, smooth=True)``).
+SMOOTHABLE = (*PARTICLE_FILTERS, "align")
 
 
 def make_localizer(method: str, bundle: MapBundle, params: FilterParams | None = None, *,
@@ -121,5 +128,7 @@ def make_localizer(method: str, bundle: MapBundle, params: FilterParams | None =
         return PdrLocalizer(bundle, radio=radio)
     if method == "radio":
         return RadioOnlyLocalizer(bundle, radio=radio)
+    if method == "align":
+        return WalkAligner(bundle, radio=radio)
     p = replace(params or FilterParams(), weight_mode=_MODES[method])
     return Localizer(bundle, p, radio=radio, rng=rng, method=method, fmap=fmap)

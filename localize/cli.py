@@ -114,7 +114,7 @@ def _params(particles: int | None):
                    "(<trace_id>.smoothed.* with --smooth).")
 @click.option("--method", default="indoormap", show_default=True,
               type=click.Choice(["indoormap", "pf_no_mag", "magpp_gaussian", "magicol_dtw",
-                                 "pdr", "radio"]))
+                                 "pdr", "radio", "align"]))
 @click.option("--start", default="auto", show_default=True,
               help="auto (the walk's first Wi-Fi/BLE fix, else its first waypoint), "
                    "waypoint, radio, or X,Y (m).")
@@ -127,7 +127,7 @@ def _params(particles: int | None):
               help="Trajectory PNG over the bundle mask (needs matplotlib).")
 @click.option("--smooth", is_flag=True,
               help="Offline: positions from the whole walk, later steps included (particle "
-                   "filters only; default: the real-time filter estimates).")
+                   "filters and align; default: the real-time estimates).")
 @click.option("--overwrite", is_flag=True, help="Replace a walk's existing outputs in OUT.")
 def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, method: str,
                      start: str, particles: int | None, seed: int, fmt: str,
@@ -137,14 +137,14 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
 
     A walk that fails (unreadable, no start, another site) is reported with its file and the
     others go on; the exit status is then 1."""
-    from localize.baselines import PARTICLE_FILTERS, make_localizer
+    from localize.baselines import SMOOTHABLE, make_localizer
     from localize.floors import SiteMaps
     from localize.plots import plot_track
     from localize.walk_radio import radio_for_walk
 
-    if smooth and method not in PARTICLE_FILTERS:
-        raise click.BadParameter(f"--smooth needs a particle filter "
-                                 f"({', '.join(PARTICLE_FILTERS)}), not {method}")
+    if smooth and method not in SMOOTHABLE:
+        raise click.BadParameter(f"--smooth needs a method that can locate a walk offline "
+                                 f"({', '.join(SMOOTHABLE)}), not {method}")
     from survey.step_summaries import step_summaries, waypoints_of
 
     start_opt = _parse_start(start)
@@ -211,8 +211,8 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
                                  "the walk's first), t_ms, "
                                  "x_m, y_m (the waypoint), est_x_m, est_y_m, error_m.")
 @click.option("--smooth", is_flag=True,
-              help="Also score every particle filter's offline smoothed track "
-                   "(rows '<method>+smoothed').")
+              help="Also score the offline track of every method that has one (particle "
+                   "filters and align; rows '<method>+smoothed').")
 @click.option("--overwrite", is_flag=True, help="Replace an existing --plot or --csv file.")
 def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, start: str,
                      particles: int | None, seed: int, plot_path: Path | None,
@@ -222,7 +222,7 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
 
     A walk that cannot be read, or a method that fails on a walk, is reported with the file
     (and method) and the rest goes on; the exit status is then 1."""
-    from localize.baselines import METHODS, PARTICLE_FILTERS, make_localizer
+    from localize.baselines import METHODS, SMOOTHABLE, make_localizer
     from localize.evaluate import summarize, waypoint_errors
     from localize.floors import SiteMaps
     from localize.walk_radio import radio_for_walk
@@ -243,7 +243,7 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
     files = trace_files(walks)
     failures = WalkFailures()
     rows = [(m, False) for m in names] + [(m, True) for m in names
-                                          if smooth and m in PARTICLE_FILTERS]
+                                          if smooth and m in SMOOTHABLE]
     errors: dict[str, list[np.ndarray]] = {_row_name(m, sm): [] for m, sm in rows}
     table: list[dict] = []  # one row per method and waypoint, for --csv
 

@@ -148,7 +148,7 @@ class BaseLocalizer:
             ``delta`` of the start square (m).
         smooth : bool
             Offline: every position uses the whole walk, later steps included
-            (:mod:`localize.smoothing`; particle filters only). Default: the filter's
+            (:mod:`localize.smoothing`; particle filters and align only). Default: the filter's
             real-time estimates.
 
         Returns
@@ -159,7 +159,7 @@ class BaseLocalizer:
         self.check(steps)
         if smooth and not self.can_smooth:
             raise LocalizationError(f"method {self.method} cannot smooth (particle filters "
-                                    "only)")
+                                    "and align only)")
         self._keep_genealogy = bool(smooth)
         t0 = float(steps.t_ms[0]) - 500.0 if start_t_ms is None else float(start_t_ms)
         if start_xy is None:

@@ -119,13 +119,14 @@ def test_smooth_option(truth_bundles, tmp_path):  # noqa: F811
     assert meta[b"smoothed"] == b"true"
     res = CliRunner().invoke(main, ["localize", str(truth_bundles["F1"]), str(walk), "-o",
                                     str(tmp_path), "--method", "pdr", "--smooth"])
-    assert res.exit_code == 2 and "particle filter" in res.output
+    assert res.exit_code == 2 and "locate a walk offline (indoormap" in res.output
     res = CliRunner().invoke(main, ["evaluate", str(truth_bundles["F1"]), str(walk),
-                                    "--methods", "indoormap,pdr", "--particles", "150",
+                                    "--methods", "indoormap,pdr,align", "--particles", "150",
                                     "--smooth"])
     assert res.exit_code == 0, res.output
     rows = {ln.split()[0] for ln in res.output.splitlines() if ln.strip()}
-    assert {"indoormap", "indoormap+smoothed", "pdr"} <= rows and "pdr+smoothed" not in rows
+    assert {"indoormap", "indoormap+smoothed", "pdr", "align", "align+smoothed"} <= rows
+    assert "pdr+smoothed" not in rows
 
 
 def test_localize_reports_a_failing_walk_and_goes_on(truth_bundles, tmp_path):  # noqa: F811

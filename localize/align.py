@@ -1,0 +1,398 @@
+"""Offline walk alignment: a recorded walk's step track fitted to its radio fixes and walls.
+
+When the whole walk is at hand (a recorded walk, crowd-sourced data, evaluation), its shape is
+known far better than its place: the gyroscope's heading changes and the steps give a track
+whose shape is about 1 m off over a whole ILC walk once rotated, scaled and shifted right, while
+the walk's Wi-Fi fixes, with errors correlated along the walk, leave its place 2.7 m off
+(``benchmarks/localize_bound.py``). The floor plan decides much of the rest: a track of the
+right shape fits into the corridors at few places. :class:`WalkAligner` therefore searches the
+similarity transform ``x(t) = shift + a * shape(t)`` (``a`` a complex factor: rotation and
+scale) that maximises
+
+- the likelihood of the fixes under a correlated error model (a persistent part plus an AR(1)
+  part per axis, generalised least squares; ``AlignParams.fix_*``),
+- ``wall_weight`` times the share of the track's step positions on the reachable mask,
+- Gaussian priors on the rotation (the compass anchor's error) and the log scale (the step
+  model's error),
+
+over a coarse grid (rotation, scale, shift on a ``shift_step_m`` grid around each transform's
+best shift) and then a finer one around the best. It is not a filter: every position uses
+the whole walk, so it has no streaming :meth:`step`.
+
+The shape: each step moves ``step_length_nominal_m * (swing / weinberg_nominal)`` (Weinberg's
+acceleration swing ``(a_max - a_min)^(1/4)``; the nominal length when the swing is unknown)
+along the gyroscope heading, turned onto the compass by the circular mean of the compass
+minus the gyroscope heading over the walk (the compass heading itself where a step has no
+gyroscope heading).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+from numpy.typing import NDArray
+
+from localize.bundle import MapBundle
+from localize.errors import LocalizationError
+from localize.filter import BaseLocalizer
+from localize.radio import RadioModel
+from localize.steps import StepSummaries, StepSummary
+from localize.track import Estimate, Track
+
+__all__ = ["AlignParams", "WalkAligner", "walk_shape"]
+
+
+@dataclass(frozen=True)
+class AlignParams:
+    """Parameters of :class:`WalkAligner` (lengths m, angles deg, times s).
+
+    The fix error model (per axis: ``fix_persistent_sd_m`` shared by all fixes of a walk plus
+    an AR(1) part of ``fix_ar_sd_m`` decaying over ``fix_ar_tau_s``) is the fit to the ILC
+    fixes' error correlations in docs/localize.md ("How far the Wi-Fi fixes can take it").
+    """
+
+    rotation_range_deg: float = 15.0
+    rotation_step_deg: float = 2.5
+    scale_range: tuple[float, float] = (0.75, 1.25)
+    scale_step: float = 0.05
+    #: Prior SD of the rotation (the compass anchor's error, deg).
+    heading_sd_deg: float = 8.0
+    #: Prior SD of the log scale (the step model's error for an unknown walker).
+    scale_sd: float = 0.12
+    step_length_nominal_m: float = 0.65
+    #: Nominal Weinberg swing ``(a_max - a_min)^(1/4)`` ((m/s^2)^(1/4)).
+    weinberg_nominal: float = 1.7
+    #: Half-width (m) of the shift grid around each transform's best shift for the fixes.
+    search_half_width_m: float = 8.0
+    shift_step_m: float = 0.5
+    fix_persistent_sd_m: float = 2.5
+    fix_ar_sd_m: float = 3.85
+    fix_ar_tau_s: float = 8.4
+    #: Independent part of each fix's error (m), and the SD of a given start position (m).
+    fix_white_sd_m: float = 0.5
+    start_sd_m: float = 1.0
+    #: Log-likelihood per unit share of the track on the reachable mask.
+    wall_weight: float = 40.0
+    #: Real time: the alignment uses the last ``window_s`` of the walk (s).
+    window_s: float = 120.0
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            vals = v if isinstance(v, tuple) else (v,)
+            if not all(np.isfinite(x) and x >= 0 for x in vals):
+                raise LocalizationError(f"align parameter {f.name} must be finite and "
+                                        f">= 0, got {v}")
+        positive = ("rotation_step_deg", "scale_step", "heading_sd_deg", "scale_sd",
+                    "step_length_nominal_m", "weinberg_nominal", "shift_step_m",
+                    "fix_ar_tau_s", "fix_white_sd_m", "start_sd_m", "window_s")
+        bad = [n for n in positive if not getattr(self, n) > 0]
+        if bad:
+            raise LocalizationError(f"align parameters {bad} must be positive")
+        lo, hi = self.scale_range
+        if not 0 < lo <= hi:
+            raise LocalizationError(f"scale_range must be 0 < low <= high, got {self.scale_range}")
+
+
+def _headings(compass_deg: NDArray, gyro_deg: NDArray) -> tuple[NDArray[np.float64], float]:
+    """Walking azimuth per step (rad) and the turn (rad) that put the gyroscope heading onto
+    the compass (the circular mean of their difference); the compass itself, turn 0, when a
+    step has no gyroscope heading."""
+    compass, gyro = np.radians(compass_deg), np.radians(gyro_deg)
+    if not np.isfinite(gyro).all():
+        return compass, 0.0
+    turn = float(np.angle(np.mean(np.exp(1j * (compass - gyro)))))
+    return gyro + turn, turn
+
+
+def _moves(delta_acc_ms2: NDArray, heading_rad: NDArray, p: AlignParams
+           ) -> NDArray[np.complex128]:
+    """Each step's move (complex m): Weinberg length along the heading."""
+    swing = np.maximum(delta_acc_ms2, 0.0) ** 0.25
+    length = p.step_length_nominal_m * np.where(np.isfinite(swing), swing / p.weinberg_nominal,
+                                                1.0)
+    return length * np.exp(1j * (np.pi / 2 - heading_rad))
+
+
+def walk_shape(steps: StepSummaries, params: AlignParams = AlignParams()
+               ) -> NDArray[np.complex128]:
+    """The walk's step track in map orientation, up to the transform :class:`WalkAligner`
+    fits: ``(m + 1,)`` complex positions (x east + i y north, m), 0 before the first step
+    and after each step (module docstring: how)."""
+    heading, _ = _headings(steps.compass_deg, steps.relative_heading_deg)
+    return np.concatenate([[0j], np.cumsum(_moves(steps.delta_acc_ms2, heading, params))])
+
+
+def _fix_covariance(t_s: NDArray, start_given: bool, p: AlignParams) -> NDArray[np.float64]:
+    """Per-axis covariance (m^2) of the fixes at times ``t_s`` (s); with ``start_given`` the
+    first is a given start position, independent of the others."""
+    dt = np.abs(t_s[:, None] - t_s[None, :])
+    cov = (p.fix_persistent_sd_m ** 2 + p.fix_ar_sd_m ** 2 * np.exp(-dt / p.fix_ar_tau_s)
+           + p.fix_white_sd_m ** 2 * np.eye(len(t_s)))
+    if start_given:
+        cov[0, :] = cov[:, 0] = 0.0
+        cov[0, 0] = p.start_sd_m ** 2
+    return cov
+
+
+class WalkAligner(BaseLocalizer):
+    """Localizer by walk alignment: the step track fitted to the radio fixes and the walls.
+
+    Real time (``run(steps)``, or ``start`` then ``step`` per step): at every step the track
+    so far (its last ``window_s``) is aligned again, over the whole grid when the step brought
+    a new radio fix, else around the last alignment (a new step can still meet a wall).
+    Offline (``run(steps, smooth=True)``): one alignment of the whole walk gives every
+    position; meant for walks of a few minutes, as one rotation and scale cannot follow the
+    gyroscope's drift over much longer ones. A given start position counts as a fix
+    of ``start_sd_m``; without one the walk's first fix is used from the start on, as the
+    particle filters start from it. See the module docstring.
+
+    Parameters
+    ----------
+    bundle : MapBundle
+        The floor's bundle (its reachable mask).
+    params : AlignParams
+    radio : RadioModel, optional
+        Anything with ``locate(scan) -> (x, y, sigma)``; without it a start position is needed.
+    """
+
+    method = "align"
+    can_smooth = True
+
+    def __init__(self, bundle: MapBundle, params: AlignParams | None = None, *,
+                 radio: RadioModel | None = None) -> None:
+        super().__init__(bundle, radio=radio)
+        self.params = params or AlignParams()
+        self._reset(0.0)
+
+    # -- streaming -------------------------------------------------------------------------
+    def _reset(self, t0: float) -> None:
+        self._t = [t0]
+        self._compass: list[float] = []
+        self._gyro: list[float] = []
+        self._swing: list[float] = []
+        self._fix_t: list[float] = []
+        self._fix_z: list[complex] = []
+        self._start_given = False
+        self._pos = 0j          # current estimate (complex m)
+        self._spread = 0.0
+        #: last alignment: (absolute rotation rad, scale, first index of its window in _t,
+        #: its positions from there on)
+        self._fit: tuple[float, float, int, NDArray[np.complex128]] | None = None
+        self._stale = True
+
+    def _start_at(self, x, y, t_ms, sigma, half_width_m) -> Estimate:
+        self._reset(t_ms)
+        self._fix_t.append(t_ms)
+        self._fix_z.append(complex(x, y))
+        self._start_given = sigma is None
+        self._pos = complex(x, y)
+        return Estimate(t_ms, x, y, 0.0 if sigma is None else float(sigma), 1.0, False,
+                        self.bundle.floor_id)
+
+    def step(self, s: StepSummary) -> Estimate:
+        if not self._fix_t:
+            raise LocalizationError("call start() (or run()) before step()")
+        self._add_step(s.t_ms, s.compass_deg, s.relative_heading_deg, s.delta_acc_ms2)
+        if s.scan is not None and self.radio is not None:
+            fix = self.radio.locate(s.scan)
+            if fix is not None:
+                self._fix_t.append(float(s.scan.t_ms or s.t_ms))
+                self._fix_z.append(complex(fix[0], fix[1]))
+                self._stale = True
+        return self._estimate()
+
+    def _add_step(self, t_ms, compass_deg, gyro_deg, swing) -> None:
+        self._t.append(float(t_ms))
+        self._compass.append(float(compass_deg))
+        self._gyro.append(float(gyro_deg))
+        self._swing.append(float(swing))
+
+    def _estimate(self) -> Estimate:
+        """Align again: fully when a fix came, else around the last alignment (the new step
+        can still meet a wall)."""
+        self._align_window(local=not self._stale)
+        return Estimate(self._t[-1], float(self._pos.real), float(self._pos.imag),
+                        self._spread, 1.0, False, self.bundle.floor_id)
+
+    def _align_window(self, local: bool) -> None:
+        """Align the last ``window_s`` of the walk (its steps and fixes) and place the walker
+        at its end; ``local`` searches only around the last alignment of the same window."""
+        p = self.params
+        t = np.asarray(self._t)
+        first = max(min(int(np.searchsorted(t, t[-1] - p.window_s * 1000.0)), len(t) - 1) - 1,
+                    0)
+        compass, gyro = np.asarray(self._compass[first:]), np.asarray(self._gyro[first:])
+        heading, anchor = _headings(compass, gyro)
+        shape = np.concatenate([[0j], np.cumsum(_moves(np.asarray(self._swing[first:]),
+                                                       heading, p))])
+        times = t[first:]
+        fix_t, fix_z = np.asarray(self._fix_t), np.asarray(self._fix_z)
+        keep = fix_t >= times[0]
+        start_given = self._start_given and bool(keep[0])
+        if not keep.any():  # the window saw no fix: keep the latest one
+            keep[-1] = True
+        around = None
+        if local and self._fit is not None and self._fit[2] <= first:
+            rot, scale, fit_first, fit_pos = self._fit  # its position at this window's origin:
+            around = (float(np.degrees(rot - anchor)), scale, fit_pos[first - fit_first])
+        best = self._align(shape, times, fix_t[keep], fix_z[keep], start_given, around)
+        pos = best.shift + best.factor * shape
+        self._pos, self._spread = pos[-1], best.spread_m
+        self._fit = (float(np.angle(best.factor)) + anchor, abs(best.factor), first, pos)
+        self._stale = False
+
+    def _align(self, shape: NDArray, times: NDArray, fix_t: NDArray, fix_z: NDArray,
+               start_given: bool, around: tuple[float, float, complex] | None = None) -> _Best:
+        at_fix = np.interp(fix_t, times, shape.real) + 1j * np.interp(fix_t, times, shape.imag)
+        ci = np.linalg.inv(_fix_covariance(fix_t / 1000.0, start_given, self.params))
+        return _Search(self.bundle, self.params, shape, fix_z, at_fix, ci).run(around)
+
+    # -- batch -----------------------------------------------------------------------------
+    def run(self, steps: StepSummaries, start_xy: tuple[float, float] | None = None, *,
+            start_t_ms: float | None = None, half_width_m: float | None = None,
+            smooth: bool = False) -> Track:
+        """Localize a whole walk: real-time estimates, or with ``smooth`` one alignment of
+        the whole walk (``half_width_m`` is ignored).
+
+        Returns
+        -------
+        Track
+            One estimate per step; ``spread_m`` is the RMS spread of the shift around the
+            best alignment. Offline, ``info`` holds the fitted ``rotation_deg``, ``scale``,
+            the number of fixes and the share of the track on the reachable mask.
+        """
+        self.check(steps)
+        t0 = float(steps.t_ms[0]) - 500.0 if start_t_ms is None else float(start_t_ms)
+        fixes = [] if self.radio is None or steps.scans is None else [
+            (i, float(sc.t_ms or steps.t_ms[i]), f) for i, sc in enumerate(steps.scans)
+            if sc is not None and (f := self.radio.locate(sc)) is not None]
+        if start_xy is None and not fixes:
+            raise LocalizationError(f"{steps.trace_id or 'walk'}: no start position given and "
+                                    "no Wi-Fi/BLE fix in the walk")
+        if start_xy is not None:
+            start = self._start_at(float(start_xy[0]), float(start_xy[1]), t0, None, None)
+        else:  # the first fix, at its own time, known from the start on
+            _, t_fix, f = fixes[0]
+            start = self._start_at(f[0], f[1], t0, f[2], None)
+            self._fix_t[0] = t_fix
+        if smooth:
+            return self._offline(steps, start, fixes)
+        by_step = {i: (t, f) for i, t, f in fixes[0 if start_xy is not None else 1:]}
+        est = []
+        for i in range(len(steps)):
+            self._add_step(steps.t_ms[i], steps.compass_deg[i], steps.relative_heading_deg[i],
+                           steps.delta_acc_ms2[i])
+            if i in by_step:
+                t_fix, f = by_step[i]
+                self._fix_t.append(t_fix)
+                self._fix_z.append(complex(f[0], f[1]))
+                self._stale = True
+            est.append(self._estimate())
+        track = Track.from_estimates(start, est, method=self.method, trace_id=steps.trace_id,
+                                     floor_id=self.bundle.floor_id)
+        track.info["smoothed"] = False
+        return track
+
+    def _offline(self, steps: StepSummaries, start: Estimate, fixes: list) -> Track:
+        shape = walk_shape(steps, self.params)
+        times = np.concatenate([[start.t_ms], steps.t_ms])
+        fix_t = np.asarray(self._fix_t + [t for _, t, _ in fixes[0 if self._start_given else 1:]])
+        fix_z = np.asarray(self._fix_z + [complex(f[0], f[1])
+                                          for _, _, f in fixes[0 if self._start_given else 1:]])
+        best = self._align(shape, times, fix_t, fix_z, self._start_given)
+        pos = best.shift + best.factor * shape
+        n, floor = len(steps), self.bundle.floor_id
+        first = Estimate(start.t_ms, float(pos[0].real), float(pos[0].imag), best.spread_m,
+                         1.0, False, floor)
+        track = Track(steps.t_ms.copy(), pos[1:].real.copy(), pos[1:].imag.copy(),
+                      np.full(n, best.spread_m), np.ones(n), np.zeros(n, bool), first,
+                      method=self.method, trace_id=steps.trace_id, floor_id=floor)
+        track.info.update(smoothed=True, rotation_deg=float(np.degrees(np.angle(best.factor))),
+                          scale=float(abs(best.factor)),
+                          n_fixes=int(len(fix_t) - self._start_given),
+                          inside_share=best.inside_share)
+        return track
+
+
+@dataclass
+class _Best:
+    score: float
+    factor: complex
+    shift: complex
+    spread_m: float
+    inside_share: float
+
+
+class _Search:
+    """Grid search of ``(rotation, scale, shift)``; see :class:`WalkAligner`."""
+
+    def __init__(self, bundle: MapBundle, p: AlignParams, shape: NDArray, fix_z: NDArray,
+                 at_fix: NDArray, ci: NDArray) -> None:
+        self.bundle, self.p, self.shape, self.fix_z, self.at_fix = bundle, p, shape, fix_z, at_fix
+        self.ci = ci
+        self.ones_ci = ci.sum(axis=0)          # 1^T C^-1
+        self.ones_ci_ones = float(ci.sum())    # 1^T C^-1 1
+
+    def _scores(self, a: complex, grid: NDArray, centre: complex | None
+                ) -> tuple[NDArray, NDArray, NDArray]:
+        """(log-likelihood, shift, share of the track on the mask) of every shift of the grid
+        around ``centre`` (default: the fixes' generalised-least-squares shift for ``a``)."""
+        resid = self.fix_z - a * self.at_fix            # fix minus the turned, scaled shape
+        ones_ci_r = complex(self.ones_ci @ resid)
+        if centre is None:
+            centre = ones_ci_r / self.ones_ci_ones
+        shifts = centre + grid
+        r_ci_r = float(resid.real @ self.ci @ resid.real + resid.imag @ self.ci @ resid.imag)
+        quad = (r_ci_r - 2.0 * (shifts.conj() * ones_ci_r).real
+                + np.abs(shifts) ** 2 * self.ones_ci_ones)
+        pts = shifts[:, None] + a * self.shape[None, :]
+        inside = self.bundle.reachable(pts.real, pts.imag).mean(axis=1)
+        return -0.5 * quad + self.p.wall_weight * (inside - 1.0), shifts, inside
+
+    def run(self, around: tuple[float, float, complex] | None = None) -> _Best:
+        """The best transform: over the whole coarse grid, or ``around`` a ``(rotation deg,
+        scale, shift)`` (one coarse step each way, shifts within 1 m), then finer."""
+        p = self.p
+        if around is None:
+            rot = np.arange(-p.rotation_range_deg, p.rotation_range_deg + 1e-9,
+                            p.rotation_step_deg)
+            scale = np.arange(p.scale_range[0], p.scale_range[1] + 1e-9, p.scale_step)
+            best = self._grid(rot, scale, p.search_half_width_m, p.shift_step_m)
+        else:
+            r0, s0, shift0 = around
+            rot = r0 + np.arange(-1, 2) * p.rotation_step_deg
+            scale = s0 + np.arange(-1, 2) * p.scale_step
+            best = self._grid(rot, scale[scale > 0], 1.0, p.shift_step_m / 2, centre=shift0)
+        # finer around the best: a fifth of each step
+        r0, s0 = np.degrees(np.angle(best.factor)), abs(best.factor)
+        fine_rot = r0 + np.arange(-2, 3) * p.rotation_step_deg / 5
+        fine_scale = s0 + np.arange(-2, 3) * p.scale_step / 5
+        fine = self._grid(fine_rot, fine_scale[fine_scale > 0], p.shift_step_m,
+                          p.shift_step_m / 4, centre=best.shift)
+        return fine if fine.score >= best.score else best
+
+    def _grid(self, rot_deg: NDArray, scale: NDArray, half_width_m: float, step_m: float,
+              centre: complex | None = None) -> _Best:
+        p = self.p
+        k = int(np.floor(half_width_m / step_m + 1e-9))
+        off = np.arange(-k, k + 1) * step_m
+        grid = (off[None, :] + 1j * off[:, None]).ravel()   # (S,)
+        best: _Best | None = None
+        for r in rot_deg:
+            for s in scale:
+                a = s * np.exp(1j * np.radians(r))
+                score, shifts, inside = self._scores(a, grid, centre)
+                prior = -0.5 * (r / p.heading_sd_deg) ** 2 - 0.5 * (np.log(s) / p.scale_sd) ** 2
+                score = score + prior
+                j = int(np.argmax(score))
+                if best is None or score[j] > best.score:
+                    w = np.exp(score - score[j])
+                    w /= w.sum()
+                    d = shifts - np.sum(w * shifts)
+                    spread = float(np.sqrt(np.sum(w * np.abs(d) ** 2)))
+                    best = _Best(float(score[j]), complex(a), complex(shifts[j]), spread,
+                                 float(inside[j]))
+        assert best is not None
+        return best

@@ -1,0 +1,106 @@
+"""Walk alignment (localize.align): the step track fitted to radio fixes and the walls."""
+
+import numpy as np
+import pytest
+from localize_fixtures import f1_bundle, sim_walks, truth_bundles  # noqa: F401  (fixtures)
+
+from localize.align import AlignParams, WalkAligner, walk_shape
+from localize.baselines import make_localizer
+from localize.errors import LocalizationError
+from localize.evaluate import step_errors
+
+BIAS_M = 4.0
+
+
+class _BiasedRadio:
+    """Fixes at the walk's true position at each scan, shifted by one bias for the whole walk
+    plus 1 m of noise: the correlated error that averaging fixes cannot remove."""
+
+    def __init__(self, walk, angle_deg: float) -> None:
+        self.truth = {id(s): xy for s, xy in zip(walk.steps.scans, walk.true_xy)
+                      if s is not None}
+        a = np.radians(angle_deg)
+        self.bias = BIAS_M * np.array([np.cos(a), np.sin(a)])
+        self.rng = np.random.default_rng(int(angle_deg))
+
+    def locate(self, scan):
+        x, y = self.truth[id(scan)] + self.bias + self.rng.normal(0.0, 1.0, 2)
+        return float(x), float(y), 3.0
+
+
+def _f1_with_scans(walks):
+    return [w for w in walks if w.floor == "F1" and any(s is not None for s in w.steps.scans)]
+
+
+def test_walls_remove_most_of_a_shared_radio_bias(f1_bundle, sim_walks):  # noqa: F811
+    """Fixes 4 m off in one direction for a whole walk: shifting the track by its fixes
+    would leave about 4 m. Offline, the walls bring it back to a pooled median per-step error
+    below 2 m (about 1.2 m on these walks); in real time, below 3 m (about 2.3 m, the early
+    steps having fewer walls behind them)."""
+    offline, realtime = [], []
+    for w in _f1_with_scans(sim_walks):
+        for angle in (0, 90, 200, 300):
+            for smooth, out in ((True, offline), (False, realtime)):
+                track = WalkAligner(f1_bundle, radio=_BiasedRadio(w, angle)).run(
+                    w.steps, smooth=smooth)
+                assert track.info["smoothed"] is smooth
+                out.append(step_errors(track, w.true_xy))
+    assert np.median(np.concatenate(offline)) < 0.5 * BIAS_M
+    assert np.median(np.concatenate(realtime)) < 0.75 * BIAS_M
+
+
+def test_from_a_given_start_without_radio(f1_bundle, sim_walks):  # noqa: F811
+    """A known start (as a fix of 1 m) and the walls: pooled median below 1.5 m (0.4-1.4 m
+    per walk here; the walker's steps are 7-17 % longer than the nominal length)."""
+    errs = []
+    for w in (v for v in sim_walks if v.floor == "F1"):
+        track = WalkAligner(f1_bundle).run(w.steps, start_xy=w.start_xy, smooth=True)
+        assert 0.75 <= track.info["scale"] <= 1.25 and track.info["n_fixes"] == 0
+        errs.append(step_errors(track, w.true_xy))
+    assert np.median(np.concatenate(errs)) < 1.5
+
+
+def test_shape_matches_the_true_path_up_to_a_similarity(sim_walks):  # noqa: F811
+    """Gyroscope heading turned onto the compass, Weinberg step lengths: fitted to the true
+    path by one rotation, scale and shift, every F1 walk's shape is within 0.6 m in median
+    (0.14-0.41 m here)."""
+    for w in (v for v in sim_walks if v.floor == "F1"):
+        shape = walk_shape(w.steps)[1:]
+        true = w.true_xy[:, 0] + 1j * w.true_xy[:, 1]
+        a = np.column_stack([np.ones(len(shape)), shape])
+        fit = a @ np.linalg.lstsq(a, true, rcond=None)[0]
+        assert np.median(np.abs(fit - true)) < 0.6, w.trace_id
+
+
+def test_streaming_equals_batch(f1_bundle, sim_walks):  # noqa: F811
+    w = _f1_with_scans(sim_walks)[0]
+    radio = _BiasedRadio(w, 45)
+    batch = WalkAligner(f1_bundle, radio=radio).run(w.steps, start_xy=w.start_xy)
+    radio.rng = np.random.default_rng(45)  # the same fixes again
+    loc = WalkAligner(f1_bundle, radio=radio)
+    loc.start(*w.start_xy, t_ms=w.steps.t_ms[0] - 500.0)
+    est = [loc.step(s) for s in w.steps]
+    assert np.array_equal([e.x_m for e in est], batch.x_m)
+    assert np.array_equal([e.y_m for e in est], batch.y_m)
+
+
+def test_registered_as_a_method(f1_bundle):  # noqa: F811
+    assert isinstance(make_localizer("align", f1_bundle), WalkAligner)
+
+
+def test_bad_calls(f1_bundle, sim_walks):  # noqa: F811
+    w = sim_walks[0]
+    loc = WalkAligner(f1_bundle)
+    with pytest.raises(LocalizationError, match="no start position given and no Wi-Fi/BLE"):
+        loc.run(w.steps)
+    with pytest.raises(LocalizationError, match="call start"):
+        WalkAligner(f1_bundle).step(w.steps[0])
+    no_gyro = w.steps.with_columns(relative_heading_deg=np.full(len(w.steps), np.nan))
+    track = loc.run(no_gyro, start_xy=w.start_xy, smooth=True)  # the compass alone
+    assert len(track) == len(w.steps) and np.isfinite(track.x_m).all()
+    with pytest.raises(LocalizationError, match="scale_range"):
+        AlignParams(scale_range=(1.2, 0.8))
+    with pytest.raises(LocalizationError, match="must be positive"):
+        AlignParams(shift_step_m=0.0)
+    with pytest.raises(LocalizationError, match="finite"):
+        AlignParams(wall_weight=float("nan"))
