@@ -124,6 +124,11 @@ def walk_shape(steps: StepSummaries, params: AlignParams = AlignParams()
     return np.concatenate([[0j], np.cumsum(_moves(steps.delta_acc_ms2, heading, params))])
 
 
+def _scan_time(scan, step_t_ms: float) -> float:
+    """A scan's own time (ms), else its step's."""
+    return float(scan.t_ms or step_t_ms)
+
+
 def _fix_covariance(t_s: NDArray, start_given: bool, p: AlignParams) -> NDArray[np.float64]:
     """Per-axis covariance (m^2) of the fixes at times ``t_s`` (s); with ``start_given`` the
     first is a given start position, independent of the others."""
@@ -194,24 +199,26 @@ class WalkAligner(BaseLocalizer):
     def step(self, s: StepSummary) -> Estimate:
         if not self._fix_t:
             raise LocalizationError("call start() (or run()) before step()")
-        self._add_step(s.t_ms, s.compass_deg, s.relative_heading_deg, s.delta_acc_ms2)
+        fix = None
         if s.scan is not None and self.radio is not None:
-            fix = self.radio.locate(s.scan)
-            if fix is not None:
-                self._fix_t.append(float(s.scan.t_ms or s.t_ms))
-                self._fix_z.append(complex(fix[0], fix[1]))
-                self._stale = True
-        return self._estimate()
+            located = self.radio.locate(s.scan)
+            if located is not None:
+                fix = (_scan_time(s.scan, s.t_ms), located)
+        return self._advance(s.t_ms, s.compass_deg, s.relative_heading_deg, s.delta_acc_ms2,
+                             fix)
 
-    def _add_step(self, t_ms, compass_deg, gyro_deg, swing) -> None:
+    def _advance(self, t_ms, compass_deg, gyro_deg, swing, fix) -> Estimate:
+        """Take one step (and its fix ``(t_ms, (x, y, sigma))``, if any), then align again:
+        over the whole grid when a fix came, else around the last alignment (the new step
+        can still meet a wall)."""
         self._t.append(float(t_ms))
         self._compass.append(float(compass_deg))
         self._gyro.append(float(gyro_deg))
         self._swing.append(float(swing))
-
-    def _estimate(self) -> Estimate:
-        """Align again: fully when a fix came, else around the last alignment (the new step
-        can still meet a wall)."""
+        if fix is not None:
+            self._fix_t.append(fix[0])
+            self._fix_z.append(complex(fix[1][0], fix[1][1]))
+            self._stale = True
         self._align_window(local=not self._stale)
         return Estimate(self._t[-1], float(self._pos.real), float(self._pos.imag),
                         self._spread, 1.0, False, self.bundle.floor_id)
@@ -266,7 +273,7 @@ class WalkAligner(BaseLocalizer):
         self.check(steps)
         t0 = float(steps.t_ms[0]) - 500.0 if start_t_ms is None else float(start_t_ms)
         fixes = [] if self.radio is None or steps.scans is None else [
-            (i, float(sc.t_ms or steps.t_ms[i]), f) for i, sc in enumerate(steps.scans)
+            (i, _scan_time(sc, steps.t_ms[i]), f) for i, sc in enumerate(steps.scans)
             if sc is not None and (f := self.radio.locate(sc)) is not None]
         if start_xy is None and not fixes:
             raise LocalizationError(f"{steps.trace_id or 'walk'}: no start position given and "
@@ -277,30 +284,24 @@ class WalkAligner(BaseLocalizer):
             _, t_fix, f = fixes[0]
             start = self._start_at(f[0], f[1], t0, f[2], None)
             self._fix_t[0] = t_fix
+        later = fixes if start_xy is not None else fixes[1:]  # the start fix is in already
         if smooth:
-            return self._offline(steps, start, fixes)
-        by_step = {i: (t, f) for i, t, f in fixes[0 if start_xy is not None else 1:]}
-        est = []
-        for i in range(len(steps)):
-            self._add_step(steps.t_ms[i], steps.compass_deg[i], steps.relative_heading_deg[i],
-                           steps.delta_acc_ms2[i])
-            if i in by_step:
-                t_fix, f = by_step[i]
-                self._fix_t.append(t_fix)
-                self._fix_z.append(complex(f[0], f[1]))
-                self._stale = True
-            est.append(self._estimate())
+            return self._offline(steps, start, later)
+        by_step = {i: (t, f) for i, t, f in later}
+        est = [self._advance(steps.t_ms[i], steps.compass_deg[i],
+                             steps.relative_heading_deg[i], steps.delta_acc_ms2[i],
+                             by_step.get(i)) for i in range(len(steps))]
         track = Track.from_estimates(start, est, method=self.method, trace_id=steps.trace_id,
                                      floor_id=self.bundle.floor_id)
         track.info["smoothed"] = False
         return track
 
-    def _offline(self, steps: StepSummaries, start: Estimate, fixes: list) -> Track:
+    def _offline(self, steps: StepSummaries, start: Estimate, later: list) -> Track:
+        """One alignment of the whole walk; ``later``: its fixes after the start's."""
         shape = walk_shape(steps, self.params)
         times = np.concatenate([[start.t_ms], steps.t_ms])
-        fix_t = np.asarray(self._fix_t + [t for _, t, _ in fixes[0 if self._start_given else 1:]])
-        fix_z = np.asarray(self._fix_z + [complex(f[0], f[1])
-                                          for _, _, f in fixes[0 if self._start_given else 1:]])
+        fix_t = np.asarray(self._fix_t + [t for _, t, _ in later])
+        fix_z = np.asarray(self._fix_z + [complex(f[0], f[1]) for _, _, f in later])
         best = self._align(shape, times, fix_t, fix_z, self._start_given)
         pos = best.shift + best.factor * shape
         n, floor = len(steps), self.bundle.floor_id
