@@ -11,13 +11,17 @@ scale) that maximises
 
 - the likelihood of the fixes under a correlated error model (a persistent part plus an AR(1)
   part per axis, generalised least squares; ``AlignParams.fix_*``),
-- ``wall_weight`` times the share of the track's step positions on the reachable mask,
+- minus ``wall_weight`` times the mean squared distance (m^2) of the track's step positions
+  from the reachable mask (0 on it, capped at ``wall_cap_m``): a step a little off the mask,
+  as the shape's errors put some, costs little, a track through a building much,
 - Gaussian priors on the rotation (the compass anchor's error) and the log scale (the step
   model's error),
 
 over a coarse grid (rotation, scale, shift on a ``shift_step_m`` grid around each transform's
-best shift) and then a finer one around the best. It is not a filter: every position uses
-the whole walk, so it has no streaming :meth:`step`.
+best shift) and then a finer one around the best, by branch and bound: the fixes and the
+priors bound a transform's score from above, so the track is laid over the mask only for
+the transforms that can still win. Offline one alignment of the whole walk gives every
+position; in real time the walk so far is aligned again at every step.
 
 The shape: each step moves ``step_length_nominal_m * (swing / weinberg_nominal)`` (Weinberg's
 acceleration swing ``(a_max - a_min)^(1/4)``; the nominal length when the swing is unknown)
@@ -40,7 +44,7 @@ from localize.radio import RadioModel
 from localize.steps import StepSummaries, StepSummary
 from localize.track import Estimate, Track
 
-__all__ = ["AlignParams", "WalkAligner", "walk_shape"]
+__all__ = ["AlignParams", "WalkAligner", "distance_from_mask_m", "walk_shape"]
 
 
 @dataclass(frozen=True)
@@ -72,8 +76,14 @@ class AlignParams:
     #: Independent part of each fix's error (m), and the SD of a given start position (m).
     fix_white_sd_m: float = 0.5
     start_sd_m: float = 1.0
-    #: Log-likelihood per unit share of the track on the reachable mask.
-    wall_weight: float = 40.0
+    #: Log-likelihood lost per m^2 of the track's mean squared distance from the reachable
+    #: mask, and the distance (m) beyond which a position counts as that far.
+    wall_weight: float = 10.0
+    wall_cap_m: float = 10.0
+    #: Log-likelihood lost per unit share of the track's positions off the mask: a sharper
+    #: wall term for walks whose shape is much better than the ILC phones' (on the simulated
+    #: site 40 with ``wall_weight=0`` does better; docs/localize.md, "Walk alignment").
+    wall_share_weight: float = 0.0
     #: Real time: the alignment uses the last ``window_s`` of the walk (s).
     window_s: float = 120.0
 
@@ -86,7 +96,7 @@ class AlignParams:
                                         f">= 0, got {v}")
         positive = ("rotation_step_deg", "scale_step", "heading_sd_deg", "scale_sd",
                     "step_length_nominal_m", "weinberg_nominal", "shift_step_m",
-                    "fix_ar_tau_s", "fix_white_sd_m", "start_sd_m", "window_s")
+                    "fix_ar_tau_s", "fix_white_sd_m", "start_sd_m", "window_s", "wall_cap_m")
         bad = [n for n in positive if not getattr(self, n) > 0]
         if bad:
             raise LocalizationError(f"align parameters {bad} must be positive")
@@ -141,6 +151,35 @@ def _fix_covariance(t_s: NDArray, start_given: bool, p: AlignParams) -> NDArray[
     return cov
 
 
+def distance_from_mask_m(mask: NDArray[np.bool_], cell_m: float, cap_m: float
+                         ) -> NDArray[np.float64]:
+    """Distance (m) of every cell from the nearest ``True`` cell of ``mask`` (0 on it), at most
+    ``cap_m``; the same shape as ``mask``.
+
+    A chamfer distance: repeated relaxation over the 8 neighbours (steps of 1 and sqrt(2)
+    cells), which over-estimates distances between the axes and the diagonals by at most
+    8.3 %.
+    """
+    cap = float(cap_m) / float(cell_m)
+    d = np.where(mask, 0.0, cap)
+    if not mask.any():
+        return d * cell_m
+    h, w = d.shape
+    pad = np.full((h + 2, w + 2), cap)
+    moves = [(dr, dc, float(np.hypot(dr, dc))) for dr in (-1, 0, 1) for dc in (-1, 0, 1)
+             if dr or dc]
+    for _ in range(int(np.ceil(cap)) + 1):
+        pad[1:-1, 1:-1] = d
+        new = d.copy()
+        for dr, dc, step in moves:
+            np.minimum(new, pad[1 + dr:h + 1 + dr, 1 + dc:w + 1 + dc] + step, out=new)
+        np.minimum(new, cap, out=new)
+        if np.array_equal(new, d):
+            break
+        d = new
+    return d * cell_m
+
+
 class WalkAligner(BaseLocalizer):
     """Localizer by walk alignment: the step track fitted to the radio fixes and the walls.
 
@@ -169,6 +208,9 @@ class WalkAligner(BaseLocalizer):
                  radio: RadioModel | None = None) -> None:
         super().__init__(bundle, radio=radio)
         self.params = params or AlignParams()
+        #: distance (m) of every cell from the reachable mask, for the wall term
+        self._off_mask_m = distance_from_mask_m(bundle.mask, bundle.grid.cell_m,
+                                                self.params.wall_cap_m)
         self._reset(0.0)
 
     # -- streaming -------------------------------------------------------------------------
@@ -254,7 +296,8 @@ class WalkAligner(BaseLocalizer):
                start_given: bool, around: tuple[float, float, complex] | None = None) -> _Best:
         at_fix = np.interp(fix_t, times, shape.real) + 1j * np.interp(fix_t, times, shape.imag)
         ci = np.linalg.inv(_fix_covariance(fix_t / 1000.0, start_given, self.params))
-        return _Search(self.bundle, self.params, shape, fix_z, at_fix, ci).run(around)
+        return _Search(self.bundle, self._off_mask_m, self.params, shape, fix_z, at_fix,
+                       ci).run(around)
 
     # -- batch -----------------------------------------------------------------------------
     def run(self, steps: StepSummaries, start_xy: tuple[float, float] | None = None, *,
@@ -326,20 +369,25 @@ class _Best:
     inside_share: float
 
 
+#: Log-likelihood below the best within which shifts are still placed for the spread.
+SPREAD_MARGIN = 5.0
+
+
 class _Search:
     """Grid search of ``(rotation, scale, shift)``; see :class:`WalkAligner`."""
 
-    def __init__(self, bundle: MapBundle, p: AlignParams, shape: NDArray, fix_z: NDArray,
-                 at_fix: NDArray, ci: NDArray) -> None:
-        self.bundle, self.p, self.shape, self.fix_z, self.at_fix = bundle, p, shape, fix_z, at_fix
+    def __init__(self, bundle: MapBundle, off_mask_m: NDArray, p: AlignParams, shape: NDArray,
+                 fix_z: NDArray, at_fix: NDArray, ci: NDArray) -> None:
+        self.grid, self.off_mask_m = bundle.grid, off_mask_m
+        self.p, self.shape, self.fix_z, self.at_fix = p, shape, fix_z, at_fix
         self.ci = ci
         self.ones_ci = ci.sum(axis=0)          # 1^T C^-1
         self.ones_ci_ones = float(ci.sum())    # 1^T C^-1 1
 
-    def _scores(self, a: complex, grid: NDArray, centre: complex | None
-                ) -> tuple[NDArray, NDArray, NDArray]:
-        """(log-likelihood, shift, share of the track on the mask) of every shift of the grid
-        around ``centre`` (default: the fixes' generalised-least-squares shift for ``a``)."""
+    def _fix_scores(self, a: complex, grid: NDArray, centre: complex | None
+                    ) -> tuple[NDArray, NDArray]:
+        """(fixes' log-likelihood, shift) of every shift of the grid around ``centre``
+        (default: the fixes' generalised-least-squares shift for ``a``)."""
         resid = self.fix_z - a * self.at_fix            # fix minus the turned, scaled shape
         ones_ci_r = complex(self.ones_ci @ resid)
         if centre is None:
@@ -348,9 +396,17 @@ class _Search:
         r_ci_r = float(resid.real @ self.ci @ resid.real + resid.imag @ self.ci @ resid.imag)
         quad = (r_ci_r - 2.0 * (shifts.conj() * ones_ci_r).real
                 + np.abs(shifts) ** 2 * self.ones_ci_ones)
+        return -0.5 * quad, shifts
+
+    def _walls(self, a: complex, shifts: NDArray) -> tuple[NDArray, NDArray]:
+        """(wall penalty, share of the track on the mask) of the track ``shift + a * shape``
+        for each shift."""
         pts = shifts[:, None] + a * self.shape[None, :]
-        inside = self.bundle.reachable(pts.real, pts.imag).mean(axis=1)
-        return -0.5 * quad + self.p.wall_weight * (inside - 1.0), shifts, inside
+        row, col, on_grid = self.grid.cell_of(pts.real, pts.imag)
+        off = np.where(on_grid, self.off_mask_m[row, col], self.p.wall_cap_m)
+        inside = np.mean(off == 0.0, axis=1)
+        return (self.p.wall_weight * np.mean(off ** 2, axis=1)
+                + self.p.wall_share_weight * (1.0 - inside)), inside
 
     def run(self, around: tuple[float, float, complex] | None = None) -> _Best:
         """The best transform: over the whole coarse grid, or ``around`` a ``(rotation deg,
@@ -376,24 +432,42 @@ class _Search:
 
     def _grid(self, rot_deg: NDArray, scale: NDArray, half_width_m: float, step_m: float,
               centre: complex | None = None) -> _Best:
+        """The best of the transforms ``rot_deg x scale x shifts``.
+
+        Branch and bound: the fixes' likelihood plus the priors bounds each transform's
+        score from above (the wall term is a penalty), so the tracks (the costly part) are
+        placed only for transforms whose bound can still beat the best so far, taken in the
+        order of their bounds; shifts within :data:`SPREAD_MARGIN` below the best are placed
+        too, for the spread.
+        """
         p = self.p
         k = int(np.floor(half_width_m / step_m + 1e-9))
         off = np.arange(-k, k + 1) * step_m
         grid = (off[None, :] + 1j * off[:, None]).ravel()   # (S,)
-        best: _Best | None = None
+        rows = []
         for r in rot_deg:
             for s in scale:
                 a = s * np.exp(1j * np.radians(r))
-                score, shifts, inside = self._scores(a, grid, centre)
+                fix_ll, shifts = self._fix_scores(a, grid, centre)
                 prior = -0.5 * (r / p.heading_sd_deg) ** 2 - 0.5 * (np.log(s) / p.scale_sd) ** 2
-                score = score + prior
-                j = int(np.argmax(score))
-                if best is None or score[j] > best.score:
-                    w = np.exp(score - score[j])
-                    w /= w.sum()
-                    d = shifts - np.sum(w * shifts)
-                    spread = float(np.sqrt(np.sum(w * np.abs(d) ** 2)))
-                    best = _Best(float(score[j]), complex(a), complex(shifts[j]), spread,
-                                 float(inside[j]))
+                bound = fix_ll + prior
+                rows.append((float(bound.max()), complex(a), bound, shifts))
+        rows.sort(key=lambda row: -row[0])
+        best: _Best | None = None
+        for top, a, bound, shifts in rows:
+            if best is not None and top <= best.score:
+                break           # neither this transform nor any later one can win
+            keep = (np.flatnonzero(bound > best.score - SPREAD_MARGIN) if best is not None
+                    else np.arange(len(bound)))
+            wall, inside = self._walls(a, shifts[keep])
+            score = bound[keep] - wall
+            j = int(np.argmax(score))
+            if best is None or score[j] > best.score:
+                w = np.exp(score - score[j])
+                w /= w.sum()
+                d = shifts[keep] - np.sum(w * shifts[keep])
+                spread = float(np.sqrt(np.sum(w * np.abs(d) ** 2)))
+                best = _Best(float(score[j]), a, complex(shifts[keep][j]), spread,
+                             float(inside[j]))
         assert best is not None
         return best

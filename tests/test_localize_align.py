@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from localize_fixtures import f1_bundle, sim_walks, truth_bundles  # noqa: F401  (fixtures)
 
-from localize.align import AlignParams, WalkAligner, walk_shape
+from localize.align import (AlignParams, WalkAligner, _fix_covariance, _Search, distance_from_mask_m,
+                             walk_shape)
 from localize.baselines import make_localizer
 from localize.errors import LocalizationError
 from localize.evaluate import step_errors
@@ -35,7 +36,7 @@ def _f1_with_scans(walks):
 def test_walls_remove_most_of_a_shared_radio_bias(f1_bundle, sim_walks):  # noqa: F811
     """Fixes 4 m off in one direction for a whole walk: shifting the track by its fixes
     would leave about 4 m. Offline, the walls bring it back to a pooled median per-step error
-    below 2 m (about 1.2 m on these walks); in real time, below 3 m (about 2.3 m, the early
+    below 2 m (about 1.75 m on these walks); in real time, below 3 m (about 2.8 m, the early
     steps having fewer walls behind them)."""
     offline, realtime = [], []
     for w in _f1_with_scans(sim_walks):
@@ -104,3 +105,54 @@ def test_bad_calls(f1_bundle, sim_walks):  # noqa: F811
         AlignParams(shift_step_m=0.0)
     with pytest.raises(LocalizationError, match="finite"):
         AlignParams(wall_weight=float("nan"))
+
+
+def test_distance_from_mask_against_brute_force():
+    """0 on the mask, never below the Euclidean distance to the nearest mask cell and at most
+    8.3 % above it (8-neighbour chamfer), capped."""
+    rng = np.random.default_rng(3)
+    mask = np.zeros((40, 50), bool)
+    mask[5:9, 3:45] = True
+    mask[rng.integers(0, 40, 6), rng.integers(0, 50, 6)] = True
+    d = distance_from_mask_m(mask, 0.5, cap_m=6.0)
+    rows, cols = np.nonzero(mask)
+    r, c = np.mgrid[:40, :50]
+    exact = 0.5 * np.sqrt((r[..., None] - rows) ** 2 + (c[..., None] - cols) ** 2).min(axis=-1)
+    assert np.all(d[mask] == 0.0)
+    assert np.all(d >= np.minimum(exact, 6.0) - 1e-12)
+    assert np.all(d <= np.minimum(1.083 * exact, 6.0) + 1e-12)
+    assert d.max() == 6.0
+    assert np.all(distance_from_mask_m(np.zeros((3, 4), bool), 0.5, 2.0) == 2.0)
+
+
+def test_pruned_search_finds_the_exhaustive_best(f1_bundle, sim_walks):  # noqa: F811
+    """The branch and bound (tracks placed only for transforms that can still win) returns
+    the transform an exhaustive pass over the same grid finds."""
+    w = _f1_with_scans(sim_walks)[0]
+    radio = _BiasedRadio(w, 120)
+    p = AlignParams()
+    shape = walk_shape(w.steps, p)
+    times = np.concatenate([[w.steps.t_ms[0] - 500.0], w.steps.t_ms])
+    fix_t = np.array([w.steps.t_ms[i] for i, s in enumerate(w.steps.scans) if s is not None])
+    fix_z = np.array([complex(*radio.locate(s)[:2]) for s in w.steps.scans if s is not None])
+    aligner = WalkAligner(f1_bundle, p)
+    at_fix = np.interp(fix_t, times, shape.real) + 1j * np.interp(fix_t, times, shape.imag)
+    ci = np.linalg.inv(_fix_covariance(fix_t / 1000.0, False, p))
+    search = _Search(f1_bundle, aligner._off_mask_m, p, shape, fix_z, at_fix, ci)
+    rot = np.arange(-15.0, 15.1, 2.5)
+    scale = np.arange(0.75, 1.251, 0.05)
+    best = search._grid(rot, scale, 8.0, 0.5)
+    k = np.arange(-16, 17) * 0.5
+    grid = (k[None, :] + 1j * k[:, None]).ravel()
+    top = -np.inf
+    for r in rot:
+        for sc in scale:
+            a = sc * np.exp(1j * np.radians(r))
+            fix_ll, shifts = search._fix_scores(a, grid, None)
+            wall, _ = search._walls(a, shifts)
+            score = fix_ll - wall - 0.5 * (r / p.heading_sd_deg) ** 2 \
+                - 0.5 * (np.log(sc) / p.scale_sd) ** 2
+            if score.max() > top:
+                top, a_top, shift_top = score.max(), a, shifts[np.argmax(score)]
+    assert best.score == pytest.approx(top, abs=1e-9)
+    assert best.factor == pytest.approx(a_top) and best.shift == pytest.approx(shift_top)
