@@ -45,6 +45,7 @@ from localize_eval import (
     run_fold,
 )
 
+from localize.evaluate import summarize
 from localize.params import FilterParams
 
 LAGS = (1, 2, 3, 5, 8)
@@ -84,9 +85,8 @@ def translation_error(errs: list[np.ndarray], k: int | None) -> np.ndarray:
 
 
 def stats(v: np.ndarray) -> str:
-    if len(v) == 0:
-        return "   -      -   "
-    return f"{np.median(v):5.2f} {np.percentile(v, 80):6.2f}"
+    s = summarize(v)
+    return "   -      -   " if s["n"] == 0 else f"{s['median']:5.2f} {s['p80']:6.2f}"
 
 
 def report(label: str, errs: list[np.ndarray]) -> None:

@@ -33,6 +33,7 @@ gyroscope heading).
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from weakref import WeakKeyDictionary
 
 import numpy as np
 from numpy.typing import NDArray
@@ -125,13 +126,20 @@ def _moves(delta_acc_ms2: NDArray, heading_rad: NDArray, p: AlignParams
     return length * np.exp(1j * (np.pi / 2 - heading_rad))
 
 
+def _shape(compass_deg: NDArray, gyro_deg: NDArray, delta_acc_ms2: NDArray, p: AlignParams
+           ) -> tuple[NDArray[np.complex128], float]:
+    """The step track of :func:`walk_shape` from its columns, and the anchor turn (rad)."""
+    heading, anchor = _headings(compass_deg, gyro_deg)
+    return np.concatenate([[0j], np.cumsum(_moves(delta_acc_ms2, heading, p))]), anchor
+
+
 def walk_shape(steps: StepSummaries, params: AlignParams = AlignParams()
                ) -> NDArray[np.complex128]:
     """The walk's step track in map orientation, up to the transform :class:`WalkAligner`
     fits: ``(m + 1,)`` complex positions (x east + i y north, m), 0 before the first step
     and after each step (module docstring: how)."""
-    heading, _ = _headings(steps.compass_deg, steps.relative_heading_deg)
-    return np.concatenate([[0j], np.cumsum(_moves(steps.delta_acc_ms2, heading, params))])
+    return _shape(steps.compass_deg, steps.relative_heading_deg, steps.delta_acc_ms2,
+                  params)[0]
 
 
 def _scan_time(scan, step_t_ms: float) -> float:
@@ -180,6 +188,22 @@ def distance_from_mask_m(mask: NDArray[np.bool_], cell_m: float, cap_m: float
     return d * cell_m
 
 
+#: Per bundle and cap: :func:`distance_from_mask_m` of its mask, computed once (the CLI and
+#: the benchmarks make one aligner per walk on the same bundle).
+_OFF_MASK_CACHE: WeakKeyDictionary[MapBundle, dict[float, NDArray[np.float64]]] = (
+    WeakKeyDictionary())
+
+
+def _off_mask_m(bundle: MapBundle, cap_m: float) -> NDArray[np.float64]:
+    """Distance (m) of every cell of the bundle's grid from its reachable mask, capped."""
+    by_cap = _OFF_MASK_CACHE.setdefault(bundle, {})
+    if cap_m not in by_cap:
+        d = distance_from_mask_m(bundle.mask, bundle.grid.cell_m, cap_m)
+        d.flags.writeable = False
+        by_cap[cap_m] = d
+    return by_cap[cap_m]
+
+
 class WalkAligner(BaseLocalizer):
     """Localizer by walk alignment: the step track fitted to the radio fixes and the walls.
 
@@ -208,9 +232,7 @@ class WalkAligner(BaseLocalizer):
                  radio: RadioModel | None = None) -> None:
         super().__init__(bundle, radio=radio)
         self.params = params or AlignParams()
-        #: distance (m) of every cell from the reachable mask, for the wall term
-        self._off_mask_m = distance_from_mask_m(bundle.mask, bundle.grid.cell_m,
-                                                self.params.wall_cap_m)
+        self._off_mask_m = _off_mask_m(bundle, self.params.wall_cap_m)
         self._reset(0.0)
 
     # -- streaming -------------------------------------------------------------------------
@@ -272,10 +294,8 @@ class WalkAligner(BaseLocalizer):
         t = np.asarray(self._t)
         first = max(min(int(np.searchsorted(t, t[-1] - p.window_s * 1000.0)), len(t) - 1) - 1,
                     0)
-        compass, gyro = np.asarray(self._compass[first:]), np.asarray(self._gyro[first:])
-        heading, anchor = _headings(compass, gyro)
-        shape = np.concatenate([[0j], np.cumsum(_moves(np.asarray(self._swing[first:]),
-                                                       heading, p))])
+        shape, anchor = _shape(np.asarray(self._compass[first:]), np.asarray(self._gyro[first:]),
+                               np.asarray(self._swing[first:]), p)
         times = t[first:]
         fix_t, fix_z = np.asarray(self._fix_t), np.asarray(self._fix_z)
         keep = fix_t >= times[0]

@@ -495,6 +495,16 @@ def is_bundle_dir(path: str | os.PathLike) -> bool:
     return (path / "manifest.json").exists() or (path / "CURRENT").exists()
 
 
+def bundle_dirs(path: str | os.PathLike) -> list[Path]:
+    """The bundles ``path`` names: itself when it is one (:func:`is_bundle_dir`), else the
+    bundle folders directly in it (a build's output, a registry's site folder), sorted;
+    empty when there are none."""
+    path = Path(path)
+    if is_bundle_dir(path):
+        return [path]
+    return sorted(q for q in path.iterdir() if is_bundle_dir(q)) if path.is_dir() else []
+
+
 def load_bundle(path: str | os.PathLike) -> MapBundle:
     """Open and verify a map bundle folder, or the current version of a registry's floor folder
     (``REG/<site>/<floor>``). Arrays are memory-mapped read-only.

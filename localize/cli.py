@@ -77,21 +77,37 @@ def _warn_if_source_walk(bundle, trace_id: str) -> None:
                        "optimistic", err=True)
 
 
-def _write_track(track, target: Path, fmt: str, overwrite: bool = False) -> None:
-    """Write a track table to ``target`` (Parquet or CSV) atomically."""
+def _write_table(table, target: Path, fmt: str, overwrite: bool = False) -> None:
+    """Write an Arrow table to ``target`` (Parquet or CSV) atomically."""
     import pyarrow as pa
     import pyarrow.csv as pacsv
     import pyarrow.parquet as pq
 
     from survey.publish import atomic_write_bytes
 
-    table = track.to_arrow()
     sink = pa.BufferOutputStream()
     if fmt == "csv":
         pacsv.write_csv(table, sink)
     else:
         pq.write_table(table, sink)
     atomic_write_bytes(target, sink.getvalue().to_pybytes(), overwrite=overwrite)
+
+
+def _prepare_walk(trace, maps, start_opt: str | tuple[float, float], waypoints_xy):
+    """What both commands do before localizing a walk: its steps, its floor's bundle (with a
+    warning when the bundle was built from the walk), the radio model for its phone, and its
+    start (with a warning when it is off the floor). Returns ``(steps, bundle, radio,
+    start_xy, how)``."""
+    from localize.walk_radio import radio_for_walk
+    from survey.step_summaries import step_summaries
+
+    steps = step_summaries(trace)
+    bundle = maps.select(steps)
+    _warn_if_source_walk(bundle, trace.trace_id)
+    radio = radio_for_walk(bundle, trace.header.model, steps.scans)[0]
+    start_xy, how = _start_of(start_opt, steps, radio, waypoints_xy)
+    _warn_if_off_floor(bundle, start_xy)
+    return steps, bundle, radio, start_xy, how
 
 
 def _row_name(method: str, smooth: bool) -> str:
@@ -140,12 +156,11 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
     from localize.baselines import SMOOTHABLE, make_localizer
     from localize.floors import SiteMaps
     from localize.plots import plot_track
-    from localize.walk_radio import radio_for_walk
 
     if smooth and method not in SMOOTHABLE:
         raise click.BadParameter(f"--smooth needs a method that can locate a walk offline "
                                  f"({', '.join(SMOOTHABLE)}), not {method}")
-    from survey.step_summaries import step_summaries, waypoints_of
+    from survey.step_summaries import waypoints_of
 
     start_opt = _parse_start(start)
     maps = SiteMaps.open(bundle_path)
@@ -160,22 +175,18 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
         png = out / f"{name}.png"
         for existing in (target, png) if plot else (target,):
             refuse_to_replace(existing, overwrite)  # before the work, not after
-        steps = step_summaries(trace)
-        bundle = maps.select(steps)
-        _warn_if_source_walk(bundle, trace.trace_id)
-        radio = radio_for_walk(bundle, trace.header.model, steps.scans)[0]
-        start_xy, how = _start_of(start_opt, steps, radio, waypoints_of(trace)[1])
-        _warn_if_off_floor(bundle, start_xy)
+        xy_wp = waypoints_of(trace)[1]
+        steps, bundle, radio, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp)
         loc = make_localizer(method, bundle, _params(particles), radio=radio, rng=seed)
         track = loc.run(steps, start_xy=start_xy, smooth=smooth)
-        _write_track(track, target, fmt, overwrite=overwrite)
+        _write_table(track.to_arrow(), target, fmt, overwrite=overwrite)
         msg = (f"{trace.trace_id}: {len(track)} {'smoothed ' if smooth else ''}steps on "
                f"{bundle.floor_id} "
                f"({bundle.manifest.get('floor_name', '')}), start {how}, "
                f"{track.n_recoveries} recoveries -> {target}")
         if plot:
             kind = "smoothed offline" if smooth else "real time"
-            if plot_track(png, bundle, {method: track}, waypoints_of(trace)[1],
+            if plot_track(png, bundle, {method: track}, xy_wp,
                           title=f"{trace.trace_id} on {bundle.manifest.get('floor_name', '')} "
                                 f"({bundle.floor_id[:12]}): {method}, {kind}, start {how}"):
                 msg += f", {png.name}"
@@ -225,8 +236,7 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
     from localize.baselines import METHODS, SMOOTHABLE, make_localizer
     from localize.evaluate import summarize, waypoint_errors
     from localize.floors import SiteMaps
-    from localize.walk_radio import radio_for_walk
-    from survey.step_summaries import step_summaries, waypoints_of
+    from survey.step_summaries import waypoints_of
 
     names = [m.strip() for m in methods.split(",") if m.strip()]
     if not names:
@@ -246,6 +256,7 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
                                           if smooth and m in SMOOTHABLE]
     errors: dict[str, list[np.ndarray]] = {_row_name(m, sm): [] for m, sm in rows}
     table: list[dict] = []  # one row per method and waypoint, for --csv
+    evaluated: set[str] = set()  # walks with at least one method's errors
 
     def one(f: Path) -> None:
         trace = read_walk(f)
@@ -253,32 +264,30 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
         if len(t_wp) == 0:
             click.echo(f"{f}: no waypoints, skipped", err=True)
             return
-        steps = step_summaries(trace)
-        bundle = maps.select(steps)
-        _warn_if_source_walk(bundle, trace.trace_id)
-        radio = radio_for_walk(bundle, trace.header.model, steps.scans)[0]
-        start_xy, _ = _start_of(start_opt, steps, radio, xy_wp)
-        _warn_if_off_floor(bundle, start_xy)
+        steps, bundle, radio, start_xy, _ = _prepare_walk(trace, maps, start_opt, xy_wp)
         for m, sm in rows:  # a method failing on this walk leaves the others' rows alone
             def run(m=m, sm=sm):
                 loc = make_localizer(m, bundle, _params(particles), radio=radio, rng=seed)
                 track = loc.run(steps, start_xy=start_xy, smooth=sm)
                 err = waypoint_errors(track, t_wp, xy_wp)
                 errors[_row_name(m, sm)].append(err)
-                est = track.at(t_wp)
-                table.extend({"trace_id": trace.trace_id, "method": _row_name(m, sm),
-                              "waypoint": i + 1, "t_ms": int(t_wp[i]), "x_m": xy_wp[i, 0],
-                              "y_m": xy_wp[i, 1], "est_x_m": est[i, 0], "est_y_m": est[i, 1],
-                              "error_m": err[i]} for i in range(len(err)))
+                evaluated.add(trace.trace_id)
+                if csv_path is not None:
+                    est = track.at(t_wp)
+                    table.extend({"trace_id": trace.trace_id, "method": _row_name(m, sm),
+                                  "waypoint": i + 1, "t_ms": int(t_wp[i]), "x_m": xy_wp[i, 0],
+                                  "y_m": xy_wp[i, 1], "est_x_m": est[i, 0],
+                                  "est_y_m": est[i, 1], "error_m": err[i]}
+                                 for i in range(len(err)))
             failures.run(f"{f} ({_row_name(m, sm)})", run)
 
     for f in files:
         failures.run(f, lambda f=f: one(f))
-    if not table:
+    if not evaluated:
         click.echo("no walk was evaluated", err=True)
         failures.exit_if_any(len(files))
         sys.exit(1)  # every walk lacked waypoints
-    n_walks = len({r["trace_id"] for r in table})
+    n_walks = len(evaluated)
     click.echo(f"{'method':<20}{'n':>6}{'median':>9}{'p80':>9}{'mean':>9}  (m, at the "
                f"waypoints of {n_walks} walk(s))")
     for m, v in errors.items():
@@ -286,14 +295,8 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
         click.echo(f"{m:<20}{s['n']:>6}{s['median']:>9.2f}{s['p80']:>9.2f}{s['mean']:>9.2f}")
     if csv_path is not None:
         import pyarrow as pa
-        import pyarrow.csv as pacsv
 
-        from survey.publish import atomic_write_bytes
-
-        sink = pa.BufferOutputStream()
-        pacsv.write_csv(pa.Table.from_pylist(table), sink)
-        csv_path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_bytes(csv_path, sink.getvalue().to_pybytes(), overwrite=overwrite)
+        _write_table(pa.Table.from_pylist(table), csv_path, "csv", overwrite=overwrite)
         click.echo(f"errors: {csv_path}", err=True)
     if plot_path is not None:
         from localize.plots import plot_cdfs

@@ -47,11 +47,12 @@ from localize.radio_match import (
     walk_scores,
 )
 from localize.rssi_calibration import OnlineCalibration, estimate_rssi_calibration
-from localize.bundle import MapBundle
 from localize.steps import RadioScan
 
 if TYPE_CHECKING:  # annotations only
     import pyarrow as pa
+
+    from localize.bundle import MapBundle
 
 __all__ = ["FingerprintPositioner", "RadioFixes", "fingerprint_kinds"]
 

@@ -17,11 +17,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from localize.errors import LocalizationError
 from localize.radio_match import scan_rssi_matrix
-from localize.bundle import MapBundle
 from localize.steps import RadioScan
 
 if TYPE_CHECKING:  # annotations only
     import pyarrow as pa
+
+    from localize.bundle import MapBundle
 
 __all__ = ["FloorClassifier", "floor_log_proba", "level_features"]
 

@@ -90,14 +90,13 @@ class SiteMaps:
         BundleError, RegistryError
             A damaged bundle or registry pointer (:func:`~localize.bundle.load_bundle`).
         """
-        from localize.bundle import is_bundle_dir, load_bundle
+        from localize.bundle import bundle_dirs, is_bundle_dir, load_bundle
         from localize.floor_classifier import FloorClassifier
 
         path = Path(path)
         if is_bundle_dir(path):
             return cls([load_bundle(path)])
-        subs = [load_bundle(p) for p in sorted(path.iterdir()) if is_bundle_dir(p)] \
-            if path.is_dir() else []
+        subs = [load_bundle(p) for p in bundle_dirs(path)]
         if not subs:
             raise LocalizationError(f"{path}: neither a bundle nor a folder of bundles (nor a "
                                     "registry's site folder)")

@@ -33,8 +33,9 @@ def plot_track(path: str | Path, bundle: MapBundle, tracks: Mapping[str, Track],
         return False
     g = bundle.grid
     x1, y1 = g.x0_m + g.width * g.cell_m, g.y0_m + g.height * g.cell_m
-    pts = [np.column_stack([np.r_[tr.start.x_m, tr.x_m], np.r_[tr.start.y_m, tr.y_m]])
-           for tr in tracks.values()]
+    lines = {name: (np.r_[tr.start.x_m, tr.x_m], np.r_[tr.start.y_m, tr.y_m])
+             for name, tr in tracks.items()}  # each track from its start
+    pts = [np.column_stack(xy) for xy in lines.values()]
     if waypoints_xy is not None:
         waypoints_xy = np.asarray(waypoints_xy, dtype=float).reshape(-1, 2)
         pts.append(waypoints_xy)
@@ -51,7 +52,7 @@ def plot_track(path: str | Path, bundle: MapBundle, tracks: Mapping[str, Track],
     ax.imshow(np.asarray(bundle.mask), origin="lower", cmap="Greys", alpha=0.35,
               extent=(g.x0_m, x1, g.y0_m, y1))
     for name, tr in tracks.items():
-        xs, ys = np.r_[tr.start.x_m, tr.x_m], np.r_[tr.start.y_m, tr.y_m]
+        xs, ys = lines[name]
         (line,) = ax.plot(xs, ys, lw=1.2, label=name)
         ax.plot(xs[0], ys[0], "o", color=line.get_color(), ms=7, mfc="none")
         ax.plot(xs[-1], ys[-1], "s", color=line.get_color(), ms=6)

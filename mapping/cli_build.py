@@ -425,14 +425,12 @@ def bundle_verify(paths: tuple[Path, ...]) -> None:
     """Verify bundles (every member's checksum, schema, no unlisted files). A folder of
     bundles (what `build -o` writes, a registry's site folder) is verified bundle by bundle; a
     registry's floor folder by its current version. Exit 1 if any fails."""
-    from localize.bundle import is_bundle_dir
+    from localize.bundle import bundle_dirs
 
     bad = 0
     expanded = []
     for p in paths:
-        held = sorted(q for q in p.iterdir() if is_bundle_dir(q)) \
-            if p.is_dir() and not is_bundle_dir(p) else []
-        expanded += held or [p]
+        expanded += bundle_dirs(p) or [p]
     for p in expanded:
         try:
             b = load_bundle(p)
@@ -478,10 +476,6 @@ def bundle_diff(a: Path, b: Path) -> None:
             where = ("changed" if name in ma["members"] and name in mb["members"]
                      else f"only in {'a' if name in ma['members'] else 'b'}")
             click.echo(f"member {name}: {where}")
-    if ba.grid != bb.grid and ba.grid is not None and bb.grid is not None:
-        click.echo(f"grid: {ba.grid.width} x {ba.grid.height} cells of {ba.grid.cell_m} m -> "
-                   f"{bb.grid.width} x {bb.grid.height} of {bb.grid.cell_m} m (layers not "
-                   "compared cell by cell)")
     if ba.grid == bb.grid:
         for name in sorted(set(ba.layers) & set(bb.layers)):
             d = np.asarray(bb.layers[name], float) - np.asarray(ba.layers[name], float)
@@ -491,6 +485,10 @@ def bundle_diff(a: Path, b: Path) -> None:
             if ok.any():
                 click.echo(f"layer {name}: mean abs change {np.abs(d[ok]).mean():.3f} "
                            f"{ma['layers'][name]['unit']}, max {np.abs(d[ok]).max():.3f}")
+    elif ba.grid is not None and bb.grid is not None:
+        click.echo(f"grid: {ba.grid.width} x {ba.grid.height} cells of {ba.grid.cell_m} m -> "
+                   f"{bb.grid.width} x {bb.grid.height} of {bb.grid.cell_m} m (layers not "
+                   "compared cell by cell)")
 
 
 @bundle_group.command("list")

@@ -126,7 +126,6 @@ def survey_report_command(store_dir: str, site: str | None, floor: str | None,
 
     table = pd.DataFrame(rows)
     if csv_path:
-        Path(csv_path).parent.mkdir(parents=True, exist_ok=True)
         atomic_write_bytes(Path(csv_path), table.to_csv(index=False).encode(),
                            overwrite=overwrite)
     with pd.option_context("display.max_rows", None, "display.width", 200,

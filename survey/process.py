@@ -180,6 +180,24 @@ def calibrated_field(sensors: pd.DataFrame, session_fit: MagCalResult | None = N
     raise ProcessingError("no magnetometer stream")
 
 
+def compass_track_deg(trace_id: str, rot_t: NDArray, rot: NDArray
+                      ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The phone's compass heading from its rotation vector, unwrapped (deg), at the samples
+    where it is defined: ``(t_ms, heading_deg)`` for :func:`numpy.interp`.
+
+    Raises
+    ------
+    ProcessingError
+        No sample gives a heading (a phone held upright all along).
+    """
+    unwrapped = unwrap_deg(heading_deg(rot))
+    good = np.isfinite(unwrapped)
+    if not good.any():
+        raise ProcessingError(f"{trace_id}: the rotation vector gives no heading (phone "
+                              "upright?)")
+    return np.asarray(rot_t, dtype=np.float64)[good], unwrapped[good]
+
+
 def gyro_heading_deg(sensors: pd.DataFrame, rot_t: NDArray, rot: NDArray
                      ) -> tuple[NDArray, NDArray] | None:
     """Heading (deg clockwise from north, unwrapped, arbitrary origin) integrated from the
@@ -259,12 +277,8 @@ def process_walk(trace_id: str, sensors: pd.DataFrame, waypoints: pd.DataFrame,
     mid = 0.5 * (step_start + st)
 
     # Headings: gyro (relative, immune to magnetic anomalies) and compass (rotation vector).
-    compass_unwrapped = unwrap_deg(heading_deg(rot))
-    good = np.isfinite(compass_unwrapped)
-    if not good.any():
-        raise ProcessingError(f"{trace_id}: the rotation vector gives no heading (phone "
-                              "upright?)")
-    compass_step = np.mod(np.interp(mid, rot_t[good], compass_unwrapped[good]), 360.0)
+    compass = compass_track_deg(trace_id, rot_t, rot)
+    compass_step = np.mod(np.interp(mid, *compass), 360.0)
     gyro = gyro_heading_deg(sensors, rot_t, rot)
     if gyro is not None:
         relative_heading = np.interp(mid, *gyro)
@@ -274,7 +288,7 @@ def process_walk(trace_id: str, sensors: pd.DataFrame, waypoints: pd.DataFrame,
             wrap_deg(compass_step - relative_heading))
         heading_source = "gyroscope"
     else:
-        relative_heading = np.interp(mid, rot_t[good], compass_unwrapped[good])
+        relative_heading = np.interp(mid, *compass)
         heading_source = "compass"
 
     # Step lengths: Weinberg fitted on this walk's legs, or the default constant.

@@ -31,9 +31,9 @@ from numpy.typing import NDArray
 from localize.steps import RadioScan, StepSummaries, attitude_codes, ble_transmitter_ids
 from survey.attitude import AttitudeParams, classify_attitude
 from survey.errors import ProcessingError
-from survey.field_features import field_features, unwrap_deg
-from survey.process import _stream, calibrated_field, gyro_heading_deg
-from survey.rotation import heading_deg, interpolate_rotation_vector, rotation_matrices
+from survey.field_features import field_features
+from survey.process import _stream, calibrated_field, compass_track_deg, gyro_heading_deg
+from survey.rotation import interpolate_rotation_vector, rotation_matrices
 from survey.steps import detect_steps
 from survey.trace_format import Trace
 
@@ -173,19 +173,16 @@ def step_summaries(trace: Trace, params: StepSummaryParams = StepSummaryParams()
     start = _cycle_bounds(st, params.max_cycle_ms)
     mid = 0.5 * (start + st)
 
-    compass = unwrap_deg(heading_deg(rot))
-    good = np.isfinite(compass)
-    if not good.any():
-        raise ProcessingError(f"{tid}: the rotation vector gives no heading (phone upright?)")
-    compass_mid = np.mod(np.interp(mid, rot_t[good], compass[good]), 360.0)
+    compass = compass_track_deg(tid, rot_t, rot)
+    compass_mid = np.mod(np.interp(mid, *compass), 360.0)
     gyro = gyro_heading_deg(trace.sensors, rot_t, rot)
     if gyro is not None:
         rel_start = np.interp(start, *gyro)
         rel_end = np.interp(st, *gyro)
         relative = np.interp(mid, *gyro)
     else:
-        rel_start = np.interp(start, rot_t[good], compass[good])
-        rel_end = np.interp(st, rot_t[good], compass[good])
+        rel_start = np.interp(start, *compass)
+        rel_end = np.interp(st, *compass)
         relative = np.full(len(st), np.nan)
     turn = rel_end - rel_start
 
