@@ -21,6 +21,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import stat
 import os
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
@@ -144,7 +145,8 @@ def read_npy_checked(path: Path, *, mmap: bool = True) -> np.ndarray:
         raise BundleIntegrityError(f"{path}: not a valid .npy file ({err})") from err
     if dtype.hasobject or dtype.str not in ALLOWED_DTYPES:
         raise BundleIntegrityError(f"{path}: dtype {dtype.str} is not allowed in a bundle")
-    if not (1 <= len(shape) <= 3) or math.prod(shape) > MAX_ARRAY_ELEMENTS:
+    if (not (1 <= len(shape) <= 3) or min(shape) < 0
+            or math.prod(shape) > MAX_ARRAY_ELEMENTS):
         raise BundleIntegrityError(f"{path}: shape {shape} is not allowed in a bundle")
     expected = offset + math.prod(shape) * dtype.itemsize
     if path.stat().st_size != expected:
@@ -334,17 +336,23 @@ class BilinearLookup:
 def read_manifest(path: Path) -> dict:
     mpath = path / "manifest.json"
     try:
-        if mpath.stat().st_size > MAX_MANIFEST_BYTES:
+        if mpath.is_symlink() or not stat.S_ISREG(mpath.stat().st_mode):
+            raise BundleIntegrityError(f"{mpath}: the manifest must be a regular file, not a "
+                                       "link, pipe or device")
+        with open(mpath, "rb") as fh:  # read at most the limit: the size may change
+            text = fh.read(MAX_MANIFEST_BYTES + 1)
+        if len(text) > MAX_MANIFEST_BYTES:
             raise BundleIntegrityError(f"{mpath}: manifest too large")
-        manifest = json.loads(mpath.read_text(encoding="utf-8"),
-                              parse_constant=_refuse_constant, parse_float=_finite_float)
+        manifest = json.loads(text.decode("utf-8"), parse_constant=_refuse_constant,
+                              parse_float=_finite_float)
     except FileNotFoundError as err:
         raise BundleError(f"{path}: not a map bundle (no manifest.json)") from err
-    except (OSError, UnicodeDecodeError, ValueError) as err:
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as err:
         raise BundleIntegrityError(f"{mpath}: unreadable manifest ({err})") from err
     if not isinstance(manifest, dict) or manifest.get("format") != BUNDLE_FORMAT:
         raise BundleError(f"{mpath}: not an {BUNDLE_FORMAT} manifest")
-    if manifest.get("schema_version") != SCHEMA_VERSION:
+    version = manifest.get("schema_version")
+    if type(version) is not int or version != SCHEMA_VERSION:  # not True, not 1.0
         raise BundleError(f"{mpath}: schema version {manifest.get('schema_version')!r} is not "
                           f"supported (this indoormap reads version {SCHEMA_VERSION})")
     if manifest.get("bundle_id") != bundle_id_of(manifest):
@@ -460,7 +468,7 @@ def read_registry_record(path: Path) -> Any:
     """A registry JSON file's content; a :class:`RegistryError` naming it when damaged."""
     try:
         return json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError) as err:
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as err:
         raise RegistryError(f"{path}: damaged registry file ({err})") from err
 
 
@@ -519,19 +527,28 @@ def load_bundle(path: str | os.PathLike) -> MapBundle:
         A registry floor folder whose ``CURRENT`` is damaged or points at no version.
     """
     path = Path(path)
+    pointer = None
     if not (path / "manifest.json").exists():
         current = registry_current(path)
-        path = path if current is None else current[0]
+        path, pointer = (path, None) if current is None else current
     if path.is_symlink():
         raise BundleIntegrityError(f"{path}: a bundle folder may not be a link")
     manifest = read_manifest(path)
+    if pointer is not None and manifest["bundle_id"] != pointer["bundle_id"]:
+        raise BundleIntegrityError(f"{path}: holds bundle {manifest['bundle_id'][:16]}, but the "
+                                   f"registry's CURRENT names {pointer['bundle_id'][:16]}")
     verify_bundle_dir(path, manifest)
     grid = Grid.from_dict(manifest["grid"]) if manifest.get("grid") is not None else None
     mask = None
     layers: dict[str, np.ndarray] = {}
     std: dict[str, np.ndarray] = {}
     if grid is not None:
-        mask = read_npy_checked(_safe_member(manifest["mask"], path)).astype(bool)
+        raw = read_npy_checked(_safe_member(manifest["mask"], path))
+        if raw.dtype not in (np.bool_, np.uint8) or (raw.dtype == np.uint8 and raw.max(
+                initial=0) > 1):
+            raise BundleIntegrityError(f"{path}: the mask must hold 0/1 (bool or uint8), got "
+                                       f"dtype {raw.dtype}")
+        mask = raw.astype(bool)
         if mask.shape != grid.shape:
             raise BundleIntegrityError(f"{path}: mask shape {mask.shape} != grid {grid.shape}")
         for name, meta in manifest.get("layers", {}).items():

@@ -80,7 +80,7 @@ def _check(content: BundleContent) -> None:
             if np.isinf(a).any():
                 raise BundleError(f"layer {name} {what}: infinite values (NaN is the only "
                                   "nodata)")
-        if np.isfinite(layer.values[~content.mask]).any():
+        if np.isfinite(layer.values[~np.asarray(content.mask, dtype=bool)]).any():
             raise BundleError(f"layer {name}: values outside the reachable mask")
 
 

@@ -22,7 +22,6 @@ from pathlib import Path
 from localize.bundle import (
     MapBundle,
     load_bundle,
-    read_manifest,
     read_registry_record,
     registry_current,
     safe_name,
@@ -90,21 +89,25 @@ class Registry:
         """Copy a verified bundle in as a new version (a version already present is reused)
         and, by default, make it current. Returns ``{"bundle_id", "seq"}``."""
         bundle = load_bundle(bundle_dir)  # verify before anything is copied
-        site = bundle.manifest["site_id"]
+        source = bundle.path  # the bundle itself, also when bundle_dir is a registry floor
+        site = bundle.manifest.get("site_id")
         floor = (SITE_BUNDLE if bundle.manifest.get("kind") == "site"
-                 else bundle.manifest["floor_name"])
+                 else bundle.manifest.get("floor_name"))
+        if not isinstance(site, str) or not isinstance(floor, str):
+            raise RegistryError(f"{source}: the manifest needs site_id and floor_name strings "
+                                f"to be published (got {site!r}, {floor!r})")
         base = self._floor(site, floor)
         target = base / "versions" / bundle.bundle_id
         if not target.exists():
             with atomic_directory(target, crash_prefix="registry") as tmp:
-                for src in sorted(Path(bundle_dir).rglob("*")):
-                    rel = src.relative_to(bundle_dir)
+                for src in sorted(source.rglob("*")):
+                    rel = src.relative_to(source)
                     if src.is_dir():
                         (tmp / rel).mkdir(parents=True, exist_ok=True)
                     else:
                         (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
                         shutil.copyfile(src, tmp / rel)
-            load_bundle(target)
+        load_bundle(target)  # the copy, or the version already there, is intact
         crash_point("registry:after-copy")
         history = self.history(site, floor)
         entry = next((h for h in history if h["bundle_id"] == bundle.bundle_id), None)
@@ -138,7 +141,7 @@ class Registry:
             raise RegistryError(
                 f"{site}/{floor}: version {bundle_id[:12]} (#{entry['seq']}) is older than the "
                 f"current #{cur['seq']}; rolling back needs allow_rollback (CLI: --rollback)")
-        read_manifest(self._floor(site, floor) / "versions" / bundle_id)
+        load_bundle(self._floor(site, floor) / "versions" / bundle_id)  # intact, or refused
         atomic_write_bytes(self._floor(site, floor) / "CURRENT",
                            json.dumps({"bundle_id": bundle_id, "seq": entry["seq"]}).encode(),
                            overwrite=True)

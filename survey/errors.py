@@ -30,9 +30,21 @@ class SurveyFormatError(IndoormapError, ValueError):
         if line is not None:
             where = f"{where}:{line}"
         super().__init__(f"{where}: {message}")
+        self.message = message
         self.path = path
         self.line = line
         self.reason = reason
+
+    def __reduce__(self):
+        # rebuilt with its fields when it crosses a process (ingest workers), not from the
+        # formatted text alone
+        return (_survey_format_error, (type(self), self.message, self.path, self.line,
+                                       self.reason))
+
+
+def _survey_format_error(cls: type, message: str, path: str | None, line: int | None,
+                         reason: str) -> SurveyFormatError:
+    return cls(message, path=path, line=line, reason=reason)
 
 
 class StoreError(IndoormapError):

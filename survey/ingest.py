@@ -152,16 +152,40 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
         if progress:
             progress(done, total)
 
+    first_of: dict[str, str] = {}   # trace id -> the input that gave it in this run
+
+    def second_input(path: str, trace_id: str) -> bool:
+        """Whether an earlier input of this run gave ``trace_id`` (then ``path`` fails: one
+        trace id, one input)."""
+        if trace_id not in first_of:
+            first_of[trace_id] = path
+            return False
+        err = SurveyFormatError(f"trace id {trace_id!r} also comes from {first_of[trace_id]}; "
+                                "give one input per trace id", path=path,
+                                reason="duplicate_id")
+        if strict:
+            raise err
+        summary.outcomes.append(IngestOutcome(path, trace_id, "failed", str(err)))
+        return True
+
     with store.writer() as w:
         todo: list[tuple[str, str, int]] = []
+        todo_sha: dict[str, str] = {}   # content hash -> trace id, of this run's files
         for p in trace_files:
+            tid = trace_id_from_path(p)
+            if second_input(str(p), tid):
+                tick()
+                continue
             sha = file_sha256(p)
-            known = w.known(trace_id_from_path(p), sha)
+            known = w.known(tid, sha)
+            if not known and sha in todo_sha:   # the same content twice in this run
+                known = IngestOutcome("", tid, "duplicate", f"same content as {todo_sha[sha]}")
             if known:
                 known.path = str(p)
                 summary.outcomes.append(known)
                 tick()
             else:
+                todo_sha[sha] = tid
                 todo.append((str(p), sha, p.stat().st_size))
         chunks = _chunks(todo, batch_bytes, max(1, workers))
         results = []
@@ -193,7 +217,17 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
             summary.outcomes.append(IngestOutcome(path, row["trace_id"], status))
             summary.add_row(row)
         for plan in plans:
-            for trace, source, identity in read_walk_plan(plan, strict=strict):
+            try:
+                walks = read_walk_plan(plan, strict=strict)
+            except SurveyFormatError as err:
+                if strict:
+                    raise
+                summary.outcomes.append(IngestOutcome(str(plan), plan.stem, "failed", str(err)))
+                tick()
+                continue
+            for trace, source, identity in walks:
+                if second_input(source, trace.trace_id):
+                    continue
                 sha = identity_sha256(identity)
                 known = w.known(trace.trace_id, sha)
                 if known:

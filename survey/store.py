@@ -55,7 +55,7 @@ CATALOG_COLUMNS = {
 def _safe_component(value: str | None, fallback: str) -> str:
     """A partition value usable as a folder name (``[A-Za-z0-9_.-]``, not starting with a dot)."""
     text = re.sub(r"[^A-Za-z0-9_.-]", "_", (value or "").strip()) or fallback
-    return ("_" + text[1:]) if text.startswith(".") else text[:80]
+    return (("_" + text[1:]) if text.startswith(".") else text)[:80]
 
 
 def file_sha256(path: str | os.PathLike) -> str:
@@ -67,8 +67,12 @@ def file_sha256(path: str | os.PathLike) -> str:
 
 
 def part_path(table: str, site: str, floor: str, trace_id: str, sha256: str) -> str:
-    """Relative path of one trace's part file of ``table``."""
-    return f"{table}/site={site}/floor={floor}/{trace_id}-{sha256[:12]}.parquet"
+    """Relative path of one trace's part file of ``table``. The trace id is made a safe file
+    name (``[A-Za-z0-9_.-]``, at most 80 characters; the content hash keeps it apart from
+    others): a walk plan's ``walk_id`` or a long file name cannot leave the store or exceed
+    the file system's name limit."""
+    name = _safe_component(trace_id, "trace")
+    return f"{table}/site={site}/floor={floor}/{name}-{sha256[:12]}.parquet"
 
 
 def catalog_row(trace: Trace, *, source_path: str, sha256: str, size_bytes: int,

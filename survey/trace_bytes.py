@@ -61,7 +61,9 @@ def read_trace_bytes(path: str | os.PathLike, *, strict: bool = False,
             note = "truncated gzip stream"
             break
         data = dec.unused_data
-        if data and data[:2] != b"\x1f\x8b":
+        if not data.strip(b"\0"):  # zero padding after the last stream (block devices, tar)
+            break
+        if data[:2] != b"\x1f\x8b":
             note = "trailing garbage after gzip stream"
             break
     if note and strict:
@@ -71,14 +73,24 @@ def read_trace_bytes(path: str | os.PathLike, *, strict: bool = False,
 
 def _salvage(data: bytes, limit: int) -> bytes:
     """Decompress as much of a damaged gzip member as possible, in small steps."""
-    dec = _zlib.decompressobj(wbits=31)
+    dec = zlib.decompressobj(wbits=31)  # the standard one: it can copy its state
     out = []
     n = 0
     step = 1 << 14
     for i in range(0, len(data), step):
+        before = dec.copy()
         try:
             piece = dec.decompress(data[i:i + step], max(limit - n, 1))
-        except (zlib.error, _zlib.error):
+        except zlib.error:
+            # again byte by byte from the state before this chunk: keep what precedes the
+            # damage (a bad checksum in the trailer loses nothing)
+            dec, pieces = before, []
+            for j in range(i, min(i + step, len(data))):
+                try:
+                    pieces.append(dec.decompress(data[j:j + 1], max(limit - n, 1)))
+                except zlib.error:
+                    break
+            out.append(b"".join(pieces))
             break
         out.append(piece)
         n += len(piece)

@@ -162,6 +162,8 @@ def _make_batch(texts: Sequence[bytes], paths: Sequence[str],
                 notes: Sequence[str | None]) -> _Batch:
     pieces, cut = [], []
     for text, note in zip(texts, notes):
+        if text[:len(BOM)] == BOM:  # a byte order mark (some editors write one) is no text
+            text = text[len(BOM):]
         if note and text and not text.endswith(b"\n"):
             # The partial last line of a damaged stream stands as an empty line, reported below.
             text = text[:text.rfind(b"\n") + 1] + b"\n"
@@ -625,6 +627,9 @@ class _Tables:
 
 # --------------------------------------------------------------------------------------------
 # The whole parse
+
+
+BOM = b"\xef\xbb\xbf"
 
 
 def parse_traces(texts: Sequence[bytes], paths: Sequence[str], *, strict: bool = False,

@@ -154,7 +154,10 @@ def read_walk_plan(path: str | os.PathLike, *, strict: bool = False
         trace.header.start_ms, trace.header.end_ms = int(times[0]), int(times[-1])
         trace.waypoints = pd.DataFrame({"t_ms": times.astype(np.int64), "x_m": xy[:, 0],
                                         "y_m": xy[:, 1]})
-        identity = json.dumps(feature, sort_keys=True).encode() + b"\n" + csv_bytes
+        # the feature with the collection's defaults it inherits: a change in either is a
+        # change of the walk
+        identity = (json.dumps({**feature, "properties": props}, sort_keys=True).encode()
+                    + b"\n" + csv_bytes)
         walks.append((trace, str(csv_path), identity))
     if not walks:
         raise SurveyFormatError("walk plan has no features", path=str(path), reason="plan")
@@ -214,6 +217,26 @@ def _numeric(column: pa.ChunkedArray) -> np.ndarray:
     return np.full(len(column), np.nan)
 
 
+def _missing(column: pa.ChunkedArray) -> np.ndarray:
+    """Where a CSV column has no value (empty or null)."""
+    missing = column.is_null().to_numpy(zero_copy_only=False)
+    if pa.types.is_string(column.type) or pa.types.is_large_string(column.type):
+        missing = missing | (pc.utf8_trim_whitespace(column).to_numpy(zero_copy_only=False)
+                             == "")
+    return missing
+
+
+def _row_lines(data: bytes, n_rows: int) -> np.ndarray:
+    """1-based line number of every CSV row: pyarrow skips blank lines, so row ``i`` is not
+    always line ``i + 2``. Falls back to ``i + 2`` when the lines cannot be matched (a quoted
+    field spanning lines, old Mac line ends)."""
+    lines = data.split(b"\n")
+    filled = np.flatnonzero([bool(line.strip(b"\r")) for line in lines]) + 1
+    if len(filled) == n_rows + 1:
+        return filled[1:]
+    return np.arange(n_rows) + 2
+
+
 def parse_sensor_csv(data: bytes, *, path: str = "<input>", strict: bool = False) -> Trace:
     """Parse a walk-line sensor CSV into a :class:`Trace` (sensors only)."""
     report = ParseReport(path=path)
@@ -252,23 +275,28 @@ def parse_sensor_csv(data: bytes, *, path: str = "<input>", strict: bool = False
         raise SurveyFormatError("sensor log has no sensor columns (e.g. acc_x, acc_y, acc_z)",
                                 path=path, reason="csv")
     # Out of range: a time beyond 2^53 ms, an accuracy beyond int8 (a missing one means 3).
+    if "accuracy" in columns:  # a missing one means 3, a given one must be a whole number
+        acc = numeric["accuracy"]
+        row_bad |= ~_missing(table.column("accuracy")) & ~(np.isfinite(acc)
+                                                           & (acc == np.round(acc)))
     out_of_range = ~row_bad & (t >= MAX_TIME_MS)
     if "accuracy" in columns:
-        out_of_range |= ~row_bad & (np.abs(numeric["accuracy"]) > 127)
+        out_of_range |= ~row_bad & (np.abs(acc) > 127)
     problems = {"non_numeric": (row_bad, "non-numeric, missing or non-finite value"),
                 "out_of_range": (out_of_range, "t_ms beyond 2^53 ms or accuracy beyond 127")}
     any_bad = row_bad | out_of_range
     if any_bad.any():
+        line = _row_lines(data, table.num_rows)
         first = int(np.flatnonzero(any_bad)[0])
         reason = "non_numeric" if row_bad[first] else "out_of_range"
         if strict:
-            raise SurveyFormatError(problems[reason][1], path=path, line=first + 2,
+            raise SurveyFormatError(problems[reason][1], path=path, line=int(line[first]),
                                     reason=reason)
         for reason, (mask, _) in problems.items():
             if mask.any():
                 report.bad[reason] = int(mask.sum())
         text = np.where(row_bad, problems["non_numeric"][1], problems["out_of_range"][1])
-        report.messages = [f"{path}:{i + 2}: {text[i]}" for i in np.flatnonzero(any_bad)[:20]]
+        report.messages = [f"{path}:{line[i]}: {text[i]}" for i in np.flatnonzero(any_bad)[:20]]
     good = ~any_bad
     t_ms = t[good].astype(np.int64)
     accuracy = (numeric["accuracy"][good] if "accuracy" in columns

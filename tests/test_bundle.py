@@ -424,3 +424,110 @@ def test_a_reader_that_has_gone_ends_the_command_quietly(bundle_dir):
     err = proc.stderr.read()
     assert proc.wait(timeout=60) == 1
     assert err == b""
+
+
+def test_registry_refuses_a_version_that_is_not_the_one_current_names(tmp_path):
+    """A version folder swapped for another (valid) bundle, a damaged version reused by a new
+    publish or a rollback: refused, not served."""
+    write_bundle(tmp_path / "v1", _content(0.0))
+    write_bundle(tmp_path / "v2", _content(1.0))
+    reg = Registry(tmp_path / "reg")
+    e1, e2 = reg.publish(tmp_path / "v1"), reg.publish(tmp_path / "v2")
+    versions = tmp_path / "reg" / "site" / "F1" / "versions"
+    shutil.rmtree(versions / e2["bundle_id"])
+    shutil.copytree(tmp_path / "v1", versions / e2["bundle_id"])
+    with pytest.raises(BundleIntegrityError, match="CURRENT names"):
+        load_bundle(tmp_path / "reg" / "site" / "F1")
+    mask = versions / e1["bundle_id"] / "mask.npy"
+    mask.write_bytes(mask.read_bytes()[:-1] + b"\x07")
+    with pytest.raises(BundleIntegrityError):
+        reg.publish(tmp_path / "v1")
+    with pytest.raises(BundleIntegrityError):
+        reg.set_current("site", "F1", e1["bundle_id"], allow_rollback=True)
+
+
+def test_publishing_a_registry_floor_folder_copies_its_current_bundle(tmp_path):
+    write_bundle(tmp_path / "v1", _content(0.0))
+    Registry(tmp_path / "r1").publish(tmp_path / "v1")
+    e = Registry(tmp_path / "r2").publish(tmp_path / "r1" / "site" / "F1")
+    version = tmp_path / "r2" / "site" / "F1" / "versions" / e["bundle_id"]
+    assert sorted(p.name for p in version.iterdir()) == sorted(
+        p.name for p in (tmp_path / "v1").iterdir())
+    assert Registry(tmp_path / "r2").publish(tmp_path / "v1") == e
+
+
+def test_manifests_that_are_not_plain_json_files_are_refused(tmp_path, bundle_dir):
+    m_path = bundle_dir / "manifest.json"
+    original = m_path.read_text()
+    m_path.write_text("[" * 100_000 + "]" * 100_000)   # nesting deeper than the parser's stack
+    with pytest.raises(BundleIntegrityError, match="unreadable manifest"):
+        load_bundle(bundle_dir)
+    m_path.unlink()
+    os.mkfifo(m_path)   # would block a plain read
+    with pytest.raises(BundleIntegrityError, match="regular file"):
+        load_bundle(bundle_dir)
+    m_path.unlink()
+    (tmp_path / "elsewhere.json").write_text(original)
+    m_path.symlink_to(tmp_path / "elsewhere.json")
+    with pytest.raises(BundleIntegrityError, match="regular file"):
+        load_bundle(bundle_dir)
+
+
+@pytest.mark.parametrize("version", [True, 1.0, "1"])
+def test_a_schema_version_of_another_type_is_refused(bundle_dir, version):
+    from localize.bundle import bundle_id_of
+
+    m_path = bundle_dir / "manifest.json"
+    manifest = json.loads(m_path.read_text())
+    manifest["schema_version"] = version
+    manifest["bundle_id"] = bundle_id_of(manifest)
+    m_path.write_text(json.dumps(manifest))
+    with pytest.raises(BundleError, match="schema version"):
+        load_bundle(bundle_dir)
+
+
+def _rewrite_member(bundle_dir: Path, name: str, array: np.ndarray) -> None:
+    """Replace a member with ``array`` and re-hash the manifest (a forger's full rewrite)."""
+    import hashlib
+
+    from localize.bundle import bundle_id_of
+
+    np.save(bundle_dir / name, array, allow_pickle=False)
+    data = (bundle_dir / name).read_bytes()
+    m_path = bundle_dir / "manifest.json"
+    manifest = json.loads(m_path.read_text())
+    manifest["members"][name] = {"sha256": hashlib.sha256(data).hexdigest(), "size": len(data)}
+    manifest["bundle_id"] = bundle_id_of(manifest)
+    m_path.write_text(json.dumps(manifest))
+
+
+def test_arrays_with_negative_dimensions_or_a_non_boolean_mask_are_refused(bundle_dir):
+    mask = np.load(bundle_dir / "mask.npy")
+    _rewrite_member(bundle_dir, "mask.npy", np.where(mask, 7, 0).astype(np.int64))
+    with pytest.raises(BundleIntegrityError, match="dtype|0/1"):
+        load_bundle(bundle_dir)
+    _rewrite_member(bundle_dir, "mask.npy", mask)
+    load_bundle(bundle_dir)  # the rewrite itself is sound
+    path = bundle_dir / "mask.npy"
+    raw = path.read_bytes()
+    shape = repr(mask.shape).encode() + b", }  "   # the header's padding absorbs the signs
+    bad = raw.replace(shape, f"(-{mask.shape[0]}, -{mask.shape[1]}), }}".encode(), 1)
+    assert bad != raw and len(bad) == len(raw)
+    path.write_bytes(bad)
+    from localize.bundle import read_npy_checked
+
+    with pytest.raises(BundleIntegrityError, match="shape"):
+        read_npy_checked(path)
+
+
+def test_writer_checks_values_outside_a_uint8_mask(tmp_path):
+    content = _content()
+    mask = content.mask.astype(np.uint8)
+    layer = content.layers["strength"]
+    values = layer.values.copy()
+    values[0, 0] = 99.0    # a cell outside the mask
+    bad = BundleContent(content.site_id, content.floor_id, content.floor_name, grid=content.grid,
+                        mask=mask, layers={"strength": Layer(values, layer.std, "uT")},
+                        tables=content.tables, build=content.build)
+    with pytest.raises(BundleError, match="outside the reachable mask"):
+        write_bundle(tmp_path / "b", bad)

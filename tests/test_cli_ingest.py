@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import pickle
+from pathlib import Path
+
+import pytest
+
 from click.testing import CliRunner
 
 from factories import small_trace
@@ -122,3 +127,25 @@ def test_progress_off_a_terminal_prints_about_every_tenth():
     lines = log.getvalue().splitlines()
     assert lines[0] == "process: 2/25 walks" and lines[-1] == "process: 25/25 walks"
     assert 10 <= len(lines) <= 13 and len(set(lines)) == len(lines)
+
+
+def test_one_trace_id_twice_or_one_content_twice_in_a_run(tmp_path):
+    """Two files with one trace id: the second fails (it would replace the first); the same
+    content under two names: the second is a duplicate, as in separate runs."""
+    from survey.errors import SurveyFormatError
+    from survey.ingest import ingest
+
+    write_trace(tmp_path / "a" / "X.txt.gz", small_trace(seed=1, trace_id="X"))
+    write_trace(tmp_path / "b" / "X.txt", small_trace(seed=2, trace_id="X"))
+    (tmp_path / "a" / "Y.txt.gz").write_bytes((tmp_path / "a" / "X.txt.gz").read_bytes())
+    s = ingest([tmp_path / "a", tmp_path / "b"], tmp_path / "store")
+    by_path = {Path(o.path).relative_to(tmp_path).as_posix(): o for o in s.outcomes}
+    assert by_path["a/X.txt.gz"].status == "new"
+    assert by_path["a/Y.txt.gz"].status == "duplicate"
+    assert by_path["b/X.txt"].status == "failed" and "also comes from" in by_path["b/X.txt"].detail
+    with pytest.raises(SurveyFormatError, match="also comes from"):
+        ingest([tmp_path / "a", tmp_path / "b"], tmp_path / "store2", strict=True)
+    # the error keeps its fields across processes (ingest workers)
+    err = pickle.loads(pickle.dumps(SurveyFormatError("bad", path="f.txt", line=3,
+                                                      reason="r")))
+    assert (str(err), err.path, err.line, err.reason) == ("f.txt:3: bad", "f.txt", 3, "r")

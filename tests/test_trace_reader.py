@@ -240,3 +240,24 @@ def test_real_floor_every_line_accounted(ilc_floor):
                                         if k not in ("TYPE_WIFI", "TYPE_BEACON", "TYPE_WAYPOINT"))
         assert len(item.wifi) + r.dropped.get("duplicate_bssid_in_scan", 0) == r.records.get(
             "TYPE_WIFI", 0)
+
+
+def test_byte_order_mark_zero_padding_and_a_bad_checksum_lose_nothing(tmp_path):
+    """A UTF-8 BOM before the header, zero bytes after a complete gzip stream, and a damaged
+    gzip trailer (checksum) keep every line; only the last case gets a note."""
+    trace = small_trace(n=400)
+    text = render_trace(trace).encode()
+    full = parse_trace_bytes(text)
+    bom = parse_trace_bytes(b"\xef\xbb\xbf" + text)
+    assert bom.report.bad == {} and bom.header == full.header
+    _assert_same_tables(bom, full)
+    packed = gzip.compress(text, mtime=0)
+    (tmp_path / "pad.txt.gz").write_bytes(packed + bytes(16))
+    padded = read_trace(tmp_path / "pad.txt.gz", strict=True)
+    _assert_same_tables(padded, full)
+    crc = bytearray(packed)
+    crc[-5] ^= 0xFF   # the CRC-32 in the trailer
+    (tmp_path / "crc.txt.gz").write_bytes(bytes(crc))
+    damaged = read_trace(tmp_path / "crc.txt.gz")
+    _assert_same_tables(damaged, full)
+    assert "damaged gzip stream" in damaged.report.messages[0]

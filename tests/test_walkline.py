@@ -121,8 +121,12 @@ def test_folders_ignore_geojson_that_is_not_a_walk_plan(tmp_path):
                                                     "geometry": None}]}))
     s = ingest([tmp_path], tmp_path / "store")
     assert s.status_counts() == {"new": 1}
-    with pytest.raises(SurveyFormatError, match=r"floor.geojson \(feature 0\)"):  # a plan
-        ingest([tmp_path / "floor.geojson"], tmp_path / "store")
+    # named explicitly it is a plan, and a broken one: failed (lenient) or an error (strict)
+    s = ingest([tmp_path / "floor.geojson"], tmp_path / "store")
+    assert [o.status for o in s.outcomes] == ["failed"]
+    assert "floor.geojson (feature 0)" in s.outcomes[0].detail
+    with pytest.raises(SurveyFormatError, match=r"floor.geojson \(feature 0\)"):
+        ingest([tmp_path / "floor.geojson"], tmp_path / "store", strict=True)
 
 
 def test_sensor_log_must_be_a_regular_file(tmp_path):
@@ -132,3 +136,39 @@ def test_sensor_log_must_be_a_regular_file(tmp_path):
                                             "start_ms": 1, "end_ms": 2}}])
     with pytest.raises(SurveyFormatError, match="not a regular file"):
         read_walk_plan(plan)
+
+
+def test_a_walk_id_cannot_place_files_outside_the_store(tmp_path):
+    _csv(tmp_path / "a.csv")
+    feature = _feature("a", [[0, 0], [1, 0]], start_ms=1, end_ms=2)
+    feature["properties"]["walk_id"] = "../../../../outside"
+    _plan(tmp_path, [feature])
+    store_dir = tmp_path / "deep" / "store"
+    ingest([tmp_path / "plan.geojson"], store_dir)
+    written = [p for p in tmp_path.rglob("*.parquet")]
+    assert written and all(store_dir in p.parents for p in written)
+    assert SurveyStore.open(store_dir).catalog()["trace_id"].tolist() == ["../../../../outside"]
+
+
+def test_a_changed_collection_property_changes_the_walk(tmp_path):
+    _csv(tmp_path / "a.csv")
+    plan = _plan(tmp_path, [_feature("a", [[0, 0], [1, 0]], start_ms=1, end_ms=2)])
+    ingest([plan], tmp_path / "store")
+    doc = json.loads(plan.read_text())
+    doc["properties"]["floor_name"] = "F3"
+    plan.write_text(json.dumps(doc))
+    s = ingest([plan], tmp_path / "store")
+    assert s.status_counts() == {"changed": 1}
+    assert SurveyStore.open(tmp_path / "store").catalog()["floor"].tolist() == ["F3"]
+
+
+def test_accuracy_must_be_a_whole_number_and_lines_count_blank_ones(tmp_path):
+    (tmp_path / "a.csv").write_text("t_ms,acc_x,acc_y,acc_z,accuracy\n1000,1,2,3,2\n\n"
+                                    "1020,1,2,3,abc\n1040,1,2,3,2.5\n1060,1,2,3,\n")
+    _plan(tmp_path, [_feature("a", [[0, 0], [1, 0]], start_ms=1000, end_ms=1060)])
+    (trace, _, _), = read_walk_plan(tmp_path / "plan.geojson")
+    assert trace.sensors["t_ms"].tolist() == [1000, 1060]
+    assert trace.sensors["accuracy"].tolist() == [2, 3]   # missing means 3
+    assert [m.split(": ")[0].rsplit(":", 1)[1] for m in trace.report.messages] == ["4", "5"]
+    with pytest.raises(SurveyFormatError, match=r"a.csv:4: non-numeric"):
+        read_walk_plan(tmp_path / "plan.geojson", strict=True)
