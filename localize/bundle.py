@@ -21,8 +21,8 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import stat
 import os
+import stat
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import TYPE_CHECKING, Any
@@ -353,7 +353,7 @@ def read_manifest(path: Path) -> dict:
         raise BundleError(f"{mpath}: not an {BUNDLE_FORMAT} manifest")
     version = manifest.get("schema_version")
     if type(version) is not int or version != SCHEMA_VERSION:  # not True, not 1.0
-        raise BundleError(f"{mpath}: schema version {manifest.get('schema_version')!r} is not "
+        raise BundleError(f"{mpath}: schema version {version!r} is not "
                           f"supported (this indoormap reads version {SCHEMA_VERSION})")
     if manifest.get("bundle_id") != bundle_id_of(manifest):
         raise BundleIntegrityError(f"{mpath}: bundle id does not match the manifest content")

@@ -141,7 +141,8 @@ class Registry:
             raise RegistryError(
                 f"{site}/{floor}: version {bundle_id[:12]} (#{entry['seq']}) is older than the "
                 f"current #{cur['seq']}; rolling back needs allow_rollback (CLI: --rollback)")
-        load_bundle(self._floor(site, floor) / "versions" / bundle_id)  # intact, or refused
+        if not _newly_published:  # publish() has just verified it
+            load_bundle(self._floor(site, floor) / "versions" / bundle_id)  # intact, or refused
         atomic_write_bytes(self._floor(site, floor) / "CURRENT",
                            json.dumps({"bundle_id": bundle_id, "seq": entry["seq"]}).encode(),
                            overwrite=True)

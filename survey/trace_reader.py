@@ -158,11 +158,15 @@ class _Batch:
         return self.scan.ends
 
 
+#: A UTF-8 byte order mark, which some editors write before the first line.
+BOM = b"\xef\xbb\xbf"
+
+
 def _make_batch(texts: Sequence[bytes], paths: Sequence[str],
                 notes: Sequence[str | None]) -> _Batch:
     pieces, cut = [], []
     for text, note in zip(texts, notes):
-        if text[:len(BOM)] == BOM:  # a byte order mark (some editors write one) is no text
+        if text.startswith(BOM):
             text = text[len(BOM):]
         if note and text and not text.endswith(b"\n"):
             # The partial last line of a damaged stream stands as an empty line, reported below.
@@ -627,9 +631,6 @@ class _Tables:
 
 # --------------------------------------------------------------------------------------------
 # The whole parse
-
-
-BOM = b"\xef\xbb\xbf"
 
 
 def parse_traces(texts: Sequence[bytes], paths: Sequence[str], *, strict: bool = False,

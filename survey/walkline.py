@@ -274,13 +274,14 @@ def parse_sensor_csv(data: bytes, *, path: str = "<input>", strict: bool = False
     if not parts:
         raise SurveyFormatError("sensor log has no sensor columns (e.g. acc_x, acc_y, acc_z)",
                                 path=path, reason="csv")
-    # Out of range: a time beyond 2^53 ms, an accuracy beyond int8 (a missing one means 3).
-    if "accuracy" in columns:  # a missing one means 3, a given one must be a whole number
-        acc = numeric["accuracy"]
+    # An accuracy, when given, is a whole number (a missing one means 3). Out of range: a time
+    # beyond 2^53 ms, an accuracy beyond int8.
+    acc = numeric.get("accuracy")
+    if acc is not None:
         row_bad |= ~_missing(table.column("accuracy")) & ~(np.isfinite(acc)
                                                            & (acc == np.round(acc)))
     out_of_range = ~row_bad & (t >= MAX_TIME_MS)
-    if "accuracy" in columns:
+    if acc is not None:
         out_of_range |= ~row_bad & (np.abs(acc) > 127)
     problems = {"non_numeric": (row_bad, "non-numeric, missing or non-finite value"),
                 "out_of_range": (out_of_range, "t_ms beyond 2^53 ms or accuracy beyond 127")}
@@ -299,8 +300,7 @@ def parse_sensor_csv(data: bytes, *, path: str = "<input>", strict: bool = False
         report.messages = [f"{path}:{line[i]}: {text[i]}" for i in np.flatnonzero(any_bad)[:20]]
     good = ~any_bad
     t_ms = t[good].astype(np.int64)
-    accuracy = (numeric["accuracy"][good] if "accuracy" in columns
-                else np.full(good.sum(), 3.0))
+    accuracy = acc[good] if acc is not None else np.full(good.sum(), 3.0)
     accuracy = np.nan_to_num(accuracy, nan=3.0).astype(np.int8)
     frames = []
     for stream, values in parts:

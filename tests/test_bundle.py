@@ -15,7 +15,7 @@ import pyarrow as pa
 import pytest
 from click.testing import CliRunner
 
-from localize.bundle import Grid, load_bundle, sample_grid
+from localize.bundle import Grid, bundle_id_of, load_bundle, read_npy_checked, sample_grid
 from mapping.bundle_writer import BundleContent, Layer, write_bundle
 from mapping.registry import Registry
 from survey.cli import main
@@ -475,8 +475,6 @@ def test_manifests_that_are_not_plain_json_files_are_refused(tmp_path, bundle_di
 
 @pytest.mark.parametrize("version", [True, 1.0, "1"])
 def test_a_schema_version_of_another_type_is_refused(bundle_dir, version):
-    from localize.bundle import bundle_id_of
-
     m_path = bundle_dir / "manifest.json"
     manifest = json.loads(m_path.read_text())
     manifest["schema_version"] = version
@@ -489,8 +487,6 @@ def test_a_schema_version_of_another_type_is_refused(bundle_dir, version):
 def _rewrite_member(bundle_dir: Path, name: str, array: np.ndarray) -> None:
     """Replace a member with ``array`` and re-hash the manifest (a forger's full rewrite)."""
     import hashlib
-
-    from localize.bundle import bundle_id_of
 
     np.save(bundle_dir / name, array, allow_pickle=False)
     data = (bundle_dir / name).read_bytes()
@@ -514,8 +510,6 @@ def test_arrays_with_negative_dimensions_or_a_non_boolean_mask_are_refused(bundl
     bad = raw.replace(shape, f"(-{mask.shape[0]}, -{mask.shape[1]}), }}".encode(), 1)
     assert bad != raw and len(bad) == len(raw)
     path.write_bytes(bad)
-    from localize.bundle import read_npy_checked
-
     with pytest.raises(BundleIntegrityError, match="shape"):
         read_npy_checked(path)
 
