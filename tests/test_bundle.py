@@ -189,8 +189,6 @@ def test_a_manifest_with_a_valid_id_but_malformed_fields_is_refused(bundle_dir, 
                                                                      match):
     """Someone who rewrites the manifest can recompute its id: every reader (load, verify,
     info, diff) still gets a clear integrity error naming the field, not a traceback."""
-    from localize.bundle import bundle_id_of
-
     m_path = bundle_dir / "manifest.json"
     manifest = json.loads(m_path.read_text())
     if field.startswith("members."):
@@ -221,8 +219,6 @@ def test_non_finite_numbers_in_a_manifest_are_refused(bundle_dir):
 
 def test_infinite_layer_values_are_refused(bundle_dir):
     import hashlib
-
-    from localize.bundle import bundle_id_of
 
     m_path = bundle_dir / "manifest.json"
     manifest = json.loads(m_path.read_text())
