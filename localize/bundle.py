@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from survey.errors import BundleError, BundleIntegrityError, RegistryError
+from survey.publish import file_sha256
 
 if TYPE_CHECKING:  # an annotation: pyarrow is imported when a table is read
     import pyarrow as pa
@@ -51,18 +52,17 @@ def canonical_json(obj: object) -> bytes:
                       allow_nan=False).encode("utf-8")
 
 
+def manifest_bytes(manifest: dict) -> bytes:
+    """The exact bytes of ``manifest.json`` (sorted keys, one-space indent, ASCII, final
+    newline). A manifest is read back only if its file is these bytes of what it parses to, so
+    no byte of it can change unnoticed, not even white space."""
+    return (json.dumps(manifest, sort_keys=True, indent=1, allow_nan=False) + "\n").encode()
+
+
 def bundle_id_of(manifest: dict) -> str:
     """Content hash of a manifest: sha256 of its canonical JSON without ``bundle_id``."""
     body = {k: v for k, v in manifest.items() if k != "bundle_id"}
     return hashlib.sha256(canonical_json(body)).hexdigest()
-
-
-def file_sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 @dataclass(frozen=True)
@@ -357,6 +357,9 @@ def read_manifest(path: Path) -> dict:
                           f"supported (this indoormap reads version {SCHEMA_VERSION})")
     if manifest.get("bundle_id") != bundle_id_of(manifest):
         raise BundleIntegrityError(f"{mpath}: bundle id does not match the manifest content")
+    if text != manifest_bytes(manifest):
+        raise BundleIntegrityError(f"{mpath}: the manifest's bytes are not the ones indoormap "
+                                   "writes for its content (edited after the build?)")
     check_manifest_layout(manifest, mpath)
     return manifest
 
@@ -390,8 +393,9 @@ def check_manifest_layout(manifest: dict, mpath: Path) -> None:
         if not ok:
             raise BundleIntegrityError(f"{mpath}: field {field!r} is missing or malformed")
 
-    for key in ("site_id", "floor_id", "kind", "software_version"):
+    for key in ("site_id", "floor_id", "floor_name", "software_version"):
         need(isinstance(manifest.get(key), str), key)
+    need(manifest.get("kind") in ("floor", "site"), "kind")
     build = manifest.get("build")
     need(isinstance(build, dict) and isinstance(build.get("params", {}), dict), "build")
     walks = build.get("source_walks", [])

@@ -9,7 +9,6 @@ and the manifest canonical JSON whose build time the caller pins.
 from __future__ import annotations
 
 import io
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,10 +17,10 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from localize.bundle import BUNDLE_FORMAT, SCHEMA_VERSION, Grid, bundle_id_of, file_sha256
+from localize.bundle import BUNDLE_FORMAT, SCHEMA_VERSION, Grid, bundle_id_of, manifest_bytes
 from survey import __version__
 from survey.errors import BundleError
-from survey.publish import atomic_directory, crash_point
+from survey.publish import atomic_directory, crash_point, file_sha256
 
 
 @dataclass
@@ -124,6 +123,5 @@ def write_bundle(target: str | os.PathLike, content: BundleContent, *,
             crash_point("bundle:member")
         manifest["members"] = members
         manifest["bundle_id"] = bundle_id_of(manifest)
-        (tmp / "manifest.json").write_text(json.dumps(manifest, sort_keys=True, indent=1,
-                                                      allow_nan=False) + "\n")
+        (tmp / "manifest.json").write_bytes(manifest_bytes(manifest))
     return manifest["bundle_id"]

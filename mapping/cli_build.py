@@ -28,6 +28,7 @@ from survey.publish import (
 from survey.trace_format import bad_lines_summary
 
 from .build import BuildParams, build_floor
+from .bundle_report import bundle_differences, metric_lines
 from .bundle_writer import write_bundle
 from .floorplan import FloorPlan, read_floor_plan
 from .grid import grid_for_extent
@@ -389,34 +390,10 @@ def bundle_info(path: Path, as_json: bool) -> None:
                        if finite.size else f"  layer {name}: empty")
     for name, meta in m.get("tables", {}).items():
         click.echo(f"  table {name:<15} {meta['rows']} rows")
-    for line in _metric_lines(m).values():
+    for line in metric_lines(m).values():
         click.echo(f"  {line}")
     click.echo(f"  built {m['build'].get('build_time')} from "
                f"{len(m['build'].get('source_walks', []))} walks")
-
-
-def _metric_lines(manifest: dict) -> dict[str, str]:
-    """What a floor bundle's build chose and reached, a line each (keyed ``smoothing``,
-    ``coverage``): the smoothing picked by cross-validation and the survey's coverage of the
-    reachable area."""
-    mt = manifest.get("metrics") or {}
-    lines = {}
-    if isinstance(mt.get("interpolator"), str):
-        scores = mt.get("smoothing_cv_shape_rmse_ut") or {}
-        best = min(scores.values()) if scores else None
-        parts = [mt["interpolator"]] + [
-            f"{label} {mt[key]:g}{unit}" for key, label, unit in (
-                ("bandwidth_m", "bandwidth", " m"), ("prior_walks", "shrinkage", " walks"),
-                ("slope_ridge", "slope ridge", ""), ("curvature_ridge", "curvature ridge", ""))
-            if isinstance(mt.get(key), (int, float))]
-        lines["smoothing"] = ("smoothing " + ", ".join(parts)
-                              + (f" (cross-validated shape RMSE {best:.2f} uT)" if best else ""))
-    cov = mt.get("coverage")
-    if isinstance(cov, dict) and cov:
-        lines["coverage"] = "reachable area near a sample: " + ", ".join(
-            f"{100 * v:.0f} % within {k.removeprefix('within_').removesuffix('m')} m"
-            for k, v in cov.items() if isinstance(v, (int, float)))
-    return lines
 
 
 @bundle_group.command("verify")
@@ -446,49 +423,17 @@ def bundle_verify(paths: tuple[Path, ...]) -> None:
 @click.argument("a", type=click.Path(exists=True, path_type=Path))
 @click.argument("b", type=click.Path(exists=True, path_type=Path))
 def bundle_diff(a: Path, b: Path) -> None:
-    """Differences between two bundles: parameters, walks, members, layer changes."""
+    """Differences between two bundles: build settings, walks, members, grid, layers."""
     ba, bb = load_bundle(a), load_bundle(b)
-    ma, mb = ba.manifest, bb.manifest
-    if ma["bundle_id"] == mb["bundle_id"]:
+    if ba.bundle_id == bb.bundle_id:
         click.echo("identical")
         return
-    for tag, m in (("a", ma), ("b", mb)):
+    for tag, m in (("a", ba.manifest), ("b", bb.manifest)):
         what = "site bundle" if m.get("kind") == "site" else f"floor {m.get('floor_name', '?')}"
         click.echo(f"{tag}: {m['bundle_id'][:16]} site {m['site_id'][:12]} {what}, built "
                    f"{m['build'].get('build_time')}")
-    if ma["site_id"] != mb["site_id"] or ma.get("floor_id") != mb.get("floor_id") \
-            or ma.get("kind") != mb.get("kind"):
-        click.echo("warning: these bundles are of different sites, floors or kinds; what "
-                   "follows compares unrelated maps", err=True)
-    la, lb = _metric_lines(ma), _metric_lines(mb)
-    for key in sorted(set(la) | set(lb)):
-        if la.get(key) != lb.get(key):
-            click.echo(f"{la.get(key, f'{key}: none')}\n  -> {lb.get(key, f'{key}: none')}")
-    wa = {w["trace_id"] for w in ma["build"].get("source_walks", [])}
-    wb = {w["trace_id"] for w in mb["build"].get("source_walks", [])}
-    click.echo(f"walks: {len(wa & wb)} shared, {len(wb - wa)} added, {len(wa - wb)} removed")
-    pa_, pb = ma["build"].get("params", {}), mb["build"].get("params", {})
-    for k in sorted(set(pa_) | set(pb)):
-        if pa_.get(k) != pb.get(k):
-            click.echo(f"param {k}: {pa_.get(k)} -> {pb.get(k)}")
-    for name in sorted(set(ma["members"]) | set(mb["members"])):
-        if ma["members"].get(name) != mb["members"].get(name):
-            where = ("changed" if name in ma["members"] and name in mb["members"]
-                     else f"only in {'a' if name in ma['members'] else 'b'}")
-            click.echo(f"member {name}: {where}")
-    if ba.grid == bb.grid:
-        for name in sorted(set(ba.layers) & set(bb.layers)):
-            d = np.asarray(bb.layers[name], float) - np.asarray(ba.layers[name], float)
-            if ma["layers"][name]["kind"] == "angle":
-                d = (d + 180) % 360 - 180
-            ok = np.isfinite(d)
-            if ok.any():
-                click.echo(f"layer {name}: mean abs change {np.abs(d[ok]).mean():.3f} "
-                           f"{ma['layers'][name]['unit']}, max {np.abs(d[ok]).max():.3f}")
-    elif ba.grid is not None and bb.grid is not None:
-        click.echo(f"grid: {ba.grid.width} x {ba.grid.height} cells of {ba.grid.cell_m} m -> "
-                   f"{bb.grid.width} x {bb.grid.height} of {bb.grid.cell_m} m (layers not "
-                   "compared cell by cell)")
+    for line in bundle_differences(ba, bb):
+        click.echo(line, err=line.startswith("warning:"))
 
 
 @bundle_group.command("list")

@@ -10,13 +10,22 @@ A version is copied in with an atomic folder rename, then ``history.json`` and `
 replaced atomically, so a reader that follows ``CURRENT`` always finds a complete, verified
 bundle; a crash leaves the previous current version in place. Versions only move forward:
 pointing ``CURRENT`` at an older version needs ``allow_rollback=True``.
+
+Writers of one floor take turns: ``publish`` and ``set_current`` hold an exclusive lock on
+``REG/<site>/<floor>/.lock`` (``flock``, released by the system if the process dies) while
+they read and replace ``history.json`` and ``CURRENT``, so concurrent publishes each get their
+own sequence number and none is lost. Readers take no lock. The lock is advisory and local: it
+needs a file system with working ``flock`` (not every network share has one), and where the
+platform has no ``fcntl`` (Windows) writers are not serialized.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
+from collections.abc import Iterator
 from pathlib import Path
 
 from localize.bundle import (
@@ -28,6 +37,11 @@ from localize.bundle import (
 )
 from survey.errors import RegistryError
 from survey.publish import atomic_directory, atomic_write_bytes, crash_point
+
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - Windows
+    fcntl = None  # type: ignore[assignment]
 
 
 SITE_BUNDLE = "_site"
@@ -43,6 +57,16 @@ class Registry:
 
     def _floor(self, site: str, floor: str) -> Path:
         return self.root / safe_name(site) / safe_name(floor)
+
+    @contextlib.contextmanager
+    def _writing(self, site: str, floor: str) -> Iterator[Path]:
+        """Hold the floor's writer lock (see the module docstring); yields the floor folder."""
+        base = self._floor(site, floor)
+        base.mkdir(parents=True, exist_ok=True)
+        with open(base / ".lock", "ab") as fh:
+            if fcntl is not None:
+                fcntl.flock(fh.fileno(), fcntl.LOCK_EX)  # released on close, or by the OS
+            yield base
 
     def history(self, site: str, floor: str) -> list[dict]:
         path = self._floor(site, floor) / "history.json"
@@ -90,43 +114,47 @@ class Registry:
         and, by default, make it current. Returns ``{"bundle_id", "seq"}``."""
         bundle = load_bundle(bundle_dir)  # verify before anything is copied
         source = bundle.path  # the bundle itself, also when bundle_dir is a registry floor
-        site = bundle.manifest.get("site_id")
-        floor = (SITE_BUNDLE if bundle.manifest.get("kind") == "site"
-                 else bundle.manifest.get("floor_name"))
-        if not isinstance(site, str) or not isinstance(floor, str):
-            raise RegistryError(f"{source}: the manifest needs site_id and floor_name strings "
-                                f"to be published (got {site!r}, {floor!r})")
-        base = self._floor(site, floor)
-        target = base / "versions" / bundle.bundle_id
-        if not target.exists():
-            with atomic_directory(target, crash_prefix="registry") as tmp:
-                for src in sorted(source.rglob("*")):
-                    rel = src.relative_to(source)
-                    if src.is_dir():
-                        (tmp / rel).mkdir(parents=True, exist_ok=True)
-                    else:
-                        (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
-                        shutil.copyfile(src, tmp / rel)
-        load_bundle(target)  # the copy, or the version already there, is intact
-        crash_point("registry:after-copy")
-        history = self.history(site, floor)
-        entry = next((h for h in history if h["bundle_id"] == bundle.bundle_id), None)
-        if entry is None:
-            entry = {"seq": (history[-1]["seq"] + 1) if history else 1,
-                     "bundle_id": bundle.bundle_id}
-            history.append(entry)
-            atomic_write_bytes(base / "history.json", json.dumps(history, indent=1).encode(),
-                               overwrite=True)
-        crash_point("registry:after-history")
-        if make_current:
-            self.set_current(site, floor, bundle.bundle_id, allow_rollback=False,
-                             _newly_published=True)
+        site = bundle.site_id  # strings: load_bundle checked them
+        floor = SITE_BUNDLE if bundle.manifest["kind"] == "site" else bundle.manifest["floor_name"]
+        with self._writing(site, floor) as base:
+            target = base / "versions" / bundle.bundle_id
+            if not target.exists():
+                with atomic_directory(target, crash_prefix="registry") as tmp:
+                    for src in sorted(source.rglob("*")):
+                        rel = src.relative_to(source)
+                        if src.is_dir():
+                            (tmp / rel).mkdir(parents=True, exist_ok=True)
+                        else:
+                            (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
+                            shutil.copyfile(src, tmp / rel)
+            load_bundle(target)  # the copy, or the version already there, is intact
+            crash_point("registry:after-copy")
+            history = self.history(site, floor)
+            entry = next((h for h in history if h["bundle_id"] == bundle.bundle_id), None)
+            if entry is None:
+                entry = {"seq": (history[-1]["seq"] + 1) if history else 1,
+                         "bundle_id": bundle.bundle_id}
+                history.append(entry)
+                atomic_write_bytes(base / "history.json", json.dumps(history, indent=1).encode(),
+                                   overwrite=True)
+            crash_point("registry:after-history")
+            if make_current:
+                self._point(site, floor, bundle.bundle_id, allow_rollback=False, verify=False)
         return entry
 
     def set_current(self, site: str, floor: str, bundle_id: str, *,
-                    allow_rollback: bool = False, _newly_published: bool = False) -> None:
-        """Point ``CURRENT`` at a published version. Moving to an older sequence number is a
-        rollback and is refused unless ``allow_rollback``."""
+                    allow_rollback: bool = False) -> None:
+        """Point ``CURRENT`` at a published version (verified first). Moving to an older
+        sequence number is a rollback and is refused unless ``allow_rollback``."""
+        if not self._floor(site, floor).is_dir():
+            raise RegistryError(f"{self.root}: nothing published for {site}/{floor}")
+        with self._writing(site, floor):
+            self._point(site, floor, bundle_id, allow_rollback=allow_rollback, verify=True)
+
+    def _point(self, site: str, floor: str, bundle_id: str, *, allow_rollback: bool,
+               verify: bool) -> None:
+        """``set_current`` under the writer lock; ``verify=False`` for the version ``publish``
+        has just verified."""
         history = self.history(site, floor)
         entry = next((h for h in history if h["bundle_id"] == bundle_id), None)
         if entry is None:
@@ -141,7 +169,7 @@ class Registry:
             raise RegistryError(
                 f"{site}/{floor}: version {bundle_id[:12]} (#{entry['seq']}) is older than the "
                 f"current #{cur['seq']}; rolling back needs allow_rollback (CLI: --rollback)")
-        if not _newly_published:  # publish() has just verified it
+        if verify:
             load_bundle(self._floor(site, floor) / "versions" / bundle_id)  # intact, or refused
         atomic_write_bytes(self._floor(site, floor) / "CURRENT",
                            json.dumps({"bundle_id": bundle_id, "seq": entry["seq"]}).encode(),

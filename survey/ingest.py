@@ -17,7 +17,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .errors import SurveyFormatError
-from .store import IngestOutcome, SurveyStore, catalog_row, file_sha256, write_parts
+from .publish import file_sha256
+from .store import IngestOutcome, SurveyStore, catalog_row, write_parts
 from .trace_reader import BATCH_BYTES, ReadFailure, find_trace_files, iter_traces, \
     trace_id_from_path
 from .walkline import identity_sha256, is_walk_plan, read_walk_plan

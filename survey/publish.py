@@ -12,6 +12,7 @@ point passed to :func:`crash_point`, the process exits immediately with ``os._ex
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
 import secrets
 import shutil
@@ -34,6 +35,15 @@ def _umask() -> int:
 #: temporary-file functions create 0600/0700, which must not leak into outputs).
 FILE_MODE = 0o666 & ~_umask()
 DIR_MODE = 0o777 & ~_umask()
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    """Hex sha256 of a file's bytes, read in 1 MiB chunks."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
 
 
 def crash_point(name: str) -> None:

@@ -17,7 +17,6 @@ the old store or the new one, plus unreferenced part files that the next ingest 
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import json
 import os
 import re
@@ -32,7 +31,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from .errors import StoreError
-from .publish import TMP_PREFIX, atomic_write_bytes, crash_point, fsync_dir, \
+from .publish import TMP_PREFIX, atomic_write_bytes, crash_point, file_sha256, fsync_dir, \
     remove_stale_temporaries
 from .trace_format import Trace
 
@@ -56,14 +55,6 @@ def _safe_component(value: str | None, fallback: str) -> str:
     """A partition value usable as a folder name (``[A-Za-z0-9_.-]``, not starting with a dot)."""
     text = re.sub(r"[^A-Za-z0-9_.-]", "_", (value or "").strip()) or fallback
     return (("_" + text[1:]) if text.startswith(".") else text)[:80]
-
-
-def file_sha256(path: str | os.PathLike) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def part_path(table: str, site: str, floor: str, trace_id: str, sha256: str) -> str:

@@ -77,6 +77,10 @@ _FLOAT32_LIMIT = 2.0**128 - 2.0**103
 # Number spellings pyarrow's parser accepts and Python's int()/float() do not. The line-by-line
 # fallback accepts them too, so that a line parses the same whichever path reads it.
 _ARROW_HEX_INT = re.compile(r" *0[xX]([0-9a-fA-F]{1,16}) *")
+# and spellings Python takes that pyarrow does not: only ASCII, no '_' grouping, no '+' on an
+# integer, spaces as the only white space
+_ARROW_DEC_INT = re.compile(r" *-?[0-9]+ *")
+_PYTHON_ONLY_FLOAT = re.compile(r"[^ -~]|_")
 _ARROW_NAN = re.compile(r" *[+-]?nan\([0-9A-Za-z_]*\) *", re.IGNORECASE)
 
 # Value columns per record type: (name, kind) with kind "f" float, "i" integer, "s" string.
@@ -395,18 +399,19 @@ def _parse_block_slow(block: bytes, spec, type_names: np.ndarray):
 
 def _int(value: str) -> int:
     """An integer field as pyarrow reads it (also 0x-hex, as two's complement int64)."""
-    try:
+    if _ARROW_DEC_INT.fullmatch(value):
         return int(value)
-    except ValueError:
-        m = _ARROW_HEX_INT.fullmatch(value)
-        if not m:
-            raise
-        number = int(m.group(1), 16)
-        return number - 2**64 if number >= 2**63 else number
+    m = _ARROW_HEX_INT.fullmatch(value)
+    if not m:
+        raise ValueError(f"not an integer: {value[:30]!r}")
+    number = int(m.group(1), 16)
+    return number - 2**64 if number >= 2**63 else number
 
 
 def _float(value: str) -> float:
     """A float field as pyarrow reads it (also ``nan(...)``)."""
+    if _PYTHON_ONLY_FLOAT.search(value):
+        raise ValueError(f"not a number: {value[:30]!r}")
     try:
         return float(value)
     except ValueError:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import multiprocessing
 import os
 import re
 import shutil
@@ -15,7 +16,9 @@ import pyarrow as pa
 import pytest
 from click.testing import CliRunner
 
-from localize.bundle import Grid, bundle_id_of, load_bundle, read_npy_checked, sample_grid
+from localize.bundle import Grid, bundle_id_of, load_bundle, manifest_bytes, read_npy_checked, \
+    sample_grid
+from mapping.bundle_report import bundle_differences
 from mapping.bundle_writer import BundleContent, Layer, write_bundle
 from mapping.registry import Registry
 from survey.cli import main
@@ -105,6 +108,30 @@ def test_every_flipped_byte_is_rejected(tmp_path, bundle_dir):
     assert tried > 300
 
 
+@pytest.mark.parametrize("edit", ["trailing space", "no final newline", "other indent",
+                                  "keys reordered", "escaped character", "number respelled"])
+def test_a_manifest_edited_without_changing_its_content_is_refused(bundle_dir, edit):
+    """RELIABILITY #3 is about every byte: white space, key order and spellings of the same
+    values change the file, so they are refused although the parsed content (and so the bundle
+    id) is the same."""
+    m_path = bundle_dir / "manifest.json"
+    text = m_path.read_text()
+    manifest = json.loads(text)
+    edited = {
+        "trailing space": text + " ",
+        "no final newline": text.rstrip("\n"),
+        "other indent": json.dumps(manifest, sort_keys=True, indent=2) + "\n",
+        "keys reordered": json.dumps(dict(reversed(manifest.items())), indent=1) + "\n",
+        "escaped character": text.replace('"format"', '"\\u0066ormat"', 1),
+        "number respelled": text.replace('"cell_m": 0.5,', '"cell_m": 0.50,', 1),
+    }[edit]
+    assert edited != text and manifest_bytes(manifest) == text.encode()
+    assert bundle_id_of(json.loads(edited)) == manifest["bundle_id"]  # the same content
+    m_path.write_text(edited)
+    with pytest.raises(BundleIntegrityError, match="bytes are not the ones indoormap writes"):
+        load_bundle(bundle_dir)
+
+
 @pytest.mark.parametrize("attack", ["extra", "empty_folder", "missing", "symlink", "dotdot",
                                     "absolute", "schema", "npy_object"])
 def test_structural_tampering_is_refused(tmp_path, bundle_dir, attack):
@@ -112,9 +139,8 @@ def test_structural_tampering_is_refused(tmp_path, bundle_dir, attack):
     manifest = json.loads(m_path.read_text())
 
     def rewrite(m):
-        from localize.bundle import bundle_id_of
         m["bundle_id"] = bundle_id_of(m)
-        m_path.write_text(json.dumps(m))
+        m_path.write_bytes(manifest_bytes(m))
 
     if attack == "extra":
         (bundle_dir / "layers" / "evil.npy").write_bytes(b"x")
@@ -174,6 +200,8 @@ def _set(m: dict, path: str, value) -> None:
     ("mask", None, "mask None is not a listed member"),
     ("layers", ["a"], "'layers' is missing or malformed"),
     ("site_id", None, "'site_id' is missing or malformed"),
+    ("floor_name", 3, "'floor_name' is missing or malformed"),
+    ("kind", "building", "'kind' is missing or malformed"),
     ("build", None, "'build' is missing or malformed"),
     ("tables", [1], "'tables' is missing or malformed"),
     ("tables.walks.rows", None, "'tables' is missing or malformed"),
@@ -196,7 +224,7 @@ def test_a_manifest_with_a_valid_id_but_malformed_fields_is_refused(bundle_dir, 
     else:
         _set(manifest, field, value)
     manifest["bundle_id"] = bundle_id_of(manifest)
-    m_path.write_text(json.dumps(manifest))
+    m_path.write_bytes(manifest_bytes(manifest))
     with pytest.raises(BundleIntegrityError, match=re.escape(match)):
         load_bundle(bundle_dir)
     res = CliRunner().invoke(main, ["bundle", "verify", str(bundle_dir)])
@@ -229,7 +257,7 @@ def test_infinite_layer_values_are_refused(bundle_dir):
     data = (bundle_dir / name).read_bytes()
     manifest["members"][name] = {"sha256": hashlib.sha256(data).hexdigest(), "size": len(data)}
     manifest["bundle_id"] = bundle_id_of(manifest)
-    m_path.write_text(json.dumps(manifest))
+    m_path.write_bytes(manifest_bytes(manifest))
     with pytest.raises(BundleIntegrityError, match="infinite values"):
         load_bundle(bundle_dir)
 
@@ -295,6 +323,67 @@ def test_registry_versions_move_forward(tmp_path):
     v.write_bytes(v.read_bytes()[:-1] + b"\x07")
     with pytest.raises(BundleIntegrityError):
         reg.open("site", "F1", e2["bundle_id"])
+
+
+def test_bundle_diff_names_every_kind_of_change(tmp_path):
+    """Grid origin, a walk re-ingested with other content, the seed, a layer's unit and a
+    layer's values: each is a line of ``bundle diff`` (and of ``bundle_differences``)."""
+    walks = [{"trace_id": "w1", "sha256": "a" * 64}, {"trace_id": "w2", "sha256": "b" * 64}]
+    a = _content()
+    a.build = {**a.build, "seed": 1, "source_walks": walks}
+    b = _content(offset=0.5)
+    b.build = {**b.build, "seed": 2, "params": {"cell_m": 0.5, "seed": 2},
+               "source_walks": [walks[0], {"trace_id": "w2", "sha256": "c" * 64},
+                                {"trace_id": "w3", "sha256": "d" * 64}]}
+    b.layers["azimuth"] = Layer(a.layers["azimuth"].values, a.layers["azimuth"].std, "rad",
+                                "angle")
+    c = _content()
+    c.grid = Grid(11.0, 20.0, 0.5, 24, 16)  # same size, moved 1 m east
+    for name, content in (("a", a), ("b", b), ("c", c)):
+        write_bundle(tmp_path / name, content)
+    lines = bundle_differences(load_bundle(tmp_path / "a"), load_bundle(tmp_path / "b"))
+    assert "param seed: None -> 2" in lines
+    assert "walks: 1 shared, 1 changed content, 1 added, 0 removed" in lines
+    assert "walk w2: content changed (sha256 aaaaaaaaaaaa -> cccccccccccc)" not in lines
+    assert "walk w2: content changed (sha256 bbbbbbbbbbbb -> cccccccccccc)" in lines
+    assert "layer azimuth unit: deg -> rad" in lines
+    assert any(line.startswith("layer strength: mean abs change 0.500 uT") for line in lines)
+    assert not any(line.startswith("warning") or line.startswith("grid") for line in lines)
+    moved = bundle_differences(load_bundle(tmp_path / "a"), load_bundle(tmp_path / "c"))
+    assert ("grid: 24 x 16 cells of 0.5 m from (10, 20) m -> 24 x 16 cells of 0.5 m from "
+            "(11, 20) m (layers not compared cell by cell)") in moved
+    assert not any("mean abs change" in line for line in moved)
+    assert bundle_differences(load_bundle(tmp_path / "a"), load_bundle(tmp_path / "a")) == []
+    res = CliRunner().invoke(main, ["bundle", "diff", str(tmp_path / "a"), str(tmp_path / "b")])
+    assert res.exit_code == 0 and "layer azimuth unit: deg -> rad" in res.output
+
+
+def _publish_after(barrier, registry: str, bundle: str) -> None:
+    barrier.wait()
+    Registry(registry).publish(bundle)
+
+
+def test_concurrent_publishes_each_get_a_version(tmp_path):
+    """Eight processes publish eight bundles of one floor at once: the writer lock gives each
+    its own sequence number, none is lost from the history, and CURRENT names the last."""
+    n = 8
+    for i in range(n):
+        write_bundle(tmp_path / f"v{i}", _content(float(i)))
+    ctx = multiprocessing.get_context("fork")
+    barrier = ctx.Barrier(n)
+    procs = [ctx.Process(target=_publish_after, args=(barrier, str(tmp_path / "reg"),
+                                                       str(tmp_path / f"v{i}")))
+             for i in range(n)]
+    for proc in procs:
+        proc.start()
+    for proc in procs:
+        proc.join(60)
+    assert [proc.exitcode for proc in procs] == [0] * n
+    reg = Registry(tmp_path / "reg")
+    history = reg.history("site", "F1")
+    assert [h["seq"] for h in history] == list(range(1, n + 1))
+    assert len({h["bundle_id"] for h in history}) == n
+    assert reg.current("site", "F1") == history[-1]
 
 
 @pytest.mark.parametrize("name, text, message", [
@@ -475,7 +564,7 @@ def test_a_schema_version_of_another_type_is_refused(bundle_dir, version):
     manifest = json.loads(m_path.read_text())
     manifest["schema_version"] = version
     manifest["bundle_id"] = bundle_id_of(manifest)
-    m_path.write_text(json.dumps(manifest))
+    m_path.write_bytes(manifest_bytes(manifest))
     with pytest.raises(BundleError, match="schema version"):
         load_bundle(bundle_dir)
 
@@ -490,7 +579,7 @@ def _rewrite_member(bundle_dir: Path, name: str, array: np.ndarray) -> None:
     manifest = json.loads(m_path.read_text())
     manifest["members"][name] = {"sha256": hashlib.sha256(data).hexdigest(), "size": len(data)}
     manifest["bundle_id"] = bundle_id_of(manifest)
-    m_path.write_text(json.dumps(manifest))
+    m_path.write_bytes(manifest_bytes(manifest))
 
 
 def test_arrays_with_negative_dimensions_or_a_non_boolean_mask_are_refused(bundle_dir):

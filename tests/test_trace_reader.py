@@ -128,6 +128,22 @@ def test_bad_line_strict_raises_with_file_and_line(line, reason, hint):
     assert hint in str(info.value) and info.value.reason == reason and info.value.line == 2
 
 
+@pytest.mark.parametrize("x, accuracy", [
+    ("1", "1_0"), ("1", "\u0663"), ("1", "+3"), ("1", "\uff13"),   # integers
+    ("1_0.5", "3"), ("\u0661.\u0665", "3"), ("\x0c1.5", "3"), ("\uff11", "3"),  # floats
+])
+def test_number_spellings_only_python_takes_are_bad_lines(x, accuracy):
+    """'_' grouping, non-ASCII digits, '+' on an integer and white space other than spaces
+    are numbers to Python's int()/float() but not to the format (nor to pyarrow's parser, the
+    fast path): a line holding one is a ``non_numeric`` bad line whichever path reads it."""
+    good = "5\tTYPE_ACCELEROMETER\t1\t2\t3\t3"
+    line = f"10\tTYPE_ACCELEROMETER\t{x}\t2\t3\t{accuracy}"
+    t = parse_trace_bytes(f"{good}\n{line}\n".encode(), path="walk.txt")
+    assert t.report.bad == {"non_numeric": 1} and len(t.stream("accelerometer")) == 1
+    with pytest.raises(SurveyFormatError, match="walk.txt:2: .*expected"):
+        parse_trace_bytes(f"{good}\n{line}\n".encode(), path="walk.txt", strict=True)
+
+
 def test_empty_file(tmp_path):
     p = tmp_path / "empty.txt"
     p.write_bytes(b"")
