@@ -26,7 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from localize.baselines import PARTICLE_FILTERS, make_localizer
+from localize.baselines import make_localizer
+from localize.methods import PARTICLE_FILTERS
 from localize.bundle import MapBundle, load_bundle
 from localize.errors import LocalizationError
 from localize.evaluate import step_errors, summarize, waypoint_errors

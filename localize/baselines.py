@@ -20,6 +20,7 @@ from localize.bundle import MapBundle
 from localize.errors import LocalizationError
 from localize.filter import BaseLocalizer, Localizer
 from localize.maps import FilterMap
+from localize.methods import METHODS, PARTICLE_FILTERS, SMOOTHABLE, WEIGHT_MODE_OF
 from localize.params import FilterParams
 from localize.radio import RadioModel
 from localize.steps import StepSummary
@@ -94,25 +95,6 @@ class RadioOnlyLocalizer(BaseLocalizer):
         return self._last
 
 
-#: Method name -> description. ``indoormap`` is the default (mass-centered update).
-METHODS: dict[str, str] = {
-    "indoormap": "particle filter, mass-centered MMSE/MMAE/MMPE update (papers 000/001)",
-    "pf_no_mag": "particle filter without magnetic update (PDR + map constraints)",
-    "magpp_gaussian": "particle filter, Gaussian likelihood of strength deltas (002-style)",
-    "magicol_dtw": "particle filter, DTW of raw magnetometer strengths (Magicol-style)",
-    "pdr": "dead reckoning, fixed 0.7 m steps along the compass",
-    "radio": "Wi-Fi/BLE positioner alone",
-    "align": "step track aligned to the radio fixes and the walls (localize.align)",
-}
-
-_MODES = {"indoormap": "mass_centered", "pf_no_mag": "none", "magpp_gaussian": "gaussian",
-          "magicol_dtw": "dtw"}
-#: The particle-filter methods (they can also smooth offline, :mod:`localize.smoothing`).
-PARTICLE_FILTERS = tuple(_MODES)
-#: The methods that can also locate a walk offline (``run(steps, smooth=True)``).
-SMOOTHABLE = (*PARTICLE_FILTERS, "align")
-
-
 def make_localizer(method: str, bundle: MapBundle, params: FilterParams | None = None, *,
                    radio: RadioModel | None = None,
                    rng: np.random.Generator | int | None = None,
@@ -130,5 +112,5 @@ def make_localizer(method: str, bundle: MapBundle, params: FilterParams | None =
         return RadioOnlyLocalizer(bundle, radio=radio)
     if method == "align":
         return WalkAligner(bundle, radio=radio)
-    p = replace(params or FilterParams(), weight_mode=_MODES[method])
+    p = replace(params or FilterParams(), weight_mode=WEIGHT_MODE_OF[method])
     return Localizer(bundle, p, radio=radio, rng=rng, method=method, fmap=fmap)

@@ -3,7 +3,7 @@
 Both read traces with the survey stage (:mod:`survey.step_summaries`, imported lazily so that
 importing this module stays light), pick the floor bundle of each walk (a floor bundle, or a
 folder of floor bundles: the walk's floor id decides), and run one of
-:data:`localize.baselines.METHODS`.
+:data:`localize.methods.METHODS`.
 
 Start position (``--start``): ``auto`` (the first Wi-Fi/BLE fix of the walk when the bundle has
 fingerprints and a scan of the walk can be located, else the walk's first waypoint),
@@ -24,6 +24,7 @@ import click
 import numpy as np
 
 from localize.cli_common import WalkFailures, read_walk, trace_files
+from localize.methods import METHODS, SMOOTHABLE
 from survey.publish import refuse_to_replace
 
 
@@ -129,8 +130,7 @@ def _params(particles: int | None):
               help="Output folder: <trace_id>.parquet|csv and <trace_id>.png per walk "
                    "(<trace_id>.smoothed.* with --smooth).")
 @click.option("--method", default="indoormap", show_default=True,
-              type=click.Choice(["indoormap", "pf_no_mag", "magpp_gaussian", "magicol_dtw",
-                                 "pdr", "radio", "align"]))
+              type=click.Choice(list(METHODS)))
 @click.option("--start", default="auto", show_default=True,
               help="auto (the walk's first Wi-Fi/BLE fix, else its first waypoint), "
                    "waypoint, radio, or X,Y (m).")
@@ -153,7 +153,7 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
 
     A walk that fails (unreadable, no start, another site) is reported with its file and the
     others go on; the exit status is then 1."""
-    from localize.baselines import SMOOTHABLE, make_localizer
+    from localize.baselines import make_localizer
     from localize.floors import SiteMaps
     from localize.plots import plot_track
 
@@ -233,7 +233,7 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
 
     A walk that cannot be read, or a method that fails on a walk, is reported with the file
     (and method) and the rest goes on; the exit status is then 1."""
-    from localize.baselines import METHODS, SMOOTHABLE, make_localizer
+    from localize.baselines import make_localizer
     from localize.evaluate import summarize, waypoint_errors
     from localize.floors import SiteMaps
     from survey.step_summaries import waypoints_of

@@ -31,7 +31,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from .errors import StoreError
-from .publish import TMP_PREFIX, atomic_write_bytes, crash_point, file_sha256, fsync_dir, \
+from .publish import TMP_PREFIX, atomic_write_bytes, crash_point, fsync_dir, \
     remove_stale_temporaries
 from .trace_format import Trace
 
