@@ -355,7 +355,11 @@ def read_manifest(path: Path) -> dict:
     if type(version) is not int or version != SCHEMA_VERSION:  # not True, not 1.0
         raise BundleError(f"{mpath}: schema version {version!r} is not "
                           f"supported (this indoormap reads version {SCHEMA_VERSION})")
-    if manifest.get("bundle_id") != bundle_id_of(manifest):
+    try:
+        same_id = manifest.get("bundle_id") == bundle_id_of(manifest)
+    except (ValueError, TypeError) as err:  # a lone surrogate escape cannot be UTF-8
+        raise BundleIntegrityError(f"{mpath}: unreadable manifest ({err})") from err
+    if not same_id:
         raise BundleIntegrityError(f"{mpath}: bundle id does not match the manifest content")
     if text != manifest_bytes(manifest):
         raise BundleIntegrityError(f"{mpath}: the manifest's bytes are not the ones indoormap "
@@ -398,6 +402,7 @@ def check_manifest_layout(manifest: dict, mpath: Path) -> None:
     need(manifest.get("kind") in ("floor", "site"), "kind")
     build = manifest.get("build")
     need(isinstance(build, dict) and isinstance(build.get("params", {}), dict), "build")
+    need(isinstance(manifest.get("metrics", {}), dict), "metrics")
     walks = build.get("source_walks", [])
     need(isinstance(walks, list) and all(isinstance(w, dict) and isinstance(
         w.get("trace_id"), str) for w in walks), "build.source_walks")

@@ -21,21 +21,27 @@ def metric_lines(manifest: dict) -> dict[str, str]:
     mt = manifest.get("metrics") or {}
     lines = {}
     if isinstance(mt.get("interpolator"), str):
-        scores = mt.get("smoothing_cv_shape_rmse_ut") or {}
-        best = min(scores.values()) if scores else None
+        scores = mt.get("smoothing_cv_shape_rmse_ut")
+        numbers = [v for v in scores.values() if _is_number(v)] \
+            if isinstance(scores, dict) else []
+        best = min(numbers) if numbers else None
         parts = [mt["interpolator"]] + [
             f"{label} {mt[key]:g}{unit}" for key, label, unit in (
                 ("bandwidth_m", "bandwidth", " m"), ("prior_walks", "shrinkage", " walks"),
                 ("slope_ridge", "slope ridge", ""), ("curvature_ridge", "curvature ridge", ""))
-            if isinstance(mt.get(key), (int, float))]
+            if _is_number(mt.get(key))]
         lines["smoothing"] = ("smoothing " + ", ".join(parts)
                               + (f" (cross-validated shape RMSE {best:.2f} uT)" if best else ""))
     cov = mt.get("coverage")
     if isinstance(cov, dict) and cov:
         lines["coverage"] = "reachable area near a sample: " + ", ".join(
             f"{100 * v:.0f} % within {k.removeprefix('within_').removesuffix('m')} m"
-            for k, v in cov.items() if isinstance(v, (int, float)))
+            for k, v in cov.items() if _is_number(v))
     return lines
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
 def _grid_text(grid: Grid | None) -> str:
@@ -111,7 +117,7 @@ def bundle_differences(a: MapBundle, b: MapBundle) -> list[str]:
         if layers_a[name]["kind"] == "angle":
             d = (d + 180) % 360 - 180
         ok = np.isfinite(d)
-        if ok.any():
+        if ok.any() and np.abs(d[ok]).max() > 0:
             out.append(f"layer {name}: mean abs change {np.abs(d[ok]).mean():.3f} "
                        f"{layers_a[name]['unit']}, max {np.abs(d[ok]).max():.3f}")
     return out

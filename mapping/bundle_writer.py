@@ -17,7 +17,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from localize.bundle import BUNDLE_FORMAT, SCHEMA_VERSION, Grid, bundle_id_of, manifest_bytes
+from localize.bundle import BUNDLE_FORMAT, SCHEMA_VERSION, Grid, bundle_id_of, canonical_json, \
+    manifest_bytes
 from survey import __version__
 from survey.errors import BundleError
 from survey.publish import atomic_directory, crash_point, file_sha256
@@ -64,6 +65,13 @@ def _parquet_bytes(table: pa.Table) -> bytes:
 
 
 def _check(content: BundleContent) -> None:
+    """What :func:`localize.bundle.load_bundle` would refuse, refused before writing."""
+    if content.kind not in ("floor", "site"):
+        raise BundleError(f"bundle kind must be 'floor' or 'site', got {content.kind!r}")
+    for key in ("site_id", "floor_id", "floor_name"):
+        if not isinstance(getattr(content, key), str):
+            raise BundleError(f"bundle {key} must be a string, got "
+                              f"{getattr(content, key)!r}")
     if content.grid is None:
         if content.layers:
             raise BundleError("layers need a grid")
@@ -113,6 +121,10 @@ def write_bundle(target: str | os.PathLike, content: BundleContent, *,
         manifest["tables"][name] = {"file": f, "rows": content.tables[name].num_rows}
     manifest["build"] = content.build
     manifest["metrics"] = content.metrics
+    try:  # a number JSON cannot hold, a string UTF-8 cannot (a lone surrogate), a non-str key
+        canonical_json(manifest)
+    except (ValueError, TypeError) as err:
+        raise BundleError(f"{target}: the manifest cannot be written as JSON ({err})") from err
     with atomic_directory(target, overwrite=overwrite, crash_prefix="bundle") as tmp:
         members = {}
         for name, data in sorted(files.items()):

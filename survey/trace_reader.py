@@ -410,14 +410,11 @@ def _int(value: str) -> int:
 
 def _float(value: str) -> float:
     """A float field as pyarrow reads it (also ``nan(...)``)."""
+    if _ARROW_NAN.fullmatch(value):
+        return float("nan")
     if _PYTHON_ONLY_FLOAT.search(value):
         raise ValueError(f"not a number: {value[:30]!r}")
-    try:
-        return float(value)
-    except ValueError:
-        if _ARROW_NAN.fullmatch(value):
-            return float("nan")
-        raise
+    return float(value)
 
 
 # --------------------------------------------------------------------------------------------

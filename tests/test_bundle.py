@@ -18,7 +18,7 @@ from click.testing import CliRunner
 
 from localize.bundle import Grid, bundle_id_of, load_bundle, manifest_bytes, read_npy_checked, \
     sample_grid
-from mapping.bundle_report import bundle_differences
+from mapping.bundle_report import bundle_differences, metric_lines
 from mapping.bundle_writer import BundleContent, Layer, write_bundle
 from mapping.registry import Registry
 from survey.cli import main
@@ -132,6 +132,39 @@ def test_a_manifest_edited_without_changing_its_content_is_refused(bundle_dir, e
         load_bundle(bundle_dir)
 
 
+def test_a_manifest_string_that_is_not_unicode_is_an_integrity_error(bundle_dir):
+    """A lone surrogate escape is valid JSON but no UTF-8 string: refused with the bundle's
+    error, not a UnicodeEncodeError traceback."""
+    m_path = bundle_dir / "manifest.json"
+    m_path.write_text(m_path.read_text().replace('"floor_name": "F1"',
+                                                 '"floor_name": "\\udcff"', 1))
+    with pytest.raises(BundleIntegrityError, match="unreadable manifest"):
+        load_bundle(bundle_dir)
+
+
+@pytest.mark.parametrize("change, match", [
+    ({"kind": "building"}, "kind must be 'floor' or 'site'"),
+    ({"floor_name": None}, "floor_name must be a string"),
+    ({"build": {"source_walks": [{"trace_id": "walk\udcff"}]}}, "cannot be written as JSON"),
+    ({"metrics": {"score": float("nan")}}, "cannot be written as JSON"),
+])
+def test_the_writer_refuses_what_the_reader_would(tmp_path, change, match):
+    content = _content()
+    for key, value in change.items():
+        setattr(content, key, value)
+    with pytest.raises(BundleError, match=match):
+        write_bundle(tmp_path / "b", content)
+    assert list(tmp_path.iterdir()) == []  # nothing written, no litter
+
+
+def test_metric_lines_skip_values_that_are_not_numbers():
+    lines = metric_lines({"metrics": {"interpolator": "local_linear", "bandwidth_m": "3",
+                                      "smoothing_cv_shape_rmse_ut": {"a": "x", "b": 4.25},
+                                      "coverage": {"within_2m": None, "within_5m": 0.5}}})
+    assert lines == {"smoothing": "smoothing local_linear (cross-validated shape RMSE 4.25 uT)",
+                     "coverage": "reachable area near a sample: 50 % within 5 m"}
+
+
 @pytest.mark.parametrize("attack", ["extra", "empty_folder", "missing", "symlink", "dotdot",
                                     "absolute", "schema", "npy_object"])
 def test_structural_tampering_is_refused(tmp_path, bundle_dir, attack):
@@ -201,6 +234,7 @@ def _set(m: dict, path: str, value) -> None:
     ("layers", ["a"], "'layers' is missing or malformed"),
     ("site_id", None, "'site_id' is missing or malformed"),
     ("floor_name", 3, "'floor_name' is missing or malformed"),
+    ("metrics", [1], "'metrics' is missing or malformed"),
     ("kind", "building", "'kind' is missing or malformed"),
     ("build", None, "'build' is missing or malformed"),
     ("tables", [1], "'tables' is missing or malformed"),

@@ -144,6 +144,17 @@ def test_number_spellings_only_python_takes_are_bad_lines(x, accuracy):
         parse_trace_bytes(f"{good}\n{line}\n".encode(), path="walk.txt", strict=True)
 
 
+def test_nan_with_a_payload_is_non_finite_on_both_paths():
+    """``nan(...)`` may hold '_' (pyarrow takes ``nan(a_b)``): the fallback, forced by a line
+    pyarrow refuses ('+3'), must call it ``non_finite`` as the fast path does."""
+    good = "5\tTYPE_ACCELEROMETER\t1\t2\t3\t3\n"
+    nan = "10\tTYPE_ACCELEROMETER\tnan(a_b)\t2\t3\t3\n"
+    plus = "20\tTYPE_ACCELEROMETER\t1\t2\t3\t+3\n"
+    assert parse_trace_bytes((good + nan).encode()).report.bad == {"non_finite": 1}
+    assert parse_trace_bytes((good + nan + plus).encode()).report.bad == \
+        {"non_finite": 1, "non_numeric": 1}
+
+
 def test_empty_file(tmp_path):
     p = tmp_path / "empty.txt"
     p.write_bytes(b"")
