@@ -177,6 +177,10 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
                          if i == n or i % 100 == 0 else None)
     release_free_memory()  # the walks' freed buffers
     say(f"{floor}: {reduction.n_samples} samples")
+    if not (reduction.support & mask).any():
+        raise BuildError(f"floor {floor}: none of the {reduction.n_samples} samples of its "
+                         f"{len(pcat)} walks lies in the plan's reachable area (are the walks "
+                         "and the floor plan in the same frame, in metres?)")
     raster_params, heading_params, smoothing_scores = params.raster, params.heading_raster, {}
     if params.auto_bandwidth and params.raster.kernel_based:
         say(f"{floor}: cross-validating the smoothing over walks")
@@ -242,7 +246,8 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
                "bandwidth_m": raster_params.bandwidth_m, "prior_walks": raster_params.prior_walks,
                "slope_ridge": raster_params.slope_ridge if degree >= 1 else None,
                "curvature_ridge": raster_params.curvature_ridge if degree == 2 else None,
-               "smoothing_cv_shape_rmse_ut": smoothing_scores,
+               "smoothing_cv_shape_rmse_ut": {  # inf: a candidate that predicted nothing
+                   k: v if np.isfinite(v) else None for k, v in smoothing_scores.items()},
                "n_samples": reduction.n_samples, "heading_offset_floor_median_deg": global_offset}
     tables = {"source_walks": pa.Table.from_pandas(walks, preserve_index=False),
               "levelling": pa.Table.from_pandas(lev.astype({"session": "str"}),

@@ -27,7 +27,7 @@ from survey.publish import (
 )
 from survey.trace_format import bad_lines_summary
 
-from .build import BuildParams, build_floor
+from .build import BuildError, BuildParams, build_floor
 from .bundle_report import bundle_differences, metric_lines
 from .bundle_writer import write_bundle
 from .floorplan import FloorPlan, read_floor_plan
@@ -306,6 +306,9 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
                 say(f"    then: {m}")
         store = SurveyStore.open(store_path)
         cat = store.catalog()
+        if cat.empty:
+            raise BuildError(f"{', '.join(map(str, inputs))}: no readable walk to build from "
+                             f"({len(summary.failed)} unreadable)")
         if not plans:  # --plan without --floor: the floor of SOURCE's traces
             plans = {floor_of_traces(cat, summary, source): plan}
             check_targets()

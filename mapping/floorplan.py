@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import shapely
+import shapely.errors
 from shapely.geometry import shape
 
 from survey.errors import IndoormapError
@@ -145,8 +146,10 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
     for i, f in enumerate(feats):
         try:
             geoms.append(shape(f["geometry"]) if f.get("geometry") else None)
-        except (KeyError, ValueError, TypeError, AttributeError) as err:
-            raise FloorPlanError(f"{geo}: feature {i} has an invalid geometry ({err})") from err
+        except (KeyError, ValueError, TypeError, AttributeError, OverflowError,
+                shapely.errors.ShapelyError) as err:  # an unknown type, a 1-point line, 1e400
+            raise FloorPlanError(f"{geo}: feature {i} has an invalid geometry "
+                                 f"({str(err).strip()})") from err
     for i, g in enumerate(geoms):
         if g is not None and not np.isfinite(shapely.get_coordinates(g)).all():
             raise FloorPlanError(f"{geo}: feature {i} has non-finite coordinates")
@@ -173,6 +176,12 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
         geoms = [None if g is None else shapely.transform(g, to_m) for g in geoms]
         outline = geoms[outline_idx]
     else:
+        minx, miny = outline.bounds[:2]
+        if min(minx, miny) < -1e-6:
+            raise FloorPlanError(
+                f"{geo}: the outline reaches ({minx:g}, {miny:g}) m, below 0: the map frame "
+                "of a plan in metres runs from (0, 0) to its largest coordinates, and what "
+                "lies below 0 would be cut off (shift the plan and its walk lines)")
         width, height = checked_size(geo, *outline.bounds[2:])
     keep = obstacle_filter or (lambda props: True)
     repairs: list[str] = []
@@ -183,4 +192,21 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
                  and g.geom_type in ("Polygon", "MultiPolygon")
                  and keep(f.get("properties") or {})]
     obstacle_union = shapely.union_all(obstacles) if obstacles else shapely.Polygon()
-    return FloorPlan(outline, obstacle_union, width, height, tuple(repairs))
+    return checked_plan(FloorPlan(outline, obstacle_union, width, height, tuple(repairs)), geo)
+
+
+def checked_plan(plan: FloorPlan, source: Path) -> FloorPlan:
+    """``plan`` if it can hold a walk: an outline with area, at least 1 m on a side, not all
+    of it covered by obstacles; else a :class:`FloorPlanError` naming ``source``."""
+    outline = plan.outline
+    if outline.geom_type not in ("Polygon", "MultiPolygon") or not outline.area > 0:
+        raise FloorPlanError(f"{source}: the outline has no area (a {outline.geom_type} "
+                             "after repair)")
+    minx, miny, maxx, maxy = outline.bounds
+    if max(maxx - minx, maxy - miny) < 1.0:
+        raise FloorPlanError(f"{source}: the outline is {maxx - minx:.3g} x {maxy - miny:.3g} m; "
+                             "a plan in lon/lat needs its floor_info.json beside it")
+    if not plan.reachable.area > 0:
+        raise FloorPlanError(f"{source}: the obstacles cover the whole outline; nothing is "
+                             "reachable")
+    return plan

@@ -14,11 +14,14 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import shapely
+import shapely.errors
 
-from .floorplan import FloorPlan, FloorPlanError, checked_size, made_valid
+from .floorplan import FloorPlan, FloorPlanError, checked_plan, checked_size, made_valid
 
-_UNIT_TO_M = {0: 1.0, 1: 0.0254, 2: 0.3048, 4: 0.001, 5: 0.01, 6: 1.0}
+_UNIT_TO_M = {0: 1.0, 1: 0.0254, 2: 0.3048, 3: 1609.344, 4: 0.001, 5: 0.01, 6: 1.0,
+              7: 1000.0, 10: 0.9144, 13: 1e-6, 14: 0.1, 15: 10.0, 16: 100.0}
 
 
 def read_dxf_floor_plan(path: str | os.PathLike, *,
@@ -42,7 +45,12 @@ def read_dxf_floor_plan(path: str | os.PathLike, *,
         doc, _auditor = recover.readfile(str(path))
     except (OSError, ezdxf.DXFStructureError) as err:
         raise FloorPlanError(f"{path}: not a readable DXF file ({err})") from err
-    scale = _UNIT_TO_M.get(int(doc.header.get("$INSUNITS", 0)), 1.0)
+    units = doc.header.get("$INSUNITS", 0)
+    if units not in _UNIT_TO_M:
+        raise FloorPlanError(f"{path}: drawing units $INSUNITS = {units!r} are not a length "
+                             f"indoormap reads (codes {sorted(_UNIT_TO_M)}; 0 = unitless, "
+                             "taken as metres)")
+    scale = _UNIT_TO_M[units]
     upper = {k: {n.upper() for n in v} for k, v in (("outline", outline_layers),
                                                      ("obstacle", obstacle_layers),
                                                      ("wall", wall_layers))}
@@ -54,8 +62,12 @@ def read_dxf_floor_plan(path: str | os.PathLike, *,
         if role is None:
             continue
         where = f"{path}: {e.dxftype()} #{e.dxf.handle} on layer {e.dxf.layer}"
-        geom = _entity_geometry(e, scale, wall_width_m if role == "wall" else None,
-                                lambda g, where=where: made_valid(g, where, repairs))
+        try:
+            geom = _entity_geometry(e, scale, wall_width_m if role == "wall" else None,
+                                    lambda g, where=where: made_valid(g, where, repairs))
+        except (ValueError, shapely.errors.ShapelyError) as err:  # NaN radius, NaN vertex
+            raise FloorPlanError(f"{where}: not a usable geometry ({str(err).strip()})") \
+                from err
         if geom is not None and not geom.is_empty:
             shapes[role].append(geom)
     polygons = [g for g in shapes["outline"] if g.geom_type in ("Polygon", "MultiPolygon")]
@@ -69,20 +81,28 @@ def read_dxf_floor_plan(path: str | os.PathLike, *,
         outline = shapely.affinity.translate(outline, -minx, -miny)
         obstacles = shapely.affinity.translate(obstacles, -minx, -miny)
         minx, miny, maxx, maxy = outline.bounds
-    return FloorPlan(outline, obstacles, *checked_size(path, maxx, maxy), tuple(repairs))
+    return checked_plan(FloorPlan(outline, obstacles, *checked_size(path, maxx, maxy),
+                                  tuple(repairs)), path)
+
+
+def _finite(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    if not np.isfinite(np.asarray(points, dtype=float)).all():
+        raise ValueError("non-finite coordinates")
+    return points
 
 
 def _entity_geometry(e, scale: float, wall_width_m: float | None, valid: Callable):
-    """The area (or None) of entity ``e``: its polygons are passed through ``valid``."""
+    """The area (or None) of entity ``e``: its polygons are passed through ``valid``.
+    Raises ValueError on a non-finite coordinate or size."""
     kind = e.dxftype()
     if kind == "LINE":
-        line = shapely.LineString([(e.dxf.start.x * scale, e.dxf.start.y * scale),
-                                   (e.dxf.end.x * scale, e.dxf.end.y * scale)])
+        line = shapely.LineString(_finite([(e.dxf.start.x * scale, e.dxf.start.y * scale),
+                                           (e.dxf.end.x * scale, e.dxf.end.y * scale)]))
         return line.buffer(wall_width_m / 2, cap_style="flat") if wall_width_m else None
     if kind in ("LWPOLYLINE", "POLYLINE"):
-        pts = [(p[0] * scale, p[1] * scale) for p in
-               (e.get_points("xy") if kind == "LWPOLYLINE" else
-                [(v.dxf.location.x, v.dxf.location.y) for v in e.vertices])]
+        pts = _finite([(p[0] * scale, p[1] * scale) for p in
+                       (e.get_points("xy") if kind == "LWPOLYLINE" else
+                        [(v.dxf.location.x, v.dxf.location.y) for v in e.vertices])])
         closed = e.closed if kind == "LWPOLYLINE" else e.is_closed
         if closed and len(pts) >= 3:
             poly = valid(shapely.Polygon(pts))
@@ -91,8 +111,8 @@ def _entity_geometry(e, scale: float, wall_width_m: float | None, valid: Callabl
             return shapely.LineString(pts).buffer(wall_width_m / 2, cap_style="flat")
         return None
     if kind == "CIRCLE":
-        c = e.dxf.center
-        return shapely.Point(c.x * scale, c.y * scale).buffer(e.dxf.radius * scale)
+        (cx, cy), = _finite([(e.dxf.center.x * scale, e.dxf.center.y * scale)])
+        return shapely.Point(cx, cy).buffer(e.dxf.radius * scale)
     if kind == "HATCH":
         return _hatch_area(e, scale, valid)
     return None
@@ -105,7 +125,7 @@ def _hatch_area(hatch, scale: float, valid: Callable):
 
     area = None
     for loop in path.from_hatch(hatch):
-        pts = [(v.x * scale, v.y * scale) for v in loop.flattening(0.01)]
+        pts = _finite([(v.x * scale, v.y * scale) for v in loop.flattening(0.01)])
         if len(pts) < 3:
             continue
         poly = valid(shapely.Polygon(pts))

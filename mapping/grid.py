@@ -26,11 +26,11 @@ def grid_for_extent(width_m: float, height_m: float, cell_m: float = 0.5, *,
     """
     if not (np.isfinite(cell_m) and cell_m > 0):
         raise ValueError(f"cell size must be positive and finite, got {cell_m}")
-    width, height = int(np.ceil(width_m / cell_m)), int(np.ceil(height_m / cell_m))
-    if width * height > MAX_GRID_CELLS:
+    cols, rows = np.ceil(width_m / cell_m), np.ceil(height_m / cell_m)  # inf for 1e-320 m
+    if not cols * rows <= MAX_GRID_CELLS:
         raise ValueError(f"a {width_m:g} x {height_m:g} m floor at {cell_m:g} m cells is "
-                         f"{width * height:,} cells, over the limit of {MAX_GRID_CELLS:,}")
-    return Grid(float(x0_m), float(y0_m), float(cell_m), width, height)
+                         f"{cols * rows:,.0f} cells, over the limit of {MAX_GRID_CELLS:,}")
+    return Grid(float(x0_m), float(y0_m), float(cell_m), int(cols), int(rows))
 
 
 def reachable_mask(grid: Grid, reachable: shapely.Geometry) -> NDArray[np.bool_]:

@@ -37,11 +37,61 @@ from survey.publish import atomic_write_bytes
 from .validate import THRESHOLD_DOCS, ValidationResult, write_metrics
 
 DPI = 110
+#: Largest floor image drawn (pixels); a bigger one is left out (decoded as float32 RGBA it
+#: would take 16 bytes a pixel: a 20000 x 20000 PNG of 438 KB asks for 6.4 GB).
+MAX_FLOOR_IMAGE_PIXELS = 25_000_000
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def png_size(path: Path) -> tuple[int, int]:
+    """(width, height) in pixels from a PNG's header, without decoding it.
+
+    Raises
+    ------
+    ValueError
+        Not a PNG (no signature or IHDR chunk first).
+    """
+    with open(path, "rb") as fh:
+        head = fh.read(24)
+    if len(head) < 24 or head[:8] != _PNG_SIGNATURE or head[12:16] != b"IHDR":
+        raise ValueError(f"{path}: not a PNG file")
+    return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
 OURS = "indoormap default"
 
 
 # ----------------------------------------------------------------------------------------------
 # drawing helpers
+
+def floor_image(floor_dir: str | Path | None
+                ) -> tuple[np.ndarray | None, tuple[float, float, float, float] | None,
+                           str | None]:
+    """The floor folder's ``floor_image.png`` as a lightened grey image (rows, cols) in [0.55,
+    1], its extent ``(0, width_m, 0, height_m)`` from ``floor_info.json`` and a line saying
+    where it came from. Without an image: ``(None, None, None)``; with one that cannot be
+    used (unreadable, not a PNG, over :data:`MAX_FLOOR_IMAGE_PIXELS`, no usable floor size):
+    ``(None, None, "<path> left out (<why>)")``, so that a report says so."""
+    path = Path(floor_dir) / "floor_image.png" if floor_dir is not None else None
+    if path is None or not path.exists():
+        return None, None, None
+    try:
+        info = json.loads((path.parent / "floor_info.json").read_text())["map_info"]
+        width_m, height_m = float(info["width"]), float(info["height"])
+        if not (math.isfinite(width_m) and math.isfinite(height_m)
+                and width_m > 0 and height_m > 0):
+            raise ValueError("floor size not positive and finite")
+        cols, rows = png_size(path)
+        if cols * rows > MAX_FLOOR_IMAGE_PIXELS:  # decoded, it would take cols*rows*16 B
+            raise ValueError(f"{cols} x {rows} pixels, over {MAX_FLOOR_IMAGE_PIXELS:,}")
+        img = imread(path)
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        return None, None, f"{path} left out ({err})"
+    if img.ndim == 3:
+        gray = img[..., :3] @ np.array([0.299, 0.587, 0.114])
+        if img.shape[2] == 4:
+            gray = np.where(img[..., 3] > 0, gray, 1.0)
+        img = gray
+    return 0.55 + 0.45 * img, (0.0, width_m, 0.0, height_m), str(path)
+
 
 class FloorCanvas:
     """Draws the floor (image and reachable mask) under rasters and points."""
@@ -52,25 +102,7 @@ class FloorCanvas:
         self.mask = np.asarray(b.mask, dtype=bool)
         g = self.grid
         self.extent = (g.x0_m, g.x0_m + g.width * g.cell_m, g.y0_m, g.y0_m + g.height * g.cell_m)
-        self.image = None
-        self.image_extent = None
-        self.image_source = None
-        fdir = result.floor_dir
-        if fdir is not None and (Path(fdir) / "floor_image.png").exists():
-            try:
-                info = json.loads((Path(fdir) / "floor_info.json").read_text())["map_info"]
-                img = imread(Path(fdir) / "floor_image.png")
-                if img.ndim == 3:
-                    rgb = img[..., :3]
-                    gray = rgb @ np.array([0.299, 0.587, 0.114])
-                    if img.shape[2] == 4:
-                        gray = np.where(img[..., 3] > 0, gray, 1.0)
-                    img = gray
-                self.image = 0.55 + 0.45 * img  # lightened: data stays readable on top
-                self.image_extent = (0.0, float(info["width"]), 0.0, float(info["height"]))
-                self.image_source = str(Path(fdir) / "floor_image.png")
-            except (OSError, ValueError, KeyError, TypeError):
-                self.image = None
+        self.image, self.image_extent, self.image_source = floor_image(result.floor_dir)
 
     @property
     def aspect(self) -> float:

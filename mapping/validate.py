@@ -172,8 +172,27 @@ def load_thresholds(path: str | Path | None = None, overrides: dict | None = Non
         elif v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
                                 or not math.isfinite(v)):
             raise ValidationError(f"threshold {k} must be a finite number or null, got {v!r}")
+        elif v is not None:
+            low, high = _THRESHOLD_RANGES.get(k, (0.0, math.inf))
+            if not (low <= v <= high) or (k in _POSITIVE_THRESHOLDS and v == 0):
+                raise ValidationError(
+                    f"threshold {k} must be {'above' if k in _POSITIVE_THRESHOLDS else 'at least'}"
+                    f" {low:g}" + (f" and at most {high:g}" if math.isfinite(high) else "")
+                    + f", got {v!r}")
         th[k] = v
     return th
+
+
+#: Ranges of the numeric thresholds other than [0, inf): shares and accuracies in [0, 1]; a
+#: skill may be negative (worse than the constant map).
+_THRESHOLD_RANGES = {
+    **{k: (0.0, 1.0) for k in ("coverage_within_2m_min", "coverage_within_5m_min",
+                               "disagreeing_cells_max_share", "magnetic_flat_share_max",
+                               "bad_line_share_max", "radio_floor_accuracy_min")},
+    "heldout_skill_min": (-math.inf, 1.0),
+}
+#: Distances that must be above zero (a grid of them is drawn, or they divide).
+_POSITIVE_THRESHOLDS = frozenset({"magnetic_resolution_m", "unsupported_distance_m"})
 
 
 # ----------------------------------------------------------------------------------------------

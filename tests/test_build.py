@@ -9,12 +9,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+import shapely
 from click.testing import CliRunner
 
 from localize.bundle import load_bundle
 from mapping.build import BuildError, BuildParams, build_floor
 from mapping.bundle_writer import write_bundle
-from mapping.floorplan import read_floor_plan
+from mapping.floorplan import FloorPlan, read_floor_plan
 from mapping.truth_errors import truth_errors
 from survey.cli import main
 from survey.ingest import ingest
@@ -153,6 +154,25 @@ def test_unknown_floor_is_a_clear_error(store):
         build_floor(store, read_floor_plan(SITE / "F1"), floor="F9")
 
 
+def test_a_plan_beside_the_walks_is_a_clear_error(store):
+    """A plan that does not cover the walks (another frame) used to end in 'the manifest cannot
+    be written' (infinite cross-validation scores) naming a temporary folder."""
+    plan = FloorPlan(shapely.box(100, 100, 140, 125), shapely.Polygon(), 140.0, 125.0)
+    with pytest.raises(BuildError, match="none of the .* samples of its 6 walks lies in the "
+                                         "plan's reachable area"):
+        build_floor(store, plan, floor="F1")
+
+
+def test_a_build_with_no_readable_walk_says_so(tmp_path):
+    floor = tmp_path / "F2"
+    shutil.copytree(SITE / "F2", floor, ignore=shutil.ignore_patterns("path_data_files"))
+    (floor / "path_data_files").mkdir()
+    (floor / "path_data_files" / "walk.txt").write_bytes(b"\x00\xff garbage\n" * 10)
+    res = CliRunner().invoke(main, ["build", str(floor), "-o", str(tmp_path / "out")])
+    assert res.exit_code == 1 and "no readable walk to build from (1 unreadable)" in res.output
+    assert "not processed yet" not in res.output and not (tmp_path / "out").exists()
+
+
 def test_build_cli_twice_identical_bytes(tmp_path):
     runner = CliRunner()
     for out in ("a", "b"):
@@ -198,6 +218,8 @@ def test_build_cli_twice_identical_bytes(tmp_path):
     (["--cell", "nan"], "Invalid value for '--cell': nan is not a number"),
     (["--cell", "0.001"], "F2: a 40 x 25 m floor at 0.001 m cells is 1,000,000,000 cells, over "
                           "the limit of 20,000,000; raise --cell"),
+    (["--cell", "1e-320"], "F2: a 40 x 25 m floor at 9.99989e-321 m cells is inf cells, over "
+                           "the limit"),
     (["--build-time", "yesterday"], "not an ISO 8601 time"),
     (["-o", "FILE"], "is a file; -o/--out needs a folder"),
 ])

@@ -100,3 +100,64 @@ def test_a_self_intersecting_outline_is_repaired_and_said(tmp_path):
     assert plan.outline.area == pytest.approx(20.0)
     assert len(plan.repairs) == 1 and "LWPOLYLINE" in plan.repairs[0]
     assert "layer OUTLINE" in plan.repairs[0] and "Self-intersection" in plan.repairs[0]
+
+
+def _plan(tmp_path: Path, *geometries: dict) -> Path:
+    fc = {"type": "FeatureCollection", "features": [
+        {"type": "Feature", "properties": {}, "geometry": g} for g in geometries]}
+    path = tmp_path / "plan.geojson"
+    path.write_text(json.dumps(fc))
+    return path
+
+
+def _square(x0: float, y0: float, side: float) -> dict:
+    return {"type": "Polygon", "coordinates": [[[x0, y0], [x0 + side, y0],
+                                                [x0 + side, y0 + side], [x0, y0 + side],
+                                                [x0, y0]]]}
+
+
+@pytest.mark.parametrize("geometries, match", [
+    ([_square(0, 0, 10), {"type": "Blob", "coordinates": []}], "feature 1 has an invalid"),
+    ([_square(0, 0, 10), {"type": "LineString", "coordinates": [[1, 1]]}],
+     "feature 1 has an invalid geometry .*point array"),
+    ([{"type": "Polygon", "coordinates": [[[0, 0], [10 ** 400, 0], [0, 5], [0, 0]]]}],
+     "feature 0 has an invalid geometry"),
+    ([{"type": "Polygon", "coordinates": [[[0, 0], [10, 10], [0, 0], [0, 0]]]}],
+     "the outline has no area"),
+    ([_square(121.3, 31.2, 1e-3)], "needs its floor_info.json"),  # lon/lat, no floor_info
+    ([_square(-1000, -1000, 1040)], r"reaches \(-1000, -1000\) m, below 0"),
+    ([_square(0, 0, 10), _square(-1, -1, 12)], "the obstacles cover the whole outline"),
+])
+def test_plans_that_cannot_hold_a_walk_are_refused_when_read(tmp_path, geometries, match):
+    """Each used to pass (and fail late in the build, or be cut silently) or to escape as a
+    shapely/OverflowError traceback."""
+    with pytest.raises(FloorPlanError, match=match):
+        read_floor_plan(_plan(tmp_path, *geometries))
+
+
+@pytest.mark.parametrize("entity", ["nan_vertex", "inf_wall", "nan_circle", "units"])
+def test_dxf_entities_with_non_finite_numbers_or_unknown_units_are_named(tmp_path, entity):
+    doc = ezdxf.new()
+    msp = doc.modelspace()
+    outline = [(0, 0), (40, 0), (40, 25), (0, 25)]
+    if entity == "nan_vertex":
+        outline[2] = (float("nan"), 25)
+    msp.add_lwpolyline(outline, close=True, dxfattribs={"layer": "OUTLINE"})
+    if entity == "inf_wall":
+        msp.add_line((10, 0), (float("inf"), 5), dxfattribs={"layer": "WALLS"})
+    if entity == "nan_circle":
+        msp.add_circle((5, 5), float("nan"), dxfattribs={"layer": "PILLARS"})
+    if entity == "units":
+        doc.header["$INSUNITS"] = 18  # astronomical units
+    doc.saveas(tmp_path / "plan.dxf")
+    match = {"nan_vertex": "LWPOLYLINE #.* on layer OUTLINE: .*non-finite",
+             "inf_wall": "LINE #.* on layer WALLS: .*non-finite",
+             "nan_circle": "CIRCLE #.* on layer PILLARS: .*finite",
+             "units": r"\$INSUNITS = 18"}[entity]
+    with pytest.raises(FloorPlanError, match=match):
+        read_floor_plan(tmp_path / "plan.dxf")
+
+
+def test_a_cell_too_small_to_count_is_a_value_error():
+    with pytest.raises(ValueError, match="over the limit"):
+        grid_for_extent(40.0, 25.0, 1e-320)  # 40 / 1e-320 is infinite

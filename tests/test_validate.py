@@ -423,3 +423,43 @@ def test_plotting_leaves_the_callers_matplotlib_backend_alone(tmp_path):
                          env=env, check=False)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "svg" and (tmp_path / "cdf.png").stat().st_size > 1000
+
+
+@pytest.mark.parametrize("override, message", [
+    ({"magnetic_resolution_m": -1}, "magnetic_resolution_m must be above 0"),
+    ({"magnetic_resolution_m": 0}, "magnetic_resolution_m must be above 0"),
+    ({"coverage_within_2m_min": -5}, "coverage_within_2m_min must be at least 0 and at most 1"),
+    ({"bad_line_share_max": 1.5}, "at most 1"),
+    ({"walk_offset_max_ut": -0.1}, "walk_offset_max_ut must be at least 0"),
+])
+def test_thresholds_out_of_their_range_are_refused(override, message):
+    """A negative resolution used to reach matplotlib as a traceback; a negative share was
+    taken and made a check meaningless."""
+    with pytest.raises(ValidationError, match=message):
+        load_thresholds(overrides=override)
+    assert load_thresholds(overrides={"heldout_skill_min": -0.5})["heldout_skill_min"] == -0.5
+
+
+def test_a_floor_image_too_large_or_without_a_floor_size_is_left_out(tmp_path):
+    """The report draws floor_image.png under its maps; a small PNG whose header says
+    20000 x 20000 pixels (6.4 GB decoded) is left out before decoding, as is one whose
+    floor_info.json has no usable size, and the report says why."""
+    from matplotlib.image import imsave
+
+    from mapping.report_html import MAX_FLOOR_IMAGE_PIXELS, floor_image, png_size
+
+    (tmp_path / "floor_info.json").write_text('{"map_info": {"width": 40, "height": 25}}')
+    imsave(tmp_path / "floor_image.png", np.ones((50, 80)), cmap="gray")
+    img, extent, source = floor_image(tmp_path)
+    assert img.shape == (50, 80) and extent == (0.0, 40.0, 0.0, 25.0)
+    assert source == str(tmp_path / "floor_image.png")
+    assert png_size(tmp_path / "floor_image.png") == (80, 50)
+    header = bytearray((tmp_path / "floor_image.png").read_bytes())
+    header[16:24] = (20000).to_bytes(4, "big") * 2  # the IHDR's width and height
+    (tmp_path / "floor_image.png").write_bytes(bytes(header))
+    assert 20000 * 20000 > MAX_FLOOR_IMAGE_PIXELS
+    img, extent, source = floor_image(tmp_path)
+    assert img is None and extent is None and "left out (20000 x 20000 pixels" in source
+    (tmp_path / "floor_info.json").write_text('{"map_info": {"width": NaN, "height": 25}}')
+    assert "left out (floor size not positive" in floor_image(tmp_path)[2]
+    assert floor_image(None) == (None, None, None)
