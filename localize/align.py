@@ -48,6 +48,10 @@ from localize.track import Estimate, Track
 __all__ = ["AlignParams", "WalkAligner", "distance_from_mask_m", "walk_shape"]
 
 
+#: Longest step a walker takes (m): Weinberg lengths beyond it are sensor glitches, cut to it.
+MAX_STEP_M = 1.5
+
+
 @dataclass(frozen=True)
 class AlignParams:
     """Parameters of :class:`WalkAligner` (lengths m, angles deg, times s).
@@ -123,7 +127,8 @@ def _moves(delta_acc_ms2: NDArray, heading_rad: NDArray, p: AlignParams
     swing = np.maximum(delta_acc_ms2, 0.0) ** 0.25
     length = p.step_length_nominal_m * np.where(np.isfinite(swing), swing / p.weinberg_nominal,
                                                 1.0)
-    return length * np.exp(1j * (np.pi / 2 - heading_rad))
+    # a glitch (one accelerometer value of 1e30) must not throw the track across the map
+    return np.minimum(length, MAX_STEP_M) * np.exp(1j * (np.pi / 2 - heading_rad))
 
 
 def _shape(compass_deg: NDArray, gyro_deg: NDArray, delta_acc_ms2: NDArray, p: AlignParams
@@ -342,7 +347,7 @@ class WalkAligner(BaseLocalizer):
             raise LocalizationError(f"{steps.trace_id or 'walk'}: no start position given and "
                                     "no Wi-Fi/BLE fix in the walk")
         if start_xy is not None:
-            start = self._start_at(float(start_xy[0]), float(start_xy[1]), t0, None, None)
+            start = self._start_at(*self._checked_start(start_xy), t0, None, None)
         else:  # the first fix, at its own time, known from the start on
             _, t_fix, f = fixes[0]
             start = self._start_at(f[0], f[1], t0, f[2], None)

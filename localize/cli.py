@@ -23,7 +23,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from localize.cli_common import WalkFailures, read_walk, trace_files
+from localize.cli_common import TraceIds, WalkFailures, read_walk, trace_files
 from localize.methods import METHODS, SMOOTHABLE
 from survey.publish import refuse_to_replace
 
@@ -168,8 +168,11 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
     failures = WalkFailures()
     created = not out.exists()
 
+    seen = TraceIds()
+
     def one(f: Path) -> None:
         trace = read_walk(f)
+        seen.claim(trace.trace_id, f)
         name = f"{trace.trace_id}.smoothed" if smooth else trace.trace_id
         target = out / f"{name}.{fmt}"
         png = out / f"{name}.png"
@@ -245,9 +248,17 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
     unknown = [m for m in names if m not in METHODS]
     if unknown:
         raise click.BadParameter(f"unknown methods {unknown}; known: {sorted(METHODS)}")
+    if plot_path is not None and plot_path.suffix.lower() != ".png":
+        raise click.BadParameter(f"{plot_path}: the plot is a PNG; name it .png",
+                                 param_hint="--plot")
+    if plot_path is not None and csv_path is not None and \
+            plot_path.resolve() == csv_path.resolve():
+        raise click.BadParameter("--plot and --csv name the same file", param_hint="--plot")
     for target in (plot_path, csv_path):
         if target is not None:
             refuse_to_replace(target, overwrite)  # before the work
+            if target.parent.exists() and not target.parent.is_dir():
+                raise click.BadParameter(f"{target.parent} is a file, not a folder")
     start_opt = _parse_start(start)
     maps = SiteMaps.open(bundle_path)
     files = trace_files(walks)
@@ -258,8 +269,11 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
     table: list[dict] = []  # one row per method and waypoint, for --csv
     evaluated: set[str] = set()  # walks with at least one method's errors
 
+    seen = TraceIds()
+
     def one(f: Path) -> None:
         trace = read_walk(f)
+        seen.claim(trace.trace_id, f)
         t_wp, xy_wp = waypoints_of(trace)
         if len(t_wp) == 0:
             click.echo(f"{f}: no waypoints, skipped", err=True)

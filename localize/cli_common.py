@@ -11,6 +11,8 @@ from typing import TYPE_CHECKING, TypeVar
 
 import click
 
+from localize.errors import LocalizationError
+
 if TYPE_CHECKING:
     from survey.trace_format import Trace
 
@@ -55,6 +57,21 @@ def read_walk(path: Path) -> Trace:
     if r.bad_total:
         click.echo(f"warning: {path}: {bad_lines_summary(r.bad, r.messages)}", err=True)
     return trace
+
+
+class TraceIds:
+    """The trace ids of one run's walks: a second walk with an id already seen would replace
+    the first one's outputs (``<trace_id>.parquet``) or be merged with it in the scores."""
+
+    def __init__(self) -> None:
+        self._first: dict[str, Path] = {}
+
+    def claim(self, trace_id: str, path: Path) -> None:
+        """Note ``trace_id`` as ``path``'s; a LocalizationError if another file had it."""
+        first = self._first.setdefault(trace_id, path)
+        if first != path:
+            raise LocalizationError(f"{path}: trace id {trace_id} is also {first}'s in this "
+                                    "run; rename one (its outputs would replace the other's)")
 
 
 class WalkFailures:

@@ -90,6 +90,10 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
 
     def one(f: Path) -> None:
         trace = read_walk(f)
+        if trace.header.site_id and site.site_id and trace.header.site_id != site.site_id:
+            raise LocalizationError(f"{trace.trace_id}: recorded at site "
+                                    f"{trace.header.site_id}, but the site bundle {site.path} "
+                                    f"is of site {site.site_id}")
         recorded = trace.header.floor_name or ""
         scans = _scans(trace, kind)
         rssi = model.scan_matrix(scans)

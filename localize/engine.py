@@ -20,6 +20,8 @@ Examples
 
 from __future__ import annotations
 
+from dataclasses import fields
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -145,6 +147,11 @@ class MultiUserEngine:
         """
         if self.state is None:
             raise LocalizationError("no users")
+        if ids is not None:
+            ids = np.asarray(ids, dtype=np.int64).ravel()
+            if len(np.unique(ids)) != len(ids):
+                raise LocalizationError("a user id appears twice in one tick")
+        _check_inputs(inputs, self.user_ids if ids is None else ids)
         if ids is None:
             out = advance(self.state, self.fmap, self.params, self.rng, inputs, self.last_xy,
                           self.consecutive)
@@ -160,3 +167,18 @@ class MultiUserEngine:
         self.last_xy[rows] = np.column_stack([out.x_m, out.y_m])
         self.n_recoveries[rows] += out.recovered
         return out
+
+
+def _check_inputs(inputs: StepInputs, ids: NDArray[np.int64]) -> None:
+    """Every array of ``inputs`` one value per user of ``ids``, and a finite compass heading
+    for each: checked before any state moves, so that one bad user cannot leave the others
+    half advanced."""
+    for f in fields(inputs):
+        values = getattr(inputs, f.name)
+        if values is not None and np.shape(values) != (len(ids),):
+            raise LocalizationError(f"tick input {f.name} has shape {np.shape(values)}, "
+                                    f"expected ({len(ids)},): one value per user")
+    bad = ~np.isfinite(np.asarray(inputs.compass_deg, dtype=float))
+    if bad.any():
+        raise LocalizationError(f"users {ids[bad][:10].tolist()}: no compass heading "
+                                "(NaN or infinite compass_deg); nobody was advanced")

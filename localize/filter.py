@@ -61,6 +61,11 @@ def first_radio_fix(radio: RadioModel | None, steps: StepSummaries
     return None
 
 
+#: How far (m) outside the floor's grid a given start may lie (the filter's start square
+#: doubles up to 200 m looking for reachable cells; farther is a wrong floor or wrong units).
+MAX_START_OFF_MAP_M = 200.0
+
+
 class BaseLocalizer:
     """What every method shares: the start logic and the batch run over a walk.
 
@@ -74,6 +79,9 @@ class BaseLocalizer:
     can_smooth = False
 
     def __init__(self, bundle: MapBundle, *, radio: RadioModel | None = None) -> None:
+        if bundle.grid is None or bundle.mask is None:
+            raise LocalizationError(f"{bundle.path}: a site-level bundle has no floor map; "
+                                    "give a floor bundle")
         self.bundle = bundle
         self.radio = radio
         self._last: Estimate | None = None
@@ -109,8 +117,25 @@ class BaseLocalizer:
                 raise LocalizationError("the radio model gives no fix for the start scan")
             x_m, y_m, sigma = fix
         self._keep_genealogy = False  # streaming: real-time estimates only
-        self._last = self._start_at(float(x_m), float(y_m), float(t_ms), sigma, half_width_m)
+        x_m, y_m = self._checked_start((x_m, y_m))
+        self._last = self._start_at(x_m, y_m, float(t_ms), sigma, half_width_m)
         return self._last
+
+    def _checked_start(self, xy) -> tuple[float, float]:
+        """``xy`` as two finite floats within :data:`MAX_START_OFF_MAP_M` of the floor's grid;
+        else a LocalizationError (a wrong floor, a start in other units)."""
+        try:
+            x, y = (float(v) for v in xy)
+        except (TypeError, ValueError) as err:
+            raise LocalizationError(f"start position {xy!r} is not two numbers (x, y m)") \
+                from err
+        g = self.bundle.grid
+        m = MAX_START_OFF_MAP_M
+        if not (g.x0_m - m <= x <= g.x0_m + g.width * g.cell_m + m
+                and g.y0_m - m <= y <= g.y0_m + g.height * g.cell_m + m):  # False for NaN
+            raise LocalizationError(f"start position ({x:g}, {y:g}) m is not finite or more "
+                                    f"than {m:g} m off the floor's map: wrong floor or units?")
+        return x, y
 
     def _start_at(self, x: float, y: float, t_ms: float, sigma: float | None,
                   half_width_m: float | None) -> Estimate:
@@ -169,8 +194,7 @@ class BaseLocalizer:
                                         "and no Wi-Fi/BLE fix in the walk")
             start = self._start_at(fix[0], fix[1], t0, fix[2], half_width_m)
         else:
-            start = self._start_at(float(start_xy[0]), float(start_xy[1]), t0, None,
-                                   half_width_m)
+            start = self._start_at(*self._checked_start(start_xy), t0, None, half_width_m)
         self._last = start
         est = [self.step(s) for s in steps]
         track = Track.from_estimates(start, est, method=self.method, trace_id=steps.trace_id,
@@ -263,6 +287,9 @@ class Localizer(BaseLocalizer):
             raise LocalizationError("call start() (or run()) before step()")
         if not np.isfinite(s.compass_deg):
             raise LocalizationError(f"step at {s.t_ms}: no compass heading")
+        if not (np.isfinite(s.t_ms) and s.t_ms > self._last.t_ms):
+            raise LocalizationError(f"step at {s.t_ms} ms does not come after the last one "
+                                    f"({self._last.t_ms} ms)")
         st, p = self.state, self.params
         inp = StepInputs(np.array([s.compass_deg]), np.array([s.frequency_hz]),
                          np.array([s.turn_deg]), np.array([s.strength_ut]),

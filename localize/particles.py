@@ -247,6 +247,8 @@ def scatter_init(fmap: FilterMap, rng: np.random.Generator, n: int, cx: float, c
     if not (np.isfinite(cx) and np.isfinite(cy)):
         raise LocalizationError(f"start position ({cx}, {cy}) is not finite")
     hw = float(half_width_m)
+    if not (np.isfinite(hw) and hw > 0):  # the doubling below would never end
+        raise LocalizationError(f"start half-width {half_width_m} m is not positive and finite")
     while True:
         pts = fmap.random_reachable(rng, n, cx, cy, hw)
         if pts is not None:

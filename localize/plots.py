@@ -7,6 +7,7 @@ notebook's backend is left alone; every function returns False when matplotlib i
 
 from __future__ import annotations
 
+import io
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -15,8 +16,17 @@ from numpy.typing import ArrayLike, NDArray
 
 from localize.bundle import MapBundle
 from localize.track import Track
+from survey.publish import atomic_write_bytes
 
 __all__ = ["plot_cdfs", "plot_track"]
+
+
+def _save_png(fig, path: str | Path) -> None:
+    """The figure as a PNG at ``path``, written whole or not at all (a full disk or a killed
+    process leaves the previous file, never a truncated one)."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    atomic_write_bytes(path, buf.getvalue(), overwrite=True)
 
 
 def plot_track(path: str | Path, bundle: MapBundle, tracks: Mapping[str, Track],
@@ -74,7 +84,7 @@ def plot_track(path: str | Path, bundle: MapBundle, tracks: Mapping[str, Track],
     ax.set_title(title, fontsize=9)
     ax.legend(fontsize=7, loc="best")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    _save_png(fig, path)
     return True
 
 
@@ -98,5 +108,5 @@ def plot_cdfs(path: str | Path, errors: Mapping[str, NDArray[np.float64]], title
     ax.legend(fontsize=8)
     ax.set_title(title, fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    _save_png(fig, path)
     return True

@@ -203,3 +203,41 @@ def test_a_damaged_walk_is_localized_with_a_warning(truth_bundles, tmp_path):  #
     assert res.exit_code == 0, res.output
     assert f"warning: {cut}: 1 bad line(s) skipped (" in res.output
     assert f"; first: {cut}:" in res.output
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--plot", "{tmp}/cdf.txt"], "the plot is a PNG; name it .png"),
+    (["--plot", "{tmp}/x.png", "--csv", "{tmp}/x.png"], "--plot and --csv name the same file"),
+    (["--csv", "{tmp}/FILE/errors.csv"], "is a file, not a folder"),
+])
+def test_evaluate_refuses_plot_and_csv_targets_before_the_work(truth_bundles, tmp_path,  # noqa: F811
+                                                               args, message):
+    """A .txt plot used to end the run in a matplotlib traceback; --csv and --plot on one
+    file wrote the CSV, then the PNG over it."""
+    (tmp_path / "FILE").write_text("keep me")
+    walk = min(F1_WALKS.glob("*.txt.gz"))
+    res = CliRunner().invoke(main, ["evaluate", str(truth_bundles["F1"]), str(walk),
+                                    "--methods", "pdr",
+                                    *[a.format(tmp=tmp_path) for a in args]])
+    assert res.exit_code == 2 and message in res.output, res.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["FILE"]
+
+
+def test_two_walks_with_one_trace_id_in_a_run_are_refused(truth_bundles, tmp_path):  # noqa: F811
+    """The second walk's outputs would replace the first one's <trace_id>.parquet and .png
+    (and evaluate would merge their scores): it fails, named, and the first is kept."""
+    first, other = sorted(F1_WALKS.glob("*.txt.gz"))[:2]
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    (tmp_path / "a" / first.name).write_bytes(first.read_bytes())
+    (tmp_path / "b" / first.name).write_bytes(other.read_bytes())  # same name, other walk
+    for command in (["localize", "-o", str(tmp_path / "out"), "--method", "pdr"],
+                    ["evaluate", "--methods", "pdr"]):
+        res = CliRunner().invoke(main, [command[0], str(truth_bundles["F1"]),
+                                        str(tmp_path / "a"), str(tmp_path / "b"),
+                                        *command[1:]])
+        assert res.exit_code == 1, res.output
+        assert f"trace id {first.name.split('.')[0]} is also" in res.output
+    tid = first.name.split(".")[0]
+    kept = pq.read_table(tmp_path / "out" / f"{tid}.parquet")
+    assert kept.num_rows > 0 and len(list((tmp_path / "out").iterdir())) == 2  # parquet, png

@@ -199,7 +199,7 @@ def test_other_bad_calls(f1_bundle, sim_walks):  # noqa: F811
     loc = Localizer(f1_bundle)
     with pytest.raises(LocalizationError, match="start"):
         loc.step(w.steps[0])
-    with pytest.raises(LocalizationError, match="no reachable"):
+    with pytest.raises(LocalizationError, match="more than 200 m off the floor's map"):
         loc.start(5000.0, 5000.0)
     with pytest.raises(LocalizationError, match="no start position"):
         loc.run(w.steps)  # neither a start nor a radio model
@@ -209,6 +209,84 @@ def test_other_bad_calls(f1_bundle, sim_walks):  # noqa: F811
         FilterParams(weight_mode="magic")
     with pytest.raises(LocalizationError):
         make_localizer("nope", f1_bundle)
+
+
+@pytest.mark.parametrize("method", ["indoormap", "align"])
+def test_bad_starts_and_steps_are_localization_errors(tmp_path, f1_bundle, sim_walks,  # noqa: F811
+                                                      method):
+    """Each of these used to hang (a start square of width 0 doubled forever), escape as a
+    raw ValueError/IndexError/AttributeError, or run on (the aligner placed a walk 900 km
+    off, the streaming filter took steps going back in time)."""
+    import pyarrow as pa
+
+    from mapping.bundle_writer import BundleContent, write_bundle
+
+    w = _f1(sim_walks)[0]
+    loc = make_localizer(method, f1_bundle, rng=0)
+    for start, match in [((float("nan"), 3.0), "not finite"), ((1.0,), "not two numbers"),
+                         ((1e6, -1e6), "more than 200 m off"), ("ab", "not two numbers")]:
+        with pytest.raises(LocalizationError, match=match):
+            loc.run(w.steps, start_xy=start)
+    if method == "indoormap":
+        for half_width in (0.0, -1.0, float("nan")):
+            with pytest.raises(LocalizationError, match="half-width"):
+                loc.run(w.steps, start_xy=w.start_xy, half_width_m=half_width)
+        loc.start(*w.start_xy, t_ms=float(w.steps.t_ms[0]) - 500)
+        loc.step(w.steps[0])
+        for t_ms in (float(w.steps.t_ms[0]), float(w.steps.t_ms[0]) - 1, float("nan")):
+            with pytest.raises(LocalizationError, match="does not come after"):
+                loc.step(replace(w.steps[1], t_ms=t_ms))
+    write_bundle(tmp_path / "_site", BundleContent("site", "", "", kind="site",
+                                                   tables={"t": pa.table({"a": [1]})}))
+    with pytest.raises(LocalizationError, match="site-level bundle"):
+        make_localizer(method, load_bundle(tmp_path / "_site"))
+
+
+def test_a_glitch_in_the_accelerometer_does_not_throw_the_aligned_track(f1_bundle,  # noqa: F811
+                                                                        sim_walks):
+    """One step's acceleration swing of 1e30 (a corrupt sample) made a Weinberg step of
+    thousands of km; the aligner cuts a step at MAX_STEP_M."""
+    from localize.align import MAX_STEP_M, walk_shape
+
+    w = _f1(sim_walks)[0]
+    swing = np.array(w.steps.delta_acc_ms2, dtype=float)
+    swing[5] = 1e30
+    shape = walk_shape(replace(w.steps, delta_acc_ms2=swing))
+    assert np.abs(np.diff(shape)).max() <= MAX_STEP_M + 1e-9
+    track = make_localizer("align", f1_bundle).run(replace(w.steps, delta_acc_ms2=swing),
+                                                   start_xy=w.start_xy, smooth=True)
+    g = f1_bundle.grid
+    assert (track.x_m <= g.x0_m + g.width * g.cell_m + 10).all()
+
+
+def test_a_bad_tick_moves_no_user(f1_bundle, sim_walks):  # noqa: F811
+    """One user's NaN compass, inputs of the wrong length or a user twice used to raise a raw
+    IndexError/ValueError (or advance a twice-named user once) after some users had moved;
+    now the tick is refused before anything moves, and the next good tick works."""
+    walks = _f1(sim_walks)[:3]
+    eng = MultiUserEngine(f1_bundle, FilterParams(n_particles_start=0), rng=4)
+    ids = eng.add_users(np.array([v.start_xy for v in walks]))
+    cols = ["compass_deg", "frequency_hz", "turn_deg", "strength_ut", "azimuth_deg",
+            "polar_deg", "attitude"]
+
+    def inputs(i, **change):
+        values = {c: np.array([getattr(v.steps, c)[i] for v in walks]) for c in cols}
+        return StepInputs(**{**values, **change})
+
+    before = eng.state.x.copy()
+    compass = inputs(0).compass_deg.copy()
+    compass[1] = np.nan
+    for call, match in [(lambda: eng.tick(None, inputs(0, compass_deg=compass)),
+                         rf"users \[{ids[1]}\]: no compass heading"),
+                        (lambda: eng.tick(ids, inputs(0, turn_deg=np.zeros(2))),
+                         r"turn_deg has shape \(2,\)"),
+                        (lambda: eng.tick([ids[0], ids[0]], inputs(0)),
+                         "appears twice")]:
+        with pytest.raises(LocalizationError, match=match):
+            call()
+        np.testing.assert_array_equal(eng.state.x, before)
+    out = eng.tick(None, inputs(0))
+    assert np.isfinite(out.x_m).all() and len(out.x_m) == 3
 
 
 def test_step_errors_needs_one_true_position_per_step():

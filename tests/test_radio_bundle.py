@@ -188,6 +188,21 @@ def test_floor_command_per_scan_and_per_walk(built):
     assert bad.exit_code != 0 and "not a site bundle" in bad.output
 
 
+def test_floor_command_refuses_a_walk_of_another_site(built, tmp_path):
+    """As localize, evaluate and wifi-locate do: a walk recorded at another site used to get
+    rows of 'floor unknown' and exit 0."""
+    import gzip
+    import re
+
+    walk = min((SITE / "F1" / "path_data_files").glob("*.txt.gz"))
+    text = gzip.decompress(walk.read_bytes()).decode()
+    assert "SiteID:" in text
+    (tmp_path / walk.name).write_bytes(gzip.compress(
+        re.sub(r"SiteID:[^\t\n]*", "SiteID:othersite", text, count=1).encode()))
+    res = CliRunner().invoke(main, ["floor", str(built), str(tmp_path / walk.name)])
+    assert res.exit_code == 1 and "recorded at site othersite" in res.output
+
+
 def test_wifi_locate_command(built, tmp_path):
     runner = CliRunner()
     res = runner.invoke(main, ["wifi-locate", str(built), str(SITE / "F2" / "path_data_files")])
