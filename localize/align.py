@@ -40,16 +40,13 @@ from numpy.typing import NDArray
 
 from localize.bundle import MapBundle
 from localize.errors import LocalizationError
-from localize.filter import BaseLocalizer
+from localize.filter import BaseLocalizer, check_step_time
+from localize.params import MAX_STEP_M
 from localize.radio import RadioModel
 from localize.steps import StepSummaries, StepSummary
 from localize.track import Estimate, Track
 
 __all__ = ["AlignParams", "WalkAligner", "distance_from_mask_m", "walk_shape"]
-
-
-#: Longest step a walker takes (m): Weinberg lengths beyond it are sensor glitches, cut to it.
-MAX_STEP_M = 1.5
 
 
 @dataclass(frozen=True)
@@ -268,6 +265,7 @@ class WalkAligner(BaseLocalizer):
     def step(self, s: StepSummary) -> Estimate:
         if not self._fix_t:
             raise LocalizationError("call start() (or run()) before step()")
+        check_step_time(s.t_ms, self._t[-1])
         fix = None
         if s.scan is not None and self.radio is not None:
             located = self.radio.locate(s.scan)

@@ -34,7 +34,10 @@ def trace_files(paths: tuple[str, ...]) -> list[Path]:
     files = find_trace_files(paths)
     if not files:
         raise click.UsageError("no trace files (.txt, .txt.gz) found in the given paths")
-    return files
+    unique: dict[Path, Path] = {}
+    for f in files:  # one file named twice (relative and absolute, or a folder and a file)
+        unique.setdefault(f.resolve(), f)
+    return list(unique.values())
 
 
 def read_walk(path: Path) -> Trace:
@@ -69,7 +72,7 @@ class TraceIds:
     def claim(self, trace_id: str, path: Path) -> None:
         """Note ``trace_id`` as ``path``'s; a LocalizationError if another file had it."""
         first = self._first.setdefault(trace_id, path)
-        if first != path:
+        if first.resolve() != path.resolve():
             raise LocalizationError(f"{path}: trace id {trace_id} is also {first}'s in this "
                                     "run; rename one (its outputs would replace the other's)")
 

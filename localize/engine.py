@@ -173,12 +173,13 @@ def _check_inputs(inputs: StepInputs, ids: NDArray[np.int64]) -> None:
     """Every array of ``inputs`` one value per user of ``ids``, and a finite compass heading
     for each: checked before any state moves, so that one bad user cannot leave the others
     half advanced."""
+    shapes = [(len(ids),)] + ([()] if len(ids) == 1 else [])  # one user: scalars too
     for f in fields(inputs):
         values = getattr(inputs, f.name)
-        if values is not None and np.shape(values) != (len(ids),):
+        if values is not None and np.shape(values) not in shapes:
             raise LocalizationError(f"tick input {f.name} has shape {np.shape(values)}, "
                                     f"expected ({len(ids)},): one value per user")
-    bad = ~np.isfinite(np.asarray(inputs.compass_deg, dtype=float))
+    bad = ~np.isfinite(np.asarray(inputs.compass_deg, dtype=float).reshape(-1))
     if bad.any():
         raise LocalizationError(f"users {ids[bad][:10].tolist()}: no compass heading "
                                 "(NaN or infinite compass_deg); nobody was advanced")

@@ -61,6 +61,14 @@ def first_radio_fix(radio: RadioModel | None, steps: StepSummaries
     return None
 
 
+def check_step_time(t_ms: float, last_t_ms: float) -> None:
+    """A streaming step's time (ms) must be finite and not before the last step (or the
+    start); else a LocalizationError (estimates would go back in time)."""
+    if not (np.isfinite(t_ms) and t_ms >= last_t_ms):
+        raise LocalizationError(f"step at {t_ms} ms comes before the last one ({last_t_ms} ms) "
+                                "or has no time")
+
+
 #: How far (m) outside the floor's grid a given start may lie (the filter's start square
 #: doubles up to 200 m looking for reachable cells; farther is a wrong floor or wrong units).
 MAX_START_OFF_MAP_M = 200.0
@@ -287,9 +295,7 @@ class Localizer(BaseLocalizer):
             raise LocalizationError("call start() (or run()) before step()")
         if not np.isfinite(s.compass_deg):
             raise LocalizationError(f"step at {s.t_ms}: no compass heading")
-        if not (np.isfinite(s.t_ms) and s.t_ms > self._last.t_ms):
-            raise LocalizationError(f"step at {s.t_ms} ms does not come after the last one "
-                                    f"({self._last.t_ms} ms)")
+        check_step_time(s.t_ms, self._last.t_ms)
         st, p = self.state, self.params
         inp = StepInputs(np.array([s.compass_deg]), np.array([s.frequency_hz]),
                          np.array([s.turn_deg]), np.array([s.strength_ut]),

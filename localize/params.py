@@ -20,12 +20,15 @@ from dataclasses import asdict, dataclass, field, replace
 
 from localize.errors import LocalizationError
 
-__all__ = ["WEIGHT_MODES", "FeatureParams", "FilterParams"]
+__all__ = ["MAX_STEP_M", "WEIGHT_MODES", "FeatureParams", "FilterParams"]
 
 #: Field features with their own FeatureParams.
 FEATURE_NAMES = ("strength", "azimuth", "polar", "deviation")
 #: Magnetic weight updates the filter knows.
 WEIGHT_MODES = ("mass_centered", "gaussian", "dtw", "none")
+#: Longest step a walker takes (m): longer modelled steps come from sensor glitches (one
+#: accelerometer value of 1e30) and are cut to it, by the filter and the alignment.
+MAX_STEP_M = 1.5
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ from numpy.typing import ArrayLike, DTypeLike, NDArray
 
 from localize.errors import LocalizationError
 from localize.maps import FilterMap
-from localize.params import FilterParams
+from localize.params import MAX_STEP_M, FilterParams
 from localize.resample import systematic_resample_rows
 from localize.weights import newest_delta, term_gaussian, term_mass_centered
 
@@ -356,7 +356,7 @@ def move(st: ParticleState, fmap: FilterMap, params: FilterParams, rng: np.rando
         fr = np.asarray(freq_hz, dtype=np.float64).reshape(u, 1)
     fr = np.where(np.isfinite(fr), fr, p.step_feature_nominal).astype(f32)
     length = st.a * fr + st.b + f32(p.step_length_noise_m) * z[3]
-    np.maximum(length, 0.0, out=length)
+    np.clip(length, 0.0, MAX_STEP_M, out=length)
     if p.turn_correction:
         th = np.minimum(np.abs(np.radians(np.asarray(turn_deg, dtype=np.float64))), np.pi)
         th = np.where(np.isfinite(th), th, 0.0).reshape(u, 1)

@@ -18,7 +18,7 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -199,13 +199,18 @@ def checked_plan(plan: FloorPlan, source: Path) -> FloorPlan:
     """``plan`` if it can hold a walk: an outline with area, at least 1 m on a side, not all
     of it covered by obstacles; else a :class:`FloorPlanError` naming ``source``."""
     outline = plan.outline
+    if outline.geom_type == "GeometryCollection":  # a repaired spike: a polygon and a line
+        outline = shapely.union_all([g for g in shapely.get_parts(outline)
+                                     if g.geom_type in ("Polygon", "MultiPolygon")])
+        plan = replace(plan, outline=outline)
     if outline.geom_type not in ("Polygon", "MultiPolygon") or not outline.area > 0:
         raise FloorPlanError(f"{source}: the outline has no area (a {outline.geom_type} "
                              "after repair)")
     minx, miny, maxx, maxy = outline.bounds
     if max(maxx - minx, maxy - miny) < 1.0:
-        raise FloorPlanError(f"{source}: the outline is {maxx - minx:.3g} x {maxy - miny:.3g} m; "
-                             "a plan in lon/lat needs its floor_info.json beside it")
+        raise FloorPlanError(f"{source}: the outline is {maxx - minx:.3g} x {maxy - miny:.3g} m, "
+                             "too small for a floor (a plan in lon/lat needs its floor_info.json "
+                             "beside it)")
     if not plan.reachable.area > 0:
         raise FloorPlanError(f"{source}: the obstacles cover the whole outline; nothing is "
                              "reachable")

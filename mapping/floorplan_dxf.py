@@ -21,7 +21,8 @@ import shapely.errors
 from .floorplan import FloorPlan, FloorPlanError, checked_plan, checked_size, made_valid
 
 _UNIT_TO_M = {0: 1.0, 1: 0.0254, 2: 0.3048, 3: 1609.344, 4: 0.001, 5: 0.01, 6: 1.0,
-              7: 1000.0, 10: 0.9144, 13: 1e-6, 14: 0.1, 15: 10.0, 16: 100.0}
+              7: 1000.0, 10: 0.9144, 13: 1e-6, 14: 0.1, 15: 10.0, 16: 100.0,
+              21: 1200 / 3937}  # 21: US survey feet
 
 
 def read_dxf_floor_plan(path: str | os.PathLike, *,
@@ -46,6 +47,10 @@ def read_dxf_floor_plan(path: str | os.PathLike, *,
     except (OSError, ezdxf.DXFStructureError) as err:
         raise FloorPlanError(f"{path}: not a readable DXF file ({err})") from err
     units = doc.header.get("$INSUNITS", 0)
+    try:  # an int, or a number stored as text or float by some writers
+        units = int(float(units))
+    except (TypeError, ValueError):
+        pass
     if units not in _UNIT_TO_M:
         raise FloorPlanError(f"{path}: drawing units $INSUNITS = {units!r} are not a length "
                              f"indoormap reads (codes {sorted(_UNIT_TO_M)}; 0 = unitless, "

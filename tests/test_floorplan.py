@@ -161,3 +161,27 @@ def test_dxf_entities_with_non_finite_numbers_or_unknown_units_are_named(tmp_pat
 def test_a_cell_too_small_to_count_is_a_value_error():
     with pytest.raises(ValueError, match="over the limit"):
         grid_for_extent(40.0, 25.0, 1e-320)  # 40 / 1e-320 is infinite
+
+
+def test_an_outline_with_a_spike_keeps_its_polygon(tmp_path):
+    """make_valid turns a zero-width spike into a polygon plus a line; the polygon is the
+    outline (it was refused as 'no area' for a moment)."""
+    spike = {"type": "Polygon", "coordinates": [[[0, 0], [20, 0], [20, 10], [10, 10],
+                                                 [10, 15], [10, 10], [0, 10], [0, 0]]]}
+    plan = read_floor_plan(_plan(tmp_path, spike))
+    assert plan.outline.geom_type == "Polygon" and plan.outline.area == pytest.approx(200.0)
+    assert len(plan.repairs) == 1
+
+
+def test_dxf_units_stored_as_text_are_read(tmp_path):
+    doc = ezdxf.new()
+    doc.modelspace().add_lwpolyline([(0, 0), (40000, 0), (40000, 25000), (0, 25000)],
+                                    close=True, dxfattribs={"layer": "OUTLINE"})
+    doc.saveas(tmp_path / "plan.dxf")
+    text = (tmp_path / "plan.dxf").read_text()
+    # $INSUNITS as group code 1 (text) with the value 4 (mm), as some writers store it
+    text = text.replace("$INSUNITS\n 70\n6\n", "$INSUNITS\n  1\n4\n", 1)
+    assert "$INSUNITS\n  1\n4\n" in text
+    (tmp_path / "plan.dxf").write_text(text)
+    plan = read_floor_plan(tmp_path / "plan.dxf")
+    assert (plan.width_m, plan.height_m) == pytest.approx((40.0, 25.0))

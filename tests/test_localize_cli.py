@@ -241,3 +241,10 @@ def test_two_walks_with_one_trace_id_in_a_run_are_refused(truth_bundles, tmp_pat
     tid = first.name.split(".")[0]
     kept = pq.read_table(tmp_path / "out" / f"{tid}.parquet")
     assert kept.num_rows > 0 and len(list((tmp_path / "out").iterdir())) == 2  # parquet, png
+    # one file named twice (its folder, and a path to it through "..") is one walk
+    once = CliRunner().invoke(main, ["evaluate", str(truth_bundles["F1"]),
+                                     str(tmp_path / "a"), "--methods", "pdr"])
+    twice = CliRunner().invoke(main, ["evaluate", str(truth_bundles["F1"]), str(tmp_path / "a"),
+                                      str(tmp_path / "b" / ".." / "a" / first.name),
+                                      "--methods", "pdr"])
+    assert twice.exit_code == 0 and twice.stdout == once.stdout, twice.output  # same n

@@ -231,11 +231,12 @@ def test_bad_starts_and_steps_are_localization_errors(tmp_path, f1_bundle, sim_w
         for half_width in (0.0, -1.0, float("nan")):
             with pytest.raises(LocalizationError, match="half-width"):
                 loc.run(w.steps, start_xy=w.start_xy, half_width_m=half_width)
-        loc.start(*w.start_xy, t_ms=float(w.steps.t_ms[0]) - 500)
-        loc.step(w.steps[0])
-        for t_ms in (float(w.steps.t_ms[0]), float(w.steps.t_ms[0]) - 1, float("nan")):
-            with pytest.raises(LocalizationError, match="does not come after"):
-                loc.step(replace(w.steps[1], t_ms=t_ms))
+    for streaming in (loc, make_localizer("pdr", f1_bundle)):
+        streaming.start(*w.start_xy, t_ms=float(w.steps.t_ms[0]))
+        streaming.step(w.steps[0])  # at the start time: allowed
+        for t_ms in (float(w.steps.t_ms[0]) - 1, float("nan")):
+            with pytest.raises(LocalizationError, match="comes before the last one"):
+                streaming.step(replace(w.steps[1], t_ms=t_ms))
     write_bundle(tmp_path / "_site", BundleContent("site", "", "", kind="site",
                                                    tables={"t": pa.table({"a": [1]})}))
     with pytest.raises(LocalizationError, match="site-level bundle"):
@@ -246,7 +247,8 @@ def test_a_glitch_in_the_accelerometer_does_not_throw_the_aligned_track(f1_bundl
                                                                         sim_walks):
     """One step's acceleration swing of 1e30 (a corrupt sample) made a Weinberg step of
     thousands of km; the aligner cuts a step at MAX_STEP_M."""
-    from localize.align import MAX_STEP_M, walk_shape
+    from localize.align import walk_shape
+    from localize.params import MAX_STEP_M
 
     w = _f1(sim_walks)[0]
     swing = np.array(w.steps.delta_acc_ms2, dtype=float)
@@ -287,6 +289,8 @@ def test_a_bad_tick_moves_no_user(f1_bundle, sim_walks):  # noqa: F811
         np.testing.assert_array_equal(eng.state.x, before)
     out = eng.tick(None, inputs(0))
     assert np.isfinite(out.x_m).all() and len(out.x_m) == 3
+    one = {c: getattr(walks[0].steps, c)[1] for c in cols}  # one user: scalars still work
+    assert len(eng.tick([ids[0]], StepInputs(**one)).x_m) == 1
 
 
 def test_step_errors_needs_one_true_position_per_step():
