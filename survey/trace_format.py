@@ -33,6 +33,20 @@ STREAM_TO_RECORD: dict[str, str] = {v: k for k, v in SENSOR_STREAMS.items()}
 #: Stream names in a fixed order; the store keeps the stream as this category.
 STREAM_NAMES: tuple[str, ...] = tuple(SENSOR_STREAMS.values())
 
+#: Largest magnitude of a sensor value (and of an uncalibrated stream's bias) a phone reports,
+#: by stream, with its unit: phones saturate near 16 g, 35 rad/s and 5000 uT, and rotation
+#: vector components are those of a unit quaternion. A value beyond is a corrupt sample (one
+#: accelerometer value of 1e30 made phantom steps): an ``out_of_range`` bad line.
+SENSOR_LIMIT_OF_STREAM: dict[str, tuple[float, str]] = {
+    "accelerometer": (2000.0, "m/s^2"), "gyroscope": (200.0, "rad/s"),
+    "magnetic_field": (10_000.0, "uT"), "rotation_vector": (1.5, "")}
+
+
+def sensor_limit(stream: str) -> tuple[float, str]:
+    """(largest plausible |value|, unit) of a stream (``inf`` for a name it does not know)."""
+    return SENSOR_LIMIT_OF_STREAM.get(stream.removesuffix("_uncalibrated"), (float("inf"), ""))
+
+
 #: Number of values after (timestamp, type) for every documented record type.
 VALUE_COUNTS: dict[str, int] = {
     **{k: 4 for k in CALIBRATED_STREAMS},

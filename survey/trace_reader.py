@@ -54,6 +54,7 @@ from .trace_format import (
     VALUE_COUNTS,
     WAYPOINT_COLUMNS,
     WAYPOINT_DTYPES,
+    sensor_limit,
     WIFI_COLUMNS,
     WIFI_DTYPES,
     ParseReport,
@@ -100,6 +101,9 @@ _ARROW_KIND = {"f": pa.float64(), "i": pa.int64(), "s": pa.string()}
 # Record types with the same value layout are parsed together as one block ("group").
 _TYPE_LIST: list[str] = [*CALIBRATED_STREAMS, *UNCALIBRATED_STREAMS, "TYPE_WIFI",
                          "TYPE_BEACON", "TYPE_WAYPOINT"]
+#: Per record type of ``_TYPE_LIST``: the largest plausible |value| (inf for non-sensors).
+SENSOR_LIMITS = np.array([sensor_limit(SENSOR_STREAMS.get(t, ""))[0] for t in _TYPE_LIST])
+_SENSOR_UNIT = [sensor_limit(SENSOR_STREAMS.get(t, ""))[1] for t in _TYPE_LIST]
 _GROUP_OF_INDEX = np.array([0] * len(CALIBRATED_STREAMS) + [1] * len(UNCALIBRATED_STREAMS)
                            + [2, 3, 4], dtype=np.int32)
 _GROUP_SPECS = [_SPECS["TYPE_ACCELEROMETER"], _SPECS["TYPE_ACCELEROMETER_UNCALIBRATED"],
@@ -516,6 +520,16 @@ class _Tables:
                     ok &= np.abs(cols[c]) < _FLOAT32_LIMIT
             bad.add(cols["gline"][acc_ok & ~ok], "non_finite",
                     "sensor record: a value is too large for float32")
+            limit = SENSOR_LIMITS[cols["type"]]
+            plausible = ok.copy()
+            for c in ("x", "y", "z", "bx", "by", "bz"):
+                if c in cols:
+                    plausible &= ~(np.abs(cols[c]) > limit)  # NaN is judged elsewhere
+            for t in np.unique(cols["type"][ok & ~plausible]):
+                bad.add(cols["gline"][ok & ~plausible & (cols["type"] == t)], "out_of_range",
+                        f"{_TYPE_LIST[t]}: a value beyond +-{SENSOR_LIMITS[t]:g} "
+                        f"{_SENSOR_UNIT[t]}, impossible for a phone's sensor")
+            ok = plausible
             if not ok.all():
                 cols = _take(cols, np.flatnonzero(ok))
             if "bx" not in cols:

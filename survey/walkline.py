@@ -42,6 +42,7 @@ from .trace_format import (
     Trace,
     TraceHeader,
     empty_table,
+    sensor_limit,
 )
 
 #: CSV column prefix per stream: (value prefix, bias prefix or None).
@@ -258,6 +259,7 @@ def parse_sensor_csv(data: bytes, *, path: str = "<input>", strict: bool = False
     bad_t = ~np.isfinite(t) | (t < 0)
     parts = []
     row_bad = bad_t.copy()
+    implausible = np.zeros(len(t), dtype=bool)
     for stream, (prefix, bias) in STREAM_COLUMNS.items():
         cols = [f"{prefix}_{a}" for a in _AXES] + ([f"{bias}_{a}" for a in _AXES] if bias else [])
         present = [c for c in cols if c in columns]
@@ -270,6 +272,7 @@ def parse_sensor_csv(data: bytes, *, path: str = "<input>", strict: bool = False
         values = np.column_stack([numeric[c] for c in cols])
         # stored as float32: a value beyond its range would become infinite
         row_bad |= ~(np.abs(values) < _FLOAT32_LIMIT).all(axis=1)
+        implausible |= (np.abs(values) > sensor_limit(stream)[0]).any(axis=1)
         parts.append((stream, values))
     if not parts:
         raise SurveyFormatError("sensor log has no sensor columns (e.g. acc_x, acc_y, acc_z)",
@@ -280,11 +283,13 @@ def parse_sensor_csv(data: bytes, *, path: str = "<input>", strict: bool = False
     if acc is not None:
         row_bad |= ~_missing(table.column("accuracy")) & ~(np.isfinite(acc)
                                                            & (acc == np.round(acc)))
-    out_of_range = ~row_bad & (t >= MAX_TIME_MS)
+    out_of_range = ~row_bad & ((t >= MAX_TIME_MS) | implausible)
     if acc is not None:
         out_of_range |= ~row_bad & (np.abs(acc) > 127)
     problems = {"non_numeric": (row_bad, "non-numeric, missing or non-finite value"),
-                "out_of_range": (out_of_range, "t_ms beyond 2^53 ms or accuracy beyond 127")}
+                "out_of_range": (out_of_range, "t_ms beyond 2^53 ms, accuracy beyond 127 or a "
+                                               "sensor value no phone reports (e.g. beyond "
+                                               "2000 m/s^2)")}
     any_bad = row_bad | out_of_range
     if any_bad.any():
         line = _row_lines(data, table.num_rows)

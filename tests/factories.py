@@ -17,7 +17,7 @@ def small_trace(n: int = 50, seed: int = 0, trace_id: str = "walk0001") -> Trace
     for stream in ("accelerometer", "gyroscope", "magnetic_field", "rotation_vector",
                    "accelerometer_uncalibrated", "gyroscope_uncalibrated",
                    "magnetic_field_uncalibrated"):
-        xyz = rng.normal(0, 10, (n, 3)).astype(np.float32)
+        xyz = rng.normal(0, 0.3 if stream == "rotation_vector" else 10, (n, 3)).astype(np.float32)
         unc = stream.endswith("uncalibrated")
         bias = rng.normal(0, 5, (n, 3)).astype(np.float32) if unc else np.full((n, 3), np.nan,
                                                                                 np.float32)

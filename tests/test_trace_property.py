@@ -16,10 +16,10 @@ from survey.trace_format import (
     BLE_COLUMNS,
     BLE_DTYPES,
 )
+from survey.trace_format import SENSOR_LIMIT_OF_STREAM
 from survey.trace_reader import parse_trace_bytes
 from survey.trace_writer import render_trace
 
-f32 = st.floats(width=32, allow_nan=False, allow_infinity=False)
 t_ms = st.integers(min_value=0, max_value=10**15)
 text = st.text(st.characters(blacklist_categories=("Cs", "Cc")), max_size=12)
 mac = st.binary(min_size=6, max_size=6).map(lambda b: ":".join(f"{x:02x}" for x in b))
@@ -31,9 +31,12 @@ def traces(draw):
     for stream in draw(st.lists(st.sampled_from(STREAM_NAMES), unique=True, max_size=7)):
         ts = sorted(draw(st.lists(t_ms, min_size=1, max_size=8, unique=True)))
         n = len(ts)
-        vals = [draw(st.lists(f32, min_size=n, max_size=n)) for _ in range(3)]
+        # any float32 a phone's sensor can report (beyond its limit a value is a bad line)
+        limit = SENSOR_LIMIT_OF_STREAM[stream.removesuffix("_uncalibrated")][0]
+        value = st.floats(-limit, limit, width=32, allow_nan=False, allow_infinity=False)
+        vals = [draw(st.lists(value, min_size=n, max_size=n)) for _ in range(3)]
         unc = stream.endswith("uncalibrated")
-        bias = [draw(st.lists(f32, min_size=n, max_size=n)) if unc else [np.nan] * n
+        bias = [draw(st.lists(value, min_size=n, max_size=n)) if unc else [np.nan] * n
                 for _ in range(3)]
         frames.append(pd.DataFrame({
             "stream": stream, "t_ms": ts, "x": vals[0], "y": vals[1], "z": vals[2],

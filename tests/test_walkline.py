@@ -21,6 +21,7 @@ def _csv(path, n=100, t0=1_700_000_000_000, extra_bad_row=False):
     rows = [",".join(cols)]
     for i in range(n):
         vals = rng.normal(0, 1, len(cols) - 1)
+        vals[6:9] *= 0.3  # rot_x..rot_z: a unit quaternion's parts
         rows.append(",".join([str(t0 + 20 * i)] + [f"{v:.6f}" for v in vals]))
     if extra_bad_row:
         rows.insert(5, ",".join([str(t0 + 3)] + ["oops"] + ["1"] * (len(cols) - 2)))
@@ -171,4 +172,18 @@ def test_accuracy_must_be_a_whole_number_and_lines_count_blank_ones(tmp_path):
     assert trace.sensors["accuracy"].tolist() == [2, 3]   # missing means 3
     assert [m.split(": ")[0].rsplit(":", 1)[1] for m in trace.report.messages] == ["4", "5"]
     with pytest.raises(SurveyFormatError, match=r"a.csv:4: non-numeric"):
+        read_walk_plan(tmp_path / "plan.geojson", strict=True)
+
+
+def test_a_sensor_value_no_phone_reports_is_out_of_range(tmp_path):
+    """As in the trace reader: one accelerometer value of 1e30 is a corrupt sample (it made
+    phantom steps), an out_of_range bad line."""
+    (tmp_path / "a.csv").write_text("t_ms,acc_x,acc_y,acc_z,rot_x,rot_y,rot_z\n"
+                                    "1000,1,2,3,0.1,0.2,0.3\n1020,1e30,2,3,0.1,0.2,0.3\n"
+                                    "1040,1,2,3,0.1,2.5,0.3\n1060,1,2,3,0.1,0.2,0.3\n")
+    _plan(tmp_path, [_feature("a", [[0, 0], [1, 0]], start_ms=1000, end_ms=1060)])
+    (trace, _, _), = read_walk_plan(tmp_path / "plan.geojson")
+    assert sorted(set(trace.sensors["t_ms"])) == [1000, 1060]
+    assert trace.report.bad == {"out_of_range": 2}
+    with pytest.raises(SurveyFormatError, match=r"a.csv:3: .*no phone reports"):
         read_walk_plan(tmp_path / "plan.geojson", strict=True)
