@@ -72,7 +72,7 @@ class TraceIds:
     def claim(self, trace_id: str, path: Path) -> None:
         """Note ``trace_id`` as ``path``'s; a LocalizationError if another file had it."""
         first = self._first.setdefault(trace_id, path)
-        if first.resolve() != path.resolve():
+        if first != path:  # another file: trace_files named each file once
             raise LocalizationError(f"{path}: trace id {trace_id} is also {first}'s in this "
                                     "run; rename one (its outputs would replace the other's)")
 

@@ -51,10 +51,11 @@ def _grid_text(grid: Grid | None) -> str:
             f"({grid.x0_m:g}, {grid.y0_m:g}) m")
 
 
-def _changes(what: str, a: dict, b: dict) -> list[str]:
-    """``what key: a -> b`` for every key whose value differs (missing shown as None)."""
-    return [f"{what} {k}: {a.get(k)} -> {b.get(k)}" for k in sorted(set(a) | set(b))
-            if a.get(k) != b.get(k)]
+def _changes(what: str, a: dict, b: dict, keys=None) -> list[str]:
+    """``what key: a -> b`` for every key (of ``keys``, default all) whose value differs
+    (missing shown as None)."""
+    return [f"{what} {k}: {a.get(k)} -> {b.get(k)}"
+            for k in sorted(set(a) | set(b) if keys is None else keys) if a.get(k) != b.get(k)]
 
 
 def bundle_differences(a: MapBundle, b: MapBundle) -> list[str]:
@@ -76,12 +77,11 @@ def bundle_differences(a: MapBundle, b: MapBundle) -> list[str]:
             (mb["site_id"], mb.get("floor_id"), mb.get("kind")):
         out.append("warning: these bundles are of different sites, floors or kinds; what "
                    "follows compares unrelated maps")
-    out += _changes("manifest", {k: ma.get(k) for k in ("software_version", "floor_name")},
-                    {k: mb.get(k) for k in ("software_version", "floor_name")})
+    out += _changes("manifest", ma, mb, ("software_version", "floor_name"))
     pa_, pb = ma["build"].get("params", {}), mb["build"].get("params", {})
-    skip = {"params", "source_walks"} | set(pa_) | set(pb)  # a build key that is a parameter
-    out += _changes("build", {k: v for k, v in ma["build"].items() if k not in skip},
-                    {k: v for k, v in mb["build"].items() if k not in skip})
+    out += _changes("build", ma["build"], mb["build"],  # a key that is a parameter: below
+                    (set(ma["build"]) | set(mb["build"])) - {"params", "source_walks"}
+                    - set(pa_) - set(pb))
     out += _changes("param", pa_, pb)
     la, lb = metric_lines(ma), metric_lines(mb)
     for key in sorted(set(la) | set(lb)):
@@ -108,9 +108,8 @@ def bundle_differences(a: MapBundle, b: MapBundle) -> list[str]:
         if name not in layers_a or name not in layers_b:
             out.append(f"layer {name}: only in {'a' if name in layers_a else 'b'}")
             continue
-        out += _changes(f"layer {name}",
-                        {k: layers_a[name].get(k) for k in ("unit", "kind", "description")},
-                        {k: layers_b[name].get(k) for k in ("unit", "kind", "description")})
+        out += _changes(f"layer {name}", layers_a[name], layers_b[name],
+                        ("unit", "kind", "description"))
         if a.grid != b.grid or a.grid is None:
             continue
         d = np.asarray(b.layers[name], float) - np.asarray(a.layers[name], float)

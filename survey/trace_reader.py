@@ -513,23 +513,19 @@ class _Tables:
                 continue
             acc_ok = np.abs(cols["accuracy"]) <= 127
             bad.add(cols["gline"][~acc_ok], "out_of_range", "accuracy must be a small integer")
-            # Values are stored as float32: a finite float64 beyond its range would be infinite.
-            ok = acc_ok.copy()
-            for c in ("x", "y", "z", "bx", "by", "bz"):
-                if c in cols:
-                    ok &= np.abs(cols[c]) < _FLOAT32_LIMIT
+            # Values are stored as float32: a finite float64 beyond its range would be
+            # infinite. The largest |value| of a row (NaN when one is NaN, which fails too).
+            mag = np.abs(np.column_stack([cols[c] for c in ("x", "y", "z", "bx", "by", "bz")
+                                          if c in cols])).max(axis=1)
+            ok = acc_ok & (mag < _FLOAT32_LIMIT)
             bad.add(cols["gline"][acc_ok & ~ok], "non_finite",
                     "sensor record: a value is too large for float32")
-            limit = SENSOR_LIMITS[cols["type"]]
-            plausible = ok.copy()
-            for c in ("x", "y", "z", "bx", "by", "bz"):
-                if c in cols:
-                    plausible &= ~(np.abs(cols[c]) > limit)  # NaN is judged elsewhere
-            for t in np.unique(cols["type"][ok & ~plausible]):
-                bad.add(cols["gline"][ok & ~plausible & (cols["type"] == t)], "out_of_range",
+            implausible = ok & (mag > SENSOR_LIMITS[cols["type"]])
+            for t in np.unique(cols["type"][implausible]):
+                bad.add(cols["gline"][implausible & (cols["type"] == t)], "out_of_range",
                         f"{_TYPE_LIST[t]}: a value beyond +-{SENSOR_LIMITS[t]:g} "
                         f"{_SENSOR_UNIT[t]}, impossible for a phone's sensor")
-            ok = plausible
+            ok &= ~implausible
             if not ok.all():
                 cols = _take(cols, np.flatnonzero(ok))
             if "bx" not in cols:
