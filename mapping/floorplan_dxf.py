@@ -5,7 +5,7 @@ loop is a hole) on the outline layer make the floor outline (the largest one if 
 shapes on obstacle layers are obstacles; open polylines and LINE entities on wall layers become
 walls of ``wall_width_m`` (a hatch there is taken as the wall's area). Reachable area = outline
 minus obstacles minus walls. Coordinates are taken in metres, scaled by the drawing's
-``$INSUNITS`` when it says millimetres, centimetres or feet.
+``$INSUNITS`` (millimetres, centimetres, feet, ...; unknown codes are refused).
 """
 
 from __future__ import annotations
@@ -18,11 +18,13 @@ import numpy as np
 import shapely
 import shapely.errors
 
-from .floorplan import FloorPlan, FloorPlanError, checked_plan, checked_size, made_valid
+from .floorplan import (MAX_FLOOR_SIDE_M, FloorPlan, FloorPlanError, checked_plan, checked_size,
+                        made_valid)
 
 _UNIT_TO_M = {0: 1.0, 1: 0.0254, 2: 0.3048, 3: 1609.344, 4: 0.001, 5: 0.01, 6: 1.0,
               7: 1000.0, 10: 0.9144, 13: 1e-6, 14: 0.1, 15: 10.0, 16: 100.0,
               21: 1200 / 3937}  # 21: US survey feet
+FLATTEN_TOLERANCE_M = 0.005  # hatch curves to within 5 mm, far below a 0.25 m cell
 
 
 def read_dxf_floor_plan(path: str | os.PathLike, *,
@@ -124,13 +126,23 @@ def _entity_geometry(e, scale: float, wall_width_m: float | None, valid: Callabl
 
 
 def _hatch_area(hatch, scale: float, valid: Callable):
-    """The area a hatch fills: its boundary loops (arcs and splines flattened to within 0.01
-    drawing units) combined even-odd, so that an inner loop is a hole; None without loops."""
+    """The area a hatch fills: its boundary loops (arcs and splines flattened to within
+    :data:`FLATTEN_TOLERANCE_M`) combined even-odd, so that an inner loop is a hole; None
+    without loops. Raises ValueError for a loop wider than a floor can be (its flattening
+    would take memory and time without bound: an arc of radius 1e9 took 342 MB)."""
     from ezdxf import path
 
     area = None
     for loop in path.from_hatch(hatch):
-        pts = _finite([(v.x * scale, v.y * scale) for v in loop.flattening(0.01)])
+        corners = _finite([(v.x * scale, v.y * scale) for v in loop.control_vertices()])
+        if not corners:
+            continue
+        span_m = float(np.ptp(np.asarray(corners), axis=0).max())
+        if span_m > MAX_FLOOR_SIDE_M:
+            raise ValueError(f"a boundary loop spans {span_m:.3g} m, more than a floor's "
+                             f"{MAX_FLOOR_SIDE_M:g} m")
+        pts = _finite([(v.x * scale, v.y * scale)
+                       for v in loop.flattening(FLATTEN_TOLERANCE_M / scale)])
         if len(pts) < 3:
             continue
         poly = valid(shapely.Polygon(pts))

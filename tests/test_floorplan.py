@@ -135,8 +135,11 @@ def test_plans_that_cannot_hold_a_walk_are_refused_when_read(tmp_path, geometrie
         read_floor_plan(_plan(tmp_path, *geometries))
 
 
-@pytest.mark.parametrize("entity", ["nan_vertex", "inf_wall", "nan_circle", "units"])
+@pytest.mark.parametrize("entity", ["nan_vertex", "inf_wall", "nan_circle", "units",
+                                    "huge_hatch_arc"])
 def test_dxf_entities_with_non_finite_numbers_or_unknown_units_are_named(tmp_path, entity):
+    """The huge hatch arc is finite, but flattening it took 342 MB (at radius 1e300 it never
+    ended)."""
     doc = ezdxf.new()
     msp = doc.modelspace()
     outline = [(0, 0), (40, 0), (40, 25), (0, 25)]
@@ -149,11 +152,16 @@ def test_dxf_entities_with_non_finite_numbers_or_unknown_units_are_named(tmp_pat
         msp.add_circle((5, 5), float("nan"), dxfattribs={"layer": "PILLARS"})
     if entity == "units":
         doc.header["$INSUNITS"] = 18  # astronomical units
+    if entity == "huge_hatch_arc":
+        edges = msp.add_hatch(dxfattribs={"layer": "COLUMNS"}).paths.add_edge_path()
+        edges.add_arc((5, 5), 1e9, 0, 180)
+        edges.add_line((-1e9, 5), (1e9, 5))
     doc.saveas(tmp_path / "plan.dxf")
     match = {"nan_vertex": "LWPOLYLINE #.* on layer OUTLINE: .*non-finite",
              "inf_wall": "LINE #.* on layer WALLS: .*non-finite",
              "nan_circle": "CIRCLE #.* on layer PILLARS: .*finite",
-             "units": r"\$INSUNITS = 18"}[entity]
+             "units": r"\$INSUNITS = 18",
+             "huge_hatch_arc": "HATCH #.* on layer COLUMNS: .*loop spans 2e\\+09 m"}[entity]
     with pytest.raises(FloorPlanError, match=match):
         read_floor_plan(tmp_path / "plan.dxf")
 
