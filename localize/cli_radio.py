@@ -16,7 +16,6 @@ go on, and the exit code is then 1:
 
 from __future__ import annotations
 
-import math
 import sys
 from pathlib import Path
 
@@ -25,6 +24,7 @@ import numpy as np
 
 from localize.cli_common import WalkFailures, read_walk, trace_files
 from localize.errors import LocalizationError
+from localize.rssi_calibration import checked_rssi_calibration
 
 
 def _scans(trace, kind: str):
@@ -156,13 +156,13 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
     if calibration not in ("auto", "none"):
         try:
             k, b = (float(v) for v in calibration.split(","))
-            if not (math.isfinite(k) and math.isfinite(b) and k > 0):
-                raise ValueError("K > 0 and B finite")
+            given = checked_rssi_calibration(k, b)
+        except LocalizationError as err:
+            raise click.BadParameter(str(err), param_hint="--calibration") from err
         except ValueError as err:
-            raise click.BadParameter(f"must be auto, none or K,B with K > 0 and B finite "
-                                     f"(dB); got {calibration!r}",
+            raise click.BadParameter(f"must be auto, none or K,B (calibrated = K * rssi + B "
+                                     f"dBm); got {calibration!r}",
                                      param_hint="--calibration") from err
-        given = (k, b)
     maps = SiteMaps.open(bundle_path)
     out = _CsvRows(["trace_id", "floor", "t_ms", "n_known", "x_m", "y_m", "sigma_m", "error_m"])
     failures = WalkFailures()

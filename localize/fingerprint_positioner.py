@@ -46,7 +46,8 @@ from localize.radio_match import (
     sorensen_distances,
     walk_scores,
 )
-from localize.rssi_calibration import OnlineCalibration, estimate_rssi_calibration
+from localize.rssi_calibration import (OnlineCalibration, checked_rssi_calibration,
+                                       estimate_rssi_calibration)
 from localize.steps import RadioScan
 
 if TYPE_CHECKING:  # annotations only
@@ -197,10 +198,10 @@ class FingerprintPositioner:
                                bundle.table(FP_TABLE.format(kind=kind)), **kw)
 
     def with_calibration(self, k: float, b: float) -> FingerprintPositioner:
-        """The same positioner applying ``k * rssi + b`` (dBm) to every scan."""
-        if not (np.isfinite(k) and np.isfinite(b) and k > 0):
-            raise LocalizationError(f"RSSI calibration needs a finite k > 0 and b; got {k}, {b}")
-        return replace(self, rssi_k=float(k), rssi_b=float(b))
+        """The same positioner applying ``k * rssi + b`` (dBm) to every scan; ``k`` and ``b``
+        within :func:`~localize.rssi_calibration.checked_rssi_calibration`'s limits."""
+        k, b = checked_rssi_calibration(k, b)
+        return replace(self, rssi_k=k, rssi_b=b)
 
     def for_device(self, bundle: MapBundle, device_model: str) -> FingerprintPositioner | None:
         """Calibrated with the bundle's device table entry of ``device_model``; None when the

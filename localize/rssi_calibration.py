@@ -28,9 +28,27 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["OnlineCalibration", "estimate_rssi_calibration"]
+from localize.errors import LocalizationError
+
+__all__ = ["OnlineCalibration", "checked_rssi_calibration", "estimate_rssi_calibration"]
 
 FloatArray = NDArray[np.float64]
+
+#: Calibrations a user may give (``k``, and ``|b|`` in dB): far wider than the online search's
+#: and any phone's, narrow enough that ``k * rssi + b`` stays a signal level, not +-inf.
+GIVEN_K_LIMITS = (0.1, 10.0)
+GIVEN_B_LIMIT_DB = 200.0
+
+
+def checked_rssi_calibration(k: float, b: float) -> tuple[float, float]:
+    """``(k, b)`` as floats, or a LocalizationError unless ``k`` lies in
+    :data:`GIVEN_K_LIMITS` and ``|b| <= GIVEN_B_LIMIT_DB`` (dB)."""
+    k, b = float(k), float(b)
+    if not (GIVEN_K_LIMITS[0] <= k <= GIVEN_K_LIMITS[1] and abs(b) <= GIVEN_B_LIMIT_DB):
+        raise LocalizationError(
+            f"RSSI calibration k = {k:g}, b = {b:g} dB is out of range: k must lie in "
+            f"{GIVEN_K_LIMITS[0]:g}-{GIVEN_K_LIMITS[1]:g} and |b| <= {GIVEN_B_LIMIT_DB:g} dB")
+    return k, b
 
 
 @dataclass(frozen=True)

@@ -143,8 +143,9 @@ def test_scan_without_known_transmitter_gives_no_fix(built):
     fixes = pos.locate_scans([unknown, RadioScan(1, pos.aps[:3], np.array([-60.0, -70, -80]))])
     assert np.isnan(fixes.xy_m[0]).all() and np.isfinite(fixes.xy_m[1]).all()
     assert fixes.n_known.tolist() == [0, 3]
-    with pytest.raises(Exception, match="k > 0"):
-        pos.with_calibration(0.0, 1.0)
+    for k, b in ((0.0, 1.0), (1e308, 1.0), (1.0, -1e308), (float("nan"), 0.0)):
+        with pytest.raises(LocalizationError, match="k must lie in 0.1-10 and"):
+            pos.with_calibration(k, b)
     with pytest.raises(Exception, match="neighbour_mix must lie in"):
         dataclasses.replace(pos, neighbour_mix=2.0)
 
@@ -221,10 +222,13 @@ def test_wifi_locate_command(built, tmp_path):
     assert alone.exit_code == 0, alone.output
     err_alone = np.array([float(r["error_m"]) for r in _rows(alone.stdout) if r["error_m"]])
     assert len(err_alone) == len(err) and not np.allclose(err_alone, err)
-    for bad in ("1.1,x", "0,0", "-5,3", "1,nan"):  # usage errors before any walk is read
+    # usage errors before any walk is read (1e308 made every level -inf: no fix, no error)
+    for bad, why in (("1.1,x", "K,B"), ("1", "K,B"), ("0,0", "out of range"),
+                     ("-5,3", "out of range"), ("1,nan", "out of range"),
+                     ("1e308,1", "out of range")):
         given = runner.invoke(main, ["wifi-locate", "--calibration", bad, str(built / "F2"),
                                      str(SITE / "F2" / "path_data_files")])
-        assert given.exit_code == 2 and "K,B with K > 0" in given.output, given.output
+        assert given.exit_code == 2 and why in given.output, given.output
 
 
 def test_walk_without_wifi(built, tmp_path):
