@@ -23,7 +23,7 @@ from localize.maps import FilterMap
 from localize.methods import METHODS, PARTICLE_FILTERS, SMOOTHABLE, WEIGHT_MODE_OF
 from localize.params import FilterParams
 from localize.radio import RadioModel
-from localize.steps import StepSummary
+from localize.steps import StepSummaries, StepSummary
 from localize.track import Estimate
 
 __all__ = ["METHODS", "PARTICLE_FILTERS", "PdrLocalizer", "RadioOnlyLocalizer", "SMOOTHABLE",
@@ -78,6 +78,15 @@ class RadioOnlyLocalizer(BaseLocalizer):
         if radio is None:
             raise LocalizationError("the radio-only method needs a radio model")
         super().__init__(bundle, radio=radio)
+
+    def check(self, steps: StepSummaries) -> None:
+        """Also refuse a walk none of whose scans the radio model locates: its track would be
+        the start, held to the end."""
+        super().check(steps)
+        if self.first_fix(steps) is None:
+            raise LocalizationError(f"{steps.trace_id or 'walk'}: no Wi-Fi/BLE scan of the walk "
+                                    "is located by the radio model; method radio has nothing "
+                                    "to go on")
 
     def _start_at(self, x, y, t_ms, sigma, half_width_m) -> Estimate:
         return Estimate(t_ms, x, y, 0.0 if sigma is None else float(sigma), 1.0, False,

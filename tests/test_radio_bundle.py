@@ -240,6 +240,11 @@ def test_walk_without_wifi(built, tmp_path):
     res = runner.invoke(main, ["floor", str(built), str(walk)])
     assert res.exit_code == 0 and "floor unknown" in res.stderr
     assert [r["floor"] for r in _rows(res.stdout) if r["level"] == "walk"] == [""]
+    # the radio-only method held its start to the end (a constant track, exit 0)
+    res = runner.invoke(main, ["localize", str(built), str(walk), "-o", str(tmp_path / "out"),
+                               "--method", "radio", "--start", "waypoint"])
+    assert res.exit_code == 1 and "no Wi-Fi/BLE scan of the walk is located" in res.output
+    assert not list((tmp_path / "out").glob("*.parquet"))
 
 
 def test_radio_commands_report_a_failing_walk_and_go_on(built, tmp_path):
