@@ -150,7 +150,7 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
     from localize.floors import SiteMaps
     from localize.radio_match import WalkSmoothing
     from localize.walk_radio import bundle_positioner, radio_for_walk
-    from survey.step_summaries import step_summaries, waypoints_of
+    from survey.step_summaries import scans_of, waypoints_of
 
     given = None
     if calibration not in ("auto", "none"):
@@ -173,7 +173,9 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
         if not scans:
             click.echo(f"{trace.trace_id}: no {kind} scans", err=True)
             return
-        bundle = maps.select(step_summaries(trace))
+        h = trace.header  # the floor from the header, else the floor model on the Wi-Fi scans
+        bundle = maps.select_for(trace.trace_id, h.site_id or "", h.floor_id or "",
+                                 h.floor_name or "", scans if kind == "wifi" else scans_of(trace))
         pos = bundle_positioner(bundle, kind)
         if pos is None:
             raise LocalizationError(f"{bundle.path}: no {kind} fingerprints in this bundle")

@@ -8,7 +8,7 @@ mapping stage writes one, or :meth:`KnnRadioPositioner.floor_of`), else it refus
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Protocol
 
@@ -105,28 +105,35 @@ class SiteMaps:
         return cls([b for b in subs if b.manifest.get("kind") != "site"], floor_model=model)
 
     def select(self, steps: StepSummaries) -> MapBundle:
-        """The bundle of the walk's floor.
+        """The bundle of the walk's floor (see :meth:`select_for`)."""
+        return self.select_for(steps.trace_id, steps.site_id, steps.floor_id,
+                               steps.floor_name, steps.scans)
+
+    def select_for(self, trace_id: str, site_id: str, floor_id: str, floor_name: str,
+                   wifi_scans: Sequence[RadioScan | None] | None) -> MapBundle:
+        """The bundle of a walk's floor from what its trace header says (empty strings when
+        it says nothing) or, failing that, the site's floor model over its Wi-Fi scans.
 
         Raises
         ------
         LocalizationError
             Another site, a floor without a bundle, or no way to tell the floor.
         """
-        where = steps.trace_id or "walk"
-        if steps.site_id and steps.site_id != self.site_id:
-            raise LocalizationError(f"{where}: recorded at site {steps.site_id}, the bundles "
+        where = trace_id or "walk"
+        if site_id and site_id != self.site_id:
+            raise LocalizationError(f"{where}: recorded at site {site_id}, the bundles "
                                     f"are of site {self.site_id}")
-        if steps.floor_id:
-            if steps.floor_id in self.bundles:
-                return self.bundles[steps.floor_id]
-            raise LocalizationError(f"{where}: unknown floor {steps.floor_id} "
-                                    f"({steps.floor_name or '?'}); bundles exist for "
+        if floor_id:
+            if floor_id in self.bundles:
+                return self.bundles[floor_id]
+            raise LocalizationError(f"{where}: unknown floor {floor_id} "
+                                    f"({floor_name or '?'}); bundles exist for "
                                     f"{sorted(self._by_name)}")
-        if steps.floor_name and steps.floor_name in self._by_name:
-            return self._by_name[steps.floor_name]
-        if self.floor_model is not None and steps.scans is not None:
+        if floor_name and floor_name in self._by_name:
+            return self._by_name[floor_name]
+        if self.floor_model is not None and wifi_scans is not None:
             votes: dict[str, int] = {}
-            for scan in steps.scans:
+            for scan in wifi_scans:
                 if scan is None:
                     continue
                 f = self.floor_model.floor_of(scan)

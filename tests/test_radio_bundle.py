@@ -247,6 +247,23 @@ def test_walk_without_wifi(built, tmp_path):
     assert not list((tmp_path / "out").glob("*.parquet"))
 
 
+def test_wifi_locate_needs_no_motion_sensors(built, tmp_path):
+    """A log of scans only (no accelerometer, no rotation vector) is located as the full walk
+    is: wifi-locate refused it ('no accelerometer stream') though it uses no step."""
+    walk = min((SITE / "F2" / "path_data_files").glob("*.txt.gz"))
+    with gzip.open(walk, "rt") as src:
+        kept = [ln for ln in src if not ln.split("\t")[1:2] or
+                not ln.split("\t")[1].startswith(("TYPE_ACC", "TYPE_ROTATION", "TYPE_GYRO"))]
+    scans_only = tmp_path / walk.name
+    with gzip.open(scans_only, "wt") as dst:
+        dst.writelines(kept)
+    runner = CliRunner()
+    full = runner.invoke(main, ["wifi-locate", str(built), str(walk)])
+    res = runner.invoke(main, ["wifi-locate", str(built), str(scans_only)])
+    assert full.exit_code == 0 and res.exit_code == 0, res.output
+    assert len(_rows(res.stdout)) > 10 and _rows(res.stdout) == _rows(full.stdout)
+
+
 def test_radio_commands_report_a_failing_walk_and_go_on(built, tmp_path):
     """A bad trace among good ones: `floor` and `wifi-locate` name it with its reason, still
     print the good walk's rows (as soon as it is through), and exit 1."""
