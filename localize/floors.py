@@ -65,7 +65,8 @@ class SiteMaps:
             if b.grid is None:
                 continue  # a site-level bundle: holds the floor model later, no rasters
             if b.floor_id in self.bundles:
-                raise LocalizationError(f"two bundles for floor {b.floor_id}")
+                raise LocalizationError(f"two bundles for floor {b.floor_id}: "
+                                        f"{self.bundles[b.floor_id].path} and {b.path}")
             self.bundles[b.floor_id] = b
             sites.add(b.site_id)
         if len(sites) > 1:
@@ -94,15 +95,22 @@ class SiteMaps:
         from localize.floor_classifier import FloorClassifier
 
         path = Path(path)
-        if is_bundle_dir(path):
-            return cls([load_bundle(path)])
-        subs = [load_bundle(p) for p in bundle_dirs(path)]
+        subs = [load_bundle(path)] if is_bundle_dir(path) else [
+            load_bundle(p) for p in bundle_dirs(path)]
         if not subs:
             raise LocalizationError(f"{path}: neither a bundle nor a folder of bundles (nor a "
                                     "registry's site folder)")
         site = [b for b in subs if b.manifest.get("kind") == "site"]
+        floors = [b for b in subs if b.manifest.get("kind") != "site"]
+        if not floors:
+            raise LocalizationError(f"{path}: a site bundle only (floor model, device table); "
+                                    "localizing needs floor bundles: give the folder "
+                                    "`indoormap build` wrote, or one floor's bundle")
         model = FloorClassifier.from_bundle(site[0]) if site else None
-        return cls([b for b in subs if b.manifest.get("kind") != "site"], floor_model=model)
+        try:
+            return cls(floors, floor_model=model)
+        except LocalizationError as err:
+            raise LocalizationError(f"{path}: {err}") from err
 
     def select(self, steps: StepSummaries) -> MapBundle:
         """The bundle of the walk's floor (see :meth:`select_for`)."""

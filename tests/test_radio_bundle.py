@@ -368,5 +368,12 @@ def test_site_maps_open_a_bundle_a_build_folder_or_nothing(built, tmp_path):
     only_site = tmp_path / "only_site"
     only_site.mkdir()
     shutil.copytree(built / "_site", only_site / "_site")
-    with pytest.raises(LocalizationError, match="no floor bundle given"):
-        SiteMaps.open(only_site)
+    for site_only in (only_site, only_site / "_site"):  # the message named no path
+        with pytest.raises(LocalizationError, match=f"{site_only}: a site bundle only"):
+            SiteMaps.open(site_only)
+    twice = tmp_path / "twice"
+    twice.mkdir()
+    for name in ("F1", "F1_copy"):
+        shutil.copytree(built / "F1", twice / name)
+    with pytest.raises(LocalizationError, match=f"{twice}: two bundles for floor .*F1_copy"):
+        SiteMaps.open(twice)
