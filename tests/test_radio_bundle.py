@@ -24,6 +24,7 @@ from localize.steps import RadioScan
 from localize.walk_radio import radio_for_walk
 from mapping.fingerprints import FingerprintDB
 from mapping.floor_model import FloorModel
+from mapping.registry import Registry
 from mapping.matching import default_matcher, default_walk_matcher
 from mapping.radio_scans import scan_set
 from survey.cli import main
@@ -41,6 +42,26 @@ def built(tmp_path_factory) -> Path:
 
 def _tables(bundle, prefix: str) -> dict:
     return {name: bundle.table(f"{prefix}_{name}").to_pandas() for name in ("rp", "fp", "meta")}
+
+
+def test_a_one_floor_build_keeps_the_registrys_site_model_of_more_floors(built, tmp_path):
+    """Building F1 alone with --registry replaced the registry's F1+F2 floor model by one of
+    F1 only, silently: `floor` then put every F2 scan on F1."""
+    reg = Registry(tmp_path / "reg")
+    for name in ("F1", "F2", "_site"):
+        reg.publish(built / name)
+    site = load_bundle(built / "_site").site_id
+    res = CliRunner().invoke(main, ["build", str(SITE / "F1"), "-o", str(tmp_path / "one"),
+                                    "--registry", str(reg.root)])
+    assert res.exit_code == 0, res.output
+    assert f"warning: not published: the registry's current {site}/_site #1 models floors F2" \
+        in res.output
+    assert reg.current(site, "_site")["seq"] == 1 and len(reg.history(site, "_site")) == 1
+    assert reg.current(site, "F1")["bundle_id"] == load_bundle(tmp_path / "one" / "F1").bundle_id
+    fresh = CliRunner().invoke(main, ["build", str(SITE / "F1"), "-o", str(tmp_path / "two"),
+                                      "--registry", str(tmp_path / "reg2")])
+    assert fresh.exit_code == 0 and "not published" not in fresh.output
+    assert Registry(tmp_path / "reg2").current(site, "_site")["seq"] == 1
 
 
 def test_build_writes_radio_tables_and_a_site_bundle(built):
