@@ -137,8 +137,10 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
 @click.argument("walks", nargs=-1, required=True, type=click.Path(exists=True))
 @click.option("--kind", type=click.Choice(["wifi", "ble"]), default="wifi", show_default=True)
 @click.option("--calibration", default="auto", show_default=True,
-              help="RSSI calibration of the walk's phone: auto (device table, else online from "
-                   "its first scans), none, or K,B (calibrated = K * rssi + B).")
+              help="RSSI calibration of the walk's phone: auto (Wi-Fi: the bundle's device "
+                   "table for a phone it knows; else online from the walk's first 8 scans when "
+                   "3 of them hear enough known transmitters, otherwise none; BLE is always "
+                   "calibrated online), none, or K,B (calibrated = K * rssi + B dBm).")
 @click.option("--smoothing", type=click.Choice(["walk", "forward", "none"]), default="walk",
               show_default=True,
               help="walk: match each walk's scans together (earlier and later scans); forward: "

@@ -185,6 +185,12 @@ def test_unknown_phone_is_calibrated_online(built):
     assert cal.rssi_k * -8.0 + cal.rssi_b == pytest.approx(0.0, abs=1.5)
     known, how = radio_for_walk(b, "SIM-B2", scans)
     assert how.startswith("device table")
+    # two usable scans (and one hearing too few transmitters) are not enough to calibrate
+    few = scans[:2] + [RadioScan(99, pos.aps[:2], np.array([-60.0, -70.0]))]
+    plain, how = radio_for_walk(b, "Unknown-Phone", few)
+    assert (plain.rssi_k, plain.rssi_b) == (1.0, 0.0)
+    assert how == ("uncalibrated (2 of the first 3 scans hear enough known transmitters to "
+                   "calibrate from; 3 needed)")
 
 
 def _rows(text: str) -> list[dict]:
