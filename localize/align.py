@@ -343,7 +343,7 @@ class WalkAligner(BaseLocalizer):
             if sc is not None and (f := self.radio.locate(sc)) is not None]
         if start_xy is None and not fixes:
             raise LocalizationError(f"{steps.trace_id or 'walk'}: no start position given and "
-                                    "no Wi-Fi/BLE fix in the walk")
+                                    "no scan of the walk located by the radio model")
         if start_xy is not None:
             start = self._start_at(*self._checked_start(start_xy), t0, None, None)
         else:  # the first fix, at its own time, known from the start on

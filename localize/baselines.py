@@ -84,9 +84,8 @@ class RadioOnlyLocalizer(BaseLocalizer):
         the start, held to the end."""
         super().check(steps)
         if self.first_fix(steps) is None:
-            raise LocalizationError(f"{steps.trace_id or 'walk'}: no Wi-Fi/BLE scan of the walk "
-                                    "is located by the radio model; method radio has nothing "
-                                    "to go on")
+            raise LocalizationError(f"{steps.trace_id or 'walk'}: no scan of the walk located "
+                                    "by the radio model; method radio has nothing to go on")
 
     def _start_at(self, x, y, t_ms, sigma, half_width_m) -> Estimate:
         return Estimate(t_ms, x, y, 0.0 if sigma is None else float(sigma), 1.0, False,

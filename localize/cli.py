@@ -5,9 +5,9 @@ importing this module stays light), pick the floor bundle of each walk (a floor 
 folder of floor bundles: the walk's floor id decides), and run one of
 :data:`localize.methods.METHODS`.
 
-Start position (``--start``): ``auto`` (the first Wi-Fi/BLE fix of the walk when the bundle has
+Start position (``--start``): ``auto`` (the first Wi-Fi fix of the walk when the bundle has
 fingerprints and a scan of the walk can be located, else the walk's first waypoint),
-``waypoint`` (first waypoint, as the ILC PDR baseline), ``radio`` (first Wi-Fi/BLE fix, an
+``waypoint`` (first waypoint, as the ILC PDR baseline), ``radio`` (first Wi-Fi fix, an
 error without one), or ``X,Y`` in metres.
 
 A walk that cannot be read or localized is reported (file and reason) and the others go on;
@@ -132,7 +132,7 @@ def _params(particles: int | None):
 @click.option("--method", default="indoormap", show_default=True,
               type=click.Choice(list(METHODS)))
 @click.option("--start", default="auto", show_default=True,
-              help="auto (the walk's first Wi-Fi/BLE fix, else its first waypoint), "
+              help="auto (the walk's first Wi-Fi fix, else its first waypoint), "
                    "waypoint, radio, or X,Y (m).")
 @click.option("--particles", type=click.IntRange(1, 1_000_000), default=None,
               help="Particles (default 300).")
@@ -213,7 +213,7 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
 @click.option("--methods", default="indoormap,pf_no_mag,pdr", show_default=True,
               help="Comma-separated methods.")
 @click.option("--start", default="auto", show_default=True,
-              help="auto (the walk's first Wi-Fi/BLE fix, else its first waypoint), "
+              help="auto (the walk's first Wi-Fi fix, else its first waypoint), "
                    "waypoint, radio, or X,Y (m).")
 @click.option("--particles", type=click.IntRange(1, 1_000_000), default=None,
               help="Particles of the particle filters (default 300).")

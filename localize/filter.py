@@ -199,7 +199,7 @@ class BaseLocalizer:
             fix = self.first_fix(steps)
             if fix is None:
                 raise LocalizationError(f"{steps.trace_id or 'walk'}: no start position given "
-                                        "and no Wi-Fi/BLE fix in the walk")
+                                        "and no scan of the walk located by the radio model")
             start = self._start_at(fix[0], fix[1], t0, fix[2], half_width_m)
         else:
             start = self._start_at(*self._checked_start(start_xy), t0, None, half_width_m)

@@ -74,10 +74,10 @@ def start_position(start: str | Sequence[float], steps: StepSummaries,
     if start == "auto" and radio is not None:
         if first_radio_fix(radio, steps) is not None:
             return None, "radio"
-        how = "first waypoint (no Wi-Fi/BLE fix in the walk)"
+        how = "first waypoint (no Wi-Fi fix in the walk)"
     wp = np.asarray(waypoints_xy_m, dtype=np.float64).reshape(-1, 2)
     if not len(wp):
         raise LocalizationError(f"{steps.trace_id or 'walk'}: no waypoint to start from"
-                                + (" and no Wi-Fi/BLE fix" if start == "auto" else "")
+                                + (" and no Wi-Fi fix" if start == "auto" else "")
                                 + "; give a start position (X,Y in metres)")
     return (float(wp[0, 0]), float(wp[0, 1])), how

@@ -104,7 +104,7 @@ def test_registered_as_a_method(f1_bundle):  # noqa: F811
 def test_bad_calls(f1_bundle, sim_walks):  # noqa: F811
     w = sim_walks[0]
     loc = WalkAligner(f1_bundle)
-    with pytest.raises(LocalizationError, match="no start position given and no Wi-Fi/BLE"):
+    with pytest.raises(LocalizationError, match="no start position given and no scan of the walk located"):
         loc.run(w.steps)
     with pytest.raises(LocalizationError, match="call start"):
         WalkAligner(f1_bundle).step(w.steps[0])

@@ -49,7 +49,7 @@ def test_auto_takes_the_radio_fix_when_a_scan_is_located():
 @pytest.mark.parametrize("keys", [None, ["other"]])
 def test_auto_falls_back_to_the_first_waypoint_and_says_why(keys):
     xy, how = start_position("auto", _steps(keys), _Radio(), WAYPOINTS)
-    assert xy == (1.0, 2.0) and how == "first waypoint (no Wi-Fi/BLE fix in the walk)"
+    assert xy == (1.0, 2.0) and how == "first waypoint (no Wi-Fi fix in the walk)"
     assert start_position("auto", _steps(keys), None, WAYPOINTS) == ((1.0, 2.0),
                                                                      "first waypoint")
 
@@ -63,7 +63,7 @@ def test_errors_name_what_is_missing():
     with pytest.raises(LocalizationError, match="needs a bundle with Wi-Fi or BLE"):
         start_position("radio", _steps(["ap1"]), None, WAYPOINTS)
     with pytest.raises(LocalizationError, match="walk1: no waypoint to start from and no "
-                                                "Wi-Fi/BLE fix"):
+                                                "Wi-Fi fix"):
         start_position("auto", _steps(None), _Radio(), np.empty((0, 2)))
     with pytest.raises(LocalizationError, match="walk1: no waypoint to start from; give"):
         start_position("waypoint", _steps(["ap1"]), _Radio(), [])

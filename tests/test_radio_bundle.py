@@ -270,7 +270,7 @@ def test_walk_without_wifi(built, tmp_path):
     # the radio-only method held its start to the end (a constant track, exit 0)
     res = runner.invoke(main, ["localize", str(built), str(walk), "-o", str(tmp_path / "out"),
                                "--method", "radio", "--start", "waypoint"])
-    assert res.exit_code == 1 and "no Wi-Fi/BLE scan of the walk is located" in res.output
+    assert res.exit_code == 1 and "no scan of the walk located by the radio model" in res.output
     assert not list((tmp_path / "out").glob("*.parquet"))
 
 
@@ -350,12 +350,12 @@ def test_localize_auto_start_falls_back_to_the_first_waypoint(built, tmp_path):
     res = CliRunner().invoke(main, ["localize", str(built), str(no_wifi), str(with_wifi),
                                     "-o", str(out), "--no-plot", "--particles", "100"])
     assert res.exit_code == 0, res.output
-    assert "start first waypoint (no Wi-Fi/BLE fix in the walk)" in res.output
+    assert "start first waypoint (no Wi-Fi fix in the walk)" in res.output
     assert "start radio" in res.output
     assert len(list(out.glob("*.parquet"))) == 2
     res = CliRunner().invoke(main, ["localize", str(built), str(no_wifi), "-o",
                                     str(tmp_path / "radio"), "--start", "radio"])
-    assert res.exit_code == 1 and "no Wi-Fi/BLE fix" in res.output
+    assert res.exit_code == 1 and "no scan of the walk located by the radio model" in res.output
 
 
 def test_walk_without_a_floor_header_gets_its_floor_from_the_floor_model(built, tmp_path):
