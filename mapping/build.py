@@ -218,7 +218,6 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
     for name, (vals, std) in field_rasters(grid, mask, reduction, raster_params).items():
         unit, kind, desc = FIELD_LAYERS[name]
         layers[name] = Layer(vals, std, unit, kind, desc)
-    say(f"{floor}: layers {', '.join(layers)}")
     steps = floor_steps(store, pcat)
     st = steps[np.isfinite(steps["heading_offset_deg"])]
     walk_median = st.groupby("trace_id")["heading_offset_deg"].apply(
@@ -231,6 +230,7 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
     layers["heading_offset"] = Layer(
         hv, hs, "deg", "angle", "compass heading minus walking direction: the floor's median "
         "constant plus the spatially varying part; walking direction = compass - offset")
+    say(f"{floor}: layers {', '.join(layers)}")
     walks = pcat[["trace_id", "session"]].copy()
     walks["sha256"] = walks["trace_id"].map(cat["sha256"])
     walks["calibration"] = [json.loads(sj).get("calibration", "") for sj in pcat["summary_json"]]
