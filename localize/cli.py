@@ -302,11 +302,12 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
         failures.exit_if_any(len(files))
         sys.exit(1)  # every walk lacked waypoints
     n_walks = len(evaluated)
-    click.echo(f"{'method':<20}{'n':>6}{'median':>9}{'p80':>9}{'mean':>9}  (m, at the "
+    w = max([20, *(len(m) + 2 for m in errors)])  # "magpp_gaussian+smoothed" is 23 wide
+    click.echo(f"{'method':<{w}}{'n':>6}{'median':>9}{'p80':>9}{'mean':>9}  (m, at the "
                f"waypoints of {n_walks} walk(s))")
     for m, v in errors.items():
         s = summarize(np.concatenate(v) if v else np.empty(0))
-        click.echo(f"{m:<20}{s['n']:>6}{s['median']:>9.2f}{s['p80']:>9.2f}{s['mean']:>9.2f}")
+        click.echo(f"{m:<{w}}{s['n']:>6}{s['median']:>9.2f}{s['p80']:>9.2f}{s['mean']:>9.2f}")
     if csv_path is not None:
         import pyarrow as pa
 
