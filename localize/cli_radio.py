@@ -74,7 +74,19 @@ class _CsvRows:
 @click.option("--window", type=click.IntRange(1, 1000), default=5, show_default=True,
               help="Scans in the sequence estimate (this scan and the ones before it).")
 def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
-    """Predicted floor per scan and per walk (CSV) from the site bundle's floor model."""
+    """Predicted floor per scan and per walk (CSV) from the site bundle's floor model.
+
+    \b
+    CSV columns (stdout; a summary on stderr):
+      level           scan, or walk (one row after each walk's scans)
+      trace_id, t_ms  the walk; the scan's time (Unix ms; empty on walk rows)
+      n_known         scan: transmitters it hears that the model knows;
+                      walk: scans that hear any
+      floor           the scan's (or, on walk rows, all its scans') most likely floor
+      p_floor         the scan's probability of that floor (0-1)
+      window_floor    most likely floor over the scan and the WINDOW-1 before it
+      recorded_floor  the floor the trace file names (empty if none)
+    """
     from localize.floor_classifier import FloorClassifier
 
     site = _site_bundle(site_path)
@@ -148,7 +160,18 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
 def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
                         calibration: str, smoothing: str) -> None:
     """Wi-Fi (or BLE) position per scan (CSV) from the fingerprints of BUNDLE (a floor bundle
-    or a folder of bundles: the walk's floor, else the site floor model, picks one)."""
+    or a folder of bundles: the walk's floor, else the site floor model, picks one).
+
+    \b
+    CSV columns (stdout; one line per walk on stderr):
+      trace_id, floor  the walk and the floor bundle used
+      t_ms             the scan's time (Unix ms)
+      n_known          transmitters of the scan the bundle knows
+      x_m, y_m         the position (m, map frame); empty when the scan hears none
+      sigma_m          weighted RMS spread of the k neighbours (m, at least 1)
+      error_m          distance to the walk's waypoint track (waypoints joined linearly in
+                       time) at the scan's time; empty outside its first and last waypoint
+    """
     from localize.floors import SiteMaps
     from localize.radio_match import WalkSmoothing
     from localize.walk_radio import bundle_positioner, radio_for_walk
