@@ -17,7 +17,7 @@ import click
 import numpy as np
 import pandas as pd
 
-from localize.bundle import load_bundle
+from localize.bundle import bundle_dirs, load_bundle
 from survey.errors import IndoormapError, PublishError, RegistryError
 from survey.publish import (
     refuse_to_replace,
@@ -418,19 +418,27 @@ def bundle_info(path: Path, as_json: bool) -> None:
                f"{len(m['build'].get('source_walks', []))} walks")
 
 
+def _bundle_paths(paths: tuple[Path, ...]) -> list[Path]:
+    """Each path as the bundles it names: itself, the bundles in it (a build's output, a
+    registry's site folder) or, for a registry's root, every site's floors; a path holding
+    none stays as given, for load_bundle to say why it is no bundle."""
+    out = []
+    for p in paths:
+        registry_root = p.is_dir() and any(p.glob("*/*/history.json"))
+        found = bundle_dirs(p) or ([q for site in sorted(p.iterdir()) if site.is_dir()
+                                    for q in bundle_dirs(site)] if registry_root else [])
+        out += found or [p]
+    return out
+
+
 @bundle_group.command("verify")
 @click.argument("paths", nargs=-1, required=True, type=click.Path(path_type=Path))
 def bundle_verify(paths: tuple[Path, ...]) -> None:
     """Verify bundles (every member's checksum, schema, no unlisted files). A folder of
     bundles (what `build -o` writes, a registry's site folder) is verified bundle by bundle; a
     registry's floor folder by its current version. Exit 1 if any fails."""
-    from localize.bundle import bundle_dirs
-
     bad = 0
-    expanded = []
-    for p in paths:
-        expanded += bundle_dirs(p) or [p]
-    for p in expanded:
+    for p in _bundle_paths(paths):
         try:
             b = load_bundle(p)
             click.echo(f"ok      {p} ({b.bundle_id[:16]})")
@@ -480,9 +488,10 @@ def bundle_list(registry: Path) -> None:
 @click.option("--no-current", is_flag=True,
               help="Only add the versions; keep the current pointers where they are.")
 def bundle_publish(paths: tuple[Path, ...], registry_dir: Path, no_current: bool) -> None:
-    """Copy verified bundles into a registry as new versions and make them current."""
+    """Copy verified bundles into a registry as new versions and make them current. PATHS are
+    bundles or folders of bundles (what `build -o` writes)."""
     reg = Registry(registry_dir)
-    for p in paths:
+    for p in _bundle_paths(paths):
         e = reg.publish(p, make_current=not no_current)
         click.echo(f"{p}: {e['bundle_id'][:16]} #{e['seq']}"
                    + ("" if no_current else " (current)"))

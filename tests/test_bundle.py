@@ -501,6 +501,14 @@ def test_a_registry_floor_folder_opens_its_current_version(tmp_path):
     assert [ln.split()[:2] for ln in res.output.splitlines()] == [
         ["ok", str(tmp_path / "out" / "v1")], ["ok", str(tmp_path / "out" / "v2")],
         ["ok", str(floor)]]
+    res = CliRunner().invoke(main, ["bundle", "verify", str(reg)])  # the registry's root
+    assert res.exit_code == 0 and res.output.split()[:2] == ["ok", str(floor)], res.output
+    # publish takes a folder of bundles too (it said "not a map bundle (no manifest.json)")
+    res = CliRunner().invoke(main, ["bundle", "publish", str(tmp_path / "out"),
+                                    "--registry", str(tmp_path / "reg2")])
+    assert res.exit_code == 0 and res.output.count("(current)") == 2, res.output
+    assert [h["bundle_id"] for h in Registry(tmp_path / "reg2").history("site", "F1")] == [
+        load_bundle(tmp_path / "out" / v).bundle_id for v in ("v1", "v2")]
     (tmp_path / "out" / "v1" / "mask.npy").write_bytes(b"x")  # one bad bundle in the folder
     res = CliRunner().invoke(main, ["bundle", "verify", str(tmp_path / "out")])
     assert res.exit_code == 1 and f"FAILED  {tmp_path / 'out' / 'v1'}" in res.output
