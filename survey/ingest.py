@@ -77,24 +77,28 @@ def find_inputs(paths: Iterable[str | os.PathLike]) -> tuple[list[Path], list[Pa
 
 
 def _parse_and_write(root: str, paths: list[str], shas: list[str], sizes: list[int],
-                     strict: bool, batch_bytes: int) -> list[tuple[str, dict | None, str]]:
-    """Worker: parse traces, write their part files; returns (path, catalog row, error)."""
+                     strict: bool, batch_bytes: int,
+                     on_file: Callable[[], None] | None = None
+                     ) -> list[tuple[str, dict | None, str]]:
+    """Worker: parse traces, write their part files; returns (path, catalog row, error).
+    ``on_file`` is called as each file is through (in this process only: progress)."""
     out = []
     info = {p: (s, n) for p, s, n in zip(paths, shas, sizes)}
     for item in iter_traces(paths, strict=strict, batch_bytes=batch_bytes):
         if isinstance(item, ReadFailure):
             out.append((item.path, None, str(item.error)))
-            continue
-        if item.is_empty:
+        elif item.is_empty:
             if strict:
                 raise SurveyFormatError(item.empty_reason(), path=item.report.path,
                                         reason="empty")
             out.append((item.report.path, None, item.empty_reason()))
-            continue
-        sha, size = info[item.report.path]
-        row = catalog_row(item, source_path=item.report.path, sha256=sha, size_bytes=size)
-        write_parts(Path(root), item, row)
-        out.append((item.report.path, row, ""))
+        else:
+            sha, size = info[item.report.path]
+            row = catalog_row(item, source_path=item.report.path, sha256=sha, size_bytes=size)
+            write_parts(Path(root), item, row)
+            out.append((item.report.path, row, ""))
+        if on_file:
+            on_file()
     return out
 
 
@@ -205,10 +209,9 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
                     pool.shutdown(cancel_futures=True)
                     raise
         else:
-            for c in chunks:
-                res = _parse_and_write(str(store.root), *map(list, zip(*c)), strict, batch_bytes)
-                results.extend(res)
-                tick(len(res))
+            for c in chunks:  # progress file by file: one chunk holds every file
+                results.extend(_parse_and_write(str(store.root), *map(list, zip(*c)), strict,
+                                                batch_bytes, on_file=tick))
         for path, row, error in results:
             if row is None:
                 summary.outcomes.append(IngestOutcome(path, trace_id_from_path(path), "failed",
