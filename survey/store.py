@@ -31,6 +31,11 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from .errors import StoreError
+
+try:
+    import fcntl
+except ImportError:  # Windows: the pid in the lock file alone keeps writers apart
+    fcntl = None  # type: ignore[assignment]
 from .publish import TMP_PREFIX, atomic_write_bytes, crash_point, fsync_dir, \
     remove_stale_temporaries
 from .trace_format import Trace
@@ -261,23 +266,51 @@ class SurveyStore:
         the store keeps its previous catalog, and part files already written become garbage
         that the next writer removes."""
         lock = self.root / ".lock"
-        try:
-            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-        except FileExistsError:
-            pid = _read_pid(lock)
-            if pid is not None and _pid_alive(pid):
-                raise StoreError(f"{self.root}: locked by running process {pid}") from None
-            lock.unlink(missing_ok=True)  # stale lock of a crashed ingest
-            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-        with os.fdopen(fd, "w") as fh:
-            fh.write(str(os.getpid()))
+        fd = _take_lock(lock, self.root)
         try:
             w = _StoreWriter(self)
             w.collect_garbage()
             yield w
             w.commit()
         finally:
-            lock.unlink(missing_ok=True)
+            lock.unlink(missing_ok=True)  # still ours: a waiting writer then sees a new file
+            os.close(fd)
+
+
+def _take_lock(lock: Path, root: Path) -> int:
+    """Create and hold ``lock`` holding this process's pid; returns its descriptor. With
+    ``fcntl`` the lock is an ``flock`` (released by the OS if the process dies; a file left by
+    a dead writer is simply taken), checked to still be the file at ``lock`` after locking;
+    without it, exclusive creation, and a file whose pid is gone is taken over."""
+    if fcntl is not None:
+        while True:
+            fd = os.open(lock, os.O_CREAT | os.O_RDWR, 0o644)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                os.close(fd)
+                pid = _read_pid(lock)
+                raise StoreError(f"{root}: locked by running process "
+                                 f"{pid if pid is not None else '(unknown pid)'}") from None
+            try:
+                ours = os.fstat(fd).st_ino == os.stat(lock).st_ino
+            except FileNotFoundError:  # its holder removed it as we locked it
+                ours = False
+            if ours:
+                break
+            os.close(fd)
+        os.ftruncate(fd, 0)
+    else:
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            pid = _read_pid(lock)
+            if pid is not None and _pid_alive(pid):
+                raise StoreError(f"{root}: locked by running process {pid}") from None
+            lock.unlink(missing_ok=True)  # stale lock of a crashed ingest
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+    os.write(fd, str(os.getpid()).encode())
+    return fd
 
 
 def _read_pid(path: Path) -> int | None:
