@@ -42,6 +42,11 @@ SENSOR_LIMIT_OF_STREAM: dict[str, tuple[float, str]] = {
     "magnetic_field": (10_000.0, "uT"), "rotation_vector": (1.5, "")}
 
 
+#: Largest |coordinate| (m) of a waypoint or walk-plan vertex: a building is kilometres across
+#: at most, and 1e155 m crashed the processing of every walk of the store.
+WAYPOINT_LIMIT_M = 1e6
+
+
 def sensor_limit(stream: str) -> tuple[float, str]:
     """(largest plausible |value|, unit) of a stream (``inf`` for a name it does not know)."""
     return SENSOR_LIMIT_OF_STREAM.get(stream.removesuffix("_uncalibrated"), (float("inf"), ""))

@@ -54,6 +54,7 @@ from .trace_format import (
     VALUE_COUNTS,
     WAYPOINT_COLUMNS,
     WAYPOINT_DTYPES,
+    WAYPOINT_LIMIT_M,
     sensor_limit,
     WIFI_COLUMNS,
     WIFI_DTYPES,
@@ -631,9 +632,14 @@ class _Tables:
             "last_seen_ms": cols["last_seen_ms"][order]})
         return _split(frame, _file_ranges(files, self.n_files))
 
-    def waypoints(self, cols: dict | None) -> list[pd.DataFrame]:
+    def waypoints(self, cols: dict | None, bad: _Collector) -> list[pd.DataFrame]:
         if cols is None:
             return [empty_table(WAYPOINT_COLUMNS, WAYPOINT_DTYPES) for _ in range(self.n_files)]
+        ok = np.maximum(np.abs(cols["x_m"]), np.abs(cols["y_m"])) <= WAYPOINT_LIMIT_M
+        if not ok.all():
+            bad.add(cols["gline"][~ok], "out_of_range",
+                    f"TYPE_WAYPOINT: a coordinate beyond +-{WAYPOINT_LIMIT_M:g} m")
+            cols = _take(cols, np.flatnonzero(ok))
         files = self.count(cols)
         order = _lex_order(files, cols["t_ms"])  # rows are in line order; the sort is stable
         frame = pd.DataFrame({"t_ms": cols["t_ms"][order], "x_m": cols["x_m"][order],
@@ -710,7 +716,7 @@ def _assemble(prepared: tuple[_Batch, list[str | None], dict[int, dict | None]],
     sensors = tables.sensors(blocks[:2], bad)
     wifi = tables.wifi(blocks[2], bad)
     ble = tables.ble(blocks[3], bad)
-    waypoints = tables.waypoints(blocks[4])
+    waypoints = tables.waypoints(blocks[4], bad)
 
     glines, reasons, details = bad.arrays()
     bad_file = b.file_of_line[glines]

@@ -36,6 +36,7 @@ from .trace_format import (
     BLE_COLUMNS,
     BLE_DTYPES,
     STREAM_NAMES,
+    WAYPOINT_LIMIT_M,
     WIFI_COLUMNS,
     WIFI_DTYPES,
     ParseReport,
@@ -122,13 +123,20 @@ def read_walk_plan(path: str | os.PathLike, *, strict: bool = False
         if geom.get("type") != "LineString":
             raise SurveyFormatError("walk geometry must be a LineString", path=where,
                                     reason="plan")
-        try:
-            xy = np.asarray(geom.get("coordinates"), dtype=float)
-        except (TypeError, ValueError, OverflowError):  # ragged, non-numeric, huge integers
+        coords = geom.get("coordinates")
+        numbers = isinstance(coords, list) and all(
+            isinstance(pt, list) and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                         for v in pt) for pt in coords)
+        try:  # JSON numbers only: "27.8" or true are not coordinates
+            xy = np.asarray(coords, dtype=float) if numbers else np.empty(0)
+        except (TypeError, ValueError, OverflowError):  # ragged, huge integers
             xy = np.empty(0)
         if xy.ndim != 2 or xy.shape[0] < 2 or xy.shape[1] < 2 or not np.isfinite(xy).all():
-            raise SurveyFormatError("LineString needs at least two finite [x, y] vertices",
-                                    path=where, reason="plan")
+            raise SurveyFormatError("LineString needs at least two finite [x, y] vertices "
+                                    "(JSON numbers)", path=where, reason="plan")
+        if np.abs(xy[:, :2]).max() > WAYPOINT_LIMIT_M:
+            raise SurveyFormatError(f"a vertex lies beyond +-{WAYPOINT_LIMIT_M:g} m (the plan "
+                                    "is in map metres)", path=where, reason="plan")
         walk_id = str(props.get("walk_id") or "").strip()
         log = props.get("sensor_log")
         if not walk_id or not log:

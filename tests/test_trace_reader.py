@@ -107,6 +107,8 @@ BAD_LINES = [
     ("10\tTYPE_MAGNETIC_FIELD_UNCALIBRATED\t1\t2\t3\t4\t5\t-2e4\t3", "out_of_range",
      "TYPE_MAGNETIC_FIELD_UNCALIBRATED: a value beyond +-10000 uT"),
     ("10\tTYPE_ROTATION_VECTOR\t0.1\t2\t0.3\t3", "out_of_range", "beyond +-1.5"),
+    # finite: it crashed `process` for every walk of the store (1e155 m)
+    ("10\tTYPE_WAYPOINT\t1e155\t4.4", "out_of_range", "TYPE_WAYPOINT: a coordinate beyond"),
 ]
 
 

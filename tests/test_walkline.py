@@ -92,6 +92,10 @@ def test_bad_csv_row_lenient_and_strict(tmp_path):
     ({"type": "Feature", "geometry": {"type": "Point", "coordinates": [0, 0]},
       "properties": {}}, "LineString"),
     (_feature("missing", [[0, 0], [1, 0]], start_ms=1, end_ms=2), "sensor log 'missing.csv'"),
+    # finite but far: it passed ingest and crashed `process` for every walk of the store
+    (_feature("a", [[0, 0], [1e200, 4.4]], vertex_times_ms=[1, 2]), "beyond \\+-1e\\+06 m"),
+    (_feature("a", [["27.8", "4.4"], [1, 0]], start_ms=1, end_ms=2), "JSON numbers"),
+    (_feature("a", [[True, 0], [1, 0]], start_ms=1, end_ms=2), "JSON numbers"),
 ])
 def test_plan_errors_name_file_and_feature(tmp_path, feature, message):
     _csv(tmp_path / "a.csv")
