@@ -3,7 +3,11 @@
 Processed tables live beside the raw ones::
 
     STORE/processed/catalog.parquet      one row per walk: status, summary, parameters
-    STORE/processed/{samples,steps,legs,wifi,ble}/site=S/floor=F/<trace_id>-<sha12>.parquet
+    STORE/processed/{samples,steps,legs,wifi,ble}/site=S/floor=F/<trace_id>-<hash12>.parquet
+
+(``hash12``: of the raw file's sha256 and the processing parameters' hash, so that processing
+with other parameters writes other files and a run that fails before its catalog is switched
+leaves the previous results whole.)
 
 ``wifi`` and ``ble`` are the raw rows with the positions (x_m, y_m) of their times added; rows
 outside the walk's waypoint range are dropped (counted in the summary). A walk that cannot be
@@ -119,7 +123,8 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
         for i, row in enumerate(cat.itertuples(index=False)):
             done = old[(old["trace_id"] == row.trace_id) & (old["sha256"] == row.sha256)
                        & (old["params_sha256"] == psha)]
-            if len(done):
+            if len(done) and (done["status"].iloc[0] != "ok" or (root / processed_part_path(
+                    "samples", row.site, row.floor, row.trace_id, row.sha256, psha)).exists()):
                 report.unchanged.append(row.trace_id)
                 # sessions depend on the other walks too: refresh the key
                 new_rows.append({**done.iloc[0].to_dict(), "session": sessions.get(
@@ -150,7 +155,8 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
             walk.summary["session"] = key
             for name, frame in outputs.items():
                 table = pa.table({c: _arrow_column(frame[c]) for c in frame.columns})
-                rel = part_path(name, row.site, row.floor, row.trace_id, row.sha256)
+                rel = processed_part_path(name, row.site, row.floor, row.trace_id, row.sha256,
+                                          psha)
                 atomic_write_bytes(root / rel, _parquet_bytes(table), overwrite=True,
                                    sync_dir=False)
             report.processed.append(row.trace_id)
@@ -172,6 +178,14 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
     return report
 
 
+def processed_part_path(table: str, site: str, floor: str, trace_id: str, sha256: str,
+                        params_sha: str) -> str:
+    """Relative path (under ``processed/``) of a walk's processed ``table``, named by its raw
+    file's ``sha256`` and the processing parameters' hash ``params_sha`` together."""
+    both = hashlib.sha256(f"{sha256}:{params_sha}".encode()).hexdigest()
+    return part_path(table, site, floor, trace_id, both)
+
+
 def _json_default(value):
     if isinstance(value, (np.floating, np.integer)):
         return value.item()
@@ -181,7 +195,7 @@ def _json_default(value):
 
 
 def _remove_unreferenced(root, pcat: pd.DataFrame) -> None:
-    live = {part_path(t, r.site, r.floor, r.trace_id, r.sha256)
+    live = {processed_part_path(t, r.site, r.floor, r.trace_id, r.sha256, r.params_sha256)
             for r in pcat[pcat["status"] == "ok"].itertuples(index=False)
             for t in PROCESSED_TABLES}
     for table in PROCESSED_TABLES:
@@ -226,8 +240,9 @@ def processed_part(store: SurveyStore | str, name: str, walk: pd.Series, *,
     if name not in PROCESSED_TABLES:
         raise ProcessingError(f"unknown processed table {name!r}; expected {PROCESSED_TABLES}")
     store = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
-    table = read_parquet_checked(store.root / "processed" / part_path(
-        name, walk["site"], walk["floor"], walk["trace_id"], walk["sha256"]),
+    table = read_parquet_checked(store.root / "processed" / processed_part_path(
+        name, walk["site"], walk["floor"], walk["trace_id"], walk["sha256"],
+        walk["params_sha256"]),
         None if columns is None else list(columns), what="processed part")
     if text_as_category:
         for i, f in enumerate(table.schema):

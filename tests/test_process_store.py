@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from pathlib import Path
 
+import pandas as pd
 from click.testing import CliRunner
 
 from survey.cli import main
 from survey.cli_process import plan_floor_name
 from survey.ingest import ingest
-from survey.process_store import processed_catalog, processed_table
+from survey.process_store import process_store, processed_catalog, processed_table
 from survey.trace_reader import read_trace
 from survey.trace_writer import write_trace
 
@@ -92,3 +96,33 @@ def test_floor_plan_files_name_their_floor(tmp_path):
     assert "F7.dxf: no walks of floor 'F7' to check against this plan (floors: F1)" in res.output
     legs = processed_table(tmp_path / "store", "legs")
     assert legs["flags"].str.contains("off_floor").all()
+
+
+PROCESS_OTHER_PARAMS = """
+import sys
+from survey.positions import PositionParams
+from survey.process import ProcessParams
+from survey.process_store import process_store
+process_store(sys.argv[1], params=ProcessParams(positions=PositionParams(method="time")))
+"""
+
+
+def test_a_run_with_other_parameters_that_dies_leaves_the_old_results(tmp_path):
+    """Processed files were named by the raw file alone and overwritten in place: a run with
+    other parameters killed before its catalog switch left the other parameters' positions
+    under the old catalog, and the next run called them unchanged."""
+    traces = sorted((SITE / "F1" / "path_data_files").glob("*.txt.gz"))[:2]
+    ingest(traces, tmp_path / "store")
+    process_store(tmp_path / "store")
+    before = processed_table(tmp_path / "store", "samples")
+    env = {**os.environ, "INDOORMAP_CRASH_AT": "process:before-catalog"}
+    proc = subprocess.run([sys.executable, "-c", PROCESS_OTHER_PARAMS, str(tmp_path / "store")],
+                          env=env, capture_output=True)
+    assert proc.returncode == 70, proc.stderr.decode()
+    pd.testing.assert_frame_equal(processed_table(tmp_path / "store", "samples"), before)
+    report = process_store(tmp_path / "store")
+    assert len(report.unchanged) == 2 and not report.processed
+    pd.testing.assert_frame_equal(processed_table(tmp_path / "store", "samples"), before)
+    # and the run's leftovers (the other parameters' files) are gone
+    parts = list((tmp_path / "store" / "processed" / "samples").rglob("*.parquet"))
+    assert len(parts) == 2
