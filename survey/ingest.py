@@ -132,7 +132,11 @@ def ingest(paths: Iterable[str | os.PathLike], store: str | os.PathLike | Survey
     if not trace_files and not plans:
         raise SurveyFormatError("no trace files (.txt, .txt.gz) or walk plans (.geojson) found",
                                 path=", ".join(map(str, paths)), reason="no-input")
-    created = not isinstance(store, SurveyStore) and not Path(store).exists()
+    given = None if isinstance(store, SurveyStore) else Path(store)
+    # a new store: no folder yet, or an empty one (which itself stays)
+    created = given is not None and (not given.exists() or (
+        given.is_dir() and not any(given.iterdir())))
+    empty_folder = created and given.exists()
     store = store if isinstance(store, SurveyStore) else SurveyStore.create(store)
     try:
         return _ingest_files(store, trace_files, plans, strict, workers, batch_bytes, progress)
@@ -140,7 +144,11 @@ def ingest(paths: Iterable[str | os.PathLike], store: str | os.PathLike | Survey
         # a store this call made and never committed to: leave nothing behind (one that got a
         # catalog, from this call or a concurrent one, stays)
         if created and not (store.root / "catalog.parquet").exists():
-            shutil.rmtree(store.root, ignore_errors=True)
+            for child in (store.root.iterdir() if empty_folder else [store.root]):
+                if child.is_dir():
+                    shutil.rmtree(child, ignore_errors=True)
+                else:
+                    child.unlink(missing_ok=True)
         raise
 
 

@@ -202,6 +202,8 @@ class SurveyStore:
             meta = json.loads(meta_path.read_text())
         except (OSError, ValueError) as err:
             raise StoreError(f"{meta_path}: unreadable ({err})") from err
+        if not isinstance(meta, dict):
+            raise StoreError(f"{meta_path}: not a JSON object (format and schema_version)")
         if meta.get("format") != STORE_FORMAT:
             raise StoreError(f"{meta_path}: format {meta.get('format')!r} is not {STORE_FORMAT}")
         if meta.get("schema_version") != SCHEMA_VERSION:

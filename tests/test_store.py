@@ -106,6 +106,11 @@ def test_strict_failure_keeps_store(tmp_path):
     assert "no sensor sample" in s.failed[0].detail
     assert "bad.txt:1: TYPE_WIFI needs 5 values, got 2" in s.failed[0].detail
     assert len(SurveyStore.open(tmp_path / "store").catalog()) == 3
+    # a strict failure into an empty folder leaves it empty (store.json stayed behind)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(SurveyFormatError):
+        ingest([bad], tmp_path / "empty", strict=True)
+    assert (tmp_path / "empty").is_dir() and not any((tmp_path / "empty").iterdir())
 
 
 def test_unreadable_file_is_reported_and_others_ingested(tmp_path):
@@ -127,6 +132,9 @@ def test_not_a_store_and_schema_version(tmp_path):
     (tmp_path / "s" / "store.json").write_text('{"format": "indoormap-survey-store", '
                                                '"schema_version": 99}')
     with pytest.raises(StoreError, match="schema version 99"):
+        SurveyStore.open(tmp_path / "s")
+    (tmp_path / "s" / "store.json").write_text("[]")  # was an AttributeError traceback
+    with pytest.raises(StoreError, match="store.json: not a JSON object"):
         SurveyStore.open(tmp_path / "s")
 
 
