@@ -68,7 +68,7 @@ def test_scan_parses_plain_decimals_exactly(rows):
 
 def test_other_spellings_go_to_the_general_parser_and_read_the_same():
     spellings = ["1e3", "+1.5", ".5", "2.", "1E-2", " 3", "0x10", "nan", "-inf",
-                 "1234567890123456", "0.000000000000000000001", "-0"]
+                 "123456.7890123456", "0.000000000000000000001", "-0"]  # 16 digits, < 1e6 m
     lines = [f"{10 + i}\tTYPE_WAYPOINT\t{s}\t1.25\n" for i, s in enumerate(spellings)]
     sc = _scan("".join(lines).encode())
     assert sc.group_parsed[4].tolist() == [False] * 11 + [True]
