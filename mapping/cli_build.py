@@ -353,14 +353,13 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
         # the floors and their site bundle change together, once all are built
         replace_together([(stage / name, out / name) for name, _ in done],
                          overwrite=overwrite)
-        dropped = (floors_dropped_from_site_model(registry, site_id, list(plans))
-                   if registry else [])
+        seq, dropped = (site_model_floors_dropped(registry, site_id, list(plans))
+                        if registry else (0, []))
         for name, line in done:
             click.echo(line)
             if registry and name == SITE_BUNDLE and dropped:
-                cur = registry.current(site_id, SITE_BUNDLE)
                 click.echo(f"warning: not published: the registry's current "
-                           f"{site_id}/{SITE_BUNDLE} #{cur['seq']} models floors "
+                           f"{site_id}/{SITE_BUNDLE} #{seq} models floors "
                            f"{', '.join(dropped)} too, which this build's floor model would "
                            "drop (build the site folder to replace it, or publish "
                            f"{out / name} with `indoormap bundle publish`)", err=True)
@@ -369,14 +368,16 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
                 click.echo(f"  published as {site_id}/{name} #{entry['seq']}")
 
 
-def floors_dropped_from_site_model(registry: Registry, site_id: str,
-                                   floors: list[str]) -> list[str]:
-    """Floors the registry's current site bundle of ``site_id`` models that a new one
-    modelling ``floors`` would not (none when the registry has no site bundle yet)."""
-    if registry.current(site_id, SITE_BUNDLE) is None:
-        return []
-    modelled = registry.open(site_id, SITE_BUNDLE).manifest["metrics"].get("floors") or []
-    return sorted(set(map(str, modelled)) - set(floors))
+def site_model_floors_dropped(registry: Registry, site_id: str, floors: list[str]
+                              ) -> tuple[int, list[str]]:
+    """The registry's current site bundle of ``site_id`` (its seq) and the floors it models
+    that a new one modelling ``floors`` would not; ``(0, [])`` before any site bundle."""
+    cur = registry.current(site_id, SITE_BUNDLE)
+    if cur is None:
+        return 0, []
+    bundle = registry.open(site_id, SITE_BUNDLE, cur["bundle_id"])
+    modelled = bundle.manifest["metrics"].get("floors") or []
+    return cur["seq"], sorted(set(map(str, modelled)) - set(floors))
 
 
 @click.group("bundle")
