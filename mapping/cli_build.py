@@ -31,7 +31,6 @@ from .build import BuildError, BuildParams, build_floor
 from .bundle_report import bundle_differences, metric_lines
 from .bundle_writer import write_bundle
 from .floorplan import FloorPlan, read_floor_plan
-from .grid import grid_for_extent
 from .radio_build import build_site_radio, format_share
 from .registry import SITE_BUNDLE, Registry, safe_name
 
@@ -64,7 +63,7 @@ def check_grids(plans: dict[Path, FloorPlan], params: BuildParams) -> None:
     (the finer cells of narrow kernels are skipped where they would exceed it)."""
     for path, plan in plans.items():
         try:
-            grid_for_extent(plan.width_m, plan.height_m, params.cell_m)
+            plan.grid(params.cell_m)
         except ValueError as err:
             raise click.UsageError(f"{path}: {err}; raise --cell or check the plan's "
                                    "size") from err
@@ -322,6 +321,10 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
                      if fl in plans}
         with progress("process", len(cat), unit="walks") as update:
             report = process_store(store, reachable=reachable, progress=update)
+        if report.failed:
+            tid, reason = next(iter(report.failed.items()))
+            raise BuildError(f"{len(report.failed)} walks of the store cannot be read, e.g. "
+                             f"{tid}: {reason}; ingest their files again to repair them")
         source_of = dict(zip(cat["trace_id"], cat["source_path"]))
         for tid, reason in report.skipped.items():
             say(f"  skipped {source_of.get(tid, tid)}: {reason}")

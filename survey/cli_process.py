@@ -61,15 +61,26 @@ def process_command(store_dir: str, site: str | None, floor: str | None,
             click.echo(f"warning: {fp}: no walks of floor {name!r} to check against this plan "
                        f"(floors: {', '.join(sorted(cat['floor'].astype(str).unique()))})",
                        err=True)
+        if len(sites) > 1:
+            folder = Path(fp).resolve()
+            site_dir = (folder if folder.is_dir() else folder.parent).parent.name
+            if site_dir in sites:  # an ILC-style site/floor folder names its site
+                sites = [site_dir]
+            else:
+                click.echo(f"warning: {fp}: used for floor {name!r} of every site that has one "
+                           f"({', '.join(sorted(sites))}); give --site to pick one", err=True)
         for s in sites:
             reachable[(s, name)] = plan.reachable
     with progress("process", len(cat), unit="walks") as update:
         report = process_store(store, site=site, floor=floor, reachable=reachable,
                                progress=update)
     click.echo(f"walks: processed {len(report.processed)}, unchanged {len(report.unchanged)}, "
-               f"skipped {len(report.skipped)}")
+               f"skipped {len(report.skipped)}"
+               + (f", failed {len(report.failed)}" if report.failed else ""))
     for tid, reason in report.skipped.items():
         click.echo(f"  skipped {tid}: {reason}")
+    for tid, reason in report.failed.items():
+        click.echo(f"  failed {tid}: {reason}", err=True)
     done = processed_catalog(store)
     done = done[done["trace_id"].isin(cat["trace_id"]) & (done["status"] == "ok")]
     decision = done["summary"].map(lambda d: d.get("calibration", ""))
@@ -84,6 +95,11 @@ def process_command(store_dir: str, site: str | None, floor: str | None,
     for key, s in report.sessions.items():
         if key in relied:
             click.echo(f"  {key:<28} {s['status']:<16} {s['reason']}")
+    if report.failed:
+        raise click.ClickException(
+            f"{len(report.failed)} walks could not be read from the store (their part files "
+            "are missing or damaged); the others were processed. Ingest their files again "
+            "to repair them, then run process again")
 
 
 @click.command("survey-report")

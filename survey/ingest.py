@@ -13,11 +13,12 @@ import shutil
 from collections import Counter
 from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .errors import SurveyFormatError
-from .publish import file_sha256
+from .errors import StoreError, SurveyFormatError
+from .publish import crash_point, file_sha256
 from .store import IngestOutcome, SurveyStore, catalog_row, write_parts
 from .trace_reader import BATCH_BYTES, ReadFailure, find_trace_files, iter_traces, \
     trace_id_from_path
@@ -82,6 +83,7 @@ def _parse_and_write(root: str, paths: list[str], shas: list[str], sizes: list[i
                      ) -> list[tuple[str, dict | None, str]]:
     """Worker: parse traces, write their part files; returns (path, catalog row, error).
     ``on_file`` is called as each file is through (in this process only: progress)."""
+    crash_point("ingest:worker")
     out = []
     info = {p: (s, n) for p, s, n in zip(paths, shas, sizes)}
     for item in iter_traces(paths, strict=strict, batch_bytes=batch_bytes):
@@ -184,6 +186,9 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
     with store.writer() as w:
         todo: list[tuple[str, str, int]] = []
         todo_sha: dict[str, str] = {}   # content hash -> trace id, of this run's files
+        # duplicates, checked again before the commit: what they duplicate may be replaced
+        # by this run (a file renamed, another put in its place); then they are ingested
+        deferred: list[tuple[int, str, str, tuple]] = []  # (outcome index, id, sha, input)
         for p in trace_files:
             tid = trace_id_from_path(p)
             if second_input(str(p), tid):
@@ -195,6 +200,9 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
                 known = IngestOutcome("", tid, "duplicate", f"same content as {todo_sha[sha]}")
             if known:
                 known.path = str(p)
+                if known.status == "duplicate":
+                    deferred.append((len(summary.outcomes), tid, sha,
+                                     ("trace", str(p), p.stat().st_size)))
                 summary.outcomes.append(known)
                 tick()
             else:
@@ -213,6 +221,13 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
                         res = fut.result()
                         results.extend(res)
                         tick(len(res))
+                except BrokenProcessPool as err:
+                    pool.shutdown(cancel_futures=True)
+                    raise StoreError(
+                        f"{store.root}: an ingest worker process died (killed, or out of "
+                        "memory); nothing of this run was committed, the store keeps its "
+                        "previous state. Run again, with --workers 1 to use less memory"
+                    ) from err
                 except BaseException:  # a bad file (strict), Ctrl-C, SIGTERM: drop the queue
                     pool.shutdown(cancel_futures=True)
                     raise
@@ -220,14 +235,7 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
             for c in chunks:  # progress file by file: one chunk holds every file
                 results.extend(_parse_and_write(str(store.root), *map(list, zip(*c)), strict,
                                                 batch_bytes, on_file=tick))
-        for path, row, error in results:
-            if row is None:
-                summary.outcomes.append(IngestOutcome(path, trace_id_from_path(path), "failed",
-                                                      error))
-                continue
-            status = w.add_row(row)
-            summary.outcomes.append(IngestOutcome(path, row["trace_id"], status))
-            summary.add_row(row)
+        summary.outcomes.extend(_add_results(w, summary, results))
         for plan in plans:
             try:
                 walks = read_walk_plan(plan, strict=strict)
@@ -244,14 +252,48 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
                 known = w.known(trace.trace_id, sha)
                 if known:
                     known.path = source
+                    if known.status == "duplicate":
+                        deferred.append((len(summary.outcomes), trace.trace_id, sha,
+                                         ("plan", trace, source, len(identity))))
                     summary.outcomes.append(known)
                     continue
-                status = w.add(trace, source_path=source, sha256=sha, size_bytes=len(identity),
-                               source_format="walkline")
-                summary.outcomes.append(IngestOutcome(source, trace.trace_id, status))
-                summary.add_row(w.pending[trace.trace_id])
+                summary.outcomes.append(_add_walk(w, summary, trace, source, sha,
+                                                  len(identity)))
             tick()
+        for index, tid, sha, item in deferred:
+            if w.known(tid, sha):
+                continue  # what it duplicates stays
+            if item[0] == "trace":  # parse it after all (rare: no progress tick)
+                res = _parse_and_write(str(store.root), [item[1]], [sha], [item[2]], strict,
+                                       batch_bytes)
+                summary.outcomes[index] = _add_results(w, summary, res)[0]
+            else:
+                summary.outcomes[index] = _add_walk(w, summary, *item[1:3], sha, item[3])
     return summary
+
+
+def _add_results(w, summary: IngestSummary, results: list[tuple[str, dict | None, str]]
+                 ) -> list[IngestOutcome]:
+    """Register parsed trace files (their part files written) with the writer ``w``; their
+    rows are added to ``summary``, their outcomes returned."""
+    out = []
+    for path, row, error in results:
+        if row is None:
+            out.append(IngestOutcome(path, trace_id_from_path(path), "failed", error))
+        else:
+            out.append(IngestOutcome(path, row["trace_id"], w.add_row(row)))
+            summary.add_row(row)
+    return out
+
+
+def _add_walk(w, summary: IngestSummary, trace, source: str, sha: str, size: int
+              ) -> IngestOutcome:
+    """Store one walk of a walk plan with the writer ``w``; its row is added to ``summary``,
+    its outcome returned."""
+    status = w.add(trace, source_path=source, sha256=sha, size_bytes=size,
+                   source_format="walkline")
+    summary.add_row(w.pending[trace.trace_id])
+    return IngestOutcome(source, trace.trace_id, status)
 
 
 def _chunks(todo: list[tuple[str, str, int]], batch_bytes: int, workers: int

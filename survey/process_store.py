@@ -5,17 +5,19 @@ Processed tables live beside the raw ones::
     STORE/processed/catalog.parquet      one row per walk: status, summary, parameters
     STORE/processed/{samples,steps,legs,wifi,ble}/site=S/floor=F/<trace_id>-<hash12>.parquet
 
-(``hash12``: of the raw file's sha256 and the processing parameters' hash, so that processing
-with other parameters writes other files and a run that fails before its catalog is switched
-leaves the previous results whole.)
+(``hash12``: of the raw file's sha256 and the hash of the walk's other inputs, see
+:func:`inputs_sha256`, so that processing with other inputs writes other files and a run that
+fails before its catalog is switched leaves the previous results whole.)
 
 ``wifi`` and ``ble`` are the raw rows with the positions (x_m, y_m) of their times added; rows
 outside the walk's waypoint range are dropped (counted in the summary). A walk that cannot be
 processed (no steps, no rotation vector, a single waypoint, ...) gets ``status = "skipped"`` and
-the reason; nothing is lost. Processing is redone when the walk or the parameters change.
+the reason; nothing is lost. A walk whose raw part files cannot be read gets ``"failed"`` and is
+tried again by every run. Processing is redone when the walk, the parameters, the floor plan or
+its calibration session's fit change.
 
-Calibration sessions are found across all walks of a device model by the phone's reported
-bias; walks that lack a trustworthy calibration use a fit pooled over their session.
+Calibration sessions are found across all the store's walks of a device model by the phone's
+reported bias; walks that lack a trustworthy calibration use a fit pooled over their session.
 """
 
 from __future__ import annotations
@@ -30,18 +32,18 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from .errors import ProcessingError
+from .errors import ProcessingError, StoreError
 from .magcal import MagCalResult, fit_ellipsoid
 from .process import ProcessedWalk, ProcessParams, calibration_sessions, process_walk, \
     reported_bias
-from .publish import atomic_write_bytes, crash_point, fsync_dir
-from .store import (SurveyStore, _arrow_column, _parquet_bytes, part_path,
-                    read_parquet_checked)
+from .publish import TMP_PREFIX, atomic_write_bytes, crash_point, fsync_dir
+from .store import (SurveyStore, _arrow_column, _parquet_bytes, check_columns, part_path,
+                    part_record, read_parquet_checked)
 
 _MAG_COLUMNS = ["stream", "t_ms", "x", "y", "z", "bx", "by", "bz"]
 PROCESSED_TABLES = ("samples", "steps", "legs", "wifi", "ble")
-PROCESSED_CATALOG_COLUMNS = ("trace_id", "sha256", "site", "floor", "params_sha256", "status",
-                             "reason", "session", "summary_json")
+PROCESSED_CATALOG_COLUMNS = ("trace_id", "sha256", "site", "floor", "inputs_sha256", "status",
+                             "reason", "session", "parts_json", "summary_json")
 
 
 @dataclass
@@ -49,11 +51,30 @@ class ProcessReport:
     processed: list[str] = field(default_factory=list)
     skipped: dict[str, str] = field(default_factory=dict)
     unchanged: list[str] = field(default_factory=list)
+    #: walks whose stored raw files cannot be read (missing or damaged part files): they are
+    #: tried again by the next run; re-ingesting their files repairs them
+    failed: dict[str, str] = field(default_factory=dict)
     sessions: dict[str, dict] = field(default_factory=dict)
 
 
 def params_sha256(params: ProcessParams) -> str:
     return hashlib.sha256(params.to_json().encode()).hexdigest()
+
+
+def inputs_sha256(params_sha: str, reachable: object | None, session: str,
+                  fit: MagCalResult | None) -> str:
+    """What a walk's processed tables depend on besides its raw file: the processing
+    parameters' hash, the floor plan's reachable area (WKB), its calibration session's key
+    and that session's pooled fit. A change to any of them processes the walk again."""
+    import shapely
+
+    h = hashlib.sha256(params_sha.encode())
+    h.update(b"|session:" + session.encode())
+    h.update(b"|plan:" + (shapely.to_wkb(reachable) if reachable is not None else b""))
+    if fit is not None:
+        h.update(b"|fit:" + fit.status.encode() + np.concatenate(
+            [np.ravel(fit.hard_iron_ut), np.ravel(fit.soft_iron)]).astype("<f8").tobytes())
+    return h.hexdigest()
 
 
 def _position_rows(rows: pd.DataFrame, t_col: str, walk: ProcessedWalk) -> pd.DataFrame:
@@ -65,19 +86,27 @@ def _position_rows(rows: pd.DataFrame, t_col: str, walk: ProcessedWalk) -> pd.Da
 
 
 def session_fits(store: SurveyStore, catalog: pd.DataFrame, max_samples: int = 20000,
-                 seed: int = 0) -> tuple[dict[str, str], dict[str, MagCalResult]]:
-    """Session key of every walk of ``catalog`` and an ellipsoid fit pooled over each
-    session's raw samples. Reads the magnetometer columns walk by walk."""
-    rng = np.random.default_rng(seed)
+                 seed: int = 0) -> tuple[dict[str, str], dict[str, MagCalResult],
+                                         dict[str, str]]:
+    """Session key of every walk of ``catalog``, an ellipsoid fit pooled over each session's
+    raw samples, and the walks whose magnetometer columns cannot be read (trace id -> the
+    store's error). Reads the magnetometer columns walk by walk. Each session's subsample
+    is seeded by ``seed`` and the session's key, so a fit does not depend on which other
+    sessions are fitted with it."""
     raw_of: dict[str, np.ndarray] = {}
-    biases = []
+    biases, models, unreadable = [], [], {}
     for row in catalog.itertuples(index=False):
-        sensors = store.part("sensors", row, columns=_MAG_COLUMNS)
+        try:
+            sensors = store.part("sensors", row, columns=_MAG_COLUMNS)
+        except StoreError as err:
+            unreadable[row.trace_id] = str(err)
+            continue
         biases.append(reported_bias(sensors))
+        models.append(row.device_model)
         unc = sensors[sensors["stream"] == "magnetic_field_uncalibrated"]
         raw_of[row.trace_id] = unc[["x", "y", "z"]].to_numpy(np.float64)
-    keys = calibration_sessions(list(catalog["device_model"]), biases)
-    sessions = dict(zip(catalog["trace_id"], keys))
+    keys = calibration_sessions(models, biases)
+    sessions = dict(zip([t for t in catalog["trace_id"] if t not in unreadable], keys))
     pooled: dict[str, list[np.ndarray]] = {}
     for tid, key in sessions.items():
         if len(raw_of[tid]):
@@ -86,17 +115,36 @@ def session_fits(store: SurveyStore, catalog: pd.DataFrame, max_samples: int = 2
     for key, parts in sorted(pooled.items()):
         raw = np.concatenate(parts)
         if len(raw) > max_samples:
+            rng = np.random.default_rng([seed, *hashlib.sha256(key.encode()).digest()[:8]])
             raw = raw[np.sort(rng.choice(len(raw), max_samples, replace=False))]
         if len(raw) >= 20:
             fits[key] = fit_ellipsoid(raw)
-    return sessions, fits
+    return sessions, fits, unreadable
+
+
+def _processed_parts_present(root, row: pd.Series) -> bool:
+    """Whether every processed file of an ``ok`` catalog row exists with its recorded size."""
+    parts = json.loads(row.get("parts_json") or "{}")
+    for name in PROCESSED_TABLES:
+        path = root / processed_part_path(name, row["site"], row["floor"], row["trace_id"],
+                                          row["sha256"], row["inputs_sha256"])
+        try:
+            if name not in parts or path.stat().st_size != parts[name]["size"]:
+                return False
+        except OSError:
+            return False
+    return True
 
 
 def process_store(store: SurveyStore | str, *, site: str | None = None,
                   floor: str | None = None, params: ProcessParams = ProcessParams(),
                   reachable: dict[tuple[str, str], object] | None = None,
                   progress: Callable[[int, int], None] | None = None) -> ProcessReport:
-    """Process every walk of the selected site/floor that is new or changed.
+    """Process every walk of the selected site/floor that is new or changed, or whose
+    parameters, floor plan or calibration-session fit changed.
+
+    Calibration sessions are fitted over every walk of the store made with the selection's
+    phone models, so processing one floor gives what processing the whole store gives.
 
     Parameters
     ----------
@@ -107,37 +155,52 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
     root = store.root / "processed"
     cat = store.traces(site, floor)
     pcat_path = root / "catalog.parquet"
-    old = read_parquet_checked(pcat_path, what="processed catalog").to_pandas() \
-        if pcat_path.exists() else pd.DataFrame(
-        {c: pd.Series([], dtype="str") for c in PROCESSED_CATALOG_COLUMNS})
+    old = _read_processed_catalog(pcat_path, upgrading=True)
     psha = params_sha256(params)
     report = ProcessReport()
     if not len(cat):
         return report
-    sessions, fits = session_fits(store, cat)
+    everything = store.catalog()
+    sessions, fits, unreadable = session_fits(
+        store, everything[everything["device_model"].isin(cat["device_model"])])
+    used = {sessions[t] for t in cat["trace_id"] if t in sessions}
     report.sessions = {k: {"status": f.status, "reason": f.reason,
                            "hard_iron_ut": np.round(f.hard_iron_ut, 2).tolist(),
-                           "coverage": round(float(f.coverage), 3)} for k, f in fits.items()}
+                           "coverage": round(float(f.coverage), 3)}
+                       for k, f in fits.items() if k in used}
     new_rows = []
     with store.writer():  # one writer at a time for the whole store
+        remove_stale_temporaries_under(root)
         for i, row in enumerate(cat.itertuples(index=False)):
-            done = old[(old["trace_id"] == row.trace_id) & (old["sha256"] == row.sha256)
-                       & (old["params_sha256"] == psha)]
-            if len(done) and (done["status"].iloc[0] != "ok" or (root / processed_part_path(
-                    "samples", row.site, row.floor, row.trace_id, row.sha256, psha)).exists()):
-                report.unchanged.append(row.trace_id)
-                # sessions depend on the other walks too: refresh the key
-                new_rows.append({**done.iloc[0].to_dict(), "session": sessions.get(
-                    row.trace_id, "")})
-                if progress:
-                    progress(i + 1, len(cat))
-                continue
-            # one walk at a time: memory is bounded by the largest walk, not by the store
-            tables = {name: store.part(name, row) for name in ("sensors", "waypoints", "wifi",
-                                                              "ble")}
+            if progress and i:
+                progress(i, len(cat))
             key = sessions.get(row.trace_id, "")
             base = {"trace_id": row.trace_id, "sha256": row.sha256, "site": row.site,
-                    "floor": row.floor, "params_sha256": psha, "session": key}
+                    "floor": row.floor, "session": key, "parts_json": "",
+                    "inputs_sha256": inputs_sha256(psha, (reachable or {}).get(
+                        (row.site, row.floor)), key, fits.get(key))}
+            if row.trace_id in unreadable:
+                report.failed[row.trace_id] = unreadable[row.trace_id]
+                new_rows.append({**base, "status": "failed",
+                                 "reason": unreadable[row.trace_id], "summary_json": "{}"})
+                continue
+            done = old[(old["trace_id"] == row.trace_id) & (old["sha256"] == row.sha256)
+                       & (old["inputs_sha256"] == base["inputs_sha256"])]
+            if len(done) and (done["status"].iloc[0] == "skipped" or (
+                    done["status"].iloc[0] == "ok"
+                    and _processed_parts_present(root, done.iloc[0]))):
+                report.unchanged.append(row.trace_id)
+                new_rows.append(done.iloc[0].to_dict())
+                continue
+            # one walk at a time: memory is bounded by the largest walk, not by the store
+            try:
+                tables = {name: store.part(name, row) for name in ("sensors", "waypoints",
+                                                                  "wifi", "ble")}
+            except StoreError as err:
+                report.failed[row.trace_id] = str(err)
+                new_rows.append({**base, "status": "failed", "reason": str(err),
+                                 "summary_json": "{}"})
+                continue
             try:
                 walk = process_walk(row.trace_id, tables["sensors"], tables["waypoints"], params,
                                     reachable=(reachable or {}).get((row.site, row.floor)),
@@ -153,17 +216,20 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
             walk.summary["n_wifi_rows_positioned"] = len(outputs["wifi"])
             walk.summary["n_ble_rows_positioned"] = len(outputs["ble"])
             walk.summary["session"] = key
+            parts = {}
             for name, frame in outputs.items():
                 table = pa.table({c: _arrow_column(frame[c]) for c in frame.columns})
                 rel = processed_part_path(name, row.site, row.floor, row.trace_id, row.sha256,
-                                          psha)
-                atomic_write_bytes(root / rel, _parquet_bytes(table), overwrite=True,
-                                   sync_dir=False)
+                                          base["inputs_sha256"])
+                data = _parquet_bytes(table)
+                atomic_write_bytes(root / rel, data, overwrite=True, sync_dir=False)
+                parts[name] = part_record(data, table.num_rows)
             report.processed.append(row.trace_id)
             new_rows.append({**base, "status": "ok", "reason": "",
+                             "parts_json": json.dumps(parts, sort_keys=True),
                              "summary_json": json.dumps(walk.summary, default=_json_default)})
-            if progress:
-                progress(i + 1, len(cat))
+        if progress:
+            progress(len(cat), len(cat))
         for folder in {(root / part_path(t, r["site"], r["floor"], "x", "0")).parent
                        for r in new_rows for t in PROCESSED_TABLES}:
             fsync_dir(folder)
@@ -178,11 +244,44 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
     return report
 
 
+def remove_stale_temporaries_under(root) -> None:
+    """Remove the temporaries a killed run left in the processed tables' folders (the
+    caller holds the store's writer lock, so no live writer has any there)."""
+    for table in PROCESSED_TABLES:
+        base = root / table
+        if base.exists():
+            for p in base.rglob(TMP_PREFIX + "*"):
+                p.unlink(missing_ok=True)
+
+
+def _read_processed_catalog(path, *, upgrading: bool = False) -> pd.DataFrame:
+    """The processed catalog as stored (all text), checked. A catalog of an older indoormap
+    (no ``inputs_sha256``) is a :class:`ProcessingError`, or with ``upgrading`` empty: every
+    walk is processed again."""
+    empty = pd.DataFrame({c: pd.Series([], dtype="str") for c in PROCESSED_CATALOG_COLUMNS})
+    if not path.exists():
+        return empty
+    table = read_parquet_checked(path, what="processed catalog")
+    if "inputs_sha256" not in table.column_names:
+        if upgrading:
+            return empty
+        raise ProcessingError(f"{path}: written by an older indoormap; run `indoormap process` "
+                              "again")
+    check_columns(table, PROCESSED_CATALOG_COLUMNS, path, "processed catalog")
+    cat = table.to_pandas()
+    dup = cat["trace_id"][cat["trace_id"].duplicated()]
+    if len(dup):
+        raise StoreError(f"{path}: damaged processed catalog: trace id {dup.iloc[0]!r} has "
+                         "several rows")
+    return cat
+
+
 def processed_part_path(table: str, site: str, floor: str, trace_id: str, sha256: str,
-                        params_sha: str) -> str:
+                        inputs_sha: str) -> str:
     """Relative path (under ``processed/``) of a walk's processed ``table``, named by its raw
-    file's ``sha256`` and the processing parameters' hash ``params_sha`` together."""
-    both = hashlib.sha256(f"{sha256}:{params_sha}".encode()).hexdigest()
+    file's ``sha256`` and the hash of its other inputs ``inputs_sha`` (:func:`inputs_sha256`)
+    together."""
+    both = hashlib.sha256(f"{sha256}:{inputs_sha}".encode()).hexdigest()
     return part_path(table, site, floor, trace_id, both)
 
 
@@ -195,7 +294,7 @@ def _json_default(value):
 
 
 def _remove_unreferenced(root, pcat: pd.DataFrame) -> None:
-    live = {processed_part_path(t, r.site, r.floor, r.trace_id, r.sha256, r.params_sha256)
+    live = {processed_part_path(t, r.site, r.floor, r.trace_id, r.sha256, r.inputs_sha256)
             for r in pcat[pcat["status"] == "ok"].itertuples(index=False)
             for t in PROCESSED_TABLES}
     for table in PROCESSED_TABLES:
@@ -212,7 +311,7 @@ def processed_catalog(store: SurveyStore | str) -> pd.DataFrame:
     path = store.root / "processed" / "catalog.parquet"
     if not path.exists():
         raise ProcessingError(f"{store.root}: not processed yet; run `indoormap process`")
-    cat = read_parquet_checked(path, what="processed catalog").to_pandas()
+    cat = _read_processed_catalog(path)
     cat["summary"] = [json.loads(s) for s in cat["summary_json"]]
     return cat
 
@@ -242,8 +341,9 @@ def processed_part(store: SurveyStore | str, name: str, walk: pd.Series, *,
     store = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
     table = read_parquet_checked(store.root / "processed" / processed_part_path(
         name, walk["site"], walk["floor"], walk["trace_id"], walk["sha256"],
-        walk["params_sha256"]),
-        None if columns is None else list(columns), what="processed part")
+        walk["inputs_sha256"]),
+        None if columns is None else list(columns), what="processed part",
+        expect=json.loads(walk["parts_json"] or "{}").get(name))
     if text_as_category:
         for i, f in enumerate(table.schema):
             if pa.types.is_string(f.type) or pa.types.is_large_string(f.type):

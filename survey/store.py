@@ -17,10 +17,11 @@ the old store or the new one, plus unreferenced part files that the next ingest 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import os
 import re
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,6 +29,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from .errors import StoreError
@@ -38,11 +40,20 @@ except ImportError:  # Windows: the pid in the lock file alone keeps writers apa
     fcntl = None  # type: ignore[assignment]
 from .publish import TMP_PREFIX, atomic_write_bytes, crash_point, fsync_dir, \
     remove_stale_temporaries
-from .trace_format import Trace
+from .trace_format import BLE_COLUMNS, SENSOR_COLUMNS, WAYPOINT_COLUMNS, WIFI_COLUMNS, Trace
 
 STORE_FORMAT = "indoormap-survey-store"
-SCHEMA_VERSION = 1
+#: Version 2 added ``parts_json`` (each part file's sha256, size and rows) to the catalog.
+#: Version 1 stores are still read (their parts are checked by row counts and trace id only)
+#: and become version 2 at their next commit.
+SCHEMA_VERSION = 2
+READABLE_SCHEMA_VERSIONS = (1, 2)
 TABLES = ("sensors", "wifi", "ble", "waypoints")
+#: The columns of each part file (besides ``trace_id``) and the catalog column counting its rows.
+TABLE_COLUMNS = {"sensors": SENSOR_COLUMNS, "wifi": WIFI_COLUMNS, "ble": BLE_COLUMNS,
+                 "waypoints": WAYPOINT_COLUMNS}
+ROW_COUNT_COLUMNS = {"sensors": "n_sensor_rows", "wifi": "n_wifi_rows", "ble": "n_ble_rows",
+                     "waypoints": "n_waypoints"}
 
 CATALOG_COLUMNS = {
     "trace_id": "str", "source_path": "str", "sha256": "str", "size_bytes": "int64",
@@ -52,7 +63,7 @@ CATALOG_COLUMNS = {
     "n_sensor_rows": "int64", "n_wifi_rows": "int64", "n_scans": "int64", "n_ble_rows": "int64",
     "n_waypoints": "int64", "n_skipped_lines": "int64", "n_bad_lines": "int64",
     "n_dropped_rows": "int64", "records_json": "str", "skipped_json": "str", "bad_json": "str",
-    "dropped_json": "str", "messages_json": "str", "header_json": "str",
+    "dropped_json": "str", "messages_json": "str", "header_json": "str", "parts_json": "str",
 }
 
 
@@ -97,17 +108,48 @@ def catalog_row(trace: Trace, *, source_path: str, sha256: str, size_bytes: int,
         "dropped_json": json.dumps(r.dropped, sort_keys=True),
         "messages_json": json.dumps(r.messages),
         "header_json": json.dumps(header, sort_keys=True, default=str, allow_nan=True),
+        "parts_json": "",  # set by write_parts
     }
 
 
 def read_parquet_checked(path: Path, columns: list[str] | None = None, *,
-                         what: str = "part file") -> pa.Table:
+                         what: str = "part file", expect: Mapping[str, Any] | None = None
+                         ) -> pa.Table:
     """A store Parquet file with its page checksums verified; a :class:`StoreError` naming
-    the file when it is missing, unreadable or corrupted."""
+    the file when it is missing, unreadable or corrupted.
+
+    ``expect`` (``{"sha256", "size", "rows"}``, as :func:`part_record` gives and the catalogs
+    keep): the file's bytes must hash to that, so a flip in the Parquet footer (which the page
+    checksums do not cover) or a part file swapped for another is refused too."""
     try:
-        return pq.read_table(path, columns=columns, page_checksum_verification=True)
+        if expect is None:
+            return pq.read_table(path, columns=columns, page_checksum_verification=True)
+        data = Path(path).read_bytes()
+        if len(data) != expect["size"] or hashlib.sha256(data).hexdigest() != expect["sha256"]:
+            raise StoreError(f"{path}: {what} changed since it was written ({len(data)} bytes, "
+                             f"sha256 {hashlib.sha256(data).hexdigest()[:12]}; the catalog has "
+                             f"{expect['size']} bytes, {expect['sha256'][:12]})")
+        table = pq.read_table(pa.BufferReader(data), columns=columns,
+                              page_checksum_verification=True)
     except (OSError, pa.ArrowException) as err:
         raise StoreError(f"{path}: missing, unreadable or corrupted {what} ({err})") from err
+    if table.num_rows != expect["rows"]:
+        raise StoreError(f"{path}: {what} has {table.num_rows} rows; the catalog has "
+                         f"{expect['rows']}")
+    return table
+
+
+def part_record(data: bytes, rows: int) -> dict[str, Any]:
+    """What a catalog keeps of a written part file: its sha256, size (bytes) and rows."""
+    return {"sha256": hashlib.sha256(data).hexdigest(), "size": len(data), "rows": int(rows)}
+
+
+def check_columns(table: pa.Table, expected: Sequence[str], path: Path, what: str) -> None:
+    """A :class:`StoreError` naming ``path`` unless ``table`` has every ``expected`` column."""
+    missing = [c for c in expected if c not in table.column_names]
+    if missing:
+        raise StoreError(f"{path}: {what} lacks columns {missing} (damaged or not written "
+                         "by indoormap)")
 
 
 def _parquet_bytes(table: pa.Table) -> bytes:
@@ -153,11 +195,16 @@ def _frame(table: pa.Table) -> pd.DataFrame:
 
 
 def write_parts(root: Path, trace: Trace, row: dict) -> None:
-    """Write a trace's part files into the store, each atomically and fsynced; their folders
-    are fsynced by the commit that makes them live. Idempotent."""
+    """Write a trace's part files into the store, each atomically and fsynced, and record
+    their sha256, size and rows in ``row["parts_json"]``; their folders are fsynced by the
+    commit that makes them live. Idempotent."""
+    parts = {}
     for name, table in trace_tables(trace).items():
         rel = part_path(name, row["site"], row["floor"], row["trace_id"], row["sha256"])
-        atomic_write_bytes(root / rel, _parquet_bytes(table), overwrite=True, sync_dir=False)
+        data = _parquet_bytes(table)
+        atomic_write_bytes(root / rel, data, overwrite=True, sync_dir=False)
+        parts[name] = part_record(data, table.num_rows)
+    row["parts_json"] = json.dumps(parts, sort_keys=True)
 
 
 @dataclass
@@ -166,7 +213,7 @@ class IngestOutcome:
 
     path: str
     trace_id: str
-    status: str  # "new", "changed", "unchanged", "duplicate", "failed"
+    status: str  # "new", "changed", "repaired", "unchanged", "duplicate", "failed"
     detail: str = ""
 
 
@@ -206,19 +253,44 @@ class SurveyStore:
             raise StoreError(f"{meta_path}: not a JSON object (format and schema_version)")
         if meta.get("format") != STORE_FORMAT:
             raise StoreError(f"{meta_path}: format {meta.get('format')!r} is not {STORE_FORMAT}")
-        if meta.get("schema_version") != SCHEMA_VERSION:
+        if meta.get("schema_version") not in READABLE_SCHEMA_VERSIONS:
             raise StoreError(f"{meta_path}: schema version {meta.get('schema_version')!r} is not "
-                             f"supported (this indoormap reads version {SCHEMA_VERSION})")
+                             f"supported (this indoormap reads versions "
+                             f"{', '.join(map(str, READABLE_SCHEMA_VERSIONS))})")
         return cls(root)
+
+    def upgrade_schema(self) -> None:
+        """Mark a version 1 store as version 2 once its catalog has been written by this
+        version (rows of version 1 keep an empty ``parts_json``)."""
+        meta_path = self.root / "store.json"
+        meta = json.loads(meta_path.read_text())
+        if meta.get("schema_version") != SCHEMA_VERSION:
+            meta["schema_version"] = SCHEMA_VERSION
+            atomic_write_bytes(meta_path, json.dumps(meta, indent=2).encode(), overwrite=True)
 
     # ---- reading ----------------------------------------------------------------------------
 
     def catalog(self) -> pd.DataFrame:
-        """One row per ingested trace (columns in :data:`CATALOG_COLUMNS`)."""
+        """One row per ingested trace (columns in :data:`CATALOG_COLUMNS`), checked: every
+        column present, one row per trace id, a 64-digit sha256 each."""
         path = self.root / "catalog.parquet"
         if not path.exists():
             return pd.DataFrame({c: pd.Series([], dtype=t) for c, t in CATALOG_COLUMNS.items()})
-        return read_parquet_checked(path, what="catalog").to_pandas()
+        table = read_parquet_checked(path, what="catalog")
+        if "parts_json" not in table.column_names:  # schema version 1
+            table = table.append_column("parts_json", pa.array([""] * table.num_rows))
+        check_columns(table, list(CATALOG_COLUMNS), path, "catalog")
+        cat = table.to_pandas()
+        problems = []
+        counts = cat["trace_id"].value_counts()
+        if (counts > 1).any():
+            problems.append(f"trace id {counts.index[0]!r} has {counts.iloc[0]} rows")
+        bad_sha = ~cat["sha256"].astype(str).str.fullmatch(r"[0-9a-f]{64}")
+        if bad_sha.any():
+            problems.append(f"trace {cat['trace_id'][bad_sha].iloc[0]!r} has no valid sha256")
+        if problems:
+            raise StoreError(f"{path}: damaged catalog: {'; '.join(problems)}")
+        return cat
 
     def traces(self, site: str | None = None, floor: str | None = None) -> pd.DataFrame:
         """Catalog rows, optionally of one site and/or floor (partition names or ids)."""
@@ -253,11 +325,23 @@ class SurveyStore:
         return _frame(self._read_part(name, row, columns))
 
     def _read_part(self, name: str, row, columns: list[str] | None = None) -> pa.Table:
+        """One part file, checked against its catalog row: sha256 and size (stores of schema
+        version 2), rows, columns and trace id."""
         get = row.get if isinstance(row, Mapping) else lambda k: getattr(row, k)  # or a Series
         path = self.root / part_path(name, get("site"), get("floor"), get("trace_id"),
                                      get("sha256"))
-        return read_parquet_checked(path, None if columns is None
-                                    else ["trace_id", *[c for c in columns if c != "trace_id"]])
+        parts = json.loads(get("parts_json") or "{}")
+        expect = parts.get(name)
+        want = None if columns is None else ["trace_id", *[c for c in columns if c != "trace_id"]]
+        table = read_parquet_checked(path, want, expect=expect)
+        check_columns(table, want or ["trace_id", *TABLE_COLUMNS[name]], path, f"{name} part")
+        rows = int(get(ROW_COUNT_COLUMNS[name]))
+        ids = pc.unique(table.column("trace_id").cast(pa.string())).to_pylist()
+        if table.num_rows != rows or (rows and ids != [get("trace_id")]):
+            raise StoreError(f"{path}: holds {table.num_rows} rows of {ids[:3]}; the catalog has "
+                             f"{rows} rows of {get('trace_id')!r} (a part file swapped or "
+                             "damaged)")
+        return table
 
     # ---- writing ----------------------------------------------------------------------------
 
@@ -340,23 +424,50 @@ class _StoreWriter:
         self.root = store.root
         self.cat = store.catalog()
         self.pending: dict[str, dict] = {}
+        self.repairing: set[str] = set()  # stored traces whose part files are written again
 
     def known(self, trace_id: str, sha256: str) -> IngestOutcome | None:
-        """The outcome for a file that needs no work (same content already stored)."""
-        hit = self.cat[self.cat["sha256"] == sha256]
-        pending = [r for r in self.pending.values() if r["sha256"] == sha256]
-        if len(hit) or pending:
-            other = (hit["trace_id"].iloc[0] if len(hit) else pending[0]["trace_id"])
-            status = "unchanged" if other == trace_id else "duplicate"
-            detail = "" if status == "unchanged" else f"same content as {other}"
-            return IngestOutcome("", trace_id, status, detail)
+        """The outcome for a file that needs no work (same content already stored), or None.
+        Stored content that this run replaces (its trace id is pending with other content)
+        does not count: a file is never a "duplicate" of content about to go. A stored trace
+        whose part files are missing or of the wrong size needs work (it is ``repaired``)."""
+        cat = self.cat
+        leaving = [t for t, r in self.pending.items() if r["sha256"] != sha256]
+        hit = cat[(cat["sha256"] == sha256) & ~cat["trace_id"].isin(leaving)]
+        same = hit[hit["trace_id"] == trace_id]
+        if len(same):
+            if self._parts_present(same.iloc[0]):
+                return IngestOutcome("", trace_id, "unchanged")
+            self.repairing.add(trace_id)
+            return None
+        pending = [t for t, r in self.pending.items() if r["sha256"] == sha256]
+        others = [t for t in [*hit["trace_id"], *pending] if t != trace_id]
+        if others:
+            return IngestOutcome("", trace_id, "duplicate", f"same content as {others[0]}")
         return None
 
+    def _parts_present(self, row: pd.Series) -> bool:
+        """Whether every part file of a catalog row exists (with its recorded size)."""
+        parts = json.loads(row["parts_json"] or "{}")
+        for name in TABLES:
+            path = self.root / part_path(name, row["site"], row["floor"], row["trace_id"],
+                                         row["sha256"])
+            try:
+                size = path.stat().st_size
+            except OSError:
+                return False
+            if name in parts and size != parts[name]["size"]:
+                return False
+        return True
+
     def add_row(self, row: dict) -> str:
-        """Register a trace whose part files are written; returns ``new`` or ``changed``."""
+        """Register a trace whose part files are written; returns ``new``, ``changed`` or
+        ``repaired`` (same content, its part files were missing or damaged)."""
         existed = (self.cat["trace_id"] == row["trace_id"]).any() or row["trace_id"] in \
             self.pending
         self.pending[row["trace_id"]] = row
+        if row["trace_id"] in self.repairing:
+            return "repaired"
         return "changed" if existed else "new"
 
     def add(self, trace: Trace, *, source_path: str, sha256: str, size_bytes: int,
@@ -381,6 +492,7 @@ class _StoreWriter:
         table = pa.Table.from_pandas(cat, preserve_index=False).replace_schema_metadata(None)
         atomic_write_bytes(self.root / "catalog.parquet", _parquet_bytes(table), overwrite=True)
         crash_point("ingest:after-catalog")
+        self.store.upgrade_schema()
         self.cat = cat
         self.pending = {}
         self.collect_garbage()

@@ -8,10 +8,12 @@ import sys
 from pathlib import Path
 
 import pandas as pd
+import pytest
 from click.testing import CliRunner
 
 from survey.cli import main
 from survey.cli_process import plan_floor_name
+from survey.errors import StoreError
 from survey.ingest import ingest
 from survey.process_store import process_store, processed_catalog, processed_table
 from survey.trace_reader import read_trace
@@ -51,9 +53,14 @@ def test_process_cli_and_report(tmp_path):
     assert samples["trace_id"].nunique() == 2 and samples[["x_m", "y_m"]].notna().all().all()
     wifi = processed_table(tmp_path / "store", "wifi")
     assert {"x_m", "y_m", "bssid", "rssi_dbm", "age_ms"} <= set(wifi.columns)
-    again = runner.invoke(main, ["process", "--store", str(tmp_path / "store")])
+    again = runner.invoke(main, ["process", "--store", str(tmp_path / "store"),
+                                 "--floor-plan", str(floor)])
     assert "processed 0, unchanged 3, skipped 0" in again.output  # nothing changed: no work
     assert "calibration: 1 device-calibrated, 1 not-calibrated" in again.output
+    # the floor plan is an input (it flags legs leaving the reachable area): without it the
+    # walks are processed again (they were called unchanged)
+    again = runner.invoke(main, ["process", "--store", str(tmp_path / "store")])
+    assert "processed 2, unchanged 0, skipped 1" in again.output
     report = runner.invoke(main, ["survey-report", "--store", str(tmp_path / "store"),
                                   "--csv", str(tmp_path / "qa.csv")])
     assert report.exit_code == 0, report.output
@@ -126,3 +133,79 @@ def test_a_run_with_other_parameters_that_dies_leaves_the_old_results(tmp_path):
     # and the run's leftovers (the other parameters' files) are gone
     parts = list((tmp_path / "store" / "processed" / "samples").rglob("*.parquet"))
     assert len(parts) == 2
+
+
+def _two_floors(tmp_path: Path, n: int = 2) -> Path:
+    traces = [p for f in ("F1", "F2")
+              for p in sorted((SITE / f / "path_data_files").glob("*.txt.gz"))[:n]]
+    ingest(traces, tmp_path)
+    return tmp_path
+
+
+def test_one_floor_then_all_gives_what_all_at_once_gives(tmp_path):
+    """Calibration sessions were found and fitted over the selected walks only (and their
+    subsamples drawn from one generator shared by the selection's sessions), so `--floor F1`
+    followed by a full run kept other F1 results than a full run. Here an F2 walk of the same
+    phone with a bias 1.9 uT off joins the F1 walk's session and moves its median."""
+    f1 = sorted((SITE / "F1" / "path_data_files").glob("*.txt.gz"))[0]
+    f2 = read_trace(sorted((SITE / "F2" / "path_data_files").glob("*.txt.gz"))[0])
+    f2.header.model = read_trace(f1).header.model
+    xyz = ["bx", "by", "bz"]
+    bias = read_trace(f1).sensors.query("stream == 'magnetic_field_uncalibrated'")[xyz].median()
+    unc = f2.sensors["stream"] == "magnetic_field_uncalibrated"
+    f2.sensors.loc[unc, xyz] = (bias.to_numpy() + [1.9, 0, 0]).astype("float32")
+    write_trace(tmp_path / "in" / "f2.txt.gz", f2)
+    for name in ("a", "b"):
+        ingest([f1, tmp_path / "in" / "f2.txt.gz"], tmp_path / name)
+    process_store(tmp_path / "a", floor="F1")
+    report = process_store(tmp_path / "a")
+    process_store(tmp_path / "b")
+    cols = ["trace_id", "inputs_sha256", "session", "parts_json", "summary_json"]
+    a, b = processed_catalog(tmp_path / "a")[cols], processed_catalog(tmp_path / "b")[cols]
+    assert a["session"].nunique() == 1  # one session over both floors
+    pd.testing.assert_frame_equal(a, b)
+    # the F1 run already saw the F2 walk's bias: the full run keeps the F1 walk
+    assert report.processed == ["f2"] and len(report.unchanged) == 1
+
+
+def test_a_walk_with_a_missing_raw_part_fails_alone_until_reingested(tmp_path):
+    """One missing raw part file stopped `process` for the whole store, and ingesting the
+    file again called it unchanged."""
+    store = _two_floors(tmp_path / "s", 1)
+    walk = sorted((SITE / "F1" / "path_data_files").glob("*.txt.gz"))[0]
+    tid = walk.name.split(".")[0]
+    part = next(store.glob(f"sensors/**/{tid}-*.parquet"))
+    part.unlink()
+    res = CliRunner().invoke(main, ["process", "--store", str(store)])
+    assert res.exit_code == 1
+    assert "processed 1, unchanged 0, skipped 0, failed 1" in res.output
+    assert f"failed {tid}: {part}: missing" in res.output
+    assert "Ingest their files again to repair them" in res.output
+    cat = processed_catalog(store).set_index("trace_id")
+    assert cat.loc[tid, "status"] == "failed"
+    s = ingest([walk], store)
+    assert [o.status for o in s.outcomes] == ["repaired"]
+    report = process_store(store)
+    assert report.processed == [tid] and not report.failed
+    assert (processed_catalog(store)["status"] == "ok").all()
+
+
+def test_process_cleans_temporaries_and_checks_its_files(tmp_path):
+    store = _two_floors(tmp_path / "s", 1)
+    process_store(store)
+    folder = next((store / "processed" / "samples").rglob("*.parquet")).parent
+    stale = folder / ".tmp-999999-deadbeef-x"  # left by a killed run
+    stale.write_bytes(b"half a file")
+    part = next((store / "processed" / "steps").rglob("*.parquet"))
+    report = process_store(store)
+    assert not stale.exists() and len(report.unchanged) == 2
+    # a processed file changed after it was written is refused by name, and processed again
+    data = bytearray(part.read_bytes())
+    data[-12] ^= 0x01  # in the footer, which page checksums do not cover
+    part.write_bytes(bytes(data))
+    with pytest.raises(StoreError, match=f"{part.name}: processed part changed"):
+        processed_table(store, "steps")
+    data[-12] ^= 0x01
+    part.write_bytes(bytes(data[:-1]))  # truncated: other size, so processed again
+    assert len(process_store(store).processed) == 1
+    assert len(processed_table(store, "steps")) > 0

@@ -223,15 +223,140 @@ def test_crash_during_ingest_leaves_a_consistent_store(tmp_path, point):
     assert np.array_equal(sorted(store.catalog()["trace_id"]), ["w0", "w1", "w2", "w9"])
 
 
-def test_a_corrupted_part_file_is_named_not_read(tmp_path):
-    """A flipped byte inside a stored Parquet page: the page checksum written at ingest is
-    verified on read (without it, pyarrow decodes most such flips into wrong numbers)."""
+def _one_sample_trace(tmp_path: Path) -> SurveyStore:
     trace = min((Path(__file__).resolve().parents[1] / "data" / "sample_site" / "F1"
                  / "path_data_files").glob("*.txt.gz"))
     ingest([trace], tmp_path / "s")
-    part = min((tmp_path / "s").glob("sensors/**/*.parquet"))
+    return SurveyStore.open(tmp_path / "s")
+
+
+def _as_schema_1(store: SurveyStore) -> None:
+    """Make ``store`` what indoormap wrote before part hashes (schema version 1)."""
+    import pyarrow.parquet as pq
+
+    path = store.root / "catalog.parquet"
+    pq.write_table(pq.read_table(path).drop_columns(["parts_json"]), path)
+    (store.root / "store.json").write_text('{"format": "indoormap-survey-store", '
+                                           '"schema_version": 1}')
+
+
+def test_a_corrupted_part_file_is_named_not_read(tmp_path):
+    """A flipped byte inside a stored Parquet page: refused by the part's sha256 in the
+    catalog, and in a schema-1 store (no part hashes) by the page checksum written at ingest
+    (without it, pyarrow decodes most such flips into wrong numbers)."""
+    store = _one_sample_trace(tmp_path)
+    part = min(store.root.glob("sensors/**/*.parquet"))
     data = bytearray(part.read_bytes())
     data[len(data) // 2] ^= 0x10
     part.write_bytes(bytes(data))
+    with pytest.raises(StoreError, match=f"{part.name}: part file changed since it was written"):
+        store.table("sensors")
+    _as_schema_1(store)
     with pytest.raises(StoreError, match=f"{part.name}: missing, unreadable or corrupted"):
+        SurveyStore.open(store.root).table("sensors")
+
+
+def test_footer_flips_and_swapped_parts_are_refused(tmp_path):
+    """Page checksums do not cover a Parquet footer, where a flip can rename a column (a
+    KeyError far away, before) or change a type; and a part file swapped for another walk's
+    was read as this walk's. Both are StoreErrors naming the file, with part hashes (schema
+    2) and without (schema 1: row counts, columns and trace id are checked)."""
+    _walks(tmp_path / "in", 2)
+    ingest([tmp_path / "in"], tmp_path / "s")
+    store = SurveyStore.open(tmp_path / "s")
+    w0, w1 = (min(store.root.glob(f"waypoints/**/w{i}-*.parquet")) for i in (0, 1))
+    good = w0.read_bytes()
+    for schema in (2, 1):
+        if schema == 1:
+            _as_schema_1(store)
+            store = SurveyStore.open(store.root)
+        footer = good.index(b"x_m")  # the schema's column name, in the footer
+        w0.write_bytes(good[:footer] + b"q" + good[footer + 1:])
+        with pytest.raises(StoreError, match=w0.name):
+            store.table("waypoints", trace_ids=["w0"])
+        w0.write_bytes(w1.read_bytes())
+        with pytest.raises(StoreError, match=w0.name + (
+                ": part file changed" if schema == 2 else r": holds \d+ rows of \['w1'\]")):
+            store.table("waypoints", trace_ids=["w0"])
+        w0.write_bytes(good)
+        n = int(store.catalog().set_index("trace_id").loc["w0", "n_waypoints"])
+        assert len(store.table("waypoints", trace_ids=["w0"])) == n > 0
+
+
+def test_a_damaged_catalog_is_refused(tmp_path):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    _walks(tmp_path / "in", 2)
+    ingest([tmp_path / "in"], tmp_path / "s")
+    path = tmp_path / "s" / "catalog.parquet"
+    table = pq.read_table(path)
+    pq.write_table(table.drop_columns(["floor"]), path)
+    with pytest.raises(StoreError, match=r"catalog.parquet: catalog lacks columns \['floor'\]"):
+        SurveyStore.open(tmp_path / "s").catalog()
+    pq.write_table(pa.concat_tables([table, table.slice(1, 1)]), path)
+    with pytest.raises(StoreError, match="damaged catalog: trace id 'w1' has 2 rows"):
         SurveyStore.open(tmp_path / "s").table("sensors")
+
+
+def test_a_file_renamed_and_replaced_in_one_run_loses_nothing(tmp_path):
+    """w0 renamed to w5 and other content put at w0, in one run: w5 was called a duplicate
+    of the stored w0, whose content this same run replaced, so it ended in no catalog row."""
+    (p,) = _walks(tmp_path / "in", 1)
+    ingest([p], tmp_path / "s")
+    old = p.read_bytes()
+    (tmp_path / "in" / "w5.txt.gz").write_bytes(old)
+    write_trace(p, small_trace(n=30, seed=99, trace_id="w0"))
+    s = ingest([tmp_path / "in"], tmp_path / "s")
+    assert sorted((o.trace_id, o.status) for o in s.outcomes) == [("w0", "changed"),
+                                                                 ("w5", "new")]
+    store = SurveyStore.open(tmp_path / "s")
+    assert len(store.table("sensors", trace_ids=["w5"])) == 7 * 80
+    assert len(store.table("sensors", trace_ids=["w0"])) == 7 * 30
+    # a copy of content that stays is still a duplicate
+    (tmp_path / "in" / "w6.txt.gz").write_bytes(old)
+    s = ingest([tmp_path / "in" / "w6.txt.gz"], tmp_path / "s")
+    assert [(o.status, o.detail) for o in s.outcomes] == [("duplicate", "same content as w5")]
+
+
+def test_reingest_repairs_a_missing_part(tmp_path):
+    _walks(tmp_path / "in", 2)
+    ingest([tmp_path / "in"], tmp_path / "s")
+    part = min((tmp_path / "s").glob("wifi/**/w1-*.parquet"))
+    part.unlink()
+    store = SurveyStore.open(tmp_path / "s")
+    with pytest.raises(StoreError, match=f"{part.name}: missing"):
+        store.table("wifi", trace_ids=["w1"])
+    s = ingest([tmp_path / "in"], tmp_path / "s")
+    assert sorted((o.trace_id, o.status) for o in s.outcomes) == [("w0", "unchanged"),
+                                                                 ("w1", "repaired")]
+    assert len(store.table("wifi", trace_ids=["w1"])) > 0
+
+
+def test_a_schema_1_store_is_read_and_upgraded_at_its_next_commit(tmp_path):
+    _walks(tmp_path / "in", 2)
+    ingest([tmp_path / "in"], tmp_path / "s")
+    store = SurveyStore.open(tmp_path / "s")
+    _as_schema_1(store)
+    store = SurveyStore.open(tmp_path / "s")
+    assert len(store.table("sensors")) == 2 * 7 * 80
+    assert ingest([tmp_path / "in"], store).status_counts() == {"unchanged": 2}
+    write_trace(tmp_path / "in" / "w7.txt.gz", small_trace(n=40, seed=7, trace_id="w7"))
+    ingest([tmp_path / "in"], store)
+    assert '"schema_version": 2' in (tmp_path / "s" / "store.json").read_text()
+    cat = store.catalog()
+    assert list(cat["parts_json"] == "") == [True, True, False]  # w0, w1 kept as they were
+    assert len(store.table("sensors")) == 2 * 7 * 80 + 7 * 40
+
+
+def test_a_killed_ingest_worker_is_a_clear_error(tmp_path, monkeypatch):
+    """A worker killed (here at its start) broke the pool: a BrokenProcessPool traceback."""
+    _walks(tmp_path / "in", 4)
+    ingest([tmp_path / "in" / "w0.txt.gz"], tmp_path / "s")
+    before = {p: (tmp_path / "s" / p).read_bytes() for p in _files(tmp_path / "s")}
+    monkeypatch.setenv("INDOORMAP_CRASH_AT", "ingest:worker")
+    with pytest.raises(StoreError, match="an ingest worker process died"):
+        ingest([tmp_path / "in"], tmp_path / "s", workers=2, batch_bytes=1)
+    monkeypatch.delenv("INDOORMAP_CRASH_AT")
+    after = {p: (tmp_path / "s" / p).read_bytes() for p in _files(tmp_path / "s")}
+    assert after == before
