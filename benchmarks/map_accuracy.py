@@ -38,7 +38,7 @@ def main() -> int:
         return 0
     from mapping.build import BuildParams, build_smoothing
     from mapping.floorplan import read_floor_plan
-    from mapping.grid import grid_for_extent, reachable_mask
+    from mapping.grid import reachable_mask
     from mapping.holdout import (
         default_pipelines,
         floor_samples_with_baseline_positions,
@@ -63,7 +63,7 @@ def main() -> int:
         for f in args.floors:
             t = time.perf_counter()
             samples = floor_samples_with_baseline_positions(store, f)
-            grid = grid_for_extent(plans[f].width_m, plans[f].height_m, 0.5)
+            grid = plans[f].grid(0.5)
             mask = reachable_mask(grid, plans[f].reachable)
             params = BuildParams() if args.interpolator is None else \
                 BuildParams(raster=RasterParams(method=args.interpolator))

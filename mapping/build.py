@@ -32,7 +32,7 @@ from survey.store import SurveyStore
 
 from .bundle_writer import BundleContent, Layer
 from .floorplan import FloorPlan
-from .grid import grid_for_extent, reachable_mask
+from .grid import reachable_mask
 from .field_layers import FIELD_LAYERS, field_rasters, floor_steps, levelling_samples, \
     reduce_field
 from .holdout import BANDWIDTH_CANDIDATES_M, choose_smoothing
@@ -160,7 +160,7 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
     say = progress or (lambda msg: None)
     pcat = floor_walks(store, site, floor, exclude_walks)
     cat = store.traces(site, floor).set_index("trace_id")
-    grid = grid_for_extent(plan.width_m, plan.height_m, params.cell_m)
+    grid = plan.grid(params.cell_m)
     mask = reachable_mask(grid, plan.reachable)
     if not mask.any():
         raise BuildError(f"floor {floor}: the reachable area is empty at {params.cell_m} m cells")
@@ -194,7 +194,7 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
         fine = None
         if cell_m < grid.cell_m:
             try:
-                fine = grid_for_extent(plan.width_m, plan.height_m, cell_m)
+                fine = plan.grid(cell_m)
             except ValueError as err:  # over the grid cap
                 say(f"{floor}: kept {grid.cell_m:g} m cells for a {bw:g} m kernel ({err})")
         if fine is not None:

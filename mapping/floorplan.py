@@ -26,6 +26,8 @@ import shapely
 import shapely.errors
 from shapely.geometry import shape
 
+from localize.bundle import Grid
+from mapping.grid import grid_for_extent
 from survey.errors import IndoormapError
 
 
@@ -48,11 +50,15 @@ class FloorPlan:
     obstacles : shapely geometry
         Union of obstacle polygons (shops, walls, pillars).
     width_m, height_m : float
-        Extent of the map frame.
+        Extent of the map frame, from ``(x0_m, y0_m)``.
     repairs : tuple of str
         What the reader mended: one line per invalid polygon (a self-intersecting outline, say)
         that was made valid, naming the feature and GEOS's reason. Worth showing the user: a
         bow-tie outline is built as the two triangles it encloses.
+    x0_m, y0_m : float
+        Lower-left corner of the map frame: 0, or the plan's lowest coordinate where a plan in
+        metres (GeoJSON, DXF) reaches below 0. Plans are never moved: walks are recorded in
+        the plan's own coordinates.
     """
 
     outline: shapely.Geometry
@@ -60,6 +66,13 @@ class FloorPlan:
     width_m: float
     height_m: float
     repairs: tuple[str, ...] = ()
+    x0_m: float = 0.0
+    y0_m: float = 0.0
+
+    def grid(self, cell_m: float) -> Grid:
+        """The raster grid over the map frame with ``cell_m`` (m) cells."""
+        return grid_for_extent(self.width_m, self.height_m, cell_m, x0_m=self.x0_m,
+                               y0_m=self.y0_m)
 
     @property
     def reachable(self) -> shapely.Geometry:
@@ -165,6 +178,7 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
             raise FloorPlanError(f"{info}: needs map_info.width and map_info.height ({err})") \
                 from err
         width, height = checked_size(info, width, height)
+        x0 = y0 = 0.0
         lon0, lat0, lon1, lat1 = outline.bounds
         if lon1 <= lon0 or lat1 <= lat0:
             raise FloorPlanError(f"{geo}: degenerate outline bounds")
@@ -176,13 +190,7 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
         geoms = [None if g is None else shapely.transform(g, to_m) for g in geoms]
         outline = geoms[outline_idx]
     else:
-        minx, miny = outline.bounds[:2]
-        if min(minx, miny) < -1e-6:
-            raise FloorPlanError(
-                f"{geo}: the outline reaches ({minx:g}, {miny:g}) m, below 0: the map frame "
-                "of a plan in metres runs from (0, 0) to its largest coordinates, and what "
-                "lies below 0 would be cut off (shift the plan and its walk lines)")
-        width, height = checked_size(geo, *outline.bounds[2:])
+        x0, y0, width, height = metre_frame(geo, outline)
     keep = obstacle_filter or (lambda props: True)
     repairs: list[str] = []
     outline = made_valid(outline, f"{geo}: feature {outline_idx} (the outline)", repairs)
@@ -192,7 +200,17 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
                  and g.geom_type in ("Polygon", "MultiPolygon")
                  and keep(f.get("properties") or {})]
     obstacle_union = shapely.union_all(obstacles) if obstacles else shapely.Polygon()
-    return checked_plan(FloorPlan(outline, obstacle_union, width, height, tuple(repairs)), geo)
+    return checked_plan(FloorPlan(outline, obstacle_union, width, height, tuple(repairs),
+                                  x0, y0), geo)
+
+
+def metre_frame(path: Path, outline: shapely.Geometry) -> tuple[float, float, float, float]:
+    """``(x0_m, y0_m, width_m, height_m)`` of the map frame of a plan in metres: from (0, 0),
+    or from the outline's lowest coordinates where they are below 0, to its largest."""
+    minx, miny, maxx, maxy = outline.bounds
+    x0, y0 = min(0.0, float(minx)), min(0.0, float(miny))
+    width, height = checked_size(path, maxx - x0, maxy - y0)
+    return x0, y0, width, height
 
 
 def checked_plan(plan: FloorPlan, source: Path) -> FloorPlan:

@@ -5,7 +5,9 @@ loop is a hole) on the outline layer make the floor outline (the largest one if 
 shapes on obstacle layers are obstacles; open polylines and LINE entities on wall layers become
 walls of ``wall_width_m`` (a hatch there is taken as the wall's area). Reachable area = outline
 minus obstacles minus walls. Coordinates are taken in metres, scaled by the drawing's
-``$INSUNITS`` (millimetres, centimetres, feet, ...; unknown codes are refused).
+``$INSUNITS`` (millimetres, centimetres, feet, ...; unknown codes are refused), and kept where
+they are: the map frame is the drawing's, from (0, 0) or from its lowest coordinates if they
+are negative, so walks recorded in the drawing's coordinates fit it.
 """
 
 from __future__ import annotations
@@ -18,8 +20,8 @@ import numpy as np
 import shapely
 import shapely.errors
 
-from .floorplan import (MAX_FLOOR_SIDE_M, FloorPlan, FloorPlanError, checked_plan, checked_size,
-                        made_valid)
+from .floorplan import (MAX_FLOOR_SIDE_M, FloorPlan, FloorPlanError, checked_plan, made_valid,
+                        metre_frame)
 
 _UNIT_TO_M = {0: 1.0, 1: 0.0254, 2: 0.3048, 3: 1609.344, 4: 0.001, 5: 0.01, 6: 1.0,
               7: 1000.0, 10: 0.9144, 13: 1e-6, 14: 0.1, 15: 10.0, 16: 100.0,
@@ -83,13 +85,9 @@ def read_dxf_floor_plan(path: str | os.PathLike, *,
     outline = max(polygons, key=lambda g: g.area)
     obstacles = shapely.union_all(shapes["obstacle"] + shapes["wall"]) \
         if shapes["obstacle"] or shapes["wall"] else shapely.Polygon()
-    minx, miny, maxx, maxy = outline.bounds
-    if minx < 0 or miny < 0:  # the map frame starts at the outline's lower-left corner
-        outline = shapely.affinity.translate(outline, -minx, -miny)
-        obstacles = shapely.affinity.translate(obstacles, -minx, -miny)
-        minx, miny, maxx, maxy = outline.bounds
-    return checked_plan(FloorPlan(outline, obstacles, *checked_size(path, maxx, maxy),
-                                  tuple(repairs)), path)
+    x0, y0, width, height = metre_frame(path, outline)
+    return checked_plan(FloorPlan(outline, obstacles, width, height, tuple(repairs), x0, y0),
+                        path)
 
 
 def _finite(points: list[tuple[float, float]]) -> list[tuple[float, float]]:

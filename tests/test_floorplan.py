@@ -125,7 +125,7 @@ def _square(x0: float, y0: float, side: float) -> dict:
     ([{"type": "Polygon", "coordinates": [[[0, 0], [10, 10], [0, 0], [0, 0]]]}],
      "the outline has no area"),
     ([_square(121.3, 31.2, 1e-3)], "needs its floor_info.json"),  # lon/lat, no floor_info
-    ([_square(-1000, -1000, 1040)], r"reaches \(-1000, -1000\) m, below 0"),
+    ([_square(-1000, -1000, 30000)], "floor size 30000 x 30000 m is over 20000 m"),
     ([_square(0, 0, 10), _square(-1, -1, 12)], "the obstacles cover the whole outline"),
 ])
 def test_plans_that_cannot_hold_a_walk_are_refused_when_read(tmp_path, geometries, match):
@@ -193,3 +193,26 @@ def test_dxf_units_stored_as_text_are_read(tmp_path):
     (tmp_path / "plan.dxf").write_text(text)
     plan = read_floor_plan(tmp_path / "plan.dxf")
     assert (plan.width_m, plan.height_m) == pytest.approx((40.0, 25.0))
+
+
+def test_plans_in_metres_keep_their_coordinates(tmp_path):
+    """A DXF drawing reaching below 0 was moved to start at (0, 0), so walks recorded in the
+    drawing's coordinates missed it silently; a GeoJSON plan in metres there was refused.
+    Both now keep their coordinates; the map frame starts at their lowest ones."""
+    doc = ezdxf.new()
+    doc.modelspace().add_lwpolyline([(-60, -20), (-20, -20), (-20, 5), (-60, 5)], close=True,
+                                    dxfattribs={"layer": "OUTLINE"})
+    doc.modelspace().add_circle((-40, -5), 3, dxfattribs={"layer": "OBSTACLES"})
+    doc.saveas(tmp_path / "neg.dxf")
+    plans = [read_floor_plan(tmp_path / "neg.dxf"),
+             read_floor_plan(_plan(tmp_path, _square(-60, -20, 25), _square(-45, -10, 4)))]
+    for plan in plans:
+        assert plan.outline.bounds[:2] == (-60, -20)  # not moved
+        assert (plan.x0_m, plan.y0_m) == (-60, -20)
+        grid = plan.grid(0.5)
+        assert (grid.x0_m, grid.y0_m) == (-60, -20)
+        mask = reachable_mask(grid, plan.reachable)
+        xc, yc = grid.cell_centers()
+        inside = mask[np.searchsorted(yc, -15.0), np.searchsorted(xc, -55.0)]
+        assert inside and mask.sum() * 0.25 == pytest.approx(plan.reachable.area, rel=0.05)
+    assert (plans[0].width_m, plans[0].height_m) == (40.0, 25.0)  # -60 .. -20, -20 .. 5
