@@ -60,6 +60,7 @@ def main() -> None:
 def _register() -> None:
     from .cli_ingest import ingest_command
     from .cli_process import process_command, survey_report_command
+    from .cli_store import store_group
     from .sim.cli import simulate
 
     from mapping.cli_build import build_command, bundle_group
@@ -67,8 +68,8 @@ def _register() -> None:
     from localize.cli_radio import floor_command, wifi_locate_command
     from mapping.cli_validate import validate_command
 
-    for command in (simulate, ingest_command, process_command, survey_report_command,
-                    build_command, bundle_group, validate_command, localize_command,
+    for command in (simulate, ingest_command, store_group, process_command,
+                    survey_report_command, build_command, bundle_group, validate_command, localize_command,
                     evaluate_command, floor_command, wifi_locate_command):
         main.add_command(command)
 

@@ -351,6 +351,27 @@ def processed_part(store: SurveyStore | str, name: str, walk: pd.Series, *,
     return table.to_pandas()
 
 
+def verify_processed(store: SurveyStore | str,
+                     progress: Callable[[int, int], None] | None = None) -> dict[str, str]:
+    """Read every processed file the processed catalog names (walks that processed ``ok``),
+    checked; returns ``{trace_id: problem}`` of the walks that fail (empty: all whole, or
+    nothing processed yet)."""
+    store = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
+    if not (store.root / "processed" / "catalog.parquet").exists():
+        return {}
+    walks = processed_walks(store)
+    problems = {}
+    for i, (_, walk) in enumerate(walks.iterrows()):
+        try:
+            for name in PROCESSED_TABLES:
+                processed_part(store, name, walk)
+        except StoreError as err:
+            problems[walk["trace_id"]] = str(err)
+        if progress:
+            progress(i + 1, len(walks))
+    return problems
+
+
 def processed_table(store: SurveyStore | str, name: str, *, site: str | None = None,
                     floor: str | None = None) -> pd.DataFrame:
     """One processed table over the walks that processed ``ok``, with a ``trace_id`` column."""

@@ -21,7 +21,7 @@ import hashlib
 import json
 import os
 import re
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -342,6 +342,26 @@ class SurveyStore:
                              f"{rows} rows of {get('trace_id')!r} (a part file swapped or "
                              "damaged)")
         return table
+
+    def verify(self, progress: Callable[[int, int], None] | None = None
+               ) -> dict[str, str]:
+        """Read every part file the catalog names, with all the checks a read makes; returns
+        ``{trace_id: problem}`` of the traces that fail (empty: the store is whole)."""
+        cat = self.catalog()
+        problems = {}
+        for i, row in enumerate(cat.itertuples(index=False)):
+            try:
+                for name in TABLES:
+                    self._read_part(name, row)
+            except StoreError as err:
+                problems[row.trace_id] = str(err)
+            if progress:
+                progress(i + 1, len(cat))
+        return problems
+
+    def schema_version(self) -> int:
+        """The store's schema version (``store.json``)."""
+        return int(json.loads((self.root / "store.json").read_text())["schema_version"])
 
     # ---- writing ----------------------------------------------------------------------------
 

@@ -360,3 +360,33 @@ def test_a_killed_ingest_worker_is_a_clear_error(tmp_path, monkeypatch):
     monkeypatch.delenv("INDOORMAP_CRASH_AT")
     after = {p: (tmp_path / "s" / p).read_bytes() for p in _files(tmp_path / "s")}
     assert after == before
+
+
+def test_store_info_and_verify_cli(tmp_path):
+    from click.testing import CliRunner
+
+    from survey.cli import main
+    from survey.process_store import process_store
+
+    traces = sorted((Path(__file__).resolve().parents[1] / "data" / "sample_site" / "F1"
+                     / "path_data_files").glob("*.txt.gz"))[:2]
+    ingest(traces, tmp_path / "s")
+    runner = CliRunner()
+    info = runner.invoke(main, ["store", "info", str(tmp_path / "s")])
+    assert info.exit_code == 0, info.output
+    assert "schema version 2, 2 traces" in info.output and "processed: not yet" in info.output
+    process_store(tmp_path / "s")
+    ok = runner.invoke(main, ["store", "verify", str(tmp_path / "s")])
+    assert ok.exit_code == 0 and "ok      " in ok.output and "(2 traces)" in ok.output
+    assert "processed: ok 2" in runner.invoke(main, ["store", "info", str(tmp_path / "s")]).output
+    raw = min((tmp_path / "s").glob("ble/**/*.parquet"))
+    done = min((tmp_path / "s" / "processed").glob("steps/**/*.parquet"))
+    for part in (raw, done):
+        data = bytearray(part.read_bytes())
+        data[len(data) // 3] ^= 0x04
+        part.write_bytes(bytes(data))
+    bad = runner.invoke(main, ["store", "verify", str(tmp_path / "s")])
+    assert bad.exit_code == 1
+    assert f"FAILED  trace {raw.name.split('-')[0]}: {raw}: part file changed" in bad.output
+    assert f"FAILED  processed walk {done.name.split('-')[0]}: {done}: processed part changed" \
+        in bad.output
