@@ -5,10 +5,14 @@ importing this module stays light), pick the floor bundle of each walk (a floor 
 folder of floor bundles: the walk's floor id decides), and run one of
 :data:`localize.methods.METHODS`.
 
-Start position (``--start``): ``auto`` (the first Wi-Fi fix of the walk when the bundle has
-fingerprints and a scan of the walk can be located, else the walk's first waypoint),
-``waypoint`` (first waypoint, as the ILC PDR baseline), ``radio`` (first Wi-Fi fix, an
-error without one), or ``X,Y`` in metres.
+Radio (:func:`localize.walk_radio.walk_radio`): the bundle's Wi-Fi fingerprints when a Wi-Fi
+scan of the walk can be located, else its BLE fingerprints when a BLE window of the walk can
+(a walk without Wi-Fi scans; BLE fixes are about twice as far off), for the start and the
+radio updates alike.
+
+Start position (``--start``): ``auto`` (the first radio fix of the walk, Wi-Fi else BLE as
+above, else the walk's first waypoint), ``waypoint`` (first waypoint, as the ILC PDR
+baseline), ``radio`` (first radio fix, an error without one), or ``X,Y`` in metres.
 
 A walk that cannot be read or localized is reported (file and reason) and the others go on;
 the command then exits with status 1.
@@ -26,6 +30,9 @@ import numpy as np
 from localize.cli_common import TraceIds, WalkFailures, read_walk, trace_files
 from localize.methods import METHODS, SMOOTHABLE
 from survey.publish import refuse_to_replace
+
+START_HELP = ("auto (the walk's first Wi-Fi fix; for a walk without one, its first BLE fix; "
+              "else its first waypoint), waypoint, radio, or X,Y (m).")
 
 
 def _parse_start(start: str) -> str | tuple[float, float]:
@@ -45,17 +52,23 @@ def _parse_start(start: str) -> str | tuple[float, float]:
     return x, y
 
 
-def _start_of(start_opt: str | tuple[float, float], steps, radio, waypoints_xy
+def _start_of(start_opt: str | tuple[float, float], wr, waypoints_xy
               ) -> tuple[tuple[float, float] | None, str]:
-    """:func:`localize.start.start_position`, its errors naming the option to change."""
+    """:func:`localize.start.start_position` for the walk's radio ``wr``
+    (:class:`localize.walk_radio.WalkRadio`), its errors naming the option to change, and a
+    start at a BLE fix saying why BLE."""
     from localize.errors import LocalizationError
     from localize.start import start_position
 
     try:
-        return start_position(start_opt, steps, radio, waypoints_xy)
+        xy, how = start_position(start_opt, wr.steps, wr.radio, waypoints_xy,
+                                 radio_name=wr.fix_name or "Wi-Fi")
     except LocalizationError as err:
         given = start_opt if isinstance(start_opt, str) else "X,Y"
         raise LocalizationError(f"{err} (--start {given})") from err
+    if xy is None and wr.reason:
+        how += f" ({wr.reason})"
+    return xy, how
 
 
 def _warn_if_off_floor(bundle, start_xy: tuple[float, float] | None) -> None:
@@ -96,19 +109,23 @@ def _write_table(table, target: Path, fmt: str, overwrite: bool = False) -> None
 
 def _prepare_walk(trace, maps, start_opt: str | tuple[float, float], waypoints_xy):
     """What both commands do before localizing a walk: its steps, its floor's bundle (with a
-    warning when the bundle was built from the walk), the radio model for its phone, and its
-    start (with a warning when it is off the floor). Returns ``(steps, bundle, radio,
-    start_xy, how)``."""
-    from localize.walk_radio import radio_for_walk
-    from survey.step_summaries import step_summaries
+    warning when the bundle was built from the walk), the radio model for its phone (Wi-Fi,
+    else BLE: :func:`localize.walk_radio.walk_radio`; the steps then carry the walk's BLE
+    windows), and its start (with a warning when it is off the floor). Returns ``(wr, bundle,
+    start_xy, how)``, ``wr`` the :class:`~localize.walk_radio.WalkRadio` (its ``steps`` and
+    ``radio`` are what to localize with); ``how`` names BLE and why when BLE is used."""
+    from localize.walk_radio import walk_radio
+    from survey.step_summaries import ble_scans_of, step_summaries
 
     steps = step_summaries(trace)
     bundle = maps.select(steps)
     _warn_if_source_walk(bundle, trace.trace_id)
-    radio = radio_for_walk(bundle, trace.header.model, steps.scans)[0]
-    start_xy, how = _start_of(start_opt, steps, radio, waypoints_xy)
+    wr = walk_radio(bundle, trace.header.model, steps, ble_scans_of(trace))
+    start_xy, how = _start_of(start_opt, wr, waypoints_xy)
+    if wr.kind == "ble" and start_xy is not None:  # a start at a BLE fix says so already
+        how += f"; BLE fixes ({wr.reason})"
     _warn_if_off_floor(bundle, start_xy)
-    return steps, bundle, radio, start_xy, how
+    return wr, bundle, start_xy, how
 
 
 def _row_name(method: str, smooth: bool) -> str:
@@ -131,9 +148,7 @@ def _params(particles: int | None):
                    "(<trace_id>.smoothed.* with --smooth).")
 @click.option("--method", default="indoormap", show_default=True,
               type=click.Choice(list(METHODS)))
-@click.option("--start", default="auto", show_default=True,
-              help="auto (the walk's first Wi-Fi fix, else its first waypoint), "
-                   "waypoint, radio, or X,Y (m).")
+@click.option("--start", default="auto", show_default=True, help=START_HELP)
 @click.option("--particles", type=click.IntRange(1, 1_000_000), default=None,
               help="Particles (default 300).")
 @click.option("--seed", type=int, default=0, show_default=True)
@@ -179,9 +194,9 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
         for existing in (target, png) if plot else (target,):
             refuse_to_replace(existing, overwrite)  # before the work, not after
         xy_wp = waypoints_of(trace)[1]
-        steps, bundle, radio, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp)
-        loc = make_localizer(method, bundle, _params(particles), radio=radio, rng=seed)
-        track = loc.run(steps, start_xy=start_xy, smooth=smooth)
+        wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp)
+        loc = make_localizer(method, bundle, _params(particles), radio=wr.radio, rng=seed)
+        track = loc.run(wr.steps, start_xy=start_xy, smooth=smooth)
         _write_table(track.to_arrow(), target, fmt, overwrite=overwrite)
         msg = (f"{trace.trace_id}: {len(track)} {'smoothed ' if smooth else ''}steps on "
                f"{bundle.floor_id} "
@@ -212,9 +227,7 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
 @click.argument("walks", nargs=-1, required=True, type=click.Path(exists=True))
 @click.option("--methods", default="indoormap,pf_no_mag,pdr", show_default=True,
               help="Comma-separated methods.")
-@click.option("--start", default="auto", show_default=True,
-              help="auto (the walk's first Wi-Fi fix, else its first waypoint), "
-                   "waypoint, radio, or X,Y (m).")
+@click.option("--start", default="auto", show_default=True, help=START_HELP)
 @click.option("--particles", type=click.IntRange(1, 1_000_000), default=None,
               help="Particles of the particle filters (default 300).")
 @click.option("--seed", type=int, default=0, show_default=True)
@@ -278,11 +291,13 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
         if len(t_wp) == 0:
             click.echo(f"{f}: no waypoints, skipped", err=True)
             return
-        steps, bundle, radio, start_xy, _ = _prepare_walk(trace, maps, start_opt, xy_wp)
+        wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp)
+        if wr.kind == "ble":  # the scores of this walk are BLE's, not Wi-Fi's
+            click.echo(f"{trace.trace_id}: start {how}", err=True)
         for m, sm in rows:  # a method failing on this walk leaves the others' rows alone
             def run(m=m, sm=sm):
-                loc = make_localizer(m, bundle, _params(particles), radio=radio, rng=seed)
-                track = loc.run(steps, start_xy=start_xy, smooth=sm)
+                loc = make_localizer(m, bundle, _params(particles), radio=wr.radio, rng=seed)
+                track = loc.run(wr.steps, start_xy=start_xy, smooth=sm)
                 err = waypoint_errors(track, t_wp, xy_wp)
                 errors[_row_name(m, sm)].append(err)
                 evaluated.add(trace.trace_id)

@@ -1,5 +1,6 @@
 """Where a walk's localization starts: a given position, the walk's first waypoint, or the
-first Wi-Fi/BLE fix (left to the localizer, which locates the walk's scans itself).
+first Wi-Fi/BLE fix (left to the localizer, which locates the walk's scans itself; which kind
+the walk's scans are is :func:`localize.walk_radio.walk_radio`'s choice).
 
 Policies (``start``):
 
@@ -29,8 +30,8 @@ START_POLICIES = ("auto", "waypoint", "radio")
 
 
 def start_position(start: str | Sequence[float], steps: StepSummaries,
-                   radio: RadioModel | None, waypoints_xy_m: ArrayLike
-                   ) -> tuple[tuple[float, float] | None, str]:
+                   radio: RadioModel | None, waypoints_xy_m: ArrayLike, *,
+                   radio_name: str = "Wi-Fi") -> tuple[tuple[float, float] | None, str]:
     """The start of a walk and how it was chosen.
 
     Parameters
@@ -43,12 +44,18 @@ def start_position(start: str | Sequence[float], steps: StepSummaries,
         The radio model the walk will be localized with.
     waypoints_xy_m : array-like, shape (k, 2)
         The walk's waypoints in time order (m); may be empty.
+    radio_name : str
+        What the radio model's fixes are called in ``how`` and errors: ``"Wi-Fi"``, ``"BLE"``
+        (:attr:`localize.walk_radio.WalkRadio.name`), ``"Wi-Fi or BLE"`` for the fallback
+        when both were tried (:attr:`~localize.walk_radio.WalkRadio.tried`).
 
     Returns
     -------
     (xy or None, how)
         ``xy`` None means: start at the localizer's first radio fix (``Localizer.run`` with
-        ``start_xy=None``); ``how`` says which start was taken, for logs.
+        ``start_xy=None``); ``how`` says which start was taken, for logs: ``"given"``,
+        ``"first <radio_name> fix"``, ``"first waypoint"`` or ``"first waypoint (no
+        <radio_name> fix in the walk)"``.
 
     Raises
     ------
@@ -68,16 +75,16 @@ def start_position(start: str | Sequence[float], steps: StepSummaries,
     if start == "radio":
         if radio is None:
             raise LocalizationError("a start at the radio fix needs a bundle with Wi-Fi or BLE "
-                                    "fingerprints (wifi_rp/wifi_fp tables)")
-        return None, "radio"
+                                    "fingerprints (wifi_rp/wifi_fp or ble_rp/ble_fp tables)")
+        return None, f"first {radio_name} fix"
     how = "first waypoint"
     if start == "auto" and radio is not None:
         if first_radio_fix(radio, steps) is not None:
-            return None, "radio"
-        how = "first waypoint (no Wi-Fi fix in the walk)"
+            return None, f"first {radio_name} fix"
+        how = f"first waypoint (no {radio_name} fix in the walk)"
     wp = np.asarray(waypoints_xy_m, dtype=np.float64).reshape(-1, 2)
     if not len(wp):
         raise LocalizationError(f"{steps.trace_id or 'walk'}: no waypoint to start from"
-                                + (" and no Wi-Fi fix" if start == "auto" else "")
+                                + (f" and no {radio_name} fix" if start == "auto" else "")
                                 + "; give a start position (X,Y in metres)")
     return (float(wp[0, 0]), float(wp[0, 1])), how

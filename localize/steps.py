@@ -12,6 +12,7 @@ the previous step to this one).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum
 
@@ -274,3 +275,25 @@ class StepSummaries:
         from dataclasses import replace
 
         return replace(self, **columns)
+
+    def with_scans(self, scans: Sequence[RadioScan]) -> StepSummaries:
+        """A copy carrying ``scans`` instead of its own: each attached to the first step at or
+        after its time, as :func:`survey.step_summaries.step_summaries` attaches Wi-Fi scans
+        (two scans within one step: the later one; a scan after the last step is dropped).
+
+        Examples
+        --------
+        >>> s = StepSummaries(t_ms=[0.0, 500.0, 1000.0], frequency_hz=[2.0] * 3,
+        ...                   delta_acc_ms2=[3.0] * 3, compass_deg=[0.0] * 3, turn_deg=[0.0] * 3,
+        ...                   strength_ut=[40.0] * 3, azimuth_deg=[0.0] * 3,
+        ...                   polar_deg=[30.0] * 3, attitude=[1, 1, 1])
+        >>> scan = RadioScan(700, np.array(["b1"]), np.array([-70.0]))
+        >>> [sc is not None for sc in s.with_scans([scan]).scans]
+        [False, False, True]
+        """
+        slots: list[RadioScan | None] = [None] * len(self)
+        for scan in sorted(scans, key=lambda sc: sc.t_ms):
+            i = int(np.searchsorted(self.t_ms, scan.t_ms, side="left"))
+            if i < len(self):
+                slots[i] = scan
+        return self.with_columns(scans=tuple(slots))

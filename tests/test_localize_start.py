@@ -39,17 +39,24 @@ def test_given_position_wins():
 
 
 def test_radio_policy_leaves_the_fix_to_the_localizer():
-    assert start_position("radio", _steps(["ap1"]), _Radio(), WAYPOINTS) == (None, "radio")
+    assert start_position("radio", _steps(["ap1"]), _Radio(), WAYPOINTS) == (
+        None, "first Wi-Fi fix")
 
 
 def test_auto_takes_the_radio_fix_when_a_scan_is_located():
-    assert start_position("auto", _steps(["ap1"]), _Radio(), WAYPOINTS) == (None, "radio")
+    assert start_position("auto", _steps(["ap1"]), _Radio(), WAYPOINTS) == (
+        None, "first Wi-Fi fix")
+    assert start_position("auto", _steps(["ap1"]), _Radio(), WAYPOINTS, radio_name="BLE") == (
+        None, "first BLE fix")
 
 
 @pytest.mark.parametrize("keys", [None, ["other"]])
 def test_auto_falls_back_to_the_first_waypoint_and_says_why(keys):
     xy, how = start_position("auto", _steps(keys), _Radio(), WAYPOINTS)
     assert xy == (1.0, 2.0) and how == "first waypoint (no Wi-Fi fix in the walk)"
+    assert start_position("auto", _steps(keys), _Radio(), WAYPOINTS,
+                          radio_name="Wi-Fi or BLE")[1] == \
+        "first waypoint (no Wi-Fi or BLE fix in the walk)"
     assert start_position("auto", _steps(keys), None, WAYPOINTS) == ((1.0, 2.0),
                                                                      "first waypoint")
 

@@ -65,6 +65,27 @@ def test_scans_carry_row_ages(walk):
         RadioScan(0, np.array(["a", "b"]), np.array([-50.0, -60.0]), np.array([0.0]))
 
 
+def test_with_scans_attaches_ble_windows_as_step_summaries_attach_wifi(walk):
+    """``StepSummaries.with_scans`` puts each scan on the first step at or after it, as the
+    survey side puts Wi-Fi scans: given the walk's own Wi-Fi scans it gives the same steps."""
+    from survey.step_summaries import ble_scans_of
+
+    _, trace = walk
+    s = step_summaries(trace)
+    again = s.with_scans(scans_of(trace)[::-1])  # any order
+    assert [sc is None for sc in again.scans] == [sc is None for sc in s.scans]
+    assert all(a.t_ms == b.t_ms and list(a.keys) == list(b.keys)
+               for a, b in zip(again.scans, s.scans) if a is not None)
+    ble = ble_scans_of(trace)
+    on_steps = [sc for sc in s.with_scans(ble).scans if sc is not None]
+    slots = {int(np.searchsorted(s.t_ms, sc.t_ms)) for sc in ble if sc.t_ms <= s.t_ms[-1]}
+    assert len(on_steps) == len(slots) > 5  # two windows within one step: the later one
+    assert all("@" in k for sc in on_steps for k in sc.keys)  # keyed as the BLE fingerprints
+    late = RadioScan(int(s.t_ms[-1]) + 1, np.array(["x"]), np.array([-60.0]))
+    assert all(sc is None for sc in s.with_scans([late]).scans)  # after the last step: dropped
+    assert all(sc is None for sc in s.with_scans([]).scans) and s.scans is not None
+
+
 def test_trace_without_magnetometer(walk):
     _, trace = walk
     sensors = trace.sensors[~trace.sensors["stream"].astype(str).str.startswith("magnetic")]

@@ -267,8 +267,16 @@ def test_walk_without_wifi(built, tmp_path):
     res = runner.invoke(main, ["floor", str(built), str(walk)])
     assert res.exit_code == 0 and "floor unknown" in res.stderr
     assert [r["floor"] for r in _rows(res.stdout) if r["level"] == "walk"] == [""]
-    # the radio-only method held its start to the end (a constant track, exit 0)
-    res = runner.invoke(main, ["localize", str(built), str(walk), "-o", str(tmp_path / "out"),
+    # the radio-only method goes by the walk's BLE windows
+    res = runner.invoke(main, ["localize", str(built), str(walk), "-o", str(tmp_path / "ble"),
+                               "--method", "radio", "--start", "waypoint", "--no-plot"])
+    assert res.exit_code == 0, res.output
+    assert "start first waypoint; BLE fixes (no Wi-Fi scans in the walk)" in res.output
+    # without beacons either, it held its start to the end (a constant track, exit 0)
+    lines = gzip.decompress(walk.read_bytes()).decode().splitlines(keepends=True)
+    bare = tmp_path / "bare.txt"
+    bare.write_text("".join(ln for ln in lines if "TYPE_BEACON" not in ln))
+    res = runner.invoke(main, ["localize", str(built), str(bare), "-o", str(tmp_path / "out"),
                                "--method", "radio", "--start", "waypoint"])
     assert res.exit_code == 1 and "no scan of the walk located by the radio model" in res.output
     assert not list((tmp_path / "out").glob("*.parquet"))
@@ -340,20 +348,28 @@ def test_site_without_wifi_builds_without_radio_tables(tmp_path):
     assert FloorClassifier.from_bundle(load_bundle(out / "_site")) is None
 
 
-def test_localize_auto_start_falls_back_to_the_first_waypoint(built, tmp_path):
-    """``--start auto`` (the default) on a bundle with fingerprints: the radio fix where the
-    walk has one, the first waypoint for the walk without Wi-Fi, not an error."""
+def test_localize_auto_start_falls_back_to_ble_then_to_the_first_waypoint(built, tmp_path):
+    """``--start auto`` (the default) on a bundle with fingerprints: the Wi-Fi fix where the
+    walk has one, the BLE fix for the walk without Wi-Fi, the first waypoint for a walk with
+    neither (not an error)."""
     no_wifi = SITE / "F1" / "path_data_files" / "641189778a6ffd7aae963f2c.txt.gz"
     with_wifi = next(p for p in sorted((SITE / "F1" / "path_data_files").glob("*.txt.gz"))
                      if p != no_wifi)
+    lines = gzip.decompress(no_wifi.read_bytes()).decode().splitlines(keepends=True)
+    assert not any("TYPE_WIFI" in ln for ln in lines) and any("TYPE_BEACON" in ln for ln in lines)
+    no_radio = tmp_path / "no_radio.txt"
+    no_radio.write_text("".join(ln for ln in lines if "TYPE_BEACON" not in ln))
     out = tmp_path / "loc"
     res = CliRunner().invoke(main, ["localize", str(built), str(no_wifi), str(with_wifi),
-                                    "-o", str(out), "--no-plot", "--particles", "100"])
+                                    str(no_radio), "-o", str(out), "--no-plot",
+                                    "--particles", "100"])
     assert res.exit_code == 0, res.output
-    assert "start first waypoint (no Wi-Fi fix in the walk)" in res.output
-    assert "start radio" in res.output
-    assert len(list(out.glob("*.parquet"))) == 2
-    res = CliRunner().invoke(main, ["localize", str(built), str(no_wifi), "-o",
+    assert "start first BLE fix (no Wi-Fi scans in the walk)" in res.output
+    assert "start first Wi-Fi fix," in res.output
+    assert "no_radio: " in res.output and \
+        "start first waypoint (no Wi-Fi or BLE fix in the walk)" in res.output
+    assert len(list(out.glob("*.parquet"))) == 3
+    res = CliRunner().invoke(main, ["localize", str(built), str(no_radio), "-o",
                                     str(tmp_path / "radio"), "--start", "radio"])
     assert res.exit_code == 1 and "no scan of the walk located by the radio model" in res.output
 
