@@ -27,12 +27,29 @@ from pathlib import Path
 import click
 import numpy as np
 
-from localize.cli_common import TraceIds, WalkFailures, read_walk, trace_files
+from localize.cli_common import AliasedOption, TraceIds, WalkFailures, read_walk, trace_files
 from localize.methods import METHODS, SMOOTHABLE
 from survey.publish import refuse_to_replace
 
 START_HELP = ("auto (the walk's first Wi-Fi fix; for a walk without one, its first BLE fix; "
               "else its first waypoint), waypoint, radio, or X,Y (m).")
+PARTICLES_HELP = "Particles of the particle filters (default 300)."
+#: Method names of ``evaluate --method`` (comma-separated, or the option repeated).
+DEFAULT_EVALUATE_METHODS = ("indoormap", "pf_no_mag", "pdr")
+
+
+def _method_names(values: tuple[str, ...]) -> list[str]:
+    """``evaluate --method``'s values (each a name or a comma-separated list), in order, each
+    once; a usage error for none or an unknown one."""
+    names = list(dict.fromkeys(m.strip() for v in values for m in v.split(",") if m.strip()))
+    if not names:
+        raise click.BadParameter(f"no method given; known: {', '.join(sorted(METHODS))}",
+                                 param_hint="--method")
+    unknown = [m for m in names if m not in METHODS]
+    if unknown:
+        raise click.BadParameter(f"unknown methods {unknown}; known: {sorted(METHODS)}",
+                                 param_hint="--method")
+    return names
 
 
 def _parse_start(start: str) -> str | tuple[float, float]:
@@ -150,15 +167,16 @@ def _params(particles: int | None):
               type=click.Choice(list(METHODS)))
 @click.option("--start", default="auto", show_default=True, help=START_HELP)
 @click.option("--particles", type=click.IntRange(1, 1_000_000), default=None,
-              help="Particles (default 300).")
+              help=PARTICLES_HELP)
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--format", "fmt", type=click.Choice(["parquet", "csv"]), default="parquet",
               show_default=True)
 @click.option("--plot/--no-plot", default=True, show_default=True,
-              help="Trajectory PNG over the bundle mask (needs matplotlib).")
+              help="Trajectory PNG per walk in OUT, over the bundle mask (needs matplotlib).")
 @click.option("--smooth", is_flag=True,
               help="Offline: positions from the whole walk, later steps included (particle "
-                   "filters and align; default: the real-time estimates).")
+                   "filters and align; default: the real-time estimates). wifi-locate's "
+                   "--smoothing walk|forward is the same choice for radio fixes alone.")
 @click.option("--overwrite", is_flag=True, help="Replace a walk's existing outputs in OUT.")
 def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, method: str,
                      start: str, particles: int | None, seed: int, fmt: str,
@@ -225,24 +243,30 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
 @click.argument("bundle_path", metavar="BUNDLE",
                 type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.argument("walks", nargs=-1, required=True, type=click.Path(exists=True))
-@click.option("--methods", default="indoormap,pf_no_mag,pdr", show_default=True,
-              help="Comma-separated methods.")
+@click.option("--method", "--methods", "methods", cls=AliasedOption, old_names=("--methods",),
+              multiple=True, default=DEFAULT_EVALUATE_METHODS, metavar="METHOD[,METHOD...]",
+              show_default=True,
+              help=f"Methods to score, comma-separated or the option repeated: "
+                   f"{', '.join(METHODS)}.")
 @click.option("--start", default="auto", show_default=True, help=START_HELP)
 @click.option("--particles", type=click.IntRange(1, 1_000_000), default=None,
-              help="Particles of the particle filters (default 300).")
+              help=PARTICLES_HELP)
 @click.option("--seed", type=int, default=0, show_default=True)
-@click.option("--plot", "plot_path", type=click.Path(dir_okay=False, path_type=Path),
-              default=None, help="Write the error CDFs as a PNG (folders are created).")
+@click.option("--plot-file", "--plot", "plot_path", cls=AliasedOption, old_names=("--plot",),
+              type=click.Path(dir_okay=False, path_type=Path), default=None, metavar="FILE",
+              help="Write the error CDFs as a PNG to FILE (folders are created).")
 @click.option("--csv", "csv_path", type=click.Path(dir_okay=False, path_type=Path),
               default=None, help="Write every error as CSV: trace_id, method, waypoint (1 = "
                                  "the walk's first), t_ms, "
                                  "x_m, y_m (the waypoint), est_x_m, est_y_m, error_m.")
 @click.option("--smooth", is_flag=True,
               help="Also score the offline track of every method that has one (particle "
-                   "filters and align; rows '<method>+smoothed').")
-@click.option("--overwrite", is_flag=True, help="Replace an existing --plot or --csv file.")
-def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, start: str,
-                     particles: int | None, seed: int, plot_path: Path | None,
+                   "filters and align; rows '<method>+smoothed'), as localize --smooth "
+                   "writes it.")
+@click.option("--overwrite", is_flag=True,
+              help="Replace an existing --plot-file or --csv file.")
+def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[str, ...],
+                     start: str, particles: int | None, seed: int, plot_path: Path | None,
                      csv_path: Path | None, smooth: bool, overwrite: bool) -> None:
     """Error at the waypoints of walks (median, p80, mean per method). The bundles should be
     built without these walks (a warning names walks the bundle was built from).
@@ -254,19 +278,14 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: str, st
     from localize.floors import SiteMaps
     from survey.step_summaries import waypoints_of
 
-    names = [m.strip() for m in methods.split(",") if m.strip()]
-    if not names:
-        raise click.BadParameter(f"no method given; known: {', '.join(sorted(METHODS))}",
-                                 param_hint="--methods")
-    unknown = [m for m in names if m not in METHODS]
-    if unknown:
-        raise click.BadParameter(f"unknown methods {unknown}; known: {sorted(METHODS)}")
+    names = _method_names(methods)
     if plot_path is not None and plot_path.suffix.lower() != ".png":
         raise click.BadParameter(f"{plot_path}: the plot is a PNG; name it .png",
-                                 param_hint="--plot")
+                                 param_hint="--plot-file")
     if plot_path is not None and csv_path is not None and \
             plot_path.resolve() == csv_path.resolve():
-        raise click.BadParameter("--plot and --csv name the same file", param_hint="--plot")
+        raise click.BadParameter("--plot-file and --csv name the same file",
+                                 param_hint="--plot-file")
     for target in (plot_path, csv_path):
         if target is not None:
             refuse_to_replace(target, overwrite)  # before the work

@@ -1,11 +1,12 @@
 """What the localizer's commands (``localize``, ``evaluate``, ``floor``, ``wifi-locate``)
-share: finding trace files, reading a walk with its warnings, and reporting walks that fail
-while the others go on."""
+share: finding trace files, reading a walk with its warnings, reporting walks that fail while
+the others go on, and options renamed for consistency whose old spellings still work
+(:class:`AliasedOption`)."""
 
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
 
@@ -16,9 +17,49 @@ from localize.errors import LocalizationError
 if TYPE_CHECKING:
     from survey.trace_format import Trace
 
-__all__ = ["WalkFailures", "read_walk", "trace_files"]
+__all__ = ["AliasedOption", "WalkFailures", "read_walk", "trace_files"]
 
 T = TypeVar("T")
+
+
+class AliasedOption(click.Option):
+    """An option whose old spellings (``old_names``) are still accepted but left out of
+    ``--help`` and of error messages, which name the current spelling only.
+
+    Examples
+    --------
+    >>> @click.command()
+    ... @click.option("--method", "--methods", "methods", cls=AliasedOption,
+    ...               old_names=("--methods",))
+    ... def cmd(methods):
+    ...     click.echo(methods)
+    >>> from click.testing import CliRunner
+    >>> CliRunner().invoke(cmd, ["--methods", "pdr"]).output.strip()
+    'pdr'
+    >>> "--methods" in CliRunner().invoke(cmd, ["--help"]).output
+    False
+    """
+
+    def __init__(self, *args, old_names: Sequence[str] = (), **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.old_names = tuple(old_names)
+        unknown = [n for n in self.old_names if n not in self.opts]
+        if unknown or len(self.old_names) >= len(self.opts):
+            raise ValueError(f"old names {self.old_names} must be some of {self.opts}")
+
+    def _current_only(self, method, ctx):
+        saved = self.opts
+        self.opts = [o for o in saved if o not in self.old_names]
+        try:
+            return method(ctx)
+        finally:
+            self.opts = saved
+
+    def get_help_record(self, ctx: click.Context):
+        return self._current_only(super().get_help_record, ctx)
+
+    def get_error_hint(self, ctx: click.Context) -> str:
+        return self._current_only(super().get_error_hint, ctx)
 
 
 def trace_files(paths: tuple[str, ...]) -> list[Path]:

@@ -155,8 +155,9 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
                    "calibrated online), none, or K,B (calibrated = K * rssi + B dBm).")
 @click.option("--smoothing", type=click.Choice(["walk", "forward", "none"]), default="walk",
               show_default=True,
-              help="walk: match each walk's scans together (earlier and later scans); forward: "
-                   "earlier scans only, as in real time; none: every scan on its own.")
+              help="walk: match each walk's scans together (earlier and later scans: "
+                   "offline, as localize --smooth); forward: earlier scans only, as in real "
+                   "time (localize without --smooth); none: every scan on its own.")
 def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
                         calibration: str, smoothing: str) -> None:
     """Wi-Fi (or BLE) position per scan (CSV) from the fingerprints of BUNDLE (a floor bundle

@@ -1,4 +1,4 @@
-"""The localizer methods by name: what ``--method`` / ``--methods`` accept.
+"""The localizer methods by name: what ``localize --method`` and ``evaluate --method`` accept.
 
 No imports beyond the standard library, so that the command line can list the choices without
 loading the localizers (:func:`localize.baselines.make_localizer` builds them).

@@ -95,7 +95,7 @@ def test_evaluate_scores_a_walk_without_wifi_on_ble_and_one_with_wifi_on_wifi(
     scores = {}
     for name, walk in (("ble", no_wifi), ("wifi", WALK)):
         table = tmp_path / f"{name}.csv"
-        res = CliRunner().invoke(main, ["evaluate", str(held_out), str(walk), "--methods",
+        res = CliRunner().invoke(main, ["evaluate", str(held_out), str(walk), "--method",
                                         "indoormap,radio,pdr", "--particles", "200", "--csv",
                                         str(table)])
         assert res.exit_code == 0, res.output

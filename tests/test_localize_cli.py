@@ -84,8 +84,8 @@ def test_localize_errors_exit_1(truth_bundles, tmp_path):  # noqa: F811
 
 def test_evaluate_prints_errors_and_cdfs(truth_bundles, tmp_path):  # noqa: F811
     res = CliRunner().invoke(main, ["evaluate", str(truth_bundles["F1"]), str(F1_WALKS),
-                                    "--methods", "indoormap,pdr", "--particles", "150",
-                                    "--plot", str(tmp_path / "cdf.png"),
+                                    "--method", "indoormap", "--method", "pdr",
+                                    "--particles", "150", "--plot-file", str(tmp_path / "cdf.png"),
                                     "--csv", str(tmp_path / "errors.csv")])
     assert res.exit_code == 0, res.output
     lines = {ln.split()[0]: ln.split() for ln in res.output.splitlines() if ln.strip()}
@@ -100,7 +100,7 @@ def test_evaluate_prints_errors_and_cdfs(truth_bundles, tmp_path):  # noqa: F811
         assert float(lines[method][2]) == pytest.approx(rows["error_m"].median(), abs=0.006)
     assert np.allclose(np.hypot(table["est_x_m"] - table["x_m"], table["est_y_m"] - table["y_m"]),
                        table["error_m"])
-    # an existing --plot or --csv is kept unless --overwrite, said before any walk is read
+    # an existing --plot-file or --csv is kept unless --overwrite, said before any walk is read
     res = CliRunner().invoke(main, ["evaluate", str(truth_bundles["F1"]), str(F1_WALKS),
                                     "--csv", str(tmp_path / "errors.csv")])
     assert res.exit_code == 1 and "errors.csv exists; pass --overwrite" in res.output
@@ -181,13 +181,19 @@ def test_evaluate_goes_on_past_a_bad_walk_and_a_failing_method(truth_bundles,  #
 def test_evaluate_usage_errors_and_plot_folder(truth_bundles, tmp_path):  # noqa: F811
     walk = min(F1_WALKS.glob("*.txt.gz"))
     res = CliRunner().invoke(main, ["evaluate", str(truth_bundles["F1"]), str(walk),
-                                    "--methods", " , "])
+                                    "--method", " , "])
     assert res.exit_code == 2 and "no method given" in res.output
     plot = tmp_path / "new" / "folder" / "cdf.png"
     res = CliRunner().invoke(main, ["evaluate", str(truth_bundles["F1"]), str(walk),
-                                    "--methods", "pdr", "--plot", str(plot)])
+                                    "--method", "pdr", "--method", "pdr,pdr", "--plot-file",
+                                    str(plot)])
     assert res.exit_code == 0, res.output
     assert plot.stat().st_size > 1000
+    from survey.step_summaries import waypoints_of
+    from survey.trace_reader import read_trace
+
+    n_wp = len(waypoints_of(read_trace(walk))[0])
+    assert [ln.split()[:2] for ln in res.stdout.splitlines()[1:]] == [["pdr", str(n_wp)]]
 
 
 def test_a_damaged_walk_is_localized_with_a_warning(truth_bundles, tmp_path):  # noqa: F811
@@ -206,14 +212,15 @@ def test_a_damaged_walk_is_localized_with_a_warning(truth_bundles, tmp_path):  #
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--plot", "{tmp}/cdf.txt"], "the plot is a PNG; name it .png"),
-    (["--plot", "{tmp}/x.png", "--csv", "{tmp}/x.png"], "--plot and --csv name the same file"),
+    (["--plot-file", "{tmp}/cdf.txt"], "the plot is a PNG; name it .png"),
+    (["--plot-file", "{tmp}/x.png", "--csv", "{tmp}/x.png"],
+     "--plot-file and --csv name the same file"),
     (["--csv", "{tmp}/FILE/errors.csv"], "is a file, not a folder"),
 ])
 def test_evaluate_refuses_plot_and_csv_targets_before_the_work(truth_bundles, tmp_path,  # noqa: F811
                                                                args, message):
-    """A .txt plot used to end the run in a matplotlib traceback; --csv and --plot on one
-    file wrote the CSV, then the PNG over it."""
+    """A .txt plot used to end the run in a matplotlib traceback; --csv and --plot-file on
+    one file wrote the CSV, then the PNG over it."""
     (tmp_path / "FILE").write_text("keep me")
     walk = min(F1_WALKS.glob("*.txt.gz"))
     res = CliRunner().invoke(main, ["evaluate", str(truth_bundles["F1"]), str(walk),
@@ -248,3 +255,39 @@ def test_two_walks_with_one_trace_id_in_a_run_are_refused(truth_bundles, tmp_pat
                                       str(tmp_path / "b" / ".." / "a" / first.name),
                                       "--methods", "pdr"])
     assert twice.exit_code == 0 and twice.stdout == once.stdout, twice.output  # same n
+
+
+def test_evaluate_takes_the_new_option_spellings_and_still_the_old_ones(truth_bundles,  # noqa: F811
+                                                                         tmp_path):
+    """``--method`` (as localize spells it; comma-separated or repeated) and ``--plot-file``
+    (a file, unlike localize's --plot/--no-plot switch) are documented; ``--methods`` and
+    ``--plot`` still work, left out of --help. Checked before any walk is read."""
+    def help_of(command: str) -> str:  # without spaces: click wraps it, hyphens too
+        return "".join(CliRunner().invoke(main, [command, "--help"]).output.split())
+
+    def squeezed(text: str) -> str:
+        return "".join(text.split())
+
+    help_text = help_of("evaluate")
+    assert "--methodMETHOD[,METHOD...]" in help_text and "--plot-fileFILE" in help_text
+    assert "--methods" not in help_text and "--plotFILE" not in help_text
+    assert squeezed("as localize --smooth") in help_text
+    walk = str(min(F1_WALKS.glob("*.txt.gz")))
+    bundle = str(truth_bundles["F1"])
+    for args in (["--method", "pdr", "--method", "nonsense,pdr"], ["--methods", "nonsense"],
+                 ["--method", "pdr,nonsense", "--methods", "indoormap"]):
+        res = CliRunner().invoke(main, ["evaluate", bundle, walk, *args])
+        assert res.exit_code == 2, res.output
+        assert "Invalid value for --method: unknown methods ['nonsense']" in res.output
+    for spelling in ("--plot-file", "--plot"):
+        res = CliRunner().invoke(main, ["evaluate", bundle, walk, "--method", "pdr", spelling,
+                                        str(tmp_path / "cdf.txt")])
+        assert res.exit_code == 2 and "Invalid value for --plot-file: " in res.output
+        assert "the plot is a PNG" in res.output
+    res = CliRunner().invoke(main, ["evaluate", bundle, walk, "--plot-file"])
+    assert res.exit_code == 2 and "'--plot-file' requires an argument" in res.output
+    res = CliRunner().invoke(main, ["evaluate", bundle, walk, "--plot", str(tmp_path)])
+    assert res.exit_code == 2 and "Invalid value for '--plot-file': " in res.output  # not both
+    assert squeezed("wifi-locate's --smoothing walk|forward") in help_of("localize")
+    assert squeezed("(earlier and later scans: offline, as localize --smooth)") in \
+        help_of("wifi-locate")
