@@ -319,8 +319,12 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
         reachable = {(s, fl): plans[fl].reachable for s, fl in
                      cat[["site", "floor"]].drop_duplicates().itertuples(index=False)
                      if fl in plans}
-        with progress("process", len(cat), unit="walks") as update:
-            report = process_store(store, reachable=reachable, progress=update)
+        with progress("process", int(cat["floor"].isin(list(plans)).sum()),
+                      unit="walks") as update:
+            # only the floors built: the others' plans are not given here (sessions are
+            # fitted over the whole store either way)
+            report = process_store(store, floors=list(plans), reachable=reachable,
+                                   progress=update)
         if report.failed:
             tid, reason = next(iter(report.failed.items()))
             raise BuildError(f"{len(report.failed)} walks of the store cannot be read, e.g. "

@@ -260,15 +260,19 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
                 summary.outcomes.append(_add_walk(w, summary, trace, source, sha,
                                                   len(identity)))
             tick()
-        for index, tid, sha, item in deferred:
-            if w.known(tid, sha):
-                continue  # what it duplicates stays
+        # to a fixed point: ingesting one can make another's original go (walks renumbered:
+        # w2 -> w1, w3 -> w2, ...)
+        while ready := [d for d in deferred if not w.known(d[1], d[2])]:
+            index, tid, sha, item = ready[0]
+            deferred.remove(ready[0])
             if item[0] == "trace":  # parse it after all (rare: no progress tick)
                 res = _parse_and_write(str(store.root), [item[1]], [sha], [item[2]], strict,
                                        batch_bytes)
                 summary.outcomes[index] = _add_results(w, summary, res)[0]
             else:
                 summary.outcomes[index] = _add_walk(w, summary, *item[1:3], sha, item[3])
+        for index, tid, sha, _ in deferred:  # what each duplicates in the end
+            summary.outcomes[index].detail = w.known(tid, sha).detail
     return summary
 
 

@@ -36,7 +36,8 @@ from .errors import ProcessingError, StoreError
 from .magcal import MagCalResult, fit_ellipsoid
 from .process import ProcessedWalk, ProcessParams, calibration_sessions, process_walk, \
     reported_bias
-from .publish import TMP_PREFIX, atomic_write_bytes, crash_point, fsync_dir
+from .publish import TMP_PREFIX, atomic_write_bytes, crash_point, file_sha256, fsync_dir, \
+    remove_stale_temporaries
 from .store import (SurveyStore, _arrow_column, _parquet_bytes, check_columns, part_path,
                     part_record, read_parquet_checked)
 
@@ -61,20 +62,33 @@ def params_sha256(params: ProcessParams) -> str:
     return hashlib.sha256(params.to_json().encode()).hexdigest()
 
 
-def inputs_sha256(params_sha: str, reachable: object | None, session: str,
-                  fit: MagCalResult | None) -> str:
+#: Calibration decisions made without the session's pooled fit (a walk with one of them does
+#: not depend on the fit, so a new walk in its session does not process it again).
+FIT_FREE_DECISIONS = ("device-calibrated", "uncalibrated-minus-device-bias")
+
+
+def inputs_sha256(params_sha: str, reachable: object | None, fit: MagCalResult | None) -> str:
     """What a walk's processed tables depend on besides its raw file: the processing
-    parameters' hash, the floor plan's reachable area (WKB), its calibration session's key
-    and that session's pooled fit. A change to any of them processes the walk again."""
+    parameters' hash, the floor plan's reachable area (WKB) and, for walks whose calibration
+    used it or might, the pooled fit of their calibration session (None otherwise). A change
+    to any of them processes the walk again."""
     import shapely
 
     h = hashlib.sha256(params_sha.encode())
-    h.update(b"|session:" + session.encode())
     h.update(b"|plan:" + (shapely.to_wkb(reachable) if reachable is not None else b""))
     if fit is not None:
         h.update(b"|fit:" + fit.status.encode() + np.concatenate(
             [np.ravel(fit.hard_iron_ut), np.ravel(fit.soft_iron)]).astype("<f8").tobytes())
     return h.hexdigest()
+
+
+def _with_session(row: dict, key: str) -> dict:
+    """A kept catalog row with its session key refreshed (the key names the session by its
+    members' median bias, which other walks move; it is not an input of the tables)."""
+    summary = json.loads(row["summary_json"])
+    if "session" in summary:
+        summary["session"] = key
+    return {**row, "session": key, "summary_json": json.dumps(summary)}
 
 
 def _position_rows(rows: pd.DataFrame, t_col: str, walk: ProcessedWalk) -> pd.DataFrame:
@@ -123,21 +137,24 @@ def session_fits(store: SurveyStore, catalog: pd.DataFrame, max_samples: int = 2
 
 
 def _processed_parts_present(root, row: pd.Series) -> bool:
-    """Whether every processed file of an ``ok`` catalog row exists with its recorded size."""
+    """Whether every processed file of an ``ok`` catalog row is there with its recorded
+    size and sha256."""
     parts = json.loads(row.get("parts_json") or "{}")
     for name in PROCESSED_TABLES:
         path = root / processed_part_path(name, row["site"], row["floor"], row["trace_id"],
                                           row["sha256"], row["inputs_sha256"])
         try:
-            if name not in parts or path.stat().st_size != parts[name]["size"]:
+            if (path.stat().st_size != parts[name]["size"]
+                    or file_sha256(path) != parts[name]["sha256"]):
                 return False
-        except OSError:
+        except (OSError, KeyError):
             return False
     return True
 
 
 def process_store(store: SurveyStore | str, *, site: str | None = None,
-                  floor: str | None = None, params: ProcessParams = ProcessParams(),
+                  floor: str | None = None, floors: Sequence[str] | None = None,
+                  params: ProcessParams = ProcessParams(),
                   reachable: dict[tuple[str, str], object] | None = None,
                   progress: Callable[[int, int], None] | None = None) -> ProcessReport:
     """Process every walk of the selected site/floor that is new or changed, or whose
@@ -148,14 +165,18 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
 
     Parameters
     ----------
+    floors : sequence of str, optional
+        Only these floors (partition names), besides ``floor``.
     reachable : dict, optional
         ``(site, floor) -> shapely geometry`` of the reachable area (for ``off_floor`` flags).
     """
     store = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
     root = store.root / "processed"
     cat = store.traces(site, floor)
+    if floors is not None:
+        cat = cat[cat["floor"].isin(list(floors))].reset_index(drop=True)
     pcat_path = root / "catalog.parquet"
-    old = _read_processed_catalog(pcat_path, upgrading=True)
+    old = _read_processed_catalog(pcat_path)
     psha = params_sha256(params)
     report = ProcessReport()
     if not len(cat):
@@ -175,23 +196,28 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
             if progress and i:
                 progress(i, len(cat))
             key = sessions.get(row.trace_id, "")
+            plan = (reachable or {}).get((row.site, row.floor))
+            with_fit = inputs_sha256(psha, plan, fits.get(key))
             base = {"trace_id": row.trace_id, "sha256": row.sha256, "site": row.site,
                     "floor": row.floor, "session": key, "parts_json": "",
-                    "inputs_sha256": inputs_sha256(psha, (reachable or {}).get(
-                        (row.site, row.floor)), key, fits.get(key))}
+                    "inputs_sha256": with_fit}
             if row.trace_id in unreadable:
                 report.failed[row.trace_id] = unreadable[row.trace_id]
                 new_rows.append({**base, "status": "failed",
                                  "reason": unreadable[row.trace_id], "summary_json": "{}"})
                 continue
-            done = old[(old["trace_id"] == row.trace_id) & (old["sha256"] == row.sha256)
-                       & (old["inputs_sha256"] == base["inputs_sha256"])]
-            if len(done) and (done["status"].iloc[0] == "skipped" or (
-                    done["status"].iloc[0] == "ok"
-                    and _processed_parts_present(root, done.iloc[0]))):
-                report.unchanged.append(row.trace_id)
-                new_rows.append(done.iloc[0].to_dict())
-                continue
+            done = old[(old["trace_id"] == row.trace_id) & (old["sha256"] == row.sha256)]
+            if len(done):
+                d = done.iloc[0]
+                fit_free = d["status"] == "ok" and json.loads(d["summary_json"]).get(
+                    "calibration") in FIT_FREE_DECISIONS
+                same = d["inputs_sha256"] == (inputs_sha256(psha, plan, None) if fit_free
+                                              else with_fit)
+                if same and (d["status"] == "skipped" or (
+                        d["status"] == "ok" and _processed_parts_present(root, d))):
+                    report.unchanged.append(row.trace_id)
+                    new_rows.append(_with_session(d.to_dict(), key))
+                    continue
             # one walk at a time: memory is bounded by the largest walk, not by the store
             try:
                 tables = {name: store.part(name, row) for name in ("sensors", "waypoints",
@@ -203,8 +229,7 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
                 continue
             try:
                 walk = process_walk(row.trace_id, tables["sensors"], tables["waypoints"], params,
-                                    reachable=(reachable or {}).get((row.site, row.floor)),
-                                    session_fit=fits.get(key))
+                                    reachable=plan, session_fit=fits.get(key))
             except ProcessingError as err:
                 report.skipped[row.trace_id] = str(err)
                 new_rows.append({**base, "status": "skipped", "reason": str(err),
@@ -216,6 +241,8 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
             walk.summary["n_wifi_rows_positioned"] = len(outputs["wifi"])
             walk.summary["n_ble_rows_positioned"] = len(outputs["ble"])
             walk.summary["session"] = key
+            if walk.summary.get("calibration") in FIT_FREE_DECISIONS:
+                base["inputs_sha256"] = inputs_sha256(psha, plan, None)
             parts = {}
             for name, frame in outputs.items():
                 table = pa.table({c: _arrow_column(frame[c]) for c in frame.columns})
@@ -245,8 +272,9 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
 
 
 def remove_stale_temporaries_under(root) -> None:
-    """Remove the temporaries a killed run left in the processed tables' folders (the
-    caller holds the store's writer lock, so no live writer has any there)."""
+    """Remove the temporaries a killed run left in ``processed/`` and its tables' folders
+    (the caller holds the store's writer lock, so no live writer has any there)."""
+    remove_stale_temporaries(root)
     for table in PROCESSED_TABLES:
         base = root / table
         if base.exists():
@@ -254,21 +282,20 @@ def remove_stale_temporaries_under(root) -> None:
                 p.unlink(missing_ok=True)
 
 
-def _read_processed_catalog(path, *, upgrading: bool = False) -> pd.DataFrame:
-    """The processed catalog as stored (all text), checked. A catalog of an older indoormap
-    (no ``inputs_sha256``) is a :class:`ProcessingError`, or with ``upgrading`` empty: every
-    walk is processed again."""
+def _read_processed_catalog(path) -> pd.DataFrame:
+    """The processed catalog as stored (all text), checked. One written before
+    ``inputs_sha256`` (its files named by ``params_sha256``) is read with that hash as the
+    files' name and no part hashes: its walks are readable, and processed again when next
+    selected."""
     empty = pd.DataFrame({c: pd.Series([], dtype="str") for c in PROCESSED_CATALOG_COLUMNS})
     if not path.exists():
         return empty
     table = read_parquet_checked(path, what="processed catalog")
-    if "inputs_sha256" not in table.column_names:
-        if upgrading:
-            return empty
-        raise ProcessingError(f"{path}: written by an older indoormap; run `indoormap process` "
-                              "again")
+    if "inputs_sha256" not in table.column_names and "params_sha256" in table.column_names:
+        table = table.append_column("inputs_sha256", table.column("params_sha256"))
+        table = table.append_column("parts_json", pa.array([""] * table.num_rows))
     check_columns(table, PROCESSED_CATALOG_COLUMNS, path, "processed catalog")
-    cat = table.to_pandas()
+    cat = table.select(list(PROCESSED_CATALOG_COLUMNS)).to_pandas()
     dup = cat["trace_id"][cat["trace_id"].duplicated()]
     if len(dup):
         raise StoreError(f"{path}: damaged processed catalog: trace id {dup.iloc[0]!r} has "

@@ -38,7 +38,7 @@ try:
     import fcntl
 except ImportError:  # Windows: the pid in the lock file alone keeps writers apart
     fcntl = None  # type: ignore[assignment]
-from .publish import TMP_PREFIX, atomic_write_bytes, crash_point, fsync_dir, \
+from .publish import TMP_PREFIX, atomic_write_bytes, crash_point, file_sha256, fsync_dir, \
     remove_stale_temporaries
 from .trace_format import BLE_COLUMNS, SENSOR_COLUMNS, WAYPOINT_COLUMNS, WIFI_COLUMNS, Trace
 
@@ -277,7 +277,10 @@ class SurveyStore:
         if not path.exists():
             return pd.DataFrame({c: pd.Series([], dtype=t) for c, t in CATALOG_COLUMNS.items()})
         table = read_parquet_checked(path, what="catalog")
-        if "parts_json" not in table.column_names:  # schema version 1
+        if "parts_json" not in table.column_names:
+            if self.schema_version() >= 2:  # a damaged footer must not turn the hashes off
+                raise StoreError(f"{path}: damaged catalog: no parts_json column in a schema "
+                                 "version 2 store")
             table = table.append_column("parts_json", pa.array([""] * table.num_rows))
         check_columns(table, list(CATALOG_COLUMNS), path, "catalog")
         cat = table.to_pandas()
@@ -360,8 +363,11 @@ class SurveyStore:
         return problems
 
     def schema_version(self) -> int:
-        """The store's schema version (``store.json``)."""
-        return int(json.loads((self.root / "store.json").read_text())["schema_version"])
+        """The store's schema version (``store.json``, checked by :meth:`open`)."""
+        try:
+            return int(json.loads((self.root / "store.json").read_text())["schema_version"])
+        except (OSError, ValueError, TypeError, KeyError) as err:
+            raise StoreError(f"{self.root / 'store.json'}: unreadable ({err})") from err
 
     # ---- writing ----------------------------------------------------------------------------
 
@@ -445,38 +451,52 @@ class _StoreWriter:
         self.cat = store.catalog()
         self.pending: dict[str, dict] = {}
         self.repairing: set[str] = set()  # stored traces whose part files are written again
+        self.hashed: dict[str, str] = {}  # schema-1 rows checked now: trace id -> parts_json
 
     def known(self, trace_id: str, sha256: str) -> IngestOutcome | None:
-        """The outcome for a file that needs no work (same content already stored), or None.
-        Stored content that this run replaces (its trace id is pending with other content)
-        does not count: a file is never a "duplicate" of content about to go. A stored trace
-        whose part files are missing or of the wrong size needs work (it is ``repaired``)."""
+        """The outcome for a file that needs no work (same content already stored, whole),
+        or None. Stored content that this run replaces (its trace id is pending with other
+        content) does not count: a file is never a "duplicate" of content about to go, nor of
+        a trace whose part files are damaged. A stored trace whose part files are missing or
+        changed needs work (it is ``repaired``); one stored without part hashes (schema 1)
+        gets them once its parts pass the read checks."""
         cat = self.cat
         leaving = [t for t, r in self.pending.items() if r["sha256"] != sha256]
         hit = cat[(cat["sha256"] == sha256) & ~cat["trace_id"].isin(leaving)]
         same = hit[hit["trace_id"] == trace_id]
         if len(same):
-            if self._parts_present(same.iloc[0]):
+            if self._parts_whole(same.iloc[0]):
                 return IngestOutcome("", trace_id, "unchanged")
             self.repairing.add(trace_id)
             return None
         pending = [t for t, r in self.pending.items() if r["sha256"] == sha256]
-        others = [t for t in [*hit["trace_id"], *pending] if t != trace_id]
+        others = [t for _, r in hit.iterrows() if self._parts_whole(r) for t in [r["trace_id"]]]
+        others = [t for t in [*others, *pending] if t != trace_id]
         if others:
             return IngestOutcome("", trace_id, "duplicate", f"same content as {others[0]}")
         return None
 
-    def _parts_present(self, row: pd.Series) -> bool:
-        """Whether every part file of a catalog row exists (with its recorded size)."""
+    def _parts_whole(self, row: pd.Series) -> bool:
+        """Whether every part file of a catalog row is there with its recorded sha256 (rows
+        without hashes: passes the read checks, and then gets them at the commit)."""
         parts = json.loads(row["parts_json"] or "{}")
-        for name in TABLES:
-            path = self.root / part_path(name, row["site"], row["floor"], row["trace_id"],
-                                         row["sha256"])
+        paths = {name: self.root / part_path(name, row["site"], row["floor"], row["trace_id"],
+                                             row["sha256"]) for name in TABLES}
+        if not parts:
             try:
-                size = path.stat().st_size
-            except OSError:
+                rows = {name: self.store._read_part(name, row).num_rows for name in TABLES}
+            except StoreError:
                 return False
-            if name in parts and size != parts[name]["size"]:
+            self.hashed[row["trace_id"]] = json.dumps(
+                {name: part_record(path.read_bytes(), rows[name]) for name, path in paths.items()},
+                sort_keys=True)
+            return True
+        for name, path in paths.items():
+            try:
+                if (path.stat().st_size != parts[name]["size"]
+                        or file_sha256(path) != parts[name]["sha256"]):
+                    return False
+            except (OSError, KeyError):
                 return False
         return True
 
@@ -498,13 +518,15 @@ class _StoreWriter:
         return self.add_row(row)
 
     def commit(self) -> None:
-        if not self.pending:
+        if not self.pending and not self.hashed:
             return
         for folder in {(self.root / part_path(t, r["site"], r["floor"], "x", "0")).parent
                        for r in self.pending.values() for t in TABLES}:
             fsync_dir(folder)  # the renames of the new part files are durable before the commit
         crash_point("ingest:before-catalog")
-        keep = self.cat[~self.cat["trace_id"].isin(list(self.pending))]
+        keep = self.cat[~self.cat["trace_id"].isin(list(self.pending))].copy()
+        hashed = keep["trace_id"].map(self.hashed)
+        keep["parts_json"] = hashed.where(hashed.notna(), keep["parts_json"])
         new = pd.DataFrame(list(self.pending.values()))
         cat = pd.concat([keep, new], ignore_index=True) if len(keep) else new
         cat = cat.sort_values(["site", "floor", "trace_id"], kind="stable").reset_index(drop=True)
@@ -514,7 +536,7 @@ class _StoreWriter:
         crash_point("ingest:after-catalog")
         self.store.upgrade_schema()
         self.cat = cat
-        self.pending = {}
+        self.pending, self.hashed = {}, {}
         self.collect_garbage()
 
     def collect_garbage(self) -> int:

@@ -194,18 +194,74 @@ def test_process_cleans_temporaries_and_checks_its_files(tmp_path):
     store = _two_floors(tmp_path / "s", 1)
     process_store(store)
     folder = next((store / "processed" / "samples").rglob("*.parquet")).parent
-    stale = folder / ".tmp-999999-deadbeef-x"  # left by a killed run
-    stale.write_bytes(b"half a file")
+    stale = [folder / ".tmp-999999-deadbeef-x", store / "processed" / ".tmp-999999-dead-c"]
+    for p in stale:  # left by a killed run
+        p.write_bytes(b"half a file")
     part = next((store / "processed" / "steps").rglob("*.parquet"))
     report = process_store(store)
-    assert not stale.exists() and len(report.unchanged) == 2
+    assert not any(p.exists() for p in stale) and len(report.unchanged) == 2
     # a processed file changed after it was written is refused by name, and processed again
     data = bytearray(part.read_bytes())
-    data[-12] ^= 0x01  # in the footer, which page checksums do not cover
+    data[-12] ^= 0x01  # in the footer, which page checksums do not cover; same size
     part.write_bytes(bytes(data))
     with pytest.raises(StoreError, match=f"{part.name}: processed part changed"):
         processed_table(store, "steps")
-    data[-12] ^= 0x01
-    part.write_bytes(bytes(data[:-1]))  # truncated: other size, so processed again
     assert len(process_store(store).processed) == 1
     assert len(processed_table(store, "steps")) > 0
+
+
+def test_a_processed_catalog_of_an_older_indoormap_is_read_and_redone_when_selected(tmp_path):
+    """Written before inputs_sha256 (files named by params_sha256, no part hashes): its walks
+    stay readable, and `process --floor F1` redoes F1 only (it dropped F2's rows)."""
+    import pyarrow.parquet as pq
+
+    store = _two_floors(tmp_path / "s", 1)
+    process_store(store)
+    path = store / "processed" / "catalog.parquet"
+    old = pq.read_table(path).drop_columns(["parts_json"])
+    pq.write_table(old.rename_columns(["params_sha256" if c == "inputs_sha256" else c
+                                       for c in old.column_names]), path)
+    samples = processed_table(store, "samples")
+    report = process_store(store, floor="F1")
+    assert len(report.processed) == 1
+    cat = processed_catalog(store)
+    assert sorted(cat["floor"]) == ["F1", "F2"] and (cat["status"] == "ok").all()
+    pd.testing.assert_frame_equal(processed_table(store, "samples"), samples)
+
+
+def test_a_new_walk_reprocesses_only_walks_that_use_its_session_fit(tmp_path, monkeypatch):
+    """The pooled session fit is an input only of walks whose calibration used it (or might):
+    adding a walk to a session reprocessed every device-calibrated walk of it, byte for byte
+    the same. The fit is stubbed well conditioned (hard iron = the pooled mean), as a real
+    survey's rotating walks give; the sample's flat-held walks give none."""
+    import dataclasses
+
+    import numpy as np
+
+    import survey.process_store as ps
+
+    real_fit = ps.fit_ellipsoid
+    monkeypatch.setattr(ps, "fit_ellipsoid", lambda raw: dataclasses.replace(
+        real_fit(raw), status="ok", reason="", hard_iron_ut=raw.mean(axis=0),
+        soft_iron=np.eye(3)))
+    walks = sorted((SITE / "F1" / "path_data_files").glob("*.txt.gz"))
+    # the walk needing the fit: its calibrated stream and its raw one minus the phone's bias
+    # are implausible (the bias, which puts it in its session, is kept)
+    raw = read_trace(walks[1])
+    for stream in ("magnetic_field", "magnetic_field_uncalibrated"):
+        raw.sensors.loc[raw.sensors["stream"] == stream, ["x", "y", "z"]] *= 10
+    write_trace(tmp_path / "in" / "needs_fit.txt.gz", raw)
+    mate = walks[0]  # the same phone and session as walks[1]
+    later = read_trace(mate)  # another walk of that session: the pooled fit moves
+    later.sensors = later.sensors.iloc[::2].reset_index(drop=True)
+    write_trace(tmp_path / "later" / "later.txt.gz", later)
+    ingest([tmp_path / "in" / "needs_fit.txt.gz", mate], tmp_path / "s")
+    process_store(tmp_path / "s")
+    cat = processed_catalog(tmp_path / "s").set_index("trace_id")
+    assert cat["session"].nunique() == 1
+    assert cat.loc["needs_fit", "summary"]["calibration"] == "own-session-fit"
+    ingest([tmp_path / "later" / "later.txt.gz"], tmp_path / "s")
+    report = process_store(tmp_path / "s")
+    assert processed_catalog(tmp_path / "s")["session"].nunique() == 1
+    assert report.unchanged == [mate.name.split(".")[0]]  # device-calibrated: kept
+    assert sorted(report.processed) == ["later", "needs_fit"]

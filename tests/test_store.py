@@ -333,20 +333,68 @@ def test_reingest_repairs_a_missing_part(tmp_path):
     assert len(store.table("wifi", trace_ids=["w1"])) > 0
 
 
-def test_a_schema_1_store_is_read_and_upgraded_at_its_next_commit(tmp_path):
+def test_a_schema_1_store_is_read_and_upgraded_by_its_next_ingest(tmp_path):
+    """A store written before part hashes is read (checked by rows, columns, trace id); the
+    next ingest checks its parts and records their hashes, and marks it schema 2."""
     _walks(tmp_path / "in", 2)
     ingest([tmp_path / "in"], tmp_path / "s")
     store = SurveyStore.open(tmp_path / "s")
+    hashes = list(store.catalog()["parts_json"])
     _as_schema_1(store)
     store = SurveyStore.open(tmp_path / "s")
     assert len(store.table("sensors")) == 2 * 7 * 80
     assert ingest([tmp_path / "in"], store).status_counts() == {"unchanged": 2}
-    write_trace(tmp_path / "in" / "w7.txt.gz", small_trace(n=40, seed=7, trace_id="w7"))
-    ingest([tmp_path / "in"], store)
     assert '"schema_version": 2' in (tmp_path / "s" / "store.json").read_text()
-    cat = store.catalog()
-    assert list(cat["parts_json"] == "") == [True, True, False]  # w0, w1 kept as they were
-    assert len(store.table("sensors")) == 2 * 7 * 80 + 7 * 40
+    assert list(store.catalog()["parts_json"]) == hashes
+    # a schema-2 catalog that lost its parts_json column (a damaged footer) is refused,
+    # not read as schema 1 with every hash check off
+    import pyarrow.parquet as pq
+
+    path = tmp_path / "s" / "catalog.parquet"
+    pq.write_table(pq.read_table(path).drop_columns(["parts_json"]), path)
+    with pytest.raises(StoreError, match="no parts_json column in a schema version 2 store"):
+        store.catalog()
+
+
+def test_duplicates_chains_and_damage(tmp_path):
+    """Walks renumbered in one run (w1 dropped, w2 -> w1, w3 -> w2, a new w3) lost w2's old
+    content (w1 was called a duplicate of the old w2, which the run then replaced). A part
+    damaged in place (same size) was called unchanged by the next ingest; and a copy of a
+    damaged trace was called its duplicate."""
+    folder = tmp_path / "in"
+    paths = _walks(folder, 4)
+    ingest([folder], tmp_path / "s")
+    contents = [p.read_bytes() for p in paths]
+    paths[0].unlink()  # w0 dropped from the folder (it stays in the store)
+    for i in (1, 2):
+        paths[i].write_bytes(contents[i + 1])
+    write_trace(paths[3], small_trace(n=30, seed=77, trace_id="w3"))
+    s = ingest([folder], tmp_path / "s")
+    assert sorted((o.trace_id, o.status) for o in s.outcomes) == [
+        ("w1", "changed"), ("w2", "changed"), ("w3", "changed")]
+    store = SurveyStore.open(tmp_path / "s")
+    import hashlib
+
+    stored = store.catalog().set_index("trace_id")["sha256"].to_dict()
+    assert stored == {"w0": hashlib.sha256(contents[0]).hexdigest(),
+                      "w1": hashlib.sha256(contents[2]).hexdigest(),
+                      "w2": hashlib.sha256(contents[3]).hexdigest(),
+                      "w3": hashlib.sha256(paths[3].read_bytes()).hexdigest()}
+    assert len(store.table("sensors", trace_ids=["w3"])) == 7 * 30
+    # damaged in place, same size: re-ingest repairs it
+    part = min((tmp_path / "s").glob("wifi/**/w2-*.parquet"))
+    data = bytearray(part.read_bytes())
+    data[len(data) // 2] ^= 0x01
+    part.write_bytes(bytes(data))
+    copy = tmp_path / "copy" / "c2.txt.gz"
+    copy.parent.mkdir()
+    copy.write_bytes(paths[2].read_bytes())
+    s = ingest([copy], tmp_path / "s")  # not a duplicate of the damaged w2: stored
+    assert [o.status for o in s.outcomes] == ["new"]
+    s = ingest([folder], tmp_path / "s")
+    assert sorted((o.trace_id, o.status) for o in s.outcomes) == [
+        ("w1", "unchanged"), ("w2", "repaired"), ("w3", "unchanged")]
+    assert len(store.table("wifi", trace_ids=["w2"])) > 0
 
 
 def test_a_killed_ingest_worker_is_a_clear_error(tmp_path, monkeypatch):
