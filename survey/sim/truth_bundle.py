@@ -22,12 +22,12 @@ import json
 from pathlib import Path
 
 import numpy as np
-import shapely
 from numpy.typing import NDArray
 
 from localize.bundle import Grid
 from mapping.bundle_writer import BundleContent, Layer, write_bundle
 from mapping.floorplan import read_floor_plan
+from mapping.grid import reachable_mask as grid_mask
 from survey.field_features import field_features
 from survey.sim.site import load_field
 
@@ -37,14 +37,8 @@ __all__ = ["reachable_mask", "truth_bundle"]
 def reachable_mask(site_dir: str | Path, floor: str, cell_m: float) -> tuple[Grid, np.ndarray]:
     """Grid over the floor and the mask of cells whose centre is reachable."""
     plan = read_floor_plan(Path(site_dir) / floor)
-    width = int(np.ceil(plan.width_m / cell_m))
-    height = int(np.ceil(plan.height_m / cell_m))
-    grid = Grid(0.0, 0.0, float(cell_m), width, height)
-    cx, cy = grid.cell_centers()
-    gx, gy = np.meshgrid(cx, cy)
-    reach = plan.reachable
-    shapely.prepare(reach)
-    return grid, shapely.contains_xy(reach, gx, gy)
+    grid = plan.grid(cell_m)
+    return grid, grid_mask(grid, plan.reachable)
 
 
 def truth_bundle(site_dir: str | Path, floor: str, target: str | Path, *, cell_m: float = 0.25,
