@@ -36,10 +36,10 @@ from .errors import ProcessingError, StoreError
 from .magcal import MagCalResult, fit_ellipsoid
 from .process import ProcessedWalk, ProcessParams, calibration_sessions, process_walk, \
     reported_bias
-from .publish import TMP_PREFIX, atomic_write_bytes, crash_point, file_sha256, fsync_dir, \
+from .publish import TMP_PREFIX, atomic_write_bytes, crash_point, fsync_dir, \
     remove_stale_temporaries
-from .store import (SurveyStore, _arrow_column, _parquet_bytes, check_columns, part_path,
-                    part_record, read_parquet_checked)
+from .store import (SurveyStore, _arrow_column, _parquet_bytes, check_columns, files_match,
+                    part_path, part_record, read_parquet_checked)
 
 _MAG_COLUMNS = ["stream", "t_ms", "x", "y", "z", "bx", "by", "bz"]
 PROCESSED_TABLES = ("samples", "steps", "legs", "wifi", "ble")
@@ -139,17 +139,9 @@ def session_fits(store: SurveyStore, catalog: pd.DataFrame, max_samples: int = 2
 def _processed_parts_present(root, row: pd.Series) -> bool:
     """Whether every processed file of an ``ok`` catalog row is there with its recorded
     size and sha256."""
-    parts = json.loads(row.get("parts_json") or "{}")
-    for name in PROCESSED_TABLES:
-        path = root / processed_part_path(name, row["site"], row["floor"], row["trace_id"],
-                                          row["sha256"], row["inputs_sha256"])
-        try:
-            if (path.stat().st_size != parts[name]["size"]
-                    or file_sha256(path) != parts[name]["sha256"]):
-                return False
-        except (OSError, KeyError):
-            return False
-    return True
+    return files_match({name: root / processed_part_path(
+        name, row["site"], row["floor"], row["trace_id"], row["sha256"], row["inputs_sha256"])
+        for name in PROCESSED_TABLES}, json.loads(row.get("parts_json") or "{}"))
 
 
 def process_store(store: SurveyStore | str, *, site: str | None = None,

@@ -144,6 +144,19 @@ def part_record(data: bytes, rows: int) -> dict[str, Any]:
     return {"sha256": hashlib.sha256(data).hexdigest(), "size": len(data), "rows": int(rows)}
 
 
+def files_match(paths: Mapping[str, Path], parts: Mapping[str, Any]) -> bool:
+    """Whether every file of ``paths`` (table -> path) is there with the size and sha256
+    that ``parts`` (table -> :func:`part_record`) recorded for it."""
+    for name, path in paths.items():
+        try:
+            if (path.stat().st_size != parts[name]["size"]
+                    or file_sha256(path) != parts[name]["sha256"]):
+                return False
+        except (OSError, KeyError):
+            return False
+    return True
+
+
 def check_columns(table: pa.Table, expected: Sequence[str], path: Path, what: str) -> None:
     """A :class:`StoreError` naming ``path`` unless ``table`` has every ``expected`` column."""
     missing = [c for c in expected if c not in table.column_names]
@@ -452,6 +465,7 @@ class _StoreWriter:
         self.pending: dict[str, dict] = {}
         self.repairing: set[str] = set()  # stored traces whose part files are written again
         self.hashed: dict[str, str] = {}  # schema-1 rows checked now: trace id -> parts_json
+        self._whole: dict[tuple[str, str], bool] = {}  # (trace id, sha256) -> parts whole
 
     def known(self, trace_id: str, sha256: str) -> IngestOutcome | None:
         """The outcome for a file that needs no work (same content already stored, whole),
@@ -478,7 +492,14 @@ class _StoreWriter:
 
     def _parts_whole(self, row: pd.Series) -> bool:
         """Whether every part file of a catalog row is there with its recorded sha256 (rows
-        without hashes: passes the read checks, and then gets them at the commit)."""
+        without hashes: passes the read checks, and then gets them at the commit). Hashed
+        once per run and trace."""
+        key = (row["trace_id"], row["sha256"])
+        if key not in self._whole:
+            self._whole[key] = self._check_parts(row)
+        return self._whole[key]
+
+    def _check_parts(self, row: pd.Series) -> bool:
         parts = json.loads(row["parts_json"] or "{}")
         paths = {name: self.root / part_path(name, row["site"], row["floor"], row["trace_id"],
                                              row["sha256"]) for name in TABLES}
@@ -491,14 +512,7 @@ class _StoreWriter:
                 {name: part_record(path.read_bytes(), rows[name]) for name, path in paths.items()},
                 sort_keys=True)
             return True
-        for name, path in paths.items():
-            try:
-                if (path.stat().st_size != parts[name]["size"]
-                        or file_sha256(path) != parts[name]["sha256"]):
-                    return False
-            except (OSError, KeyError):
-                return False
-        return True
+        return files_match(paths, parts)
 
     def add_row(self, row: dict) -> str:
         """Register a trace whose part files are written; returns ``new``, ``changed`` or
