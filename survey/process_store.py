@@ -67,15 +67,19 @@ def params_sha256(params: ProcessParams) -> str:
 FIT_FREE_DECISIONS = ("device-calibrated", "uncalibrated-minus-device-bias")
 
 
-def inputs_sha256(params_sha: str, reachable: object | None, fit: MagCalResult | None) -> str:
-    """What a walk's processed tables depend on besides its raw file: the processing
-    parameters' hash, the floor plan's reachable area (WKB) and, for walks whose calibration
-    used it or might, the pooled fit of their calibration session (None otherwise). A change
-    to any of them processes the walk again."""
+def plan_sha256(reachable: object | None) -> str:
+    """Hash of a floor plan's reachable area (its WKB; "" without a plan)."""
     import shapely
 
-    h = hashlib.sha256(params_sha.encode())
-    h.update(b"|plan:" + (shapely.to_wkb(reachable) if reachable is not None else b""))
+    return "" if reachable is None else hashlib.sha256(shapely.to_wkb(reachable)).hexdigest()
+
+
+def inputs_sha256(params_sha: str, plan_sha: str, fit: MagCalResult | None) -> str:
+    """What a walk's processed tables depend on besides its raw file: the processing
+    parameters' hash, the floor plan's (:func:`plan_sha256`) and, for walks whose calibration
+    used it or might, the pooled fit of their calibration session (None otherwise). A change
+    to any of them processes the walk again."""
+    h = hashlib.sha256(f"{params_sha}|plan:{plan_sha}".encode())
     if fit is not None:
         h.update(b"|fit:" + fit.status.encode() + np.concatenate(
             [np.ravel(fit.hard_iron_ut), np.ravel(fit.soft_iron)]).astype("<f8").tobytes())
@@ -181,6 +185,8 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
                            "hard_iron_ut": np.round(f.hard_iron_ut, 2).tolist(),
                            "coverage": round(float(f.coverage), 3)}
                        for k, f in fits.items() if k in used}
+    plan_shas = {k: plan_sha256(g) for k, g in (reachable or {}).items()}
+    old_of = old.set_index("trace_id", drop=False)  # one row per walk (checked when read)
     new_rows = []
     with store.writer():  # one writer at a time for the whole store
         remove_stale_temporaries_under(root)
@@ -188,22 +194,16 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
             if progress and i:
                 progress(i, len(cat))
             key = sessions.get(row.trace_id, "")
-            plan = (reachable or {}).get((row.site, row.floor))
-            with_fit = inputs_sha256(psha, plan, fits.get(key))
+            plan_sha = plan_shas.get((row.site, row.floor), "")
+            with_fit = inputs_sha256(psha, plan_sha, fits.get(key))
             base = {"trace_id": row.trace_id, "sha256": row.sha256, "site": row.site,
                     "floor": row.floor, "session": key, "parts_json": "",
                     "inputs_sha256": with_fit}
-            if row.trace_id in unreadable:
-                report.failed[row.trace_id] = unreadable[row.trace_id]
-                new_rows.append({**base, "status": "failed",
-                                 "reason": unreadable[row.trace_id], "summary_json": "{}"})
-                continue
-            done = old[(old["trace_id"] == row.trace_id) & (old["sha256"] == row.sha256)]
-            if len(done):
-                d = done.iloc[0]
+            d = old_of.loc[row.trace_id] if row.trace_id in old_of.index else None
+            if d is not None and d["sha256"] == row.sha256 and row.trace_id not in unreadable:
                 fit_free = d["status"] == "ok" and json.loads(d["summary_json"]).get(
                     "calibration") in FIT_FREE_DECISIONS
-                same = d["inputs_sha256"] == (inputs_sha256(psha, plan, None) if fit_free
+                same = d["inputs_sha256"] == (inputs_sha256(psha, plan_sha, None) if fit_free
                                               else with_fit)
                 if same and (d["status"] == "skipped" or (
                         d["status"] == "ok" and _processed_parts_present(root, d))):
@@ -212,6 +212,8 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
                     continue
             # one walk at a time: memory is bounded by the largest walk, not by the store
             try:
+                if row.trace_id in unreadable:
+                    raise StoreError(unreadable[row.trace_id])
                 tables = {name: store.part(name, row) for name in ("sensors", "waypoints",
                                                                   "wifi", "ble")}
             except StoreError as err:
@@ -221,7 +223,8 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
                 continue
             try:
                 walk = process_walk(row.trace_id, tables["sensors"], tables["waypoints"], params,
-                                    reachable=plan, session_fit=fits.get(key))
+                                    reachable=(reachable or {}).get((row.site, row.floor)),
+                                    session_fit=fits.get(key))
             except ProcessingError as err:
                 report.skipped[row.trace_id] = str(err)
                 new_rows.append({**base, "status": "skipped", "reason": str(err),
@@ -234,7 +237,7 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
             walk.summary["n_ble_rows_positioned"] = len(outputs["ble"])
             walk.summary["session"] = key
             if walk.summary.get("calibration") in FIT_FREE_DECISIONS:
-                base["inputs_sha256"] = inputs_sha256(psha, plan, None)
+                base["inputs_sha256"] = inputs_sha256(psha, plan_sha, None)
             parts = {}
             for name, frame in outputs.items():
                 table = pa.table({c: _arrow_column(frame[c]) for c in frame.columns})
@@ -358,16 +361,22 @@ def processed_part(store: SurveyStore | str, name: str, walk: pd.Series, *,
     if name not in PROCESSED_TABLES:
         raise ProcessingError(f"unknown processed table {name!r}; expected {PROCESSED_TABLES}")
     store = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
-    table = read_parquet_checked(store.root / "processed" / processed_part_path(
-        name, walk["site"], walk["floor"], walk["trace_id"], walk["sha256"],
-        walk["inputs_sha256"]),
-        None if columns is None else list(columns), what="processed part",
-        expect=json.loads(walk["parts_json"] or "{}").get(name))
+    table = _processed_arrow(store, name, walk, columns)
     if text_as_category:
         for i, f in enumerate(table.schema):
             if pa.types.is_string(f.type) or pa.types.is_large_string(f.type):
                 table = table.set_column(i, f.name, pc.dictionary_encode(table.column(i)))
     return table.to_pandas()
+
+
+def _processed_arrow(store: SurveyStore, name: str, walk: pd.Series,
+                     columns: Sequence[str] | None = None) -> pa.Table:
+    """One processed file of a walk as Arrow, checked against its catalog row."""
+    return read_parquet_checked(store.root / "processed" / processed_part_path(
+        name, walk["site"], walk["floor"], walk["trace_id"], walk["sha256"],
+        walk["inputs_sha256"]),
+        None if columns is None else list(columns), what="processed part",
+        expect=json.loads(walk["parts_json"] or "{}").get(name))
 
 
 def verify_processed(store: SurveyStore | str,
@@ -383,7 +392,7 @@ def verify_processed(store: SurveyStore | str,
     for i, (_, walk) in enumerate(walks.iterrows()):
         try:
             for name in PROCESSED_TABLES:
-                processed_part(store, name, walk)
+                _processed_arrow(store, name, walk)
         except StoreError as err:
             problems[walk["trace_id"]] = str(err)
         if progress:

@@ -125,10 +125,11 @@ def read_parquet_checked(path: Path, columns: list[str] | None = None, *,
         if expect is None:
             return pq.read_table(path, columns=columns, page_checksum_verification=True)
         data = Path(path).read_bytes()
-        if len(data) != expect["size"] or hashlib.sha256(data).hexdigest() != expect["sha256"]:
+        sha = hashlib.sha256(data).hexdigest()
+        if len(data) != expect["size"] or sha != expect["sha256"]:
             raise StoreError(f"{path}: {what} changed since it was written ({len(data)} bytes, "
-                             f"sha256 {hashlib.sha256(data).hexdigest()[:12]}; the catalog has "
-                             f"{expect['size']} bytes, {expect['sha256'][:12]})")
+                             f"sha256 {sha[:12]}; the catalog has {expect['size']} bytes, "
+                             f"{expect['sha256'][:12]})")
         table = pq.read_table(pa.BufferReader(data), columns=columns,
                               page_checksum_verification=True)
     except (OSError, pa.ArrowException) as err:
@@ -230,6 +231,12 @@ class IngestOutcome:
     detail: str = ""
 
 
+def _write_meta(root: Path) -> None:
+    """Write ``store.json`` (format and this version's schema number), atomically."""
+    meta = {"format": STORE_FORMAT, "schema_version": SCHEMA_VERSION}
+    atomic_write_bytes(root / "store.json", json.dumps(meta, indent=2).encode(), overwrite=True)
+
+
 class SurveyStore:
     """A survey store folder. Open an existing one with :meth:`open`, make one with
     :meth:`create`; write through :meth:`writer` (one writer at a time, enforced by a lock)."""
@@ -247,8 +254,7 @@ class SurveyStore:
             raise StoreError(f"{root}: exists and is not a survey store (no store.json)")
         root.mkdir(parents=True, exist_ok=True)
         if not (root / "store.json").exists():
-            meta = {"format": STORE_FORMAT, "schema_version": SCHEMA_VERSION}
-            atomic_write_bytes(root / "store.json", json.dumps(meta, indent=2).encode())
+            _write_meta(root)
         return cls.open(root)
 
     @classmethod
@@ -275,11 +281,8 @@ class SurveyStore:
     def upgrade_schema(self) -> None:
         """Mark a version 1 store as version 2 once its catalog has been written by this
         version (rows of version 1 keep an empty ``parts_json``)."""
-        meta_path = self.root / "store.json"
-        meta = json.loads(meta_path.read_text())
-        if meta.get("schema_version") != SCHEMA_VERSION:
-            meta["schema_version"] = SCHEMA_VERSION
-            atomic_write_bytes(meta_path, json.dumps(meta, indent=2).encode(), overwrite=True)
+        if self.schema_version() != SCHEMA_VERSION:
+            _write_meta(self.root)
 
     # ---- reading ----------------------------------------------------------------------------
 
@@ -484,8 +487,8 @@ class _StoreWriter:
             self.repairing.add(trace_id)
             return None
         pending = [t for t, r in self.pending.items() if r["sha256"] == sha256]
-        others = [t for _, r in hit.iterrows() if self._parts_whole(r) for t in [r["trace_id"]]]
-        others = [t for t in [*others, *pending] if t != trace_id]
+        whole = [r["trace_id"] for _, r in hit.iterrows() if self._parts_whole(r)]
+        others = [t for t in [*whole, *pending] if t != trace_id]
         if others:
             return IngestOutcome("", trace_id, "duplicate", f"same content as {others[0]}")
         return None
