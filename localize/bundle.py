@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from survey.errors import BundleError, BundleIntegrityError, RegistryError
-from survey.publish import file_sha256
+from survey.publish import file_sha256, finish_interrupted_publication
 
 if TYPE_CHECKING:  # an annotation: pyarrow is imported when a table is read
     import pyarrow as pa
@@ -506,6 +506,22 @@ def registry_current(floor_dir: str | os.PathLike) -> tuple[Path, dict] | None:
     return version, cur
 
 
+def finish_publication(folder: Path) -> None:
+    """Finish a build's publication into ``folder`` that was killed midway, so that its
+    bundles are all of that build (SQLite's readers likewise finish a hot journal).
+
+    Raises
+    ------
+    BundleError
+        It cannot be finished (no write permission, staged bundles gone).
+    """
+    try:
+        finish_interrupted_publication(folder)
+    except OSError as exc:  # PublishError included
+        raise BundleError(f"{folder}: a build's publication here was interrupted and cannot "
+                          f"be finished: {exc}") from exc
+
+
 def is_bundle_dir(path: str | os.PathLike) -> bool:
     """Whether ``path`` is a bundle folder or a registry floor folder (with ``CURRENT``)."""
     path = Path(path)
@@ -519,6 +535,7 @@ def bundle_dirs(path: str | os.PathLike) -> list[Path]:
     path = Path(path)
     if is_bundle_dir(path):
         return [path]
+    finish_publication(path)
     return sorted(q for q in path.iterdir() if is_bundle_dir(q)) if path.is_dir() else []
 
 
@@ -536,6 +553,7 @@ def load_bundle(path: str | os.PathLike) -> MapBundle:
         A registry floor folder whose ``CURRENT`` is damaged or points at no version.
     """
     path = Path(path)
+    finish_publication(path.parent)
     pointer = None
     if not (path / "manifest.json").exists():
         current = registry_current(path)

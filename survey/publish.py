@@ -12,13 +12,18 @@ point passed to :func:`crash_point`, the process exits immediately with ``os._ex
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import errno
 import hashlib
+import json
 import os
 import secrets
 import shutil
 import tempfile
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 from .errors import PublishError
 
@@ -102,10 +107,16 @@ def _owner_alive(name: str, prefix: str) -> bool:
 
 def remove_stale_temporaries(parent: str | os.PathLike, prefix: str = TMP_PREFIX) -> int:
     """Remove ``prefix*`` leftovers of crashed or killed processes in ``parent`` (those whose
-    process no longer runs); returns how many."""
+    process no longer runs), after finishing a set of moves such a process left half done
+    (:func:`finish_interrupted_publication`); returns how many."""
     parent = Path(parent)
     if not parent.is_dir():
         return 0
+    try:  # first finish a killed set of moves: its staged outputs are such temporaries
+        finish_interrupted_publication(parent)
+    except PublishError as exc:
+        warnings.warn(f"{exc}; its journal is removed", stacklevel=2)
+        (parent / JOURNAL_NAME).unlink(missing_ok=True)
     n = 0
     for p in parent.glob(prefix + "*"):
         if _owner_alive(p.name, prefix):
@@ -157,9 +168,11 @@ def atomic_directory(target: str | os.PathLike, *, overwrite: bool = False,
     """Build a directory in a temporary sibling and move it into place on success.
 
     Yields the temporary directory to fill. On an exception the temporary directory is removed
-    and ``target`` is untouched. With ``overwrite`` an existing target is replaced: it is first
-    renamed aside, the new one renamed in, then the old one deleted, so that the target path
-    always holds a complete directory except for the instant between two renames.
+    and ``target`` is untouched. With ``overwrite`` an existing target is replaced: the two
+    are swapped in one step where the system can (Linux, :func:`exchange_paths`), else the old
+    one is renamed aside and the new one renamed in; then the old one is deleted. The target
+    path always holds a complete directory (with the fallback, except for the instant between
+    the two renames).
     """
     target = Path(target)
     if target.exists() and not overwrite:
@@ -173,7 +186,10 @@ def atomic_directory(target: str | os.PathLike, *, overwrite: bool = False,
         crash_point(f"{crash_prefix}:before-fsync")
         _fsync_tree(tmp)
         crash_point(f"{crash_prefix}:before-rename")
-        if target.exists():
+        if target.exists() and exchange_paths(tmp, target):
+            fsync_dir(target.parent)
+            shutil.rmtree(tmp, ignore_errors=True)  # now the old target
+        elif target.exists():
             old = Path(tempfile.mkdtemp(prefix=tmp_prefix(), dir=target.parent))
             os.replace(target, old / "old")
             os.replace(tmp, target)
@@ -187,15 +203,66 @@ def atomic_directory(target: str | os.PathLike, *, overwrite: bool = False,
         raise
 
 
+#: A set of moves in progress (:func:`replace_together`), kept in the targets' folder.
+JOURNAL_NAME = ".publish-journal.json"
+
+_RENAME_EXCHANGE = 2
+_AT_FDCWD = -100
+_renameat2: Any = None
+
+
+def exchange_paths(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """Swap two existing paths in one atomic step (Linux ``renameat2(RENAME_EXCHANGE)``);
+    False, with nothing changed, where the system or file system cannot do it."""
+    global _renameat2
+    if _renameat2 is None:
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            fn = libc.renameat2
+            fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p,
+                           ctypes.c_uint]
+            fn.restype = ctypes.c_int
+            _renameat2 = fn
+        except (OSError, AttributeError):
+            _renameat2 = False
+    if not _renameat2:
+        return False
+    if _renameat2(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.ENOSYS, errno.EINVAL, errno.ENOTSUP, errno.EOPNOTSUPP):
+        return False
+    raise OSError(err, os.strerror(err), str(a), None, str(b))
+
+
+def _swap_in(new: Path, target: Path, aside: Path) -> bool:
+    """Put ``new`` at ``target``; an existing target ends at ``new``'s old path when the two
+    could be swapped at once (returns True), else at ``aside`` (renamed away first)."""
+    if target.exists():
+        if exchange_paths(new, target):
+            return True
+        os.replace(target, aside)
+    os.replace(new, target)
+    return False
+
+
+def _journal_entries(parent: Path, moves: list[tuple[Path, Path]]) -> list[dict[str, Any]]:
+    return [{"staged": os.path.relpath(staged, parent), "target": target.name,
+             "inode": os.stat(staged).st_ino} for staged, target in moves]
+
+
 def replace_together(moves: list[tuple[Path, Path]], *, overwrite: bool = False) -> None:
     """Move finished directories (each staged in a temporary folder on the targets' file
-    system) onto their targets one right after the other, so that a set of outputs made to
-    go together (a site's floor bundles and its site bundle) changes at once.
+    system) onto their targets, so that a set of outputs made to go together (a site's floor
+    bundles and its site bundle) changes as one.
 
-    A crash while the set is being made leaves the old set whole. If a move fails (or the
-    process is interrupted by an exception) the moves done so far are undone, so the old set
-    is back. Only a kill in the milliseconds of the moves themselves can leave a mix, or an
-    old target aside in a ``.tmp-*`` folder. Replaced targets are deleted after all moved.
+    A crash while the set is being made leaves the old set whole. The moves are listed first
+    in a journal (``JOURNAL_NAME`` in the targets' folder): if the process is killed among
+    them, the next indoormap that writes to that folder or opens a bundle in it finishes them
+    (:func:`finish_interrupted_publication`), so the set is never left mixed. If a move fails
+    (or an exception interrupts them) the moves done so far are undone and the old set is
+    back. Where the system can swap two paths at once (Linux), a replaced target is never
+    missing, even for a moment. Replaced targets are deleted after all moved.
     """
     for _, target in moves:
         if target.exists() and not overwrite:
@@ -203,28 +270,93 @@ def replace_together(moves: list[tuple[Path, Path]], *, overwrite: bool = False)
                                "replace it")
     if not moves:
         return
-    aside = Path(tempfile.mkdtemp(prefix=tmp_prefix(), dir=moves[0][1].parent))
-    done: list[tuple[Path, Path, Path | None]] = []  # (staged, target, old target's place)
+    parent = moves[0][1].parent
+    if any(target.parent != parent for _, target in moves):
+        raise ValueError("replace_together: every target must be in one folder")
+    for staged, _ in moves:
+        if not staged.is_dir():
+            raise PublishError(f"{staged}: nothing staged to publish")
+    finish_interrupted_publication(parent)
+    aside = Path(tempfile.mkdtemp(prefix=tmp_prefix(), dir=parent))
+    journal = parent / JOURNAL_NAME
+    atomic_write_bytes(journal, json.dumps({
+        "format": 1, "owner": tmp_prefix(""), "aside": aside.name,
+        "moves": _journal_entries(parent, moves)}, indent=1).encode(), overwrite=True)
+    done: list[tuple[Path, Path, bool, bool]] = []  # staged, target, swapped, target existed
     try:
         for i, (staged, target) in enumerate(moves):
-            old = None
-            if target.exists():
-                old = aside / str(i)
-                os.replace(target, old)
-            done.append((staged, target, old))
-            os.replace(staged, target)
+            existed = target.exists()
+            swapped = _swap_in(staged, target, aside / str(i))
+            done.append((staged, target, swapped, existed))
             crash_point(f"replace_together:after-{i}")
     except BaseException:
-        for staged, target, old in reversed(done):  # undo: the old set comes back
-            with contextlib.suppress(OSError):
-                if target.exists() and not staged.exists():
+        for i, (staged, target, swapped, existed) in reversed(list(enumerate(done))):
+            with contextlib.suppress(OSError):  # undo: the old set comes back
+                if swapped:
+                    exchange_paths(staged, target)
+                else:
                     os.replace(target, staged)
-                if old is not None:
-                    os.replace(old, target)
+                    if existed:
+                        os.replace(aside / str(i), target)
         with contextlib.suppress(OSError):
-            aside.rmdir()  # empty once every old target is back
+            journal.unlink()
+        shutil.rmtree(aside, ignore_errors=True)
         raise
     finally:
-        for parent in {target.parent for _, target in moves}:
-            fsync_dir(parent)
+        fsync_dir(parent)
+    crash_point("replace_together:before-cleanup")
+    journal.unlink()
+    fsync_dir(parent)
+    for staged, _, swapped, _ in done:
+        if swapped:  # the old target, swapped to the staging path
+            shutil.rmtree(staged, ignore_errors=True)
     shutil.rmtree(aside, ignore_errors=True)
+
+
+def finish_interrupted_publication(parent: str | os.PathLike) -> bool:
+    """Finish the moves of a :func:`replace_together` whose process was killed among them
+    (its journal in ``parent``), so that the set of outputs is the new one throughout;
+    True if there was one to finish. A journal whose process still runs is left alone.
+
+    Raises
+    ------
+    PublishError
+        The journal is unreadable, or the staged outputs it lists are gone, so the set cannot
+        be made whole; the message names the folder.
+    """
+    parent = Path(parent)
+    journal = parent / JOURNAL_NAME
+    try:
+        text = journal.read_text()
+    except FileNotFoundError:
+        return False
+    except OSError as exc:
+        raise PublishError(f"{journal}: unreadable publication journal: {exc}") from exc
+    try:
+        record = json.loads(text)
+        owner = str(record["owner"])
+        aside = parent / str(record["aside"])
+        moves = [(parent / str(m["staged"]), parent / str(m["target"]), int(m["inode"]))
+                 for m in record["moves"]]
+    except (ValueError, KeyError, TypeError) as exc:
+        raise PublishError(f"{journal}: damaged publication journal ({exc}); the outputs "
+                           f"in {parent} may be a mix of two builds: build them again") from exc
+    if _owner_alive(TMP_PREFIX + owner, TMP_PREFIX):
+        return False
+    aside.mkdir(exist_ok=True)
+    for i, (staged, target, inode) in enumerate(moves):
+        if target.exists() and os.stat(target).st_ino == inode:
+            continue  # moved in before the kill (a swapped old target may lie at staged)
+        if not staged.is_dir() or os.stat(staged).st_ino != inode:
+            raise PublishError(f"{journal}: an interrupted publication cannot be finished: "
+                               f"{staged} is gone, so {target} would not match the rest of "
+                               f"{parent}: build the outputs again")
+        _swap_in(staged, target, aside / str(i))
+    fsync_dir(parent)
+    journal.unlink()
+    fsync_dir(parent)
+    for staged, _, inode in moves:
+        if staged.exists() and os.stat(staged).st_ino != inode:
+            shutil.rmtree(staged, ignore_errors=True)
+    shutil.rmtree(aside, ignore_errors=True)
+    return True

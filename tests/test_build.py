@@ -339,6 +339,33 @@ def test_a_build_killed_before_its_last_bundle_leaves_the_old_set(tmp_path, monk
                for n in ("F2", "_site"))
 
 
+def test_a_build_killed_among_its_final_moves_is_finished_on_next_open(tmp_path, monkeypatch):
+    """Killed after the floor's new bundle moved in but before the site bundle's: the folder
+    held one new and one old bundle, each verifying on its own. Now the next open of either
+    finishes the publication from its journal, so both are the killed build's."""
+    import os
+    import subprocess
+    import sys
+    import tempfile
+
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp))
+    out = tmp_path / "out"
+    old = CliRunner().invoke(main, ["build", str(SITE / "F2"), "-o", str(out)])
+    assert old.exit_code == 0, old.output
+    killed = subprocess.run(
+        [sys.executable, "-m", "survey.cli", "build", str(SITE / "F2"), "-o", str(out),
+         "--overwrite", "--build-time", "2030-01-01T00:00:00Z"], capture_output=True, check=False,
+        env={**os.environ, "INDOORMAP_CRASH_AT": "replace_together:after-0", "TMPDIR": str(tmp)},
+        cwd=Path(__file__).resolve().parents[1])
+    assert killed.returncode == 70
+    assert load_bundle(out / "_site").manifest["build"]["build_time"] == "2030-01-01T00:00:00Z"
+    assert load_bundle(out / "F2").manifest["build"]["build_time"] == "2030-01-01T00:00:00Z"
+    assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".tmp-")) == [
+        "F2", "_site"]
+
+
 def test_sigterm_during_build_leaves_no_litter(tmp_path):
     """A build killed with SIGTERM (a job scheduler's stop) unwinds: its temporary store is
     removed and no output bundle appears."""

@@ -86,3 +86,126 @@ def test_replace_together_undoes_its_moves_when_one_fails(tmp_path):
                      overwrite=True)
     assert [(tmp_path / n / "v").read_text() for n in ("a", "b")] == ["new", "new"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "b", "stage"]
+
+
+_KILLED_SET = """
+import sys
+from pathlib import Path
+import survey.publish as p
+if sys.argv[2] == "no-exchange":
+    p.exchange_paths = lambda a, b: False
+root = Path(sys.argv[1])
+p.replace_together([(root / "stage" / n, root / n) for n in ("a", "b", "c")], overwrite=True)
+"""
+
+
+def _old_set_and_staged_new(root):
+    for name in ("a", "b", "c"):
+        (root / name).mkdir()
+        (root / name / "v").write_text("old")
+        (root / "stage" / name).mkdir(parents=True)
+        (root / "stage" / name / "v").write_text("new")
+
+
+def _kill_replace_together(root, crash_at, mode="exchange"):
+    import subprocess
+    import sys
+
+    res = subprocess.run([sys.executable, "-c", _KILLED_SET, str(root), mode],
+                         env={**os.environ, "INDOORMAP_CRASH_AT": crash_at},
+                         cwd=os.path.dirname(os.path.dirname(__file__)), check=False)
+    assert res.returncode == 70
+
+
+@pytest.mark.parametrize("mode", ["exchange", "no-exchange"])
+@pytest.mark.parametrize("crash_at", ["replace_together:after-0", "replace_together:after-1",
+                                      "replace_together:before-cleanup"])
+def test_a_set_of_moves_killed_midway_is_finished_by_the_next_writer(tmp_path, crash_at, mode):
+    """A kill among the moves of a set (a site's floor bundles and its site bundle) used to
+    leave a mix of old and new outputs, plus the old ones in litter. The journal lets the next
+    indoormap that cleans the folder finish the moves: the whole set is new, nothing is left
+    over. With the two-rename fallback the killed set can even miss a target for a moment."""
+    from survey.publish import JOURNAL_NAME, remove_stale_temporaries
+
+    _old_set_and_staged_new(tmp_path)
+    _kill_replace_together(tmp_path, crash_at, mode)
+    assert (tmp_path / JOURNAL_NAME).exists()
+    if crash_at != "replace_together:before-cleanup":
+        seen = {n: (tmp_path / n / "v").read_text() for n in "abc" if (tmp_path / n).exists()}
+        assert seen.get("a") == "new" and seen.get("c") == "old"  # mixed until finished
+    remove_stale_temporaries(tmp_path)
+    assert [(tmp_path / n / "v").read_text() for n in "abc"] == ["new"] * 3
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "b", "c", "stage"]
+    assert not list((tmp_path / "stage").iterdir())
+
+
+def test_a_killed_set_of_bundles_is_finished_when_a_reader_opens_the_folder(tmp_path):
+    """Like SQLite finishing a hot journal: `localize` opening the folder (or one bundle in
+    it) finishes a killed publication before reading, so it never sees two builds' bundles."""
+    from localize.bundle import bundle_dirs
+    from survey.publish import JOURNAL_NAME
+
+    _old_set_and_staged_new(tmp_path)
+    for n in "abc":  # make them bundle folders as far as bundle_dirs is concerned
+        for root in (tmp_path, tmp_path / "stage"):
+            (root / n / "manifest.json").write_text("{}")
+    _kill_replace_together(tmp_path, "replace_together:after-0")
+    assert [p.name for p in bundle_dirs(tmp_path)] == ["a", "b", "c"]
+    assert not (tmp_path / JOURNAL_NAME).exists()
+    assert [(tmp_path / n / "v").read_text() for n in "abc"] == ["new"] * 3
+
+
+def test_a_journal_that_cannot_be_finished_is_reported(tmp_path):
+    """Staged outputs removed by hand: the set cannot be made whole. A reader says so; the
+    next writer warns and drops the journal (it is about to write the outputs anew)."""
+    import shutil
+
+    from localize.bundle import bundle_dirs
+    from survey.errors import BundleError
+    from survey.publish import JOURNAL_NAME, remove_stale_temporaries
+
+    _old_set_and_staged_new(tmp_path)
+    _kill_replace_together(tmp_path, "replace_together:after-0")
+    shutil.rmtree(tmp_path / "stage" / "b")
+    with pytest.raises(BundleError, match="interrupted and cannot be finished.*stage/b is gone"):
+        bundle_dirs(tmp_path)
+    with pytest.warns(UserWarning, match="journal is removed"):
+        remove_stale_temporaries(tmp_path)
+    assert not (tmp_path / JOURNAL_NAME).exists()
+
+
+def test_the_journal_of_a_live_process_is_left_alone(tmp_path):
+    import json
+
+    from survey.publish import JOURNAL_NAME, finish_interrupted_publication, tmp_prefix
+
+    _old_set_and_staged_new(tmp_path)
+    (tmp_path / JOURNAL_NAME).write_text(json.dumps({
+        "format": 1, "owner": tmp_prefix(""), "aside": "x",
+        "moves": [{"staged": "stage/a", "target": "a",
+                   "inode": os.stat(tmp_path / "stage" / "a").st_ino}]}))
+    assert not finish_interrupted_publication(tmp_path)  # this process: still at work
+    assert (tmp_path / "a" / "v").read_text() == "old"
+    (tmp_path / JOURNAL_NAME).write_text("{not json")
+    with pytest.raises(PublishError, match="damaged publication journal"):
+        finish_interrupted_publication(tmp_path)
+
+
+def test_atomic_directory_swaps_old_and_new_in_one_step(tmp_path, monkeypatch):
+    """Where the system can swap two paths at once the target is never missing; the two-rename
+    fallback gives the same result."""
+    import survey.publish as pub
+
+    calls = []
+    real = pub.exchange_paths
+    monkeypatch.setattr(pub, "exchange_paths", lambda a, b: calls.append(1) or real(a, b))
+    target = tmp_path / "out"
+    for text in ("1", "2"):
+        with atomic_directory(target, overwrite=True) as tmp:
+            (tmp / "x.txt").write_text(text)
+    assert calls and (target / "x.txt").read_text() == "2"
+    monkeypatch.setattr(pub, "exchange_paths", lambda a, b: False)
+    with atomic_directory(target, overwrite=True) as tmp:
+        (tmp / "x.txt").write_text("3")
+    assert (target / "x.txt").read_text() == "3"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
