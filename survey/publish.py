@@ -251,6 +251,15 @@ def _journal_entries(parent: Path, moves: list[tuple[Path, Path]]) -> list[dict[
              "inode": os.stat(staged).st_ino} for staged, target in moves]
 
 
+def _inside(name: object, depth: int = 2) -> str:
+    """A journal's relative path, checked: at most ``depth`` plain parts (no ``..``, no
+    absolute path), so that a damaged journal cannot move or delete anything elsewhere."""
+    parts = str(name).split("/")
+    if not 0 < len(parts) <= depth or any(p in ("", ".", "..") or "\\" in p for p in parts):
+        raise ValueError(f"unsafe path {name!r}")
+    return str(name)
+
+
 def replace_together(moves: list[tuple[Path, Path]], *, overwrite: bool = False) -> None:
     """Move finished directories (each staged in a temporary folder on the targets' file
     system) onto their targets, so that a set of outputs made to go together (a site's floor
@@ -290,17 +299,21 @@ def replace_together(moves: list[tuple[Path, Path]], *, overwrite: bool = False)
             done.append((staged, target, swapped, existed))
             crash_point(f"replace_together:after-{i}")
     except BaseException:
+        undone = True
         for i, (staged, target, swapped, existed) in reversed(list(enumerate(done))):
-            with contextlib.suppress(OSError):  # undo: the old set comes back
+            try:  # undo: the old set comes back
                 if swapped:
                     exchange_paths(staged, target)
                 else:
                     os.replace(target, staged)
                     if existed:
                         os.replace(aside / str(i), target)
-        with contextlib.suppress(OSError):
-            journal.unlink()
-        shutil.rmtree(aside, ignore_errors=True)
+            except OSError:
+                undone = False
+        if undone:  # else the journal stays, and the next writer or reader finishes the set
+            with contextlib.suppress(OSError):
+                journal.unlink()
+            shutil.rmtree(aside, ignore_errors=True)
         raise
     finally:
         fsync_dir(parent)
@@ -335,9 +348,9 @@ def finish_interrupted_publication(parent: str | os.PathLike) -> bool:
     try:
         record = json.loads(text)
         owner = str(record["owner"])
-        aside = parent / str(record["aside"])
-        moves = [(parent / str(m["staged"]), parent / str(m["target"]), int(m["inode"]))
-                 for m in record["moves"]]
+        moves = [(parent / _inside(m["staged"]), parent / _inside(m["target"], depth=1),
+                  int(m["inode"])) for m in record["moves"]]
+        aside = parent / _inside(record["aside"], depth=1)
     except (ValueError, KeyError, TypeError) as exc:
         raise PublishError(f"{journal}: damaged publication journal ({exc}); the outputs "
                            f"in {parent} may be a mix of two builds: build them again") from exc

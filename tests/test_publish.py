@@ -209,3 +209,27 @@ def test_atomic_directory_swaps_old_and_new_in_one_step(tmp_path, monkeypatch):
         (tmp / "x.txt").write_text("3")
     assert (target / "x.txt").read_text() == "3"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+def test_a_tampered_journal_cannot_move_or_delete_outside_its_folder(tmp_path):
+    """The journal names folders by relative path: one that points outside the folder (or at
+    anything but the temporaries a build makes) is refused before anything is touched."""
+    import json
+
+    from survey.publish import JOURNAL_NAME, finish_interrupted_publication
+
+    victim = tmp_path / "victim"
+    victim.mkdir()
+    (victim / "keep").write_text("x")
+    out = tmp_path / "out"
+    out.mkdir()
+    for staged, target, aside in (("../victim", "a", ".tmp-1-x-"), ("stage/a", "../victim",
+                                  ".tmp-1-x-"), (".tmp-1-x-/a", "a", "../victim"),
+                                  ("/abs", "a", ".tmp-1-x-"), ("stage/../../victim", "a", "x")):
+        (out / JOURNAL_NAME).write_text(json.dumps({
+            "format": 1, "owner": "1-dead-", "aside": aside,
+            "moves": [{"staged": staged, "target": target,
+                       "inode": os.stat(victim).st_ino}]}))
+        with pytest.raises(PublishError, match="damaged publication journal"):
+            finish_interrupted_publication(out)
+    assert (victim / "keep").read_text() == "x"
