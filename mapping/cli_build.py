@@ -325,6 +325,8 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
             # fitted over the whole store either way)
             report = process_store(store, floors=list(plans), reachable=reachable,
                                    progress=update)
+        for warning in report.warnings:
+            click.echo(f"warning: {warning}", err=True)
         if report.failed:
             tid, reason = next(iter(report.failed.items()))
             raise BuildError(f"{len(report.failed)} walks of the store cannot be read, e.g. "

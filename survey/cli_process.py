@@ -74,6 +74,8 @@ def process_command(store_dir: str, site: str | None, floor: str | None,
     with progress("process", len(cat), unit="walks") as update:
         report = process_store(store, site=site, floor=floor, reachable=reachable,
                                progress=update)
+    for warning in report.warnings:
+        click.echo(f"warning: {warning}", err=True)
     click.echo(f"walks: processed {len(report.processed)}, unchanged {len(report.unchanged)}, "
                f"skipped {len(report.skipped)}"
                + (f", failed {len(report.failed)}" if report.failed else ""))

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from .process_store import processed_catalog, verify_processed
+from .process_store import processed_catalog, verify_processed, verify_session_cache
 from .progress import progress
 from .store import SurveyStore
 
@@ -42,16 +42,21 @@ def store_info(store_dir: Path) -> None:
 @click.argument("store_dir", type=click.Path(file_okay=False, exists=True, path_type=Path))
 def store_verify(store_dir: Path) -> None:
     """Read every stored and processed file with all the checks a read makes (sha256, size,
-    rows, columns, trace id, page checksums). Exit 1 if any fails; ingesting a failed trace's
-    file again repairs it, and `process` then redoes its walk."""
+    rows, columns, trace id, page checksums), and the session-fit cache (its sha256 and
+    format). Exit 1 if any fails; ingesting a failed trace's file again repairs it, and
+    `process` then redoes its walk (and refits a damaged cache)."""
     store = SurveyStore.open(store_dir)
     n = len(store.catalog())
     with progress("verify", n, unit="traces") as update:
         raw = store.verify(progress=update)
     processed = verify_processed(store)
+    cache = verify_session_cache(store)
     for what, problems in (("trace", raw), ("processed walk", processed)):
         for tid, problem in problems.items():
             click.echo(f"FAILED  {what} {tid}: {problem}")
-    if raw or processed:
+    if cache:
+        click.echo(f"FAILED  {cache} (the next `indoormap process` fits "
+                   "the sessions again and rewrites it)")
+    if raw or processed or cache:
         sys.exit(1)
     click.echo(f"ok      {store_dir} ({n} traces)")

@@ -18,20 +18,27 @@ its calibration session's fit change.
 
 Calibration sessions are found across all the store's walks of a device model by the phone's
 reported bias; walks that lack a trustworthy calibration use a fit pooled over their session.
+The sessions' keys and fits are kept in ``STORE/processed/session_fits.json`` with the hash of
+what they were computed from (:func:`store_session_fits`), so that a run over unchanged walks
+does not read their magnetometer columns again.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
+import inspect
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from . import __version__
 from .errors import ProcessingError, StoreError
 from .magcal import MagCalResult, fit_ellipsoid
 from .process import ProcessedWalk, ProcessParams, calibration_sessions, process_walk, \
@@ -45,6 +52,13 @@ _MAG_COLUMNS = ["stream", "t_ms", "x", "y", "z", "bx", "by", "bz"]
 PROCESSED_TABLES = ("samples", "steps", "legs", "wifi", "ble")
 PROCESSED_CATALOG_COLUMNS = ("trace_id", "sha256", "site", "floor", "inputs_sha256", "status",
                              "reason", "session", "parts_json", "summary_json")
+#: The session-fit cache, under ``processed/`` (:func:`store_session_fits`).
+SESSION_CACHE = "session_fits.json"
+SESSION_CACHE_FORMAT = "indoormap-session-fits"
+#: Version of what the session-fit cache holds. Bump it when what :func:`session_fits`
+#: computes changes (``reported_bias``, ``calibration_sessions``, ``fit_ellipsoid``, the
+#: subsampling) or how a fit is written: caches of other versions are fitted again.
+SESSION_FIT_VERSION = 1
 
 
 @dataclass
@@ -56,6 +70,8 @@ class ProcessReport:
     #: tried again by the next run; re-ingesting their files repairs them
     failed: dict[str, str] = field(default_factory=dict)
     sessions: dict[str, dict] = field(default_factory=dict)
+    #: problems met and worked around (a damaged session-fit cache, ignored and refitted)
+    warnings: list[str] = field(default_factory=list)
 
 
 def params_sha256(params: ProcessParams) -> str:
@@ -110,7 +126,7 @@ def session_fits(store: SurveyStore, catalog: pd.DataFrame, max_samples: int = 2
     raw samples, and the walks whose magnetometer columns cannot be read (trace id -> the
     store's error). Reads the magnetometer columns walk by walk. Each session's subsample
     is seeded by ``seed`` and the session's key, so a fit does not depend on which other
-    sessions are fitted with it."""
+    sessions are fitted with it. Uncached: :func:`store_session_fits` keeps the results."""
     raw_of: dict[str, np.ndarray] = {}
     biases, models, unreadable = [], [], {}
     for row in catalog.itertuples(index=False):
@@ -140,6 +156,209 @@ def session_fits(store: SurveyStore, catalog: pd.DataFrame, max_samples: int = 2
     return sessions, fits, unreadable
 
 
+# ---- session-fit cache ------------------------------------------------------------------------
+#
+# processed/session_fits.json keeps, per device group (the model name the session keys carry),
+# the session key of each walk and the session fits, with the hash of everything they were
+# computed from (:func:`_group_inputs_sha256`). A run whose hash matches takes them from there
+# instead of reading every walk's magnetometer columns again. Floats are kept as the hex of
+# their little-endian float64 bytes, so a cached fit is the computed one bit for bit.
+
+_FIT_TEXT = ("status", "method", "reason")
+_FIT_FLOATS = ("field_strength_ut", "residual_rms_ut", "condition_number", "coverage")
+_FIT_ARRAYS = {"hard_iron_ut": (3,), "soft_iron": (3, 3), "hard_iron_se_ut": (3,),
+               "earth_field_ut": (3,)}
+
+
+@dataclass
+class SessionFits:
+    """What :func:`store_session_fits` gives: each walk's session key, the session fits, the
+    walks whose magnetometer columns cannot be read (trace id -> the store's error), the
+    cache's new content (None: the file is current) and the problems met (a damaged cache)."""
+
+    sessions: dict[str, str]
+    fits: dict[str, MagCalResult]
+    unreadable: dict[str, str]
+    cache: dict | None = None
+    warnings: list[str] = field(default_factory=list)
+
+
+def device_group(model: str) -> str:
+    """The name :func:`survey.process.calibration_sessions` gives a device model in its
+    session keys (``model or "unknown"``): walks of models of one name are fitted together."""
+    return model or "unknown"
+
+
+def _defaults(fn) -> dict:
+    return {k: p.default for k, p in inspect.signature(fn).parameters.items()
+            if p.default is not inspect.Parameter.empty}
+
+
+def _sensors_record(row) -> dict | None:
+    """The sensors part's recorded sha256/size/rows of a catalog row (None: schema 1)."""
+    try:
+        rec = json.loads(row.parts_json or "{}").get("sensors")
+    except (ValueError, AttributeError):
+        return None
+    return rec if isinstance(rec, dict) else None
+
+
+def _group_inputs_sha256(store: SurveyStore, rows: pd.DataFrame, max_samples: int,
+                         seed: int) -> str | None:
+    """Hash of what a device group's session keys and fits depend on: this code's
+    :data:`SESSION_FIT_VERSION` and libraries, the fit's parameters, the models, and each walk
+    (in the order the fit reads them) with its raw file's and sensors part's sha256. None when
+    a walk's sensors part is not there as recorded (missing, changed, or schema 1 without a
+    recorded hash): the walks are then read, which names the unreadable ones."""
+    import scipy
+
+    walks = []
+    for row in rows.itertuples(index=False):
+        rec = _sensors_record(row)
+        path = store.root / part_path("sensors", row.site, row.floor, row.trace_id, row.sha256)
+        if rec is None or not files_match({"sensors": path}, {"sensors": rec}):
+            return None
+        walks.append([row.site, row.floor, row.trace_id, row.sha256, rec["sha256"]])
+    inputs = {"version": SESSION_FIT_VERSION,
+              "software": {"indoormap": __version__, "numpy": np.__version__,
+                           "scipy": scipy.__version__},
+              "params": {"max_samples": max_samples, "seed": seed,
+                         "calibration_sessions": _defaults(calibration_sessions),
+                         "fit_ellipsoid": _defaults(fit_ellipsoid)},
+              "models": sorted(set(rows["device_model"])), "walks": walks}
+    return hashlib.sha256(json.dumps(inputs, sort_keys=True, default=repr).encode()).hexdigest()
+
+
+def _f8(value) -> str:
+    return np.asarray(value, dtype="<f8").tobytes().hex()
+
+
+def _from_f8(text: str, shape: tuple[int, ...]) -> np.ndarray:
+    data = bytes.fromhex(text)
+    if len(data) != 8 * int(np.prod(shape)):
+        raise ValueError(f"{len(data)} bytes for a float64 array of shape {shape}")
+    return np.frombuffer(data, dtype="<f8").astype(np.float64).reshape(shape)
+
+
+def _encode_fit(fit: MagCalResult) -> dict:
+    out = {name: getattr(fit, name) for name in _FIT_TEXT}
+    out["n_samples"] = int(fit.n_samples)
+    out.update({name: _f8(getattr(fit, name)) for name in (*_FIT_FLOATS, *_FIT_ARRAYS)})
+    return out
+
+
+def _decode_fit(doc: dict) -> MagCalResult:
+    names = {f.name for f in dataclasses.fields(MagCalResult)}
+    if not isinstance(doc, dict) or set(doc) != names:
+        raise ValueError("a fit without the fields of MagCalResult")
+    if not all(isinstance(doc[n], str) for n in (*_FIT_TEXT, *_FIT_FLOATS, *_FIT_ARRAYS)) \
+            or type(doc["n_samples"]) is not int:
+        raise ValueError("a fit field of the wrong type")
+    return MagCalResult(
+        **{n: doc[n] for n in _FIT_TEXT}, n_samples=doc["n_samples"],
+        **{n: float(_from_f8(doc[n], (1,))[0]) for n in _FIT_FLOATS},
+        **{n: _from_f8(doc[n], shape) for n, shape in _FIT_ARRAYS.items()})
+
+
+def _groups_sha256(groups: dict) -> str:
+    return hashlib.sha256(json.dumps(groups, sort_keys=True, separators=(",", ":"))
+                          .encode()).hexdigest()
+
+
+def _read_session_cache(path: Path) -> tuple[dict, dict, str | None]:
+    """The session-fit cache: its groups as stored, decoded (group -> ``{"key", "sessions",
+    "fits"}``), and the problem that made it unusable (None: whole, or absent)."""
+    if not path.exists():
+        return {}, {}, None
+    try:
+        doc = json.loads(path.read_bytes())
+        if not isinstance(doc, dict) or doc.get("format") != SESSION_CACHE_FORMAT:
+            raise ValueError(f"not an {SESSION_CACHE_FORMAT} file")
+        if doc.get("version") != SESSION_FIT_VERSION:
+            return {}, {}, (f"session-fit cache of version {doc.get('version')!r}, not "
+                            f"{SESSION_FIT_VERSION}")
+        groups = doc["groups"]
+        if not isinstance(groups, dict) or doc.get("sha256") != _groups_sha256(groups):
+            raise ValueError("content does not match its sha256")
+        decoded = {}
+        for name, entry in groups.items():
+            sessions, fits = entry["sessions"], entry["fits"]
+            if not (isinstance(entry["key"], str) and isinstance(sessions, dict)
+                    and isinstance(fits, dict)
+                    and all(isinstance(v, str) for v in sessions.values())):
+                raise ValueError(f"malformed entry {name!r}")
+            decoded[name] = {"key": entry["key"], "sessions": sessions,
+                             "fits": {k: _decode_fit(f) for k, f in fits.items()}}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, RecursionError) as err:
+        return {}, {}, f"damaged session-fit cache ({type(err).__name__}: {err})"
+    return groups, decoded, None
+
+
+def store_session_fits(store: SurveyStore, models: Iterable[str], max_samples: int = 20000,
+                       seed: int = 0) -> SessionFits:
+    """:func:`session_fits` over every walk of the store whose device group
+    (:func:`device_group`) is one of ``models``' groups, each group taken from the session-fit
+    cache (``processed/session_fits.json``) when the hash of its inputs matches, else fitted
+    from the walks' magnetometer columns. Groups are fitted apart: sessions never span two
+    groups, and each session's subsample is seeded by its key, so the result is what one
+    :func:`session_fits` over all the walks gives. A damaged cache is ignored (a warning) and
+    written anew; :attr:`SessionFits.cache` is the content to write, or None when the file
+    needs no change."""
+    everything = store.catalog()
+    path = store.root / "processed" / SESSION_CACHE
+    stored, cached, problem = _read_session_cache(path)
+    out = SessionFits({}, {}, {})
+    if problem:
+        out.warnings.append(f"{path}: {problem}; ignored, the sessions are fitted again")
+    group_of = everything["device_model"].map(device_group)
+    present = set(group_of)
+    new = {name: entry for name, entry in stored.items() if name in present}
+    changed = problem is not None or len(new) != len(stored)
+    sessions, fits = {}, {}
+    for name in sorted({device_group(m) for m in models} & present):
+        rows = everything[group_of == name]
+        key = _group_inputs_sha256(store, rows, max_samples, seed)
+        hit = cached.get(name)
+        if key is not None and hit is not None and hit["key"] == key \
+                and set(hit["sessions"]) == set(rows["trace_id"]):
+            sessions.update(hit["sessions"])
+            fits.update(hit["fits"])
+            continue
+        s, f, unreadable = session_fits(store, rows, max_samples, seed)
+        sessions.update(s)
+        fits.update(f)
+        out.unreadable.update(unreadable)
+        if key is not None and not unreadable:
+            new[name] = {"key": key, "sessions": s,
+                         "fits": {k: _encode_fit(v) for k, v in f.items()}}
+            changed = True
+    order = list(everything["trace_id"])
+    out.sessions = {t: sessions[t] for t in order if t in sessions}
+    out.unreadable = {t: out.unreadable[t] for t in order if t in out.unreadable}
+    out.fits = {k: fits[k] for k in sorted(fits)}
+    out.cache = new if changed else None
+    return out
+
+
+def _write_session_cache(path: Path, groups: dict) -> None:
+    """Write the session-fit cache atomically (the caller holds the store's writer lock)."""
+    doc = {"format": SESSION_CACHE_FORMAT, "version": SESSION_FIT_VERSION,
+           "sha256": _groups_sha256(groups), "groups": groups}
+    atomic_write_bytes(path, json.dumps(doc, sort_keys=True, indent=1).encode(),
+                       overwrite=True, crash="process:session-cache-before-rename")
+    crash_point("process:session-cache-after-rename")
+
+
+def verify_session_cache(store: SurveyStore | str) -> str | None:
+    """The problem of the store's session-fit cache (None: whole, or absent). Its sha256,
+    format and every fit are checked; whether it is current is not (a run refits what
+    changed), nor are the fits recomputed."""
+    store = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
+    path = store.root / "processed" / SESSION_CACHE
+    problem = _read_session_cache(path)[2]
+    return None if problem is None else f"{path}: {problem}"
+
+
 def _processed_parts_present(root, row: pd.Series) -> bool:
     """Whether every processed file of an ``ok`` catalog row is there with its recorded
     size and sha256."""
@@ -157,7 +376,9 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
     parameters, floor plan or calibration-session fit changed.
 
     Calibration sessions are fitted over every walk of the store made with the selection's
-    phone models, so processing one floor gives what processing the whole store gives.
+    phone models, so processing one floor gives what processing the whole store gives; the
+    fits of device models whose walks did not change come from the session-fit cache
+    (:func:`store_session_fits`), which the run rewrites when it refitted any.
 
     Parameters
     ----------
@@ -177,9 +398,9 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
     report = ProcessReport()
     if not len(cat):
         return report
-    everything = store.catalog()
-    sessions, fits, unreadable = session_fits(
-        store, everything[everything["device_model"].isin(cat["device_model"])])
+    found = store_session_fits(store, cat["device_model"])
+    sessions, fits, unreadable = found.sessions, found.fits, found.unreadable
+    report.warnings += found.warnings
     used = {sessions[t] for t in cat["trace_id"] if t in sessions}
     report.sessions = {k: {"status": f.status, "reason": f.reason,
                            "hard_iron_ut": np.round(f.hard_iron_ut, 2).tolist(),
@@ -190,6 +411,8 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
     new_rows = []
     with store.writer():  # one writer at a time for the whole store
         remove_stale_temporaries_under(root)
+        if found.cache is not None:
+            _write_session_cache(root / SESSION_CACHE, found.cache)
         for i, row in enumerate(cat.itertuples(index=False)):
             if progress and i:
                 progress(i, len(cat))

@@ -137,11 +137,12 @@ def refuse_to_replace(path: str | os.PathLike, overwrite: bool) -> None:
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes, *, overwrite: bool = False,
-                       sync_dir: bool = True) -> None:
+                       sync_dir: bool = True, crash: str | None = None) -> None:
     """Write ``data`` to ``path`` atomically (temp file, fsync, rename, dir fsync).
 
     With ``sync_dir=False`` the caller fsyncs the parent folder itself (once for many files)
-    before relying on the rename being durable."""
+    before relying on the rename being durable. ``crash``: a :func:`crash_point` between the
+    temporary's fsync and its rename (tests kill the writer there)."""
     path = Path(path)
     if path.exists() and not overwrite:
         raise PublishError(f"{path}: exists; pass overwrite=True (CLI: --overwrite) to replace it")
@@ -153,6 +154,8 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes, *, overwrite: bool 
             fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
+        if crash is not None:
+            crash_point(crash)
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(OSError):
