@@ -125,7 +125,9 @@ def _write_table(table, target: Path, fmt: str, overwrite: bool = False) -> None
 
 
 def _prepare_walk(trace, maps, start_opt: str | tuple[float, float], waypoints_xy):
-    """What both commands do before localizing a walk: its steps, its floor's bundle (with a
+    """What both commands do before localizing a walk: its steps, its floor's bundle (the
+    header's floor, else the site's Wi-Fi floor model, else its BLE floor model:
+    :meth:`localize.floors.SiteMaps.choose`, said on standard error when a model chose; with a
     warning when the bundle was built from the walk), the radio model for its phone (Wi-Fi,
     else BLE: :func:`localize.walk_radio.walk_radio`; the steps then carry the walk's BLE
     windows), and its start (with a warning when it is off the floor). Returns ``(wr, bundle,
@@ -135,9 +137,14 @@ def _prepare_walk(trace, maps, start_opt: str | tuple[float, float], waypoints_x
     from survey.step_summaries import ble_scans_of, step_summaries
 
     steps = step_summaries(trace)
-    bundle = maps.select(steps)
+    ble = ble_scans_of(trace)
+    bundle, chosen = maps.choose(steps.trace_id, steps.site_id, steps.floor_id,
+                                 steps.floor_name, steps.scans, ble)
+    if "floor model" in chosen:
+        click.echo(f"{trace.trace_id}: floor {bundle.manifest.get('floor_name', '')} by the "
+                   f"{chosen}", err=True)
     _warn_if_source_walk(bundle, trace.trace_id)
-    wr = walk_radio(bundle, trace.header.model, steps, ble_scans_of(trace))
+    wr = walk_radio(bundle, trace.header.model, steps, ble)
     start_xy, how = _start_of(start_opt, wr, waypoints_xy)
     if wr.kind == "ble" and start_xy is not None:  # a start at a BLE fix says so already
         how += f"; BLE fixes ({wr.reason})"

@@ -6,7 +6,9 @@ go on, and the exit code is then 1:
 
 - ``floor SITE_BUNDLE WALK...``: per scan ``level=scan`` rows (floor of the scan alone and of the
   last ``--window`` scans) and one ``level=walk`` row per walk (all its scans), with the floor
-  the trace file names (``recorded_floor``) for checking.
+  the trace file names (``recorded_floor``) for checking and the model used (``kind``): by
+  default the Wi-Fi floor model when it classifies one of the walk's Wi-Fi scans, else the
+  BLE floor model over the walk's BLE windows (``--kind wifi|ble`` forces one).
 - ``wifi-locate BUNDLE WALK...``: per scan the Wi-Fi (or BLE) position, its spread, the number
   of transmitters the bundle knows and, when the walk has waypoints, the distance to the
   waypoint track interpolated in time at the scan (``error_m``). By default each walk's scans
@@ -73,8 +75,19 @@ class _CsvRows:
 @click.argument("walks", nargs=-1, required=True, type=click.Path(exists=True))
 @click.option("--window", type=click.IntRange(1, 1000), default=5, show_default=True,
               help="Scans in the sequence estimate (this scan and the ones before it).")
-def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
-    """Predicted floor per scan and per walk (CSV) from the site bundle's floor model.
+@click.option("--kind", type=click.Choice(["auto", "wifi", "ble"]), default="auto",
+              show_default=True,
+              help="Floor model to use: auto = the Wi-Fi model over the walk's Wi-Fi scans when "
+                   "it classifies one of them, else the BLE model over its 2 s BLE windows "
+                   "(what localize does for a walk that names no floor); wifi or ble: that "
+                   "model only.")
+def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: str) -> None:
+    """Predicted floor per scan and per walk (CSV) from the site bundle's floor models.
+
+    The site bundle holds a Wi-Fi floor model (or a BLE one when the survey had no Wi-Fi) and,
+    when the survey had BLE on two floors or more, a BLE floor model beside it. With --kind
+    auto a walk whose Wi-Fi scans the Wi-Fi model classifies is put on a floor by Wi-Fi, any
+    other walk (no Wi-Fi: an iPhone logs BLE only) by the BLE model over its BLE windows.
 
     \b
     CSV columns (stdout; a summary on stderr):
@@ -86,19 +99,30 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
       p_floor         the scan's probability of that floor (0-1)
       window_floor    most likely floor over the scan and the WINDOW-1 before it
       recorded_floor  the floor the trace file names (empty if none)
+      kind            the model used: wifi (scans) or ble (BLE windows)
     """
-    from localize.floor_classifier import FloorClassifier
+    from localize.floor_classifier import site_floor_models
 
     site = _site_bundle(site_path)
-    model = FloorClassifier.from_bundle(site)
-    if model is None:
+    models = site_floor_models(site)
+    if not models:
         raise LocalizationError(f"{site.path}: the site bundle has no floor model (the survey "
                                 "had no Wi-Fi or BLE rows)")
-    kind = (site.manifest.get("metrics", {}).get("floor_model") or {}).get("kind", "wifi")
+    if kind != "auto" and kind not in models:
+        raise LocalizationError(f"{site.path}: the site bundle has no {kind} floor model (it "
+                                f"has {' and '.join(models)}; a BLE floor model is built when "
+                                "the survey has BLE on two floors or more)")
     out = _CsvRows(["level", "trace_id", "t_ms", "n_known", "floor", "p_floor", "window_floor",
-                    "recorded_floor"])
+                    "recorded_floor", "kind"])
     scan_rows: list[dict] = []
     failures = WalkFailures()
+
+    def classify(k: str, trace):
+        model = models[k]
+        scans = _scans(trace, k)
+        rssi = model.scan_matrix(scans)
+        lp = model.log_proba(rssi)
+        return model, scans, rssi, lp, np.isfinite(lp).all(axis=1)
 
     def one(f: Path) -> None:
         trace = read_walk(f)
@@ -107,10 +131,11 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
                                     f"{trace.header.site_id}, but the site bundle {site.path} "
                                     f"is of site {site.site_id}")
         recorded = trace.header.floor_name or ""
-        scans = _scans(trace, kind)
-        rssi = model.scan_matrix(scans)
-        lp = model.log_proba(rssi)
-        ok = np.isfinite(lp).all(axis=1)
+        tried = [kind] if kind != "auto" else [k for k in ("wifi", "ble") if k in models]
+        for k in tried:  # auto: Wi-Fi when it classifies a scan, else BLE
+            model, scans, rssi, lp, ok = classify(k, trace)
+            if ok.any():
+                break
         n_known = np.isfinite(rssi).sum(axis=1)
         mine = []  # the walk's rows, written once it is through
         for i, scan in enumerate(scans):
@@ -121,16 +146,19 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
                          "n_known": int(n_known[i]), "floor": floor,
                          "p_floor": float(np.exp(lp[i].max())) if ok[i] else "",
                          "window_floor": str(model.floors[np.argmax(seq.sum(axis=0))])
-                         if len(seq) else "", "recorded_floor": recorded})
+                         if len(seq) else "", "recorded_floor": recorded, "kind": k})
         walk_floor = str(model.floors[np.argmax(lp[ok].sum(axis=0))]) if ok.any() else ""
         mine.append({"level": "walk", "trace_id": trace.trace_id, "t_ms": "",
                      "n_known": int(ok.sum()), "floor": walk_floor, "p_floor": "",
-                     "window_floor": "", "recorded_floor": recorded})
+                     "window_floor": "", "recorded_floor": recorded, "kind": k})
         out.write(mine)
         scan_rows.extend(r for r in mine if r["level"] == "scan")
         if not ok.any():
-            click.echo(f"{trace.trace_id}: no {kind} scan hears a transmitter the floor model "
-                       "knows; floor unknown", err=True)
+            click.echo(f"{trace.trace_id}: no {' or '.join(tried)} scan hears a transmitter "
+                       "the floor model knows; floor unknown", err=True)
+        elif k == "ble" and kind == "auto":
+            click.echo(f"{trace.trace_id}: floor {walk_floor} from {int(ok.sum())} BLE windows "
+                       "(no Wi-Fi scan classified)", err=True)
 
     files = trace_files(walks)
     for f in files:
@@ -138,8 +166,10 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int) -> None:
     if scan_rows:
         right = sum(bool(r["recorded_floor"]) and r["floor"] == r["recorded_floor"]
                     for r in scan_rows)
-        click.echo(f"{len(scan_rows)} scans; {100 * right / len(scan_rows):.2f} % on the floor "
-                   "the trace files name", err=True)
+        ble = sum(r["kind"] == "ble" for r in scan_rows)
+        click.echo(f"{len(scan_rows)} scans" + (f" ({ble} of them BLE windows)" if ble else "")
+                   + f"; {100 * right / len(scan_rows):.2f} % on the floor the trace files name",
+                   err=True)
     failures.exit_if_any(len(files))
 
 
@@ -176,7 +206,7 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
     from localize.floors import SiteMaps
     from localize.radio_match import WalkSmoothing
     from localize.walk_radio import bundle_positioner, radio_for_walk
-    from survey.step_summaries import scans_of, waypoints_of
+    from survey.step_summaries import ble_scans_of, scans_of, waypoints_of
 
     given = None
     if calibration not in ("auto", "none"):
@@ -199,9 +229,10 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
         if not scans:
             click.echo(f"{trace.trace_id}: no {kind} scans", err=True)
             return
-        h = trace.header  # the floor from the header, else the floor model on the Wi-Fi scans
+        h = trace.header  # the floor from the header, else the Wi-Fi, else the BLE floor model
         bundle = maps.select_for(trace.trace_id, h.site_id or "", h.floor_id or "",
-                                 h.floor_name or "", scans if kind == "wifi" else scans_of(trace))
+                                 h.floor_name or "", scans if kind == "wifi" else scans_of(trace),
+                                 scans if kind == "ble" else ble_scans_of(trace))
         pos = bundle_positioner(bundle, kind)
         if pos is None:
             raise LocalizationError(f"{bundle.path}: no {kind} fingerprints in this bundle")

@@ -3,7 +3,11 @@
 Fitting lives in :mod:`mapping.floor_model`; this module holds the arithmetic both sides share:
 features ``(rssi + 100) / 100`` clipped to [0, 1] (0 = not heard) and a multinomial logistic
 model ``softmax(coef @ x + intercept)``. The site bundle stores it as two tables:
-``floor_coef`` (``ap, floor, coef``) and ``floor_intercept`` (``floor, intercept``).
+``floor_coef`` (``ap, floor, coef``) and ``floor_intercept`` (``floor, intercept``); its kind
+(``wifi``, or ``ble`` for a site surveyed without Wi-Fi) is ``metrics.floor_model.kind``.
+Beside a Wi-Fi model a site bundle may hold a BLE one, ``ble_floor_coef`` and
+``ble_floor_intercept`` (bundles built before it have none): :meth:`FloorClassifier.from_bundle`
+with ``kind`` picks the model of a kind, :func:`site_floor_models` gives all.
 """
 
 from __future__ import annotations
@@ -24,9 +28,13 @@ if TYPE_CHECKING:  # annotations only
 
     from localize.bundle import MapBundle
 
-__all__ = ["FloorClassifier", "floor_log_proba", "level_features"]
+__all__ = ["FloorClassifier", "floor_log_proba", "floor_model_kind", "level_features",
+           "site_floor_models"]
 
 COEF_TABLE, INTERCEPT_TABLE = "floor_coef", "floor_intercept"
+#: Prefix of the tables of the BLE floor model beside a Wi-Fi one (``ble_floor_coef``, ...).
+BLE_PREFIX = "ble_"
+KINDS = ("wifi", "ble")
 
 
 def level_features(rssi_dbm: ArrayLike) -> NDArray[np.float64]:
@@ -98,11 +106,21 @@ class FloorClassifier:
         return cls(floors, aps, coef, intercept)
 
     @classmethod
-    def from_bundle(cls, bundle: MapBundle) -> FloorClassifier | None:
-        """The floor model of a site bundle; None when the bundle has none."""
-        if not (bundle.has_table(COEF_TABLE) and bundle.has_table(INTERCEPT_TABLE)):
+    def from_bundle(cls, bundle: MapBundle, kind: str | None = None) -> FloorClassifier | None:
+        """A floor model of a site bundle; None when the bundle has none (of that kind).
+
+        ``kind`` None: the main model (``floor_coef``, of kind :func:`floor_model_kind`);
+        ``"wifi"`` or ``"ble"``: the model over scans of that kind, the main one when it is
+        of that kind, else (BLE) the one beside it (``ble_floor_coef``)."""
+        if kind is not None and kind not in KINDS:
+            raise LocalizationError(f"floor model kind must be one of {KINDS}, not {kind!r}")
+        main = floor_model_kind(bundle)
+        prefix = "" if kind is None or kind == main else BLE_PREFIX if kind == "ble" else None
+        if prefix is None or not (bundle.has_table(prefix + COEF_TABLE)
+                                  and bundle.has_table(prefix + INTERCEPT_TABLE)):
             return None
-        return cls.from_tables(bundle.table(COEF_TABLE), bundle.table(INTERCEPT_TABLE))
+        return cls.from_tables(bundle.table(prefix + COEF_TABLE),
+                               bundle.table(prefix + INTERCEPT_TABLE))
 
     def scan_matrix(self, scans: Sequence[RadioScan | None]) -> NDArray[np.float64]:
         """RSSI of ``scans`` over :attr:`aps`, shape (S, A) (dBm; NaN = not heard)."""
@@ -125,3 +143,21 @@ class FloorClassifier:
         f = self.floors_of([scan])[0]
         return f or None
 
+
+def floor_model_kind(bundle: MapBundle) -> str:
+    """The kind of a site bundle's main floor model (``metrics.floor_model.kind``): ``wifi``
+    (also when the manifest does not say), or ``ble`` for a site surveyed without Wi-Fi."""
+    fm = (bundle.manifest.get("metrics") or {}).get("floor_model")
+    kind = fm.get("kind") if isinstance(fm, dict) else None
+    return kind if kind in KINDS else "wifi"
+
+
+def site_floor_models(bundle: MapBundle) -> dict[str, FloorClassifier]:
+    """Kind (``wifi``, ``ble``) -> the site bundle's floor model over scans of that kind; the
+    kinds it has no model of are left out (an old site bundle: its main model only)."""
+    out = {}
+    for kind in KINDS:
+        model = FloorClassifier.from_bundle(bundle, kind)
+        if model is not None:
+            out[kind] = model
+    return out

@@ -1,9 +1,13 @@
 """Which floor bundle a walk runs on, and the checks that a walk fits a bundle.
 
 A floor bundle answers for one floor. :class:`SiteMaps` holds the floor bundles of a site and
-picks one per walk: by the walk's floor id (trace header), else by a floor model (an object
-with ``floor_of(scan) -> floor id | None``, e.g. the site-level bundle's classifier once the
-mapping stage writes one, or :meth:`KnnRadioPositioner.floor_of`), else it refuses.
+picks one per walk (:meth:`SiteMaps.choose`): by the walk's floor id or floor name (trace
+header), else by the site bundle's Wi-Fi floor model over the walk's Wi-Fi scans, else by its
+BLE floor model over the walk's BLE windows (a phone that logs BLE only, as an iPhone app),
+else the only floor bundle, else it refuses and says what was missing. A floor model is an
+object with ``floor_of(scan) -> floor id | None``
+(:class:`~localize.floor_classifier.FloorClassifier`, or
+:meth:`KnnRadioPositioner.floor_of`).
 """
 
 from __future__ import annotations
@@ -11,6 +15,8 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Protocol
+
+import numpy as np
 
 from localize.bundle import MapBundle
 from localize.errors import LocalizationError
@@ -55,15 +61,21 @@ class SiteMaps:
     bundles : iterable of MapBundle
         Floor bundles of one site (distinct floor ids).
     floor_model : FloorModel, optional
-        Used when a walk carries no floor id.
+        Used over the walk's Wi-Fi scans when the walk carries no floor id.
+    ble_floor_model : FloorModel, optional
+        Used over the walk's BLE windows when the walk carries no floor id and
+        ``floor_model`` classifies none of its Wi-Fi scans.
+    site_bundle : str, optional
+        What the models came from, for messages (:meth:`open` sets it; "" = none given).
     """
 
-    def __init__(self, bundles: Iterable[MapBundle], floor_model: FloorModel | None = None):
+    def __init__(self, bundles: Iterable[MapBundle], floor_model: FloorModel | None = None,
+                 ble_floor_model: FloorModel | None = None, site_bundle: str = ""):
         self.bundles: dict[str, MapBundle] = {}
         sites = set()
         for b in bundles:
             if b.grid is None:
-                continue  # a site-level bundle: holds the floor model later, no rasters
+                continue  # a site-level bundle: holds the floor models, no rasters
             if b.floor_id in self.bundles:
                 raise LocalizationError(f"two bundles for floor {b.floor_id}: "
                                         f"{self.bundles[b.floor_id].path} and {b.path}")
@@ -75,14 +87,17 @@ class SiteMaps:
             raise LocalizationError("no floor bundle given")
         self.site_id = sites.pop()
         self.floor_model = floor_model
+        self.ble_floor_model = ble_floor_model
+        self.site_bundle = site_bundle
         self._by_name = {b.manifest.get("floor_name", ""): b for b in self.bundles.values()}
 
     @classmethod
     def open(cls, path: str | Path) -> SiteMaps:
         """The floor bundles at ``path``: one floor bundle, a folder of bundles (as
-        ``indoormap build`` writes, with the site bundle ``_site`` whose floor model then
-        picks the floor of walks that name none), or a registry's site or floor folder
-        (``REG/<site>``, ``REG/<site>/<floor>``: their current versions).
+        ``indoormap build`` writes, with the site bundle ``_site`` whose floor models then
+        pick the floor of walks that name none: Wi-Fi, else BLE when the site bundle has a
+        BLE floor model), or a registry's site or floor folder (``REG/<site>``,
+        ``REG/<site>/<floor>``: their current versions).
 
         Raises
         ------
@@ -92,7 +107,7 @@ class SiteMaps:
             A damaged bundle or registry pointer (:func:`~localize.bundle.load_bundle`).
         """
         from localize.bundle import bundle_dirs, is_bundle_dir, load_bundle
-        from localize.floor_classifier import FloorClassifier
+        from localize.floor_classifier import site_floor_models
 
         path = Path(path)
         subs = [load_bundle(path)] if is_bundle_dir(path) else [
@@ -106,26 +121,58 @@ class SiteMaps:
             raise LocalizationError(f"{path}: a site bundle only (floor model, device table); "
                                     "localizing needs floor bundles: give the folder "
                                     "`indoormap build` wrote, or one floor's bundle")
-        model = FloorClassifier.from_bundle(site[0]) if site else None
+        models = site_floor_models(site[0]) if site else {}
         try:
-            return cls(floors, floor_model=model)
+            return cls(floors, floor_model=models.get("wifi"),
+                       ble_floor_model=models.get("ble"),
+                       site_bundle=str(site[0].path) if site else "")
         except LocalizationError as err:
             raise LocalizationError(f"{path}: {err}") from err
 
-    def select(self, steps: StepSummaries) -> MapBundle:
-        """The bundle of the walk's floor (see :meth:`select_for`)."""
-        return self.select_for(steps.trace_id, steps.site_id, steps.floor_id,
-                               steps.floor_name, steps.scans)
+    def select(self, steps: StepSummaries,
+               ble_scans: Sequence[RadioScan | None] | None = None) -> MapBundle:
+        """The bundle of the walk's floor (see :meth:`choose`); ``ble_scans`` are the walk's
+        BLE windows (:func:`survey.step_summaries.ble_scans_of`), the steps carry its Wi-Fi
+        scans."""
+        return self.choose(steps.trace_id, steps.site_id, steps.floor_id, steps.floor_name,
+                           steps.scans, ble_scans)[0]
 
     def select_for(self, trace_id: str, site_id: str, floor_id: str, floor_name: str,
-                   wifi_scans: Sequence[RadioScan | None] | None) -> MapBundle:
-        """The bundle of a walk's floor from what its trace header says (empty strings when
-        it says nothing) or, failing that, the site's floor model over its Wi-Fi scans.
+                   wifi_scans: Sequence[RadioScan | None] | None,
+                   ble_scans: Sequence[RadioScan | None] | None = None) -> MapBundle:
+        """The bundle of a walk's floor (see :meth:`choose`)."""
+        return self.choose(trace_id, site_id, floor_id, floor_name, wifi_scans, ble_scans)[0]
+
+    def choose(self, trace_id: str, site_id: str, floor_id: str, floor_name: str,
+               wifi_scans: Sequence[RadioScan | None] | None,
+               ble_scans: Sequence[RadioScan | None] | None = None
+               ) -> tuple[MapBundle, str]:
+        """The bundle of a walk's floor and how it was chosen (a phrase for logs).
+
+        In order: the floor id, else the floor name the trace header gives (empty strings
+        when it says nothing); else the floor most of the walk's Wi-Fi scans are put on by
+        :attr:`floor_model`; else the most likely floor of the walk's BLE windows
+        (``ble_scans``) together under :attr:`ble_floor_model` (their log-probabilities
+        summed; a model without ``log_proba``: the floor most windows are put on); else the
+        only floor bundle. Wi-Fi decides whenever it classifies a scan of the walk, even when
+        BLE would say another floor: on the real site1 walks (10-fold by walk) Wi-Fi puts
+        every walk on its floor, BLE 96.3 % (``docs/radio.md``).
+
+        Returns
+        -------
+        (MapBundle, str)
+            How: ``"floor id in the trace header"``, ``"floor name in the trace header"``,
+            ``"Wi-Fi floor model (V of N Wi-Fi scans on it)"``, ``"BLE floor model (V of N BLE
+            windows on it; no Wi-Fi scans in the walk)"`` (N: the scans that hear a
+            transmitter the model knows, V: those put on the chosen floor alone) or ``"the
+            only floor bundle"``.
 
         Raises
         ------
         LocalizationError
-            Another site, a floor without a bundle, or no way to tell the floor.
+            Another site, a floor without a bundle, or no way to tell the floor: the message
+            says, per floor model, what was missing (the model, the walk's scans, or a scan
+            hearing a transmitter the model knows).
         """
         where = trace_id or "walk"
         if site_id and site_id != self.site_id:
@@ -133,29 +180,70 @@ class SiteMaps:
                                     f"are of site {self.site_id}")
         if floor_id:
             if floor_id in self.bundles:
-                return self.bundles[floor_id]
+                return self.bundles[floor_id], "floor id in the trace header"
             raise LocalizationError(f"{where}: unknown floor {floor_id} "
                                     f"({floor_name or '?'}); bundles exist for "
                                     f"{sorted(self._by_name)}")
         if floor_name and floor_name in self._by_name:
-            return self._by_name[floor_name]
-        if self.floor_model is not None and wifi_scans is not None:
-            votes: dict[str, int] = {}
-            for scan in wifi_scans:
-                if scan is None:
-                    continue
-                f = self.floor_model.floor_of(scan)
-                if f is not None:
-                    votes[f] = votes.get(f, 0) + 1
-            if votes:
-                best = max(votes, key=votes.get)
-                # the model's floors are the floor names the survey recorded (or ids)
-                found = self._by_name.get(best) or self.bundles.get(best)
-                if found is not None:
-                    return found
-                raise LocalizationError(f"{where}: the floor model says floor {best}, which "
-                                        "has no bundle")
+            return self._by_name[floor_name], "floor name in the trace header"
+        missing = []
+        for name, what, model, scans in (
+                ("Wi-Fi", "Wi-Fi scans", self.floor_model, wifi_scans),
+                ("BLE", "BLE windows", self.ble_floor_model, ble_scans)):
+            heard = [s for s in (scans or ()) if s is not None]
+            if model is None:
+                missing.append(f"no {name} floor model" + (
+                    " (no site bundle given)" if not self.site_bundle else
+                    f" in the site bundle {self.site_bundle}" + (
+                        " (built before indoormap made BLE floor models, or from a survey "
+                        "with BLE on fewer than two floors)" if name == "BLE" else "")))
+                continue
+            if not heard:
+                missing.append(f"no {what} in the walk")
+                continue
+            best, n_on, n_known = _walk_floor(model, heard, summed=name == "BLE")
+            if best is None:
+                missing.append(f"none of its {len(heard)} {what} hears a transmitter the "
+                               f"{name} floor model knows")
+                continue
+            # the models' floors are the floor names the survey recorded (or ids)
+            found = self._by_name.get(best) or self.bundles.get(best)
+            if found is None:
+                raise LocalizationError(f"{where}: the {name} floor model says floor {best}, "
+                                        "which has no bundle")
+            how = f"{name} floor model ({n_on} of {n_known} {what} on it)"
+            return found, how + (f"; {', '.join(missing)}" if missing else "")
         if len(self.bundles) == 1:
-            return next(iter(self.bundles.values()))
-        raise LocalizationError(f"{where}: the walk names no floor and no floor model decided; "
-                                f"floors: {sorted(self._by_name)}")
+            return next(iter(self.bundles.values())), "the only floor bundle"
+        raise LocalizationError(f"{where}: the walk names no floor (no floor id or known floor "
+                                f"name in its header) and no floor model decided: "
+                                f"{'; '.join(missing)}; floors: {sorted(self._by_name)}")
+
+
+def _walk_floor(model: FloorModel, scans: Sequence[RadioScan], *, summed: bool
+                ) -> tuple[str | None, int, int]:
+    """The floor of a walk's scans under a floor model, the number of scans put on it alone
+    and the number of scans it classifies (those hearing a transmitter it knows).
+
+    ``summed`` with a model that has ``scan_matrix`` and ``log_proba``
+    (:class:`~localize.floor_classifier.FloorClassifier`): the floor of the largest summed
+    log-probability (as :meth:`mapping.floor_model.FloorModel.predict_walks`); else the floor
+    most scans are put on (ties: the first of them in the walk). None when no scan is
+    classified."""
+    if summed and hasattr(model, "log_proba") and hasattr(model, "scan_matrix"):
+        lp = np.asarray(model.log_proba(model.scan_matrix(scans)), dtype=np.float64)
+        ok = np.isfinite(lp).all(axis=1)
+        if not ok.any():
+            return None, 0, 0
+        best = int(np.argmax(lp[ok].sum(axis=0)))
+        return str(model.floors[best]), int((np.argmax(lp[ok], axis=1) == best).sum()), \
+            int(ok.sum())
+    votes: dict[str, int] = {}
+    for scan in scans:
+        f = model.floor_of(scan)
+        if f is not None:
+            votes[f] = votes.get(f, 0) + 1
+    if not votes:
+        return None, 0, 0
+    best_floor = max(votes, key=votes.get)
+    return best_floor, votes[best_floor], sum(votes.values())

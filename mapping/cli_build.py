@@ -354,9 +354,12 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
             "source_walks": sorted(site_walks, key=lambda w: w["trace_id"])})
         site_bundle_id = write_bundle(stage / SITE_BUNDLE, site_content)
         fm = site_content.metrics["floor_model"]
+        ble_fm = site_content.metrics["ble_floor_model"]
         acc = ("no floor model (no radio rows)" if fm is None else
                f"floor model: {len(fm['floors'])} floors, cross-validated per scan "
-               + format_share(fm["cv_scan_accuracy"]))
+               + format_share(fm["cv_scan_accuracy"])
+               + ("" if ble_fm is None else "; BLE floor model per BLE window "
+                  + format_share(ble_fm["cv_scan_accuracy"])))
         done.append((SITE_BUNDLE, f"site: bundle {site_bundle_id[:16]} -> {site_target} "
                                   f"({acc})"))
         # the floors and their site bundle change together, once all are built
@@ -420,8 +423,9 @@ def bundle_info(path: Path, as_json: bool) -> None:
                        f"{100 * finite.size / max(int(b.mask.sum()), 1):5.1f} % of reachable "
                        f"cells, range {finite.min():.1f} .. {finite.max():.1f}"
                        if finite.size else f"  layer {name}: empty")
+    width = max([15, *map(len, m.get("tables", {}))])  # ble_floor_intercept is 19 wide
     for name, meta in m.get("tables", {}).items():
-        click.echo(f"  table {name:<15} {meta['rows']} rows")
+        click.echo(f"  table {name:<{width}} {meta['rows']} rows")
     for line in metric_lines(m).values():
         click.echo(f"  {line}")
     click.echo(f"  built {m['build'].get('build_time')} from "

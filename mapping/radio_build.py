@@ -14,7 +14,11 @@ One pass over the processed Wi-Fi and BLE rows of every floor of a site:
 4. **Floor model** (:func:`mapping.floor_model.fit_floor_model`, Wi-Fi, or BLE for a site
    without Wi-Fi) with its walk-grouped cross-validated accuracy: the site bundle's
    ``floor_coef``, ``floor_intercept`` and ``floor_meta`` tables, read by
-   :class:`localize.floor_classifier.FloorClassifier`.
+   :class:`localize.floor_classifier.FloorClassifier`. Beside a Wi-Fi floor model, a **BLE
+   floor model** (same fit, on the BLE windows the BLE fingerprints are built from) when BLE
+   rows of kept transmitters are on at least two floors: ``ble_floor_coef``,
+   ``ble_floor_intercept``, ``ble_floor_meta``, for walks without Wi-Fi (an iPhone logs BLE
+   only) that name no floor.
 
 The rows are reduced walk by walk (bounded memory, ``docs/reliability.md``): AP selection
 (:class:`~mapping.ap_selection.APEvidence`) and fingerprints
@@ -257,8 +261,12 @@ class SiteRadio:
         ``(floor, kind)`` -> :class:`~mapping.fingerprints.FingerprintDB`.
     floor_model : FloorModel or None
     floor_model_kind : str
+        ``wifi``, or ``ble`` for a site without Wi-Fi ("" without a floor model).
     notes : list of str
         What was missing (floors without Wi-Fi, ...), for the build log and the manifest.
+    ble_floor_model : FloorModel or None
+        The BLE floor model beside a Wi-Fi one (None when ``floor_model`` is BLE already, or
+        BLE is on fewer than two floors).
     """
 
     floors: list[str]
@@ -269,6 +277,7 @@ class SiteRadio:
     floor_model_kind: str
     params: RadioParams
     notes: list[str] = field(default_factory=list)
+    ble_floor_model: FloorModel | None = None
 
     def floor_tables(self, floor: str) -> dict[str, pa.Table]:
         """Tables for the floor bundle: ``<kind>_rp``, ``<kind>_fp``, ``<kind>_meta`` and
@@ -302,22 +311,29 @@ class SiteRadio:
             metrics[f"{kind}_ap_selection"] = {"kept": int(len(sel.kept)),
                                                "dropped": int(len(sel.dropped)),
                                                "reasons": sel.summary()}
-        if self.floor_model is not None:
-            t = self.floor_model.to_tables()
-            tables["floor_coef"], tables["floor_intercept"] = _table(t["coef"]), _table(
-                t["intercept"])
-            tables["floor_meta"] = _table(t["meta"])
-            m = self.floor_model.meta
-            metrics["floor_model"] = {
-                "kind": self.floor_model_kind, "floors": self.floor_model.floors.tolist(),
-                "transmitters": int(len(self.floor_model.aps)),
-                "cv_folds": int(m.get("cv_folds", 0)),
-                **{k: (None if not np.isfinite(m.get(k, np.nan)) else float(m[k]))
-                   for k in ("cv_scan_accuracy", "cv_sequence_accuracy", "cv_walk_accuracy")}}
+        metrics["ble_floor_model"] = None
+        for prefix, key, model, kind in (
+                ("", "floor_model", self.floor_model, self.floor_model_kind),
+                ("ble_", "ble_floor_model", self.ble_floor_model, "ble")):
+            if model is None:
+                continue
+            t = model.to_tables()
+            for name in ("coef", "intercept", "meta"):
+                tables[f"{prefix}floor_{name}"] = _table(t[name])
+            metrics[key] = _floor_model_metrics(model, kind)
         return BundleContent(site_id=site_id, floor_id="", floor_name="", kind="site",
                              tables=tables, build={**(build or {}),
                                                    "radio_params": self.params.to_dict()},
                              metrics=metrics)
+
+
+def _floor_model_metrics(model: FloorModel, kind: str) -> dict:
+    """A floor model's summary for the site manifest's metrics."""
+    m = model.meta
+    return {"kind": kind, "floors": model.floors.tolist(), "transmitters": int(len(model.aps)),
+            "cv_folds": int(m.get("cv_folds", 0)),
+            **{k: (None if not np.isfinite(m.get(k, np.nan)) else float(m[k]))
+               for k in ("cv_scan_accuracy", "cv_sequence_accuracy", "cv_walk_accuracy")}}
 
 
 def calibrated(obs: pd.DataFrame, device_of: pd.Series, devices: pd.DataFrame) -> pd.DataFrame:
@@ -533,21 +549,31 @@ def reduce_site_radio(source: WalkSource, device_of: pd.Series, floors: Sequence
             fingerprints[(floor, kind)] = db
         samples[kind] = (model_rows, kept)
         release_free_memory()  # the walks' freed buffers
-    model, model_kind = None, ""
+    model, model_kind, ble_model = None, "", None
     for kind in KINDS if params.floor_model else ():  # Wi-Fi first, BLE without Wi-Fi
         if kind not in samples:
             continue
         by_floor = samples[kind][0].tables(floors, samples[kind][1])
-        if any(len(v) for v in by_floor.values()):
-            model = fit_floor_model(by_floor, cv_folds=params.floor_cv_folds, seed=params.seed)
-            model_kind = kind
-            m = model.meta
-            say(f"floor model ({kind}): {len(model.floors)} floors, {len(model.aps)} "
-                f"transmitters; cross-validated per scan "
-                f"{format_share(m['cv_scan_accuracy'])}, per walk "
-                f"{format_share(m['cv_walk_accuracy'])}")
-            break
+        heard = sum(len(v) > 0 for v in by_floor.values())
+        if model is None and heard:
+            model, model_kind = _fit_and_say(by_floor, kind, "", params, say), kind
+        elif model is not None and heard >= 2:  # the BLE model beside the Wi-Fi one
+            ble_model = _fit_and_say(by_floor, kind, ", beside Wi-Fi", params, say)
+        elif model is not None and len(floors) > 1:
+            notes.append(f"no {kind} floor model: {kind} rows on {heard} floor(s), two needed")
+        del by_floor
     for n in notes:
         say(n)
     return SiteRadio(floors, devices, selections, fingerprints, model, model_kind, params,
-                     notes)
+                     notes, ble_model)
+
+
+def _fit_and_say(by_floor: dict[str, pd.DataFrame], kind: str, what: str, params: RadioParams,
+                 say: Callable[[str], None]) -> FloorModel:
+    """The floor model of ``kind`` fitted and cross-validated on ``by_floor``, logged."""
+    model = fit_floor_model(by_floor, cv_folds=params.floor_cv_folds, seed=params.seed)
+    m = model.meta
+    say(f"floor model ({kind}{what}): {len(model.floors)} floors, {len(model.aps)} "
+        f"transmitters; cross-validated per scan {format_share(m['cv_scan_accuracy'])}, per "
+        f"walk {format_share(m['cv_walk_accuracy'])}")
+    return model

@@ -200,8 +200,9 @@ def heldout_radio(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: li
     return {key: np.concatenate([e for e, _ in v]) for key, v in out.items()}
 
 
-def _site_floor_model(bundle: MapBundle) -> dict | None:
-    """The floor model's metrics of the site bundle beside ``bundle``: ``OUT/_site`` of a
+def _site_floor_model(bundle: MapBundle, key: str = "floor_model") -> dict | None:
+    """The floor model's metrics (``key``: ``floor_model``, or ``ble_floor_model`` for the
+    BLE model beside a Wi-Fi one) of the site bundle beside ``bundle``: ``OUT/_site`` of a
     build, or the current ``REG/<site>/_site`` of a registry version."""
     from localize.bundle import read_manifest, registry_current
 
@@ -216,7 +217,7 @@ def _site_floor_model(bundle: MapBundle) -> dict | None:
     m = read_manifest(site)
     if m.get("kind") != "site" or m.get("site_id") != bundle.site_id:
         return None
-    return (m.get("metrics") or {}).get("floor_model")
+    return (m.get("metrics") or {}).get(key)
 
 
 def radio_summary(bundle: MapBundle, store: SurveyStore | str | Path | None, floor: str,
@@ -250,6 +251,8 @@ def radio_summary(bundle: MapBundle, store: SurveyStore | str | Path | None, flo
                                    progress=progress)
     fm = _site_floor_model(bundle)
     out["floor_model"] = fm
+    out["ble_floor_model"] = None if fm is None else _site_floor_model(bundle,
+                                                                       "ble_floor_model")
     out["floor_accuracy"] = None if fm is None else fm.get("cv_scan_accuracy")
     if fm is None:
         out["floor_note"] = "no site bundle (_site) beside this floor bundle: floor accuracy " \

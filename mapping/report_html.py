@@ -962,6 +962,12 @@ def _section_radio(result) -> str:
                    f"{len(fm.get('floors', []))} floors, cross-validated accuracy per scan "
                    f"{pct(fm.get('cv_scan_accuracy'))}, per walk "
                    f"{pct(fm.get('cv_walk_accuracy'))}</p>")
+        ble = radio.get("ble_floor_model")
+        if ble:
+            out.append(f"<p>BLE floor model (site bundle; for walks without Wi-Fi that name no "
+                       f"floor): {len(ble.get('floors', []))} floors, cross-validated accuracy "
+                       f"per BLE window {pct(ble.get('cv_scan_accuracy'))}, per walk "
+                       f"{pct(ble.get('cv_walk_accuracy'))}</p>")
     else:
         out.append(f"<p class='note'>{_e(radio.get('floor_note', 'no floor model'))}</p>")
     out.append("<p class='note'>Errors: fingerprints rebuilt without the held-out walks, "

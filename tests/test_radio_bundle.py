@@ -206,12 +206,19 @@ def test_floor_command_per_scan_and_per_walk(built):
         rows = _rows(res.stdout)
         walks = [r for r in rows if r["level"] == "walk"]
         scans = [r for r in rows if r["level"] == "scan"]
-        # F1 has a walk without any Wi-Fi (like one real walk): floor unknown, said so
-        assert len(walks) == 6
+        # F1 has a walk without any Wi-Fi (like one real walk): its floor from its BLE windows
+        assert len(walks) == 6 and all(r["floor"] == floor for r in walks)
+        assert [r["kind"] for r in walks].count("ble") == (1 if floor == "F1" else 0)
+        assert np.mean([r["floor"] == floor for r in scans if r["kind"] == "wifi"]) >= 0.95
+        assert all(r["recorded_floor"] == floor for r in rows)
+        # the Wi-Fi model alone: that walk's floor is unknown, said so
+        wifi = runner.invoke(main, ["floor", "--kind", "wifi", str(built),
+                                    str(SITE / floor / "path_data_files")])
+        assert wifi.exit_code == 0, wifi.output
+        walks = [r for r in _rows(wifi.stdout) if r["level"] == "walk"]
         assert all(r["floor"] == (floor if int(r["n_known"]) else "") for r in walks)
         assert sum(r["floor"] == floor for r in walks) == (5 if floor == "F1" else 6)
-        assert np.mean([r["floor"] == floor for r in scans]) >= 0.95
-        assert all(r["recorded_floor"] == floor for r in rows)
+        assert ("floor unknown" in wifi.stderr) == (floor == "F1")
     bad = runner.invoke(main, ["floor", str(built / "F1"), str(SITE / "F1" / "path_data_files")])
     assert bad.exit_code != 0 and "not a site bundle" in bad.output
 
@@ -264,7 +271,11 @@ def test_walk_without_wifi(built, tmp_path):
     runner = CliRunner()
     res = runner.invoke(main, ["wifi-locate", str(built), str(walk)])
     assert res.exit_code == 0 and "no wifi scans" in res.stderr
-    res = runner.invoke(main, ["floor", str(built), str(walk)])
+    res = runner.invoke(main, ["floor", str(built), str(walk)])  # by BLE: said so
+    assert res.exit_code == 0 and "(no Wi-Fi scan classified)" in res.stderr
+    assert [(r["floor"], r["kind"]) for r in _rows(res.stdout) if r["level"] == "walk"] == \
+        [("F1", "ble")]
+    res = runner.invoke(main, ["floor", "--kind", "wifi", str(built), str(walk)])
     assert res.exit_code == 0 and "floor unknown" in res.stderr
     assert [r["floor"] for r in _rows(res.stdout) if r["level"] == "walk"] == [""]
     # the radio-only method goes by the walk's BLE windows
