@@ -25,7 +25,11 @@ Positions, per floor, leave-one-walk-out (``--folds 0``, default) or grouped k-f
   (2 s), scored separately (BLE windows are not Wi-Fi scans; the count differs).
 
 Floors: the shipped floor model (logistic regression on transmitter levels, fitted per fold on
-the training walks of all floors): accuracy per scan, per 5-scan sequence and per walk.
+the training walks of all floors): accuracy per scan, per 5-scan sequence and per walk. The
+same for the site bundle's BLE floor model (the fallback for walks without Wi-Fi that name no
+floor), on the held-out BLE windows (2 s); its walk figure is the rule the localizer uses
+(:meth:`localize.floors.SiteMaps.choose`: summed log-probabilities of the walk's windows). The
+folds group the Wi-Fi walks: a walk with BLE and no Wi-Fi is never held out.
 
 Device calibration: every held-out walk's RSSI is mapped through ``0.85 * rssi - 8`` and,
 harsher, ``rssi - 12`` (phones that report weaker values). Without calibration the walk is
@@ -105,8 +109,9 @@ def evaluate(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: list[st
     wifi = obs["wifi"]
     out: dict[tuple[str, str], list] = {}
     cal_kb: list = []
-    floor_rows: dict[str, list] = {"truth": [], "scan": [], "seq": [], "walk_truth": [],
-                                   "walk": []}
+    floor_rows: dict[str, list] = {k: [] for k in ("truth", "scan", "seq", "walk_truth",
+                                                   "walk")}
+    floor_rows["ble"] = {k: [] for k in floor_rows}
     w_trace = wifi["trace_id"].to_numpy().astype(str)
     groups = walk_folds(w_trace, folds)
     t0 = time.time()
@@ -149,17 +154,20 @@ def evaluate(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: list[st
                     cal_kb.append((tag, k * tk, k * tb + b))
                     out.setdefault((f, f"{tag} calibrated"), []).append(
                         errors(knn, grid, fixed))
-        if radio.floor_model is not None:
-            model = radio.floor_model
-            s = scan_set(test_cal)
-            floor_rows["truth"].append(test_cal.groupby("scan_id", sort=True)["floor"].first()
-                                       .to_numpy())
-            floor_rows["scan"].append(model.predict(s))
-            floor_rows["seq"].append(model.predict_sequence(s, 5))
+        for model, test, rows in ((radio.floor_model, test_cal, floor_rows),
+                                  (radio.ble_floor_model, test_obs.get("ble"),
+                                   floor_rows["ble"])):
+            if model is None or test is None or not len(test):
+                continue
+            s = scan_set(test)
+            rows["truth"].append(test.groupby("scan_id", sort=True)["floor"].first()
+                                 .to_numpy())
+            rows["scan"].append(model.predict(s))
+            rows["seq"].append(model.predict_sequence(s, 5))
             w = model.predict_walks(s)
-            floor_rows["walk"].append(w.to_numpy())
-            floor_rows["walk_truth"].append(test_cal.groupby("trace_id")["floor"].first()
-                                            .reindex(w.index).to_numpy())
+            rows["walk"].append(w.to_numpy())
+            rows["walk_truth"].append(test.groupby("trace_id")["floor"].first()
+                                      .reindex(w.index).to_numpy())
         done[0] += 1
         if done[0] % max(1, len(groups) // 10) == 0:
             print(f"  fold {done[0]}/{len(groups)} ({time.time() - t0:.0f} s)", file=sys.stderr,
@@ -232,13 +240,20 @@ def main() -> int:
         t = time.time()
         _, _, fl = evaluate(obs, device_of, floors, 10, False, with_floors=True)
         print(f"(floor model by grouped 10-fold: {time.time() - t:.0f} s)")
-    truth, scan, seq = (np.concatenate(fl[k]) for k in ("truth", "scan", "seq"))
-    walk, walk_truth = np.concatenate(fl["walk"]), np.concatenate(fl["walk_truth"])
-    print(f"\nFloor ({', '.join(floors)}), shipped floor model, walks held out: per scan "
-          f"{100 * (scan == truth).mean():.2f} % of {len(truth)}, per 5-scan sequence "
-          f"{100 * (seq == truth).mean():.2f} %, per walk {100 * (walk == walk_truth).mean():.2f} "
-          f"% of {len(walk)}")
-    print(pd.crosstab(pd.Series(truth, name="floor"), pd.Series(scan, name="pred")).to_string())
+    for rows, what, scans in ((fl, "shipped floor model", "scan"),
+                              (fl["ble"], "BLE floor model (fallback without Wi-Fi)",
+                               "BLE window")):
+        if not rows["truth"]:
+            print(f"\nFloor: no {what}")
+            continue
+        truth, scan, seq = (np.concatenate(rows[k]) for k in ("truth", "scan", "seq"))
+        walk, walk_truth = np.concatenate(rows["walk"]), np.concatenate(rows["walk_truth"])
+        print(f"\nFloor ({', '.join(floors)}), {what}, walks held out: per {scans} "
+              f"{100 * (scan == truth).mean():.2f} % of {len(truth)}, per 5-{scans} sequence "
+              f"{100 * (seq == truth).mean():.2f} %, per walk "
+              f"{100 * (walk == walk_truth).mean():.2f} % of {len(walk)}")
+        print(pd.crosstab(pd.Series(truth, name="floor"), pd.Series(scan, name="pred"))
+              .to_string())
     return 0
 
 
