@@ -344,7 +344,7 @@ def finish_interrupted_publication(parent: str | os.PathLike) -> bool:
     journal = parent / JOURNAL_NAME
     try:
         text = journal.read_text()
-    except FileNotFoundError:
+    except (FileNotFoundError, NotADirectoryError):
         return False
     except OSError as exc:
         raise PublishError(f"{journal}: unreadable publication journal: {exc}") from exc
