@@ -240,11 +240,19 @@ def exchange_paths(a: str | os.PathLike, b: str | os.PathLike) -> bool:
 
 def _swap_in(new: Path, target: Path, aside: Path) -> bool:
     """Put ``new`` at ``target``; an existing target ends at ``new``'s old path when the two
-    could be swapped at once (returns True), else at ``aside`` (renamed away first)."""
+    could be swapped at once (returns True), else at ``aside`` (renamed away first, and back
+    if ``new`` cannot then be renamed in: nothing changed when this raises)."""
     if target.exists():
         if exchange_paths(new, target):
             return True
         os.replace(target, aside)
+        try:
+            os.replace(new, target)
+        except BaseException:
+            with contextlib.suppress(OSError):
+                os.replace(aside, target)
+            raise
+        return False
     os.replace(new, target)
     return False
 
