@@ -3,6 +3,7 @@ failures and races the first tests did not cover."""
 
 from __future__ import annotations
 
+import ctypes
 import errno
 import os
 from pathlib import Path
@@ -48,3 +49,24 @@ def test_a_move_failing_after_its_old_target_went_aside_keeps_the_old_target(
     monkeypatch.setattr(os, "replace", real)
     assert _contents(tmp_path, "ab") == ["old", "old"]
     assert not (tmp_path / JOURNAL_NAME).exists()
+
+
+def test_exchange_paths_is_false_where_ctypes_cannot_open_the_c_library(tmp_path, monkeypatch):
+    """On Windows ``ctypes.CDLL(None)`` raises TypeError (``'/' in None``), which escaped
+    exchange_paths: every replaced bundle (atomic_directory, replace_together) failed there."""
+
+    def windows_cdll(name, *args, **kwargs):
+        if name is None:
+            raise TypeError("argument of type 'NoneType' is not iterable")
+        raise OSError(name)
+
+    monkeypatch.setattr(pub, "_renameat2", None)
+    monkeypatch.setattr(ctypes, "CDLL", windows_cdll)
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    assert pub.exchange_paths(tmp_path / "a", tmp_path / "b") is False
+    target = tmp_path / "out"
+    for text in ("1", "2"):
+        with pub.atomic_directory(target, overwrite=True) as tmp:
+            (tmp / "x").write_text(text)
+    assert (target / "x").read_text() == "2"
