@@ -274,6 +274,30 @@ def _inside(name: object, depth: int = 2) -> str:
     return str(name)
 
 
+@contextlib.contextmanager
+def _publication_lock(parent: Path) -> Iterator[bool]:
+    """An exclusive ``flock`` on the folder ``parent`` itself: a writer holds it from before
+    it writes its journal until it has removed it, and whoever finishes a killed writer's
+    journal holds it while doing so, so that no two of them move the same folders at once.
+    Yields whether it is held: False where ``flock`` is not available (Windows, some network
+    file systems), where the journal's process id is all there is to go by."""
+    try:
+        import fcntl
+        fd = os.open(parent, os.O_RDONLY)
+    except (ImportError, OSError):
+        yield False
+        return
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+            locked = True
+        except OSError:
+            locked = False
+        yield locked
+    finally:
+        os.close(fd)  # releases the lock
+
+
 def replace_together(moves: list[tuple[Path, Path]], *, overwrite: bool = False) -> None:
     """Move finished directories (each staged in a temporary folder on the targets' file
     system) onto their targets, so that a set of outputs made to go together (a site's floor
@@ -285,7 +309,9 @@ def replace_together(moves: list[tuple[Path, Path]], *, overwrite: bool = False)
     (:func:`finish_interrupted_publication`), so the set is never left mixed. If a move fails
     (or an exception interrupts them) the moves done so far are undone and the old set is
     back. Where the system can swap two paths at once (Linux), a replaced target is never
-    missing, even for a moment. Replaced targets are deleted after all moved.
+    missing, even for a moment. Replaced targets are deleted after all moved. Writers into
+    one folder take turns (a lock on the folder, where the system has ``flock``; elsewhere a
+    second writer meeting a live one's journal raises :class:`PublishError`).
     """
     for _, target in moves:
         if target.exists() and not overwrite:
@@ -299,64 +325,65 @@ def replace_together(moves: list[tuple[Path, Path]], *, overwrite: bool = False)
     for staged, _ in moves:
         if not staged.is_dir():
             raise PublishError(f"{staged}: nothing staged to publish")
-    finish_interrupted_publication(parent)
-    aside = Path(tempfile.mkdtemp(prefix=tmp_prefix(), dir=parent))
     journal = parent / JOURNAL_NAME
-    atomic_write_bytes(journal, json.dumps({
-        "format": 1, "owner": tmp_prefix(""), "aside": aside.name,
-        "moves": _journal_entries(parent, moves)}, indent=1).encode(), overwrite=True)
-    done: list[tuple[Path, Path, bool, bool]] = []  # staged, target, swapped, target existed
-    try:
-        for i, (staged, target) in enumerate(moves):
-            existed = target.exists()
-            swapped = _swap_in(staged, target, aside / str(i))
-            done.append((staged, target, swapped, existed))
-            crash_point(f"replace_together:after-{i}")
-    except BaseException:
-        undone = True
-        for i, (staged, target, swapped, existed) in reversed(list(enumerate(done))):
-            try:  # undo: the old set comes back
-                if swapped:
-                    exchange_paths(staged, target)
-                else:
-                    os.replace(target, staged)
-                    if existed:
-                        os.replace(aside / str(i), target)
-            except OSError:
-                undone = False
-        if undone:  # else the journal stays, and the next writer or reader finishes the set
-            with contextlib.suppress(OSError):
-                journal.unlink()
-            shutil.rmtree(aside, ignore_errors=True)
-        raise
-    finally:
+    with _publication_lock(parent) as locked:
+        found = _read_journal(parent)
+        if found is not None and not locked and found[0] != tmp_prefix("") \
+                and _owner_alive(TMP_PREFIX + found[0], TMP_PREFIX):
+            raise PublishError(f"{parent}: another indoormap (process "
+                               f"{found[0].split('-')[0]}) is publishing there; try again "
+                               "when it is done")
+        # under the lock a journal is a killed writer's (live ones hold the lock), or this
+        # process's own after an undo that failed
+        _finish_journal(parent, take_over=True)
+        aside = Path(tempfile.mkdtemp(prefix=tmp_prefix(), dir=parent))
+        atomic_write_bytes(journal, json.dumps({
+            "format": 1, "owner": tmp_prefix(""), "aside": aside.name,
+            "moves": _journal_entries(parent, moves)}, indent=1).encode(), overwrite=True)
+        done: list[tuple[Path, Path, bool, bool]] = []  # staged, target, swapped, existed
+        try:
+            for i, (staged, target) in enumerate(moves):
+                existed = target.exists()
+                swapped = _swap_in(staged, target, aside / str(i))
+                done.append((staged, target, swapped, existed))
+                crash_point(f"replace_together:after-{i}")
+        except BaseException:
+            undone = True
+            for i, (staged, target, swapped, existed) in reversed(list(enumerate(done))):
+                try:  # undo: the old set comes back
+                    if swapped:
+                        if not exchange_paths(staged, target):
+                            undone = False
+                    else:
+                        os.replace(target, staged)
+                        if existed:
+                            os.replace(aside / str(i), target)
+                except OSError:
+                    undone = False
+            if undone:  # else the journal stays, and the next writer or reader finishes it
+                with contextlib.suppress(OSError):
+                    journal.unlink()
+                shutil.rmtree(aside, ignore_errors=True)
+            raise
+        finally:
+            fsync_dir(parent)
+        crash_point("replace_together:before-cleanup")
+        journal.unlink()
         fsync_dir(parent)
-    crash_point("replace_together:before-cleanup")
-    journal.unlink()
-    fsync_dir(parent)
     for staged, _, swapped, _ in done:
         if swapped:  # the old target, swapped to the staging path
             shutil.rmtree(staged, ignore_errors=True)
     shutil.rmtree(aside, ignore_errors=True)
 
 
-def finish_interrupted_publication(parent: str | os.PathLike) -> bool:
-    """Finish the moves of a :func:`replace_together` whose process was killed among them
-    (its journal in ``parent``), so that the set of outputs is the new one throughout;
-    True if there was one to finish. A journal whose process still runs is left alone.
-
-    Raises
-    ------
-    PublishError
-        The journal is unreadable, or the staged outputs it lists are gone, so the set cannot
-        be made whole; the message names the folder.
-    """
-    parent = Path(parent)
+def _read_journal(parent: Path) -> tuple[str, list[tuple[Path, Path, int]], Path] | None:
+    """The journal in ``parent`` (its owner, moves and aside folder, paths checked); None
+    when there is none."""
     journal = parent / JOURNAL_NAME
     try:
         text = journal.read_text()
     except (FileNotFoundError, NotADirectoryError):
-        return False
+        return None
     except OSError as exc:
         raise PublishError(f"{journal}: unreadable publication journal: {exc}") from exc
     try:
@@ -368,8 +395,40 @@ def finish_interrupted_publication(parent: str | os.PathLike) -> bool:
     except (ValueError, KeyError, TypeError) as exc:
         raise PublishError(f"{journal}: damaged publication journal ({exc}); the outputs "
                            f"in {parent} may be a mix of two builds: build them again") from exc
-    if _owner_alive(TMP_PREFIX + owner, TMP_PREFIX):
+    return owner, moves, aside
+
+
+def finish_interrupted_publication(parent: str | os.PathLike) -> bool:
+    """Finish the moves of a :func:`replace_together` whose process was killed among them
+    (its journal in ``parent``), so that the set of outputs is the new one throughout;
+    True if there was one to finish. A journal whose process still runs is left alone.
+    Two processes finishing one journal take turns (the folder's lock).
+
+    Raises
+    ------
+    PublishError
+        The journal is unreadable, or the staged outputs it lists are gone, so the set cannot
+        be made whole; the message names the folder.
+    """
+    parent = Path(parent)
+    found = _read_journal(parent)
+    if found is None or _owner_alive(TMP_PREFIX + found[0], TMP_PREFIX):
+        return False  # (a live writer: not waited for)
+    with _publication_lock(parent):
+        return _finish_journal(parent, take_over=False)
+
+
+def _finish_journal(parent: Path, *, take_over: bool) -> bool:
+    """:func:`finish_interrupted_publication` with the folder's lock held: the journal read
+    again (another process may have finished it, or its writer removed it, meanwhile), and
+    left alone if its process runs unless ``take_over``."""
+    found = _read_journal(parent)
+    if found is None:
         return False
+    owner, moves, aside = found
+    if not take_over and _owner_alive(TMP_PREFIX + owner, TMP_PREFIX):
+        return False
+    journal = parent / JOURNAL_NAME
     aside.mkdir(exist_ok=True)
     for i, (staged, target, inode) in enumerate(moves):
         if target.exists() and os.stat(target).st_ino == inode:

@@ -5,15 +5,22 @@ from __future__ import annotations
 
 import ctypes
 import errno
+import json
 import os
+import subprocess
+import sys
+import threading
+import time
 from pathlib import Path
 
 import pytest
 
 import survey.publish as pub
-from survey.publish import JOURNAL_NAME, replace_together
+from survey.errors import PublishError
+from survey.publish import JOURNAL_NAME, finish_interrupted_publication, replace_together
 
 ROOT = Path(__file__).resolve().parents[1]
+
 
 
 def _old_set_and_staged_new(root: Path, names: str = "abc", stage: str = "stage") -> None:
@@ -70,3 +77,132 @@ def test_exchange_paths_is_false_where_ctypes_cannot_open_the_c_library(tmp_path
         with pub.atomic_directory(target, overwrite=True) as tmp:
             (tmp / "x").write_text(text)
     assert (target / "x").read_text() == "2"
+
+
+def _dead_journal(root: Path, names: str = "abc", done: int = 1) -> None:
+    """The state a writer killed after its first ``done`` moves (with the swap) leaves."""
+    stage = ".tmp-999999-dead-stage"
+    _old_set_and_staged_new(root, names, stage)
+    moves = [(root / stage / n, root / n) for n in names]
+    (root / JOURNAL_NAME).write_text(json.dumps({
+        "format": 1, "owner": "4194304-dead-", "aside": ".tmp-999999-dead-aside",
+        "moves": pub._journal_entries(root, moves)}))
+    for staged, target in moves[:done]:
+        assert pub.exchange_paths(staged, target)
+
+
+def test_two_readers_finishing_one_journal_at_once_do_not_undo_each_other(tmp_path,
+                                                                          monkeypatch):
+    """Two processes opening the folder after a kill (two `localize` workers) both finish the
+    journal. Unserialized, one checked that b was still to move, the other moved it in, and
+    the first swapped it back out: the set ended mixed (the old b in place, the new one in a
+    temporary that the next writer deletes), and the second failed on the journal the first
+    had removed (BundleError in localize)."""
+    _dead_journal(tmp_path)
+    real = pub._swap_in
+    errors: list[BaseException] = []
+    second: list[threading.Thread] = []
+    second_swapped, first_done = threading.Event(), threading.Event()
+
+    def second_reader():
+        try:
+            finish_interrupted_publication(tmp_path)
+        except BaseException as exc:  # noqa: BLE001
+            errors.append(exc)
+
+    def swap_in(new, target, aside):
+        if threading.current_thread() is threading.main_thread():
+            if not second:  # the first reader has decided to move b; the second runs now
+                second.append(threading.Thread(target=second_reader))
+                second[0].start()
+                second_swapped.wait(1.0)
+            return real(new, target, aside)
+        out = real(new, target, aside)
+        second_swapped.set()
+        first_done.wait(5.0)
+        return out
+
+    monkeypatch.setattr(pub, "_swap_in", swap_in)
+    try:
+        finish_interrupted_publication(tmp_path)
+    except BaseException as exc:  # noqa: BLE001
+        errors.append(exc)
+    first_done.set()
+    second[0].join(10)
+    assert (_contents(tmp_path), errors) == (["new"] * 3, [])
+    assert not (tmp_path / JOURNAL_NAME).exists()
+
+
+def test_a_reader_that_read_the_journal_of_a_writer_which_then_finished_is_not_refused(
+        tmp_path, monkeypatch):
+    """A reader reads the journal; the writer ends its moves, removes its journal and exits;
+    only then does the reader see its owner gone. It "finished" the set again and failed
+    (FileNotFoundError on the journal, BundleError to localize)."""
+    _dead_journal(tmp_path, done=3)
+    text = (tmp_path / JOURNAL_NAME).read_text()
+    real_alive = pub._owner_alive
+
+    def alive(name, prefix):  # the writer finishes between the reader's read and check
+        (tmp_path / JOURNAL_NAME).unlink(missing_ok=True)
+        return real_alive(name, prefix)
+
+    monkeypatch.setattr(pub, "_owner_alive", alive)
+    assert text and finish_interrupted_publication(tmp_path) is False
+    assert _contents(tmp_path) == ["new"] * 3
+
+
+_SLOW_WRITER = """
+import sys, time
+from pathlib import Path
+import survey.publish as p
+real = p._swap_in
+def slow(new, target, aside):
+    time.sleep(0.5)
+    return real(new, target, aside)
+p._swap_in = slow
+root = Path(sys.argv[1])
+p.replace_together([(root / "stage1" / n, root / n) for n in "ab"], overwrite=True)
+"""
+
+
+def test_two_writers_into_one_folder_take_turns(tmp_path):
+    """A second writer (another build into OUT) whose moves fell among a live one's wrote
+    its journal over the first's and removed it when done: the first then failed on its own
+    journal (FileNotFoundError after its moves), and a kill of it would have left its set
+    mixed with no journal to finish it."""
+    _old_set_and_staged_new(tmp_path, "ab", "stage1")
+    (tmp_path / "stage2" / "c").mkdir(parents=True)
+    (tmp_path / "stage2" / "c" / "v").write_text("new")
+    first = subprocess.Popen([sys.executable, "-c", _SLOW_WRITER, str(tmp_path)],
+                             cwd=ROOT, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 20
+    while not (tmp_path / JOURNAL_NAME).exists():  # the first is among its moves
+        assert first.poll() is None and time.monotonic() < deadline
+        time.sleep(0.01)
+    replace_together([(tmp_path / "stage2" / "c", tmp_path / "c")])
+    assert first.wait(20) == 0, first.stderr.read()
+    assert _contents(tmp_path) == ["new"] * 3
+    assert not (tmp_path / JOURNAL_NAME).exists()
+
+
+def test_without_a_lock_a_second_writer_refuses_a_live_writers_journal(tmp_path, monkeypatch):
+    """Where the folder cannot be locked (Windows), a journal whose process runs is a writer
+    at work: a second writer says so instead of overwriting its journal."""
+    import contextlib
+
+    monkeypatch.setattr(pub, "_publication_lock", lambda parent: contextlib.nullcontext(False))
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        _old_set_and_staged_new(tmp_path, "ab", ".tmp-live")
+        journal = json.dumps({
+            "format": 1, "owner": f"{live.pid}-abcdef01-", "aside": ".tmp-live-aside",
+            "moves": pub._journal_entries(tmp_path, [
+                (tmp_path / ".tmp-live" / n, tmp_path / n) for n in "ab"])})
+        (tmp_path / JOURNAL_NAME).write_text(journal)
+        (tmp_path / "stage" / "c").mkdir(parents=True)
+        with pytest.raises(PublishError, match="is publishing there"):
+            replace_together([(tmp_path / "stage" / "c", tmp_path / "c")])
+        assert (tmp_path / JOURNAL_NAME).read_text() == journal
+    finally:
+        live.kill()
+        live.wait()
