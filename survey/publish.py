@@ -109,15 +109,22 @@ def _owner_alive(name: str, prefix: str) -> bool:
 def remove_stale_temporaries(parent: str | os.PathLike, prefix: str = TMP_PREFIX) -> int:
     """Remove ``prefix*`` leftovers of crashed or killed processes in ``parent`` (those whose
     process no longer runs), after finishing a set of moves such a process left half done
-    (:func:`finish_interrupted_publication`); returns how many."""
+    (:func:`finish_interrupted_publication`; only for indoormap's own ``TMP_PREFIX``
+    temporaries: other prefixes clean shared folders such as the system's temporary folder,
+    where a journal is none of ours); returns how many."""
     parent = Path(parent)
     if not parent.is_dir():
         return 0
-    try:  # first finish a killed set of moves: its staged outputs are such temporaries
-        finish_interrupted_publication(parent)
-    except PublishError as exc:
-        warnings.warn(f"{exc}; its journal is removed", stacklevel=2)
-        (parent / JOURNAL_NAME).unlink(missing_ok=True)
+    if prefix == TMP_PREFIX:  # first finish a killed set of moves: its staged outputs are
+        try:                  # such temporaries
+            finish_interrupted_publication(parent)
+        except PublishError as exc:
+            warnings.warn(f"{exc}; its journal is removed", stacklevel=2)
+            with _publication_lock(parent):  # unless it became finishable meanwhile
+                try:
+                    _finish_journal(parent, take_over=False)
+                except PublishError:
+                    (parent / JOURNAL_NAME).unlink(missing_ok=True)
     n = 0
     for p in parent.glob(prefix + "*"):
         if _owner_alive(p.name, prefix):

@@ -206,3 +206,25 @@ def test_without_a_lock_a_second_writer_refuses_a_live_writers_journal(tmp_path,
     finally:
         live.kill()
         live.wait()
+
+
+def test_cleaning_the_system_temp_folder_leaves_a_journal_there_alone(tmp_path):
+    """`build` cleans its temporary stores out of the shared system temporary folder
+    (remove_stale_temporaries(tempfile.gettempdir(), prefix='indoormap-build-')). That also
+    acted on any .publish-journal.json there: anyone can plant one in /tmp, and the build then
+    moved folders named in it, or failed (unlinking another user's file in a sticky folder)."""
+    _dead_journal(tmp_path, done=1)
+    before = (tmp_path / JOURNAL_NAME).read_text()
+    pub.remove_stale_temporaries(tmp_path, prefix="indoormap-build-")
+    assert (tmp_path / JOURNAL_NAME).read_text() == before
+    assert _contents(tmp_path) == ["new", "old", "old"]
+
+
+def test_bundle_dirs_of_a_file_is_empty_not_an_interrupted_publication(tmp_path):
+    """`bundle verify FILE`, `localize` on a file: bundle_dirs said 'a build's publication
+    here was interrupted and cannot be finished: ... Not a directory'."""
+    from localize.bundle import bundle_dirs
+
+    f = tmp_path / "notes.txt"
+    f.write_text("x")
+    assert bundle_dirs(f) == []
