@@ -268,8 +268,18 @@ def _swap_in(new: Path, target: Path, aside: Path) -> bool:
 
 
 def _journal_entries(parent: Path, moves: list[tuple[Path, Path]]) -> list[dict[str, Any]]:
-    return [{"staged": os.path.relpath(staged, parent), "target": target.name,
+    return [{"staged": _staged_name(parent, staged), "target": target.name,
              "inode": os.stat(staged).st_ino} for staged, target in moves]
+
+
+def _staged_name(parent: Path, staged: Path) -> str:
+    """How the journal names a staged folder: relative to ``parent``, ``/``-separated (also
+    on Windows), as :func:`_inside` accepts it; ValueError for a folder it cannot name."""
+    try:
+        return _inside(Path(os.path.relpath(staged, parent)).as_posix())
+    except ValueError:
+        raise ValueError(f"replace_together: {staged} is not a staging folder in {parent} "
+                         "(one or two levels deep)") from None
 
 
 def _inside(name: object, depth: int = 2) -> str:
@@ -330,6 +340,7 @@ def replace_together(moves: list[tuple[Path, Path]], *, overwrite: bool = False)
     if any(target.parent != parent for _, target in moves):
         raise ValueError("replace_together: every target must be in one folder")
     for staged, _ in moves:
+        _staged_name(parent, staged)  # the journal can name it
         if not staged.is_dir():
             raise PublishError(f"{staged}: nothing staged to publish")
     journal = parent / JOURNAL_NAME

@@ -228,3 +228,28 @@ def test_bundle_dirs_of_a_file_is_empty_not_an_interrupted_publication(tmp_path)
     f = tmp_path / "notes.txt"
     f.write_text("x")
     assert bundle_dirs(f) == []
+
+
+def test_a_staging_folder_the_journal_cannot_name_is_refused_before_any_move(tmp_path):
+    """The journal names staged folders relative to OUT, at most two parts deep, and refuses
+    others when read. replace_together wrote such names anyway (a staging folder beside OUT,
+    or deeper in it): a kill among its moves then left a journal read as damaged, and the
+    set mixed for good."""
+    (tmp_path / "out").mkdir()
+    _old_set_and_staged_new(tmp_path / "out", "ab", "deep/stage")
+    with pytest.raises(ValueError, match="staging"):
+        replace_together([(tmp_path / "out" / "deep" / "stage" / n, tmp_path / "out" / n)
+                          for n in "ab"], overwrite=True)
+    assert _contents(tmp_path / "out", "ab") == ["old", "old"]
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["a", "b", "deep"]
+
+
+def test_a_relative_out_with_an_absolute_staging_folder_is_published(tmp_path, monkeypatch):
+    """tempfile.mkdtemp(dir='OUT') gives an absolute path on Python 3.12+: a build into a
+    relative OUT stages there, and the journal still names the staged folders."""
+    monkeypatch.chdir(tmp_path)
+    Path("out").mkdir()
+    _old_set_and_staged_new(Path("out"), "ab", ".tmp-stage")
+    replace_together([(tmp_path / "out" / ".tmp-stage" / n, Path("out") / n) for n in "ab"],
+                     overwrite=True)
+    assert _contents(tmp_path / "out", "ab") == ["new", "new"]
