@@ -533,6 +533,8 @@ def bundle_dirs(path: str | os.PathLike) -> list[Path]:
     bundle folders directly in it (a build's output, a registry's site folder), sorted;
     empty when there are none."""
     path = Path(path)
+    if not path.exists():  # a bundle a killed build left between two renames (no swap)
+        finish_publication(path.parent)
     if is_bundle_dir(path):
         return [path]
     finish_publication(path)

@@ -230,6 +230,23 @@ def test_bundle_dirs_of_a_file_is_empty_not_an_interrupted_publication(tmp_path)
     assert bundle_dirs(f) == []
 
 
+def test_a_bundle_missing_between_two_renames_is_found_when_opened_by_its_own_path(tmp_path):
+    """Without the swap (no RENAME_EXCHANGE: NFS, macOS), a kill between renaming the old
+    bundle aside and the new one in leaves OUT/b missing. Opening OUT/b itself (`localize
+    --bundle OUT/b`, SiteMaps.open) found no bundle there: bundle_dirs finished a journal in
+    OUT/b, not in OUT where it is."""
+    from localize.bundle import bundle_dirs
+
+    _dead_journal(tmp_path, done=1)
+    for root in (tmp_path, tmp_path / ".tmp-999999-dead-stage"):
+        for n in "abc":
+            (root / n / "manifest.json").write_text("{}")
+    (tmp_path / ".tmp-999999-dead-aside").mkdir()
+    os.replace(tmp_path / "b", tmp_path / ".tmp-999999-dead-aside" / "1")  # killed here
+    assert bundle_dirs(tmp_path / "b") == [tmp_path / "b"]
+    assert _contents(tmp_path) == ["new"] * 3
+
+
 def test_a_staging_folder_the_journal_cannot_name_is_refused_before_any_move(tmp_path):
     """The journal names staged folders relative to OUT, at most two parts deep, and refuses
     others when read. replace_together wrote such names anyway (a staging folder beside OUT,
