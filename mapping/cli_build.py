@@ -20,6 +20,7 @@ import pandas as pd
 from localize.bundle import bundle_dirs, load_bundle
 from survey.errors import IndoormapError, PublishError, RegistryError
 from survey.publish import (
+    JOURNAL_NAME,
     refuse_to_replace,
     remove_stale_temporaries,
     replace_together,
@@ -173,7 +174,10 @@ TMP_STORE_PREFIX = "indoormap-build-"
 def staging_folder(out: Path) -> Iterator[Path]:
     """A temporary folder inside ``out`` (created if missing) where a build writes its
     bundles before they are moved into place together; removed on the way out, and so is
-    ``out`` when this created it and it stayed empty (a failed build leaves nothing)."""
+    ``out`` when this created it and it stayed empty (a failed build leaves nothing). Kept
+    while a publication journal is in ``out`` (replace_together could not undo its moves):
+    whoever finishes the journal moves the staged bundles in, and the next build then
+    removes the folder."""
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     remove_stale_temporaries(out)
@@ -181,7 +185,8 @@ def staging_folder(out: Path) -> Iterator[Path]:
     try:
         yield stage
     finally:
-        shutil.rmtree(stage, ignore_errors=True)
+        if not (out / JOURNAL_NAME).exists():
+            shutil.rmtree(stage, ignore_errors=True)
         if created and not any(out.iterdir()):
             out.rmdir()
 

@@ -270,3 +270,46 @@ def test_a_relative_out_with_an_absolute_staging_folder_is_published(tmp_path, m
     replace_together([(tmp_path / "out" / ".tmp-stage" / n, Path("out") / n) for n in "ab"],
                      overwrite=True)
     assert _contents(tmp_path / "out", "ab") == ["new", "new"]
+
+
+def test_a_build_whose_undo_failed_keeps_its_staged_bundles_for_the_journal(tmp_path,
+                                                                            monkeypatch):
+    """A move fails and so does undoing an earlier one: replace_together keeps its journal
+    for the next run to finish the set, but the build's staging folder was deleted on the
+    way out, staged bundles with it, so the journal could never be finished (readers refused
+    OUT, the next build dropped the journal with the set mixed)."""
+    from mapping.cli_build import staging_folder
+
+    out = tmp_path / "out"
+    out.mkdir()
+    for n in "ab":
+        (out / n).mkdir()
+        (out / n / "v").write_text("old")
+    real_swap, real_exchange = pub._swap_in, pub.exchange_paths
+    with pytest.raises(OSError, match="injected"):
+        with staging_folder(out) as stage:
+            for n in "ab":
+                (stage / n).mkdir()
+                (stage / n / "v").write_text("new")
+
+            def swap_in(new, target, aside):
+                if target.name == "b":
+                    raise OSError(errno.EIO, "injected")
+                return real_swap(new, target, aside)
+
+            def exchange(a, b):
+                if Path(b).name == "a" and (Path(b) / "v").read_text() == "new":
+                    raise OSError(errno.EIO, "injected undo")  # the undo of a's swap
+                return real_exchange(a, b)
+
+            monkeypatch.setattr(pub, "_swap_in", swap_in)
+            monkeypatch.setattr(pub, "exchange_paths", exchange)
+            replace_together([(stage / n, out / n) for n in "ab"], overwrite=True)
+    monkeypatch.undo()
+    assert (out / JOURNAL_NAME).exists() and _contents(out, "ab") == ["new", "old"]
+    record = json.loads((out / JOURNAL_NAME).read_text())  # the build exits: its
+    record["owner"] = "4194304-gone-"                        # process is gone
+    (out / JOURNAL_NAME).write_text(json.dumps(record))
+    pub.remove_stale_temporaries(out)  # the next build
+    assert _contents(out, "ab") == ["new", "new"]
+    assert not (out / JOURNAL_NAME).exists()
