@@ -410,6 +410,10 @@ def _read_journal(parent: Path) -> tuple[str, list[tuple[Path, Path, int]], Path
         moves = [(parent / _inside(m["staged"]), parent / _inside(m["target"], depth=1),
                   int(m["inode"])) for m in record["moves"]]
         aside = parent / _inside(record["aside"], depth=1)
+        for first in {aside, *(parent / staged.relative_to(parent).parts[0]
+                               for staged, _, _ in moves)}:
+            if first.is_symlink():  # it would lead the moves and deletions elsewhere
+                raise ValueError(f"{first.name!r} is a link")
     except (ValueError, KeyError, TypeError) as exc:
         raise PublishError(f"{journal}: damaged publication journal ({exc}); the outputs "
                            f"in {parent} may be a mix of two builds: build them again") from exc

@@ -313,3 +313,32 @@ def test_a_build_whose_undo_failed_keeps_its_staged_bundles_for_the_journal(tmp_
     pub.remove_stale_temporaries(out)  # the next build
     assert _contents(out, "ab") == ["new", "new"]
     assert not (out / JOURNAL_NAME).exists()
+
+
+@pytest.mark.parametrize("linked", ["staged", "aside"])
+def test_a_journal_cannot_reach_outside_its_folder_through_a_link(tmp_path, linked):
+    """_inside checks the journal's names, not what they lead to: a staging folder (or aside
+    folder) in OUT that is a link to elsewhere made the finisher delete a folder there (the
+    staged folder it found changed) or move an old bundle out into it."""
+    victim = tmp_path / "victim"
+    (victim / "F1").mkdir(parents=True)
+    (victim / "F1" / "keep").write_text("x")
+    out = tmp_path / "out"
+    for n in "ab":
+        (out / n).mkdir(parents=True)
+    (out / "staged-b").mkdir()
+    if linked == "staged":
+        os.symlink(victim, out / ".tmp-1-x-stage")
+        moves = [{"staged": ".tmp-1-x-stage/F1", "target": "a",
+                  "inode": os.stat(out / "a").st_ino}]
+        aside = ".tmp-1-x-aside"
+    else:
+        moves = [{"staged": "staged-b", "target": "b", "inode": os.stat(out / "staged-b").st_ino}]
+        aside = ".tmp-1-x-aside"
+        os.symlink(victim, out / aside)
+    (out / JOURNAL_NAME).write_text(json.dumps({
+        "format": 1, "owner": "4194304-dead-", "aside": aside, "moves": moves}))
+    with pytest.raises(PublishError, match="damaged publication journal"):
+        finish_interrupted_publication(out)
+    assert sorted(p.name for p in victim.iterdir()) == ["F1"]
+    assert (victim / "F1" / "keep").read_text() == "x"
