@@ -55,9 +55,9 @@ PROCESSED_CATALOG_COLUMNS = ("trace_id", "sha256", "site", "floor", "inputs_sha2
 #: The session-fit cache, under ``processed/`` (:func:`store_session_fits`).
 SESSION_CACHE = "session_fits.json"
 SESSION_CACHE_FORMAT = "indoormap-session-fits"
-#: Version of what the session-fit cache holds. Bump it when what :func:`session_fits`
-#: computes changes (``reported_bias``, ``calibration_sessions``, ``fit_ellipsoid``, the
-#: subsampling) or how a fit is written: caches of other versions are fitted again.
+#: Version of what the session-fit cache holds. Bump it when how a fit is written changes:
+#: caches of other versions are fitted again. A change to the fitting code itself needs no
+#: bump: the key holds the sha256 of its source files (:func:`_fit_code_sha256`).
 SESSION_FIT_VERSION = 1
 
 
@@ -194,6 +194,20 @@ def _defaults(fn) -> dict:
             if p.default is not inspect.Parameter.empty}
 
 
+def _fit_code_sha256() -> str:
+    """sha256 of the source files of the code the session fit runs (``reported_bias``,
+    ``calibration_sessions``, ``fit_ellipsoid``, :func:`session_fits`), so that an edit to any
+    of them refits the sessions without a version bump."""
+    h = hashlib.sha256()
+    for fn in (reported_bias, calibration_sessions, fit_ellipsoid, session_fits):
+        h.update(f"{fn.__qualname__}\0".encode())  # the file names the module
+        try:
+            h.update(Path(inspect.getsourcefile(fn) or "").read_bytes())
+        except (TypeError, OSError):  # no source (a frozen build): the version must do
+            h.update(b"no source")
+    return h.hexdigest()
+
+
 def _sensors_record(row) -> dict | None:
     """The sensors part's recorded sha256/size/rows of a catalog row (None: schema 1)."""
     try:
@@ -221,7 +235,7 @@ def _group_inputs_sha256(store: SurveyStore, rows: pd.DataFrame, max_samples: in
         walks.append([row.site, row.floor, row.trace_id, row.sha256, rec["sha256"]])
     inputs = {"version": SESSION_FIT_VERSION,
               "software": {"indoormap": __version__, "numpy": np.__version__,
-                           "scipy": scipy.__version__},
+                           "scipy": scipy.__version__, "code": _fit_code_sha256()},
               "params": {"max_samples": max_samples, "seed": seed,
                          "calibration_sessions": _defaults(calibration_sessions),
                          "fit_ellipsoid": _defaults(fit_ellipsoid)},

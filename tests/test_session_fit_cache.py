@@ -30,15 +30,22 @@ F1 = sorted((SITE / "F1" / "path_data_files").glob("*.txt.gz"))
 MATE, B2 = F1[0], F1[2]  # a walk of the needs_fit walk's phone (SIM-A1), one of SIM-B2
 
 
+def ok_fit(raw):
+    """A session fit stubbed well conditioned (hard iron = the pooled mean). One function for
+    this process and the killed ones: the cache's key holds the fitting code's source."""
+    from survey.magcal import fit_ellipsoid
+
+    return dataclasses.replace(fit_ellipsoid(raw), status="ok", reason="",
+                               hard_iron_ut=raw.mean(axis=0),
+                               soft_iron=np.eye(3) + raw.std(axis=0)[:, None] * 1e-3)
+
+
 @pytest.fixture
 def ok_fits(monkeypatch):
-    """Session fits stubbed well conditioned (hard iron = the pooled mean): the sample's
-    flat-held walks give none, and a walk that needs one then has its field calibrated by it,
-    so the cached fit's every bit shows in the processed samples."""
-    real_fit = ps.fit_ellipsoid
-    monkeypatch.setattr(ps, "fit_ellipsoid", lambda raw: dataclasses.replace(
-        real_fit(raw), status="ok", reason="", hard_iron_ut=raw.mean(axis=0),
-        soft_iron=np.eye(3) + raw.std(axis=0)[:, None] * 1e-3))
+    """Session fits stubbed well conditioned (:func:`ok_fit`): the sample's flat-held walks
+    give none, and a walk that needs one then has its field calibrated by it, so the cached
+    fit's every bit shows in the processed samples."""
+    monkeypatch.setattr(ps, "fit_ellipsoid", ok_fit)
 
 
 @pytest.fixture
@@ -198,13 +205,10 @@ def test_a_raw_part_lost_after_caching_still_fails_its_walk(tmp_path, ok_fits):
 
 
 CRASH = """
-import dataclasses, sys
-import numpy as np
+import sys
 import survey.process_store as ps
-real_fit = ps.fit_ellipsoid
-ps.fit_ellipsoid = lambda raw: dataclasses.replace(
-    real_fit(raw), status="ok", reason="", hard_iron_ut=raw.mean(axis=0),
-    soft_iron=np.eye(3) + raw.std(axis=0)[:, None] * 1e-3)
+from tests.test_session_fit_cache import ok_fit
+ps.fit_ellipsoid = ok_fit
 ps.process_store(sys.argv[1])
 """
 
