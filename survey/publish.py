@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
-import errno
 import hashlib
 import json
 import os
@@ -224,7 +223,8 @@ _renameat2: Any = None
 
 def exchange_paths(a: str | os.PathLike, b: str | os.PathLike) -> bool:
     """Swap two existing paths in one atomic step (Linux ``renameat2(RENAME_EXCHANGE)``);
-    False, with nothing changed, where the system or file system cannot do it."""
+    False, with nothing changed, when that fails for any reason (another system, a file
+    system or sandbox without it, a missing path): the caller then renames twice."""
     global _renameat2
     if _renameat2 is None:
         _renameat2 = False  # the flag and AT_FDCWD values below are Linux's
@@ -242,10 +242,9 @@ def exchange_paths(a: str | os.PathLike, b: str | os.PathLike) -> bool:
         return False
     if _renameat2(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0:
         return True
-    err = ctypes.get_errno()
-    if err in (errno.ENOSYS, errno.EINVAL, errno.ENOTSUP, errno.EOPNOTSUPP):
-        return False
-    raise OSError(err, os.strerror(err), str(a), None, str(b))
+    # any failure (no such call, a file system without it, a sandbox's EPERM) falls back to
+    # two renames, where a real error (a missing path, no permission) shows again
+    return False
 
 
 def _swap_in(new: Path, target: Path, aside: Path) -> bool:
@@ -451,7 +450,7 @@ def _finish_journal(parent: Path, *, take_over: bool) -> bool:
     if not take_over and _owner_alive(TMP_PREFIX + owner, TMP_PREFIX):
         return False
     journal = parent / JOURNAL_NAME
-    aside.mkdir(exist_ok=True)
+    todo = []  # every move checked before any is made: none is made if one cannot be
     for i, (staged, target, inode) in enumerate(moves):
         if target.exists() and os.stat(target).st_ino == inode:
             continue  # moved in before the kill (a swapped old target may lie at staged)
@@ -459,6 +458,9 @@ def _finish_journal(parent: Path, *, take_over: bool) -> bool:
             raise PublishError(f"{journal}: an interrupted publication cannot be finished: "
                                f"{staged} is gone, so {target} would not match the rest of "
                                f"{parent}: build the outputs again")
+        todo.append((i, staged, target))
+    aside.mkdir(exist_ok=True)
+    for i, staged, target in todo:
         _swap_in(staged, target, aside / str(i))
     fsync_dir(parent)
     journal.unlink()

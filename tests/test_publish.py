@@ -166,9 +166,11 @@ def test_a_journal_that_cannot_be_finished_is_reported(tmp_path):
 
     _old_set_and_staged_new(tmp_path)
     _kill_replace_together(tmp_path, "replace_together:after-0")
-    shutil.rmtree(tmp_path / "stage" / "b")
-    with pytest.raises(BundleError, match="interrupted and cannot be finished.*stage/b is gone"):
+    shutil.rmtree(tmp_path / "stage" / "c")
+    with pytest.raises(BundleError, match="interrupted and cannot be finished.*stage/c is gone"):
         bundle_dirs(tmp_path)
+    assert (tmp_path / "b" / "v").read_text() == "old"  # no move made when one cannot be
+    assert (tmp_path / "stage" / "b").is_dir()
     with pytest.warns(UserWarning, match="journal is removed"):
         remove_stale_temporaries(tmp_path)
     assert not (tmp_path / JOURNAL_NAME).exists()
