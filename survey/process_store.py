@@ -402,28 +402,28 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
         ``(site, floor) -> shapely geometry`` of the reachable area (for ``off_floor`` flags).
     """
     store = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
-    root = store.root / "processed"
-    cat = store.traces(site, floor)
-    if floors is not None:
-        cat = cat[cat["floor"].isin(list(floors))].reset_index(drop=True)
-    pcat_path = root / "catalog.parquet"
-    old = _read_processed_catalog(pcat_path)
-    psha = params_sha256(params)
-    report = ProcessReport()
-    if not len(cat):
-        return report
-    found = store_session_fits(store, cat["device_model"])
-    sessions, fits, unreadable = found.sessions, found.fits, found.unreadable
-    report.warnings += found.warnings
-    used = {sessions[t] for t in cat["trace_id"] if t in sessions}
-    report.sessions = {k: {"status": f.status, "reason": f.reason,
-                           "hard_iron_ut": np.round(f.hard_iron_ut, 2).tolist(),
-                           "coverage": round(float(f.coverage), 3)}
-                       for k, f in fits.items() if k in used}
-    plan_shas = {k: plan_sha256(g) for k, g in (reachable or {}).items()}
-    old_of = old.set_index("trace_id", drop=False)  # one row per walk (checked when read)
-    new_rows = []
-    with store.writer():  # one writer at a time for the whole store
+    with store.writer():  # one writer at a time, from reading the catalogs to writing one
+        root = store.root / "processed"
+        cat = store.traces(site, floor)
+        if floors is not None:
+            cat = cat[cat["floor"].isin(list(floors))].reset_index(drop=True)
+        pcat_path = root / "catalog.parquet"
+        old = _read_processed_catalog(pcat_path)
+        psha = params_sha256(params)
+        report = ProcessReport()
+        if not len(cat):
+            return report
+        found = store_session_fits(store, cat["device_model"])
+        sessions, fits, unreadable = found.sessions, found.fits, found.unreadable
+        report.warnings += found.warnings
+        used = {sessions[t] for t in cat["trace_id"] if t in sessions}
+        report.sessions = {k: {"status": f.status, "reason": f.reason,
+                               "hard_iron_ut": np.round(f.hard_iron_ut, 2).tolist(),
+                               "coverage": round(float(f.coverage), 3)}
+                           for k, f in fits.items() if k in used}
+        plan_shas = {k: plan_sha256(g) for k, g in (reachable or {}).items()}
+        old_of = old.set_index("trace_id", drop=False)  # one row per walk (checked when read)
+        new_rows = []
         remove_stale_temporaries_under(root)
         if found.cache is not None:
             _write_session_cache(root / SESSION_CACHE, found.cache)

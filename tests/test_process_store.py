@@ -265,3 +265,30 @@ def test_a_new_walk_reprocesses_only_walks_that_use_its_session_fit(tmp_path, mo
     assert processed_catalog(tmp_path / "s")["session"].nunique() == 1
     assert report.unchanged == [mate.name.split(".")[0]]  # device-calibrated: kept
     assert sorted(report.processed) == ["later", "needs_fit"]
+
+
+def test_process_reads_the_catalogs_under_the_writer_lock(tmp_path, monkeypatch):
+    """`process` read the store's and the processed catalogs before taking the writer lock:
+    an ingest or another `process` committing in between was then written over with the
+    stale rows (a walk shown processed whose parts the other run had replaced). Every read
+    of a catalog now happens with the lock held."""
+    from survey import process_store as ps
+    from survey.store import SurveyStore
+
+    walk = sorted((SITE / "F1" / "path_data_files").glob("*.txt.gz"))[0]
+    ingest([walk], tmp_path / "s")
+    held = []
+    real_traces, real_read = SurveyStore.traces, ps._read_processed_catalog
+
+    def traces(self, *args, **kwargs):
+        held.append((self.root / ".lock").exists())
+        return real_traces(self, *args, **kwargs)
+
+    def read(path):
+        held.append((path.parent.parent / ".lock").exists())
+        return real_read(path)
+
+    monkeypatch.setattr(SurveyStore, "traces", traces)
+    monkeypatch.setattr(ps, "_read_processed_catalog", read)
+    process_store(tmp_path / "s")
+    assert held == [True, True]
