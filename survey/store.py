@@ -278,6 +278,19 @@ class SurveyStore:
                              f"{', '.join(map(str, READABLE_SCHEMA_VERSIONS))})")
         return cls(root)
 
+    def _finish_upgrade(self) -> None:
+        """Mark the store version 2 if a writer killed between writing a version 2 catalog
+        (with ``parts_json``) and :meth:`upgrade_schema` left ``store.json`` at version 1
+        (an older indoormap would otherwise drop the part hashes at its next commit)."""
+        path = self.root / "catalog.parquet"
+        if self.schema_version() != SCHEMA_VERSION and path.exists():
+            try:
+                names = pq.read_schema(path).names
+            except (OSError, pa.ArrowException):
+                return  # a damaged catalog: the writer's own read reports it
+            if "parts_json" in names:
+                self.upgrade_schema()
+
     def upgrade_schema(self) -> None:
         """Mark a version 1 store as version 2 once its catalog has been written by this
         version (rows of version 1 keep an empty ``parts_json``)."""
@@ -396,6 +409,7 @@ class SurveyStore:
         lock = self.root / ".lock"
         fd = _take_lock(lock, self.root)
         try:
+            self._finish_upgrade()
             w = _StoreWriter(self)
             w.collect_garbage()
             yield w

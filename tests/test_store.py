@@ -356,6 +356,27 @@ def test_a_schema_1_store_is_read_and_upgraded_by_its_next_ingest(tmp_path):
         store.catalog()
 
 
+def test_a_kill_before_the_schema_upgrade_is_finished_by_the_next_writer(tmp_path):
+    """A schema-1 store's ingest killed between writing its (schema 2) catalog and marking
+    store.json 2 left the store at 1 with hashes an older indoormap would strip; the next
+    writer marks it 2."""
+    _walks(tmp_path / "in", 2)
+    ingest([tmp_path / "in"], tmp_path / "s")
+    _as_schema_1(SurveyStore.open(tmp_path / "s"))
+    _walks(tmp_path / "more", 3)
+    res = subprocess.run(
+        [sys.executable, "-c", "import sys; from survey.ingest import ingest; "
+         "ingest([sys.argv[1]], sys.argv[2])", str(tmp_path / "more"), str(tmp_path / "s")],
+        env={**os.environ, "INDOORMAP_CRASH_AT": "ingest:after-catalog"}, check=False)
+    assert res.returncode == 70
+    meta = tmp_path / "s" / "store.json"
+    assert '"schema_version": 1' in meta.read_text()  # the catalog has parts_json already
+    with SurveyStore.open(tmp_path / "s").writer():
+        pass
+    assert '"schema_version": 2' in meta.read_text()
+    assert SurveyStore.open(tmp_path / "s").catalog()["parts_json"].str.len().gt(0).all()
+
+
 def test_duplicates_chains_and_damage(tmp_path):
     """Walks renumbered in one run (w1 dropped, w2 -> w1, w3 -> w2, a new w3) lost w2's old
     content (w1 was called a duplicate of the old w2, which the run then replaced). A part
