@@ -15,9 +15,10 @@ if TYPE_CHECKING:
 
 
 def metric_lines(manifest: dict) -> dict[str, str]:
-    """What a floor bundle's build chose and reached, a line each (keyed ``smoothing``,
-    ``coverage``): the smoothing picked by cross-validation and the survey's coverage of the
-    reachable area."""
+    """What a bundle's build chose and reached, a line each (keyed ``smoothing``,
+    ``coverage``, ``floor_model``, ``ble_floor_model``): a floor bundle's smoothing picked by
+    cross-validation and the survey's coverage of the reachable area; a site bundle's floor
+    models with their cross-validated accuracy."""
     mt = manifest.get("metrics") or {}
     lines = {}
     if isinstance(mt.get("interpolator"), str):
@@ -37,6 +38,17 @@ def metric_lines(manifest: dict) -> dict[str, str]:
         lines["coverage"] = "reachable area near a sample: " + ", ".join(
             f"{100 * v:.0f} % within {k.removeprefix('within_').removesuffix('m')} m"
             for k, v in cov.items() if _is_number(v))
+    for key, label in (("floor_model", "floor model"), ("ble_floor_model", "floor model")):
+        fm = mt.get(key)
+        if isinstance(fm, dict) and isinstance(fm.get("floors"), list):
+            kind = "Wi-Fi" if fm.get("kind") == "wifi" else "BLE" if fm.get("kind") == "ble" \
+                else str(fm.get("kind", "?"))
+            unit = "scan" if kind == "Wi-Fi" else "window"
+            cv = [f"{100 * fm[k]:.1f} % per {what}" for k, what in (
+                ("cv_scan_accuracy", unit), ("cv_walk_accuracy", "walk")) if _is_number(fm.get(k))]
+            lines[key] = (f"{label} ({kind}, {fm.get('transmitters', '?')} transmitters): "
+                          f"floors {', '.join(map(str, fm['floors']))}"
+                          + (f"; cross-validated {', '.join(cv)}" if cv else ""))
     return lines
 
 

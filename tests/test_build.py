@@ -209,6 +209,8 @@ def test_build_cli_twice_identical_bytes(tmp_path):
     assert model is not None and _site_floor_model(load_bundle(floor)) == model
     site = runner.invoke(main, ["bundle", "info", str(tmp_path / "a" / "_site")])
     assert site.exit_code == 0 and "site-level bundle" in site.output
+    assert (f"floor model (Wi-Fi, {model['transmitters']} transmitters): floors "
+            f"{', '.join(model['floors'])}") in site.output
     verify = runner.invoke(main, ["bundle", "verify", str(a), str(tmp_path)])
     assert verify.exit_code == 1 and "ok " in verify.output and "FAILED" in verify.output
 
