@@ -306,11 +306,9 @@ def test_a_floor_folder_named_otherwise_than_its_walks(tmp_path):
         ["source_walks"]}
 
 
-def test_a_build_killed_before_its_last_bundle_leaves_the_old_set(tmp_path, monkeypatch):
-    """A floor's bundle and its site bundle change together: a build that dies after writing
-    the floor's new bundle but before the site's leaves both old ones (before: a new floor
-    bundle next to the old site bundle, each verifying on its own); the next build cleans the
-    dead build's staging folder and temporary store."""
+def _build_then_kill(tmp_path, monkeypatch, crash_at):
+    """Build F2 into ``tmp_path/out``, then build it again (build time 2030) in a process
+    killed at ``crash_at``; the first build's bundle ids, ``out`` and the temporary folder."""
     import os
     import subprocess
     import sys
@@ -326,9 +324,19 @@ def test_a_build_killed_before_its_last_bundle_leaves_the_old_set(tmp_path, monk
     killed = subprocess.run(
         [sys.executable, "-m", "survey.cli", "build", str(SITE / "F2"), "-o", str(out),
          "--overwrite", "--build-time", "2030-01-01T00:00:00Z"], capture_output=True, check=False,
-        env={**os.environ, "INDOORMAP_CRASH_AT": "bundle:after-rename", "TMPDIR": str(tmp)},
+        env={**os.environ, "INDOORMAP_CRASH_AT": crash_at, "TMPDIR": str(tmp)},
         cwd=Path(__file__).resolve().parents[1])
-    assert killed.returncode == 70  # died right after the floor's bundle was complete
+    assert killed.returncode == 70, killed.stderr.decode()
+    return ids, out, tmp
+
+
+def test_a_build_killed_before_its_last_bundle_leaves_the_old_set(tmp_path, monkeypatch):
+    """A floor's bundle and its site bundle change together: a build that dies after writing
+    the floor's new bundle but before the site's leaves both old ones (before: a new floor
+    bundle next to the old site bundle, each verifying on its own); the next build cleans the
+    dead build's staging folder and temporary store."""
+    # died right after the floor's bundle was complete
+    ids, out, tmp = _build_then_kill(tmp_path, monkeypatch, "bundle:after-rename")
     assert {n: load_bundle(out / n).bundle_id for n in ("F2", "_site")} == ids
     assert [p.name for p in out.iterdir() if p.name.startswith(".tmp-")]  # the dead stage
     assert list(tmp.glob("indoormap-build-*"))  # and its store
@@ -345,23 +353,7 @@ def test_a_build_killed_among_its_final_moves_is_finished_on_next_open(tmp_path,
     """Killed after the floor's new bundle moved in but before the site bundle's: the folder
     held one new and one old bundle, each verifying on its own. Now the next open of either
     finishes the publication from its journal, so both are the killed build's."""
-    import os
-    import subprocess
-    import sys
-    import tempfile
-
-    tmp = tmp_path / "tmp"
-    tmp.mkdir()
-    monkeypatch.setattr(tempfile, "tempdir", str(tmp))
-    out = tmp_path / "out"
-    old = CliRunner().invoke(main, ["build", str(SITE / "F2"), "-o", str(out)])
-    assert old.exit_code == 0, old.output
-    killed = subprocess.run(
-        [sys.executable, "-m", "survey.cli", "build", str(SITE / "F2"), "-o", str(out),
-         "--overwrite", "--build-time", "2030-01-01T00:00:00Z"], capture_output=True, check=False,
-        env={**os.environ, "INDOORMAP_CRASH_AT": "replace_together:after-0", "TMPDIR": str(tmp)},
-        cwd=Path(__file__).resolve().parents[1])
-    assert killed.returncode == 70
+    _, out, _ = _build_then_kill(tmp_path, monkeypatch, "replace_together:after-0")
     assert load_bundle(out / "_site").manifest["build"]["build_time"] == "2030-01-01T00:00:00Z"
     assert load_bundle(out / "F2").manifest["build"]["build_time"] == "2030-01-01T00:00:00Z"
     assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".tmp-")) == [

@@ -262,3 +262,27 @@ def test_a_fit_is_cached_bit_for_bit():
         else:
             assert np.asarray(a, "<f8").tobytes() == np.asarray(b, "<f8").tobytes(), f.name
             assert np.shape(a) == np.shape(b) and type(a) is type(b)
+
+
+def test_a_changed_fit_function_is_fitted_again_not_taken_from_the_cache(tmp_path, monkeypatch,
+                                                                         mag_reads):
+    """Before the cache every run fitted the sessions, so a change to fit_ellipsoid (or to
+    reported_bias, calibration_sessions, session_fits) reached the walks at once (their
+    inputs_sha256 holds the fit). With the cache the old fits were used until
+    SESSION_FIT_VERSION was bumped by hand; the key now holds the fitting code's sha256."""
+    store = tmp_path / "s"
+    ingest(_inputs(tmp_path / "in"), store)
+    process_store(store)  # the real fit: ill-conditioned on these flat-held walks
+    real_fit = ps.fit_ellipsoid
+
+    import functools
+
+    @functools.wraps(real_fit)  # "a fix" of its body: the same signature and defaults
+    def fixed_fit(raw, **kwargs):
+        return dataclasses.replace(real_fit(raw, **kwargs), status="ok", reason="",
+                                   hard_iron_ut=raw.mean(axis=0), soft_iron=np.eye(3))
+
+    monkeypatch.setattr(ps, "fit_ellipsoid", fixed_fit)
+    mag_reads.clear()
+    report = process_store(store)
+    assert mag_reads and "needs_fit" in report.processed
