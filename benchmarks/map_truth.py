@@ -11,7 +11,9 @@ surveyed cells (cells the true paths pass through):
 
 - strength RMSE and median absolute error against the true field (uT), and the RMSE over the
   walks' magnetometer noise (RMS of the simulated phones' ``mag_ut``; issue #4 asks for at most
-  1.5);
+  1.5): ``rmse`` compares each surveyed cell's value with the truth at the cell's centre (up
+  to 0.18 m off the path on 0.25 m cells), ``rmse_walked`` the layer looked up bilinearly at
+  every true position (as the localizer reads it) with the truth there;
 - the heading-offset layer's median absolute error against minus the simulated compass
   deviation (deg; target 3).
 
@@ -58,6 +60,7 @@ def scores(content, field, true_xy: np.ndarray) -> dict[str, float]:
     e = truth_errors(content.grid, content.layers, field, true_xy)
     return {"cells": len(e.strength_ut), "coverage": len(e.strength_ut) / max(e.surveyed, 1),
             "rmse": float(np.sqrt(np.mean(e.strength_ut ** 2))),
+            "rmse_walked": float(np.sqrt(np.mean(e.strength_walked_ut ** 2))),
             "median_abs": float(np.median(np.abs(e.strength_ut))),
             "heading_median_abs": float(np.median(np.abs(e.heading_offset_deg)))}
 
@@ -99,7 +102,8 @@ def main() -> int:
                 rows.append({"floor": f, "pipeline": name,
                              "bandwidth_m": content.metrics.get("bandwidth_m") if kernel
                              else np.nan, **s,
-                             "rmse/noise": s["rmse"] / sensor, "noise_ut": sensor,
+                             "rmse/noise": s["rmse"] / sensor,
+                             "walked/noise": s["rmse_walked"] / sensor, "noise_ut": sensor,
                              "s": time.perf_counter() - t})
                 print(f"  {f} {name}: {time.perf_counter() - t:.0f} s", file=sys.stderr,
                       flush=True)

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from localize.bundle import Grid
+from localize.bundle import Grid, sample_grid
 from survey.field_features import wrap_deg
 
 __all__ = ["TruthErrors", "surveyed_cells", "truth_errors"]
@@ -41,18 +41,24 @@ class TruthErrors:
         layer is compass minus true heading, i.e. minus the deviation.
     surveyed : int
         Surveyed cells (with or without a map value).
+    strength_walked_ut : ndarray, shape (k,)
+        The strength layer looked up bilinearly at the true positions themselves (as
+        :meth:`localize.bundle.MapBundle.sample` reads it) minus the true strength there, at
+        the positions where the lookup has a value (uT).
     """
 
     strength_ut: NDArray[np.float64]
     heading_offset_deg: NDArray[np.float64]
     surveyed: int
+    strength_walked_ut: NDArray[np.float64]
 
 
 def truth_errors(grid: Grid, layers: dict, field: Any, true_xy_m: NDArray[np.float64]
                  ) -> TruthErrors:
     """Errors of the ``strength`` and ``heading_offset`` layers (objects with ``values`` of the
     grid's shape, e.g. :class:`mapping.bundle_writer.Layer`) on the cells the true positions
-    (n, 2) (m) cross."""
+    (n, 2) (m) cross (cell values against the truth at the cell centres), and of the strength
+    looked up at those positions."""
     surveyed = surveyed_cells(grid, true_xy_m)
     xc, yc = grid.cell_centers()
     xx, yy = np.meshgrid(xc, yc)
@@ -62,5 +68,9 @@ def truth_errors(grid: Grid, layers: dict, field: Any, true_xy_m: NDArray[np.flo
     offset = layers["heading_offset"].values
     hsel = surveyed & np.isfinite(offset)
     herr = wrap_deg(offset[hsel] + field.compass_deviation_deg(xx[hsel], yy[hsel]))
+    xy = np.asarray(true_xy_m, dtype=np.float64).reshape(-1, 2)
+    walked = sample_grid(grid, np.isfinite(strength), strength, xy[:, 0], xy[:, 1])
+    ok = np.isfinite(walked)
+    walked_err = walked[ok] - np.linalg.norm(field.field_earth_ut(xy[ok, 0], xy[ok, 1]), axis=1)
     return TruthErrors(strength[sel] - true_strength, np.asarray(herr, dtype=np.float64),
-                       int(surveyed.sum()))
+                       int(surveyed.sum()), walked_err)

@@ -64,6 +64,9 @@ def test_map_against_simulated_truth(store):
     assert len(errors.strength_ut) > 300
     assert np.sqrt(np.mean(errors.strength_ut ** 2)) < 3.0  # sensor noise 0.7 uT (6 walks)
     assert np.median(np.abs(errors.heading_offset_deg)) < 3.0
+    # looked up at the walked positions themselves: almost every one has a value there
+    assert len(errors.strength_walked_ut) > 0.95 * len(true_xy)
+    assert np.sqrt(np.mean(errors.strength_walked_ut ** 2)) < 2.5  # 2.0 here
 
 
 def test_walk_by_walk_layers_equal_the_in_memory_rasters(store):
