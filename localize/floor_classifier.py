@@ -83,26 +83,37 @@ class FloorClassifier:
         object.__setattr__(self, "_index", {a: i for i, a in enumerate(self.aps.tolist())})
 
     @classmethod
-    def from_tables(cls, coef_table: pa.Table, intercept_table: pa.Table) -> FloorClassifier:
-        """From the ``floor_coef`` and ``floor_intercept`` tables (pyarrow) of a site bundle."""
-        for name, table, cols in (("floor_coef", coef_table, ("ap", "floor", "coef")),
-                                  ("floor_intercept", intercept_table, ("floor", "intercept"))):
+    def from_tables(cls, coef_table: pa.Table, intercept_table: pa.Table,
+                    prefix: str = "") -> FloorClassifier:
+        """From the ``floor_coef`` and ``floor_intercept`` tables (pyarrow) of a site bundle
+        (``prefix``: ``ble_`` for the BLE model's, named so in errors)."""
+        import pyarrow as pa
+
+        coef_name, intercept_name = prefix + COEF_TABLE, prefix + INTERCEPT_TABLE
+        for name, table, cols in ((coef_name, coef_table, ("ap", "floor", "coef")),
+                                  (intercept_name, intercept_table, ("floor", "intercept"))):
             missing = [c for c in cols if c not in table.column_names]
             if missing:
                 raise LocalizationError(f"table {name!r} lacks columns {missing}")
+        try:
+            intercept = np.asarray(intercept_table.column("intercept").to_numpy(), np.float64)
+            values = np.asarray(coef_table.column("coef").to_numpy(), np.float64)
+        except (TypeError, ValueError, pa.ArrowException) as err:  # text where numbers belong
+            raise LocalizationError(f"tables {coef_name!r} / {intercept_name!r}: coefficients "
+                                    f"are not numbers ({err})") from err
         floors = np.asarray(intercept_table.column("floor").to_pylist(), dtype=object).astype(str)
         order = np.argsort(floors, kind="stable")
         floors = floors[order]
-        intercept = np.asarray(intercept_table.column("intercept").to_numpy(), np.float64)[order]
+        intercept = intercept[order]
         ap_col = np.asarray(coef_table.column("ap").to_pylist(), dtype=object).astype(str)
         fl_col = np.asarray(coef_table.column("floor").to_pylist(), dtype=object).astype(str)
         aps, a_idx = np.unique(ap_col, return_inverse=True)
         f_idx = np.searchsorted(floors, fl_col)
         if len(fl_col) and (np.any(f_idx >= len(floors))
                             or np.any(floors[np.minimum(f_idx, len(floors) - 1)] != fl_col)):
-            raise LocalizationError("floor_coef names floors that floor_intercept lacks")
+            raise LocalizationError(f"{coef_name} names floors that {intercept_name} lacks")
         coef = np.zeros((len(floors), len(aps)))
-        coef[f_idx, a_idx] = coef_table.column("coef").to_numpy()
+        coef[f_idx, a_idx] = values
         return cls(floors, aps, coef, intercept)
 
     @classmethod
@@ -116,11 +127,26 @@ class FloorClassifier:
             raise LocalizationError(f"floor model kind must be one of {KINDS}, not {kind!r}")
         main = floor_model_kind(bundle)
         prefix = "" if kind is None or kind == main else BLE_PREFIX if kind == "ble" else None
-        if prefix is None or not (bundle.has_table(prefix + COEF_TABLE)
-                                  and bundle.has_table(prefix + INTERCEPT_TABLE)):
+        if prefix is None:
             return None
-        return cls.from_tables(bundle.table(prefix + COEF_TABLE),
-                               bundle.table(prefix + INTERCEPT_TABLE))
+        names = (prefix + COEF_TABLE, prefix + INTERCEPT_TABLE)
+        has = [bundle.has_table(n) for n in names]
+        metric = "ble_floor_model" if prefix else "floor_model"
+        announced = isinstance((bundle.manifest.get("metrics") or {}).get(metric), dict)
+        if has[0] != has[1] or announced != has[0]:  # a model is both tables and its metric
+            said = [f"table {n}" for n, h in zip(names, has) if h] + (
+                [f"metrics.{metric}"] if announced else [])
+            lacks = [f"table {n}" for n, h in zip(names, has) if not h] + (
+                [] if announced else [f"metrics.{metric}"])
+            raise LocalizationError(f"{bundle.path}: incomplete {metric.replace('_', ' ')}: "
+                                    f"{' and '.join(said)} without {' and '.join(lacks)} "
+                                    "(a damaged or hand-edited site bundle: rebuild it)")
+        if not has[0]:
+            return None
+        try:
+            return cls.from_tables(bundle.table(names[0]), bundle.table(names[1]), prefix)
+        except LocalizationError as err:
+            raise LocalizationError(f"{bundle.path}: {err}") from err
 
     def scan_matrix(self, scans: Sequence[RadioScan | None]) -> NDArray[np.float64]:
         """RSSI of ``scans`` over :attr:`aps`, shape (S, A) (dBm; NaN = not heard)."""
