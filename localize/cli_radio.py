@@ -132,7 +132,11 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
                                     f"is of site {site.site_id}")
         recorded = trace.header.floor_name or ""
         tried = [kind] if kind != "auto" else [k for k in ("wifi", "ble") if k in models]
-        for k in tried:  # auto: Wi-Fi when it classifies a scan, else BLE
+        # auto: Wi-Fi when it classifies a scan, else BLE; a Wi-Fi model of one floor (it puts
+        # every scan on that floor) after BLE, as SiteMaps.choose
+        if len(tried) == 2 and len(models["wifi"].floors) == 1:
+            tried = ["ble", "wifi"]
+        for k in tried:
             model, scans, rssi, lp, ok = classify(k, trace)
             if ok.any():
                 break
@@ -157,8 +161,10 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
             click.echo(f"{trace.trace_id}: no {' or '.join(tried)} scan hears a transmitter "
                        "the floor model knows; floor unknown", err=True)
         elif k == "ble" and kind == "auto":
+            why = ("the Wi-Fi floor model knows one floor only" if tried[0] == "ble" else
+                   "no Wi-Fi scan classified")
             click.echo(f"{trace.trace_id}: floor {walk_floor} from {int(ok.sum())} BLE windows "
-                       "(no Wi-Fi scan classified)", err=True)
+                       f"({why})", err=True)
 
     files = trace_files(walks)
     for f in files:

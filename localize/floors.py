@@ -156,7 +156,10 @@ class SiteMaps:
         summed; a model without ``log_proba``: the floor most windows are put on); else the
         only floor bundle. Wi-Fi decides whenever it classifies a scan of the walk, even when
         BLE would say another floor: on the real site1 walks (10-fold by walk) Wi-Fi puts
-        every walk on its floor, BLE 96.3 % (``docs/radio.md``).
+        every walk on its floor, BLE 96.3 % (``docs/radio.md``). Except a Wi-Fi model of one
+        floor (Wi-Fi surveyed on one floor only) on a site of several: it puts every scan it
+        knows on that floor, so the BLE model decides first and the Wi-Fi one only when BLE
+        does not.
 
         Returns
         -------
@@ -187,6 +190,7 @@ class SiteMaps:
         if floor_name and floor_name in self._by_name:
             return self._by_name[floor_name], "floor name in the trace header"
         missing = []
+        deferred = None  # a Wi-Fi model of one floor: answers only when BLE does not
         for name, what, model, scans in (
                 ("Wi-Fi", "Wi-Fi scans", self.floor_model, wifi_scans),
                 ("BLE", "BLE windows", self.ble_floor_model, ble_scans)):
@@ -212,7 +216,16 @@ class SiteMaps:
                 raise LocalizationError(f"{where}: the {name} floor model says floor {best}, "
                                         "which has no bundle")
             how = f"{name} floor model ({n_on} of {n_known} {what} on it)"
+            known = getattr(model, "floors", None)
+            if name == "Wi-Fi" and known is not None and len(known) == 1 \
+                    and len(self.bundles) > 1 and self.ble_floor_model is not None:
+                # it puts every scan it knows on its floor: no evidence against the others
+                deferred = found, how
+                missing.append(f"the Wi-Fi floor model knows one floor only ({known[0]})")
+                continue
             return found, how + (f"; {', '.join(missing)}" if missing else "")
+        if deferred is not None:
+            return deferred[0], f"{deferred[1]}; {', '.join(missing)}"
         if len(self.bundles) == 1:
             return next(iter(self.bundles.values())), "the only floor bundle"
         raise LocalizationError(f"{where}: the walk names no floor (no floor id or known floor "

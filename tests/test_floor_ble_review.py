@@ -1,5 +1,9 @@
 """Review of the BLE floor model (site bundle tables, SiteMaps.choose, ``floor --kind``).
 
+- A Wi-Fi floor model fitted on one floor (Wi-Fi surveyed on one floor only: the other floors
+  walked with a phone that logs BLE only) classifies every Wi-Fi scan, always onto that floor:
+  it decided before the BLE model, which knows the floors, so every walk with Wi-Fi was put on
+  the Wi-Fi floor.
 - A site bundle whose floor model tables are incomplete (coef without intercept) or that
   announces a model in ``metrics`` without its tables loaded without the model, silently: a
   walk's floor then came from the other model, or the error blamed an old build.
@@ -9,6 +13,8 @@
 
 from __future__ import annotations
 
+import csv
+import io
 import shutil
 from pathlib import Path
 
@@ -20,9 +26,13 @@ from localize.bundle import load_bundle
 from localize.errors import LocalizationError
 from localize.floors import SiteMaps
 from mapping.bundle_writer import BundleContent, write_bundle
+from mapping.radio_build import site_observations, site_radio
 from survey.cli import main
+from survey.step_summaries import ble_scans_of, scans_of
+from survey.store import SurveyStore
+from survey.trace_reader import read_trace
 
-from radio_fixtures import SITE
+from radio_fixtures import SITE, sample_store  # noqa: F401  (fixture)
 
 F2_WALKS = sorted((SITE / "F2" / "path_data_files").glob("*.txt.gz"))
 
@@ -52,6 +62,49 @@ def _with_site(built: Path, target: Path, content: BundleContent | None = None, 
                                          if k not in metrics_drop})
     write_bundle(target / "_site", content)
     return target
+
+
+@pytest.fixture(scope="module")
+def wifi_on_f1_only(built, sample_store, tmp_path_factory) -> Path:  # noqa: F811
+    """The sample site's bundles with a site bundle built as if F2 had been surveyed without
+    Wi-Fi: the Wi-Fi floor model knows F1 only, the BLE one both floors."""
+    store = SurveyStore.open(sample_store)
+    obs = {k: site_observations(store, None, ["F1", "F2"], k) for k in ("wifi", "ble")}
+    device_of = store.catalog().set_index("trace_id")["device_model"].astype(str)
+    radio = site_radio({"wifi": obs["wifi"][obs["wifi"]["floor"] == "F1"], "ble": obs["ble"]},
+                       device_of, ["F1", "F2"])
+    assert radio.floor_model_kind == "wifi" and radio.floor_model.floors.tolist() == ["F1"]
+    assert radio.ble_floor_model is not None
+    site_id = load_bundle(built / "_site").site_id
+    return _with_site(built, tmp_path_factory.mktemp("wifi_f1") / "b",
+                      radio.site_content(site_id))
+
+
+def test_a_wifi_floor_model_of_one_floor_does_not_outvote_the_ble_model(wifi_on_f1_only):
+    maps = SiteMaps.open(wifi_on_f1_only)
+    assert maps.floor_model.floors.tolist() == ["F1"]
+    for f in F2_WALKS[:3]:  # Wi-Fi and BLE, recorded on F2
+        t = read_trace(f)
+        assert scans_of(t) and ble_scans_of(t)
+        bundle, how = maps.choose(t.trace_id, "", "", "", scans_of(t), ble_scans_of(t))
+        assert bundle.manifest["floor_name"] == "F2", how
+        assert how.startswith("BLE floor model (") and "knows one floor only" in how
+    # without BLE windows the one-floor Wi-Fi model still answers, as before
+    t = read_trace(F2_WALKS[0])
+    bundle, how = maps.choose(t.trace_id, "", "", "", scans_of(t), [])
+    assert bundle.manifest["floor_name"] == "F1" and how.startswith("Wi-Fi floor model (")
+
+
+def test_floor_auto_does_not_let_a_one_floor_wifi_model_decide(wifi_on_f1_only):
+    res = CliRunner().invoke(main, ["floor", str(wifi_on_f1_only), str(F2_WALKS[0])])
+    assert res.exit_code == 0, res.output
+    rows = list(csv.DictReader(io.StringIO(res.stdout)))
+    walk = [r for r in rows if r["level"] == "walk"]
+    assert [(r["floor"], r["kind"]) for r in walk] == [("F2", "ble")]
+    res = CliRunner().invoke(main, ["floor", "--kind", "wifi", str(wifi_on_f1_only),
+                                    str(F2_WALKS[0])])
+    walk = [r for r in csv.DictReader(io.StringIO(res.stdout)) if r["level"] == "walk"]
+    assert [(r["floor"], r["kind"]) for r in walk] == [("F1", "wifi")]  # forced: as asked
 
 
 @pytest.mark.parametrize("drop,metrics_drop,names", [
