@@ -49,8 +49,9 @@ def reachable_mask(grid: Grid, reachable: shapely.Geometry) -> NDArray[np.bool_]
     crossed with the rows of centres in its half-open y range, winding numbers summed along x;
     0.1 s for a 20 M-cell floor where ``contains_xy`` at every centre took ~14 s), and the few
     centres within ~1e-9 m of the boundary (a crossing, a vertex, a horizontal edge on a row)
-    are tested with ``shapely.contains_xy``. Memory: an int16 array of the grid's shape and the
-    boolean mask, plus temporaries that grow with the area's vertices, not with the grid.
+    are tested with ``shapely.contains_xy``. Memory: an int16 array of the grid's shape (int32
+    when a row is crossed 32768 times or more) and the boolean mask, plus temporaries that grow
+    with the area's vertices, not with the grid.
 
     Polygons of a collection are united (a centre in any of them is in the area; holes subtract
     from their own polygon only), as GEOS does for a ``GeometryCollection`` and as the polygons
@@ -62,7 +63,6 @@ def reachable_mask(grid: Grid, reachable: shapely.Geometry) -> NDArray[np.bool_]
     repairs such polygons, and ``FloorPlan.reachable`` is an overlay's valid output.
     """
     xc, yc = grid.cell_centers()
-    acc = np.zeros(grid.shape, dtype=np.int16)  # winding-number steps; wraps harmlessly
     parts = np.atleast_1d(shapely.get_parts(reachable))
     while parts.size and np.isin(shapely.get_type_id(parts), _COLLECTION_TYPES).any():
         parts = shapely.get_parts(parts)
@@ -70,7 +70,7 @@ def reachable_mask(grid: Grid, reachable: shapely.Geometry) -> NDArray[np.bool_]
     polygons, lines = parts[kind == 3], parts[(kind == 1) | (kind == 2)]
     coords = shapely.get_coordinates(parts)
     if not len(coords):
-        return acc > 0
+        return np.zeros(grid.shape, dtype=bool)
     # a crossing or vertex this close to a centre is re-tested exactly (x_cross is a few ulps off)
     tol = 1e-9 * max(1.0, float(np.abs(coords).max()) / 1e3)
 
@@ -99,6 +99,14 @@ def reachable_mask(grid: Grid, reachable: shapely.Geometry) -> NDArray[np.bool_]
     lo = np.searchsorted(yc, np.minimum(y1, y2), side="left")
     hi = np.searchsorted(yc, np.maximum(y1, y2), side="left")
     n = hi - lo
+    # Winding-number steps, summed along each row. int16 wraps harmlessly while every partial
+    # sum of a row stays within +-32767, i.e. while no row is crossed 32768 times or more (a
+    # collection of that many overlapping polygons, or such a self-intersecting ring); else
+    # int32 (twice the memory).
+    per_row = np.bincount(lo, minlength=grid.height + 1) - np.bincount(
+        hi, minlength=grid.height + 1)
+    deepest = int(np.cumsum(per_row).max()) if len(lo) else 0
+    acc = np.zeros(grid.shape, dtype=np.int16 if deepest < 1 << 15 else np.int32)
     slope = (x2 - x1) / (y2 - y1)
     end = np.cumsum(n)  # crossings of edges [0, e]
     total = int(end[-1]) if len(end) else 0
@@ -116,7 +124,7 @@ def reachable_mask(grid: Grid, reachable: shapely.Geometry) -> NDArray[np.bool_]
     mask = np.empty(grid.shape, dtype=bool)
     step = max(1, _CROSSINGS_PER_CHUNK // grid.width)  # rows summed at a time: no full copy
     for a in range(0, grid.height, step):
-        mask[a:a + step] = np.cumsum(acc[a:a + step], axis=1, dtype=np.int16) > 0
+        mask[a:a + step] = np.cumsum(acc[a:a + step], axis=1, dtype=acc.dtype) > 0
     del acc
     rc = np.unique(np.concatenate(candidates))
     if len(rc):

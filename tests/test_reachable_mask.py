@@ -194,3 +194,14 @@ def test_sample_site_plans_match_contains_xy():
         plan = read_floor_plan(site / floor)
         for cell in (0.5, 0.25):
             assert_same_as_contains(plan.grid(cell), plan.reachable)
+
+
+def test_winding_sums_beyond_int16_do_not_wrap():
+    """A collection of 32768 overlapping squares: the winding number at their centre is 32768,
+    which an int16 sum wrapped to -32768 (out); the squares' cells are in, as contains_xy says."""
+    grid = Grid(0.0, 0.0, 1.0, 12, 10)
+    square = shapely.box(2.2, 2.2, 7.8, 7.8)
+    for copies in (32767, 32768, 65536 + 1):
+        area = shapely.GeometryCollection([square] * copies)
+        mask = reachable_mask(grid, area)
+        assert mask.sum() == 36 and np.array_equal(mask, reachable_mask(grid, square)), copies
