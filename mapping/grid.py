@@ -103,9 +103,10 @@ def reachable_mask(grid: Grid, reachable: shapely.Geometry) -> NDArray[np.bool_]
     # sum of a row stays within +-32767, i.e. while no row is crossed 32768 times or more (a
     # collection of that many overlapping polygons, or such a self-intersecting ring); else
     # int32 (twice the memory).
-    per_row = np.bincount(lo, minlength=grid.height + 1) - np.bincount(
-        hi, minlength=grid.height + 1)
-    deepest = int(np.cumsum(per_row).max()) if len(lo) else 0
+    deepest = len(lo)  # no row is crossed by more edges than there are
+    if deepest >= 1 << 15:
+        deepest = int(np.cumsum(np.bincount(lo, minlength=grid.height + 1)
+                                - np.bincount(hi, minlength=grid.height + 1)).max())
     acc = np.zeros(grid.shape, dtype=np.int16 if deepest < 1 << 15 else np.int32)
     slope = (x2 - x1) / (y2 - y1)
     end = np.cumsum(n)  # crossings of edges [0, e]
