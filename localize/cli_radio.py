@@ -132,10 +132,15 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
                                     f"is of site {site.site_id}")
         recorded = trace.header.floor_name or ""
         tried = [kind] if kind != "auto" else [k for k in ("wifi", "ble") if k in models]
-        # auto: Wi-Fi when it classifies a scan, else BLE; a Wi-Fi model of one floor (it puts
-        # every scan on that floor) after BLE, as SiteMaps.choose
-        if len(tried) == 2 and len(models["wifi"].floors) == 1:
-            tried = ["ble", "wifi"]
+        # auto: Wi-Fi when it classifies a scan, else BLE; BLE first when the Wi-Fi model
+        # lacks floors and BLE puts the walk on one of them, as SiteMaps.choose
+        lacking = sorted(set(map(str, models["ble"].floors))
+                         - set(map(str, models["wifi"].floors))) if len(tried) == 2 else []
+        if lacking:
+            _, _, _, lp_b, ok_b = classify("ble", trace)
+            if ok_b.any() and str(models["ble"].floors[np.argmax(lp_b[ok_b].sum(axis=0))]) \
+                    in lacking:
+                tried = ["ble"]
         for k in tried:
             model, scans, rssi, lp, ok = classify(k, trace)
             if ok.any():
@@ -161,8 +166,8 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
             click.echo(f"{trace.trace_id}: no {' or '.join(tried)} scan hears a transmitter "
                        "the floor model knows; floor unknown", err=True)
         elif k == "ble" and kind == "auto":
-            why = ("the Wi-Fi floor model knows one floor only" if tried[0] == "ble" else
-                   "no Wi-Fi scan classified")
+            why = (f"the Wi-Fi floor model lacks floor {', '.join(lacking)}"
+                   if tried == ["ble"] else "no Wi-Fi scan classified")
             click.echo(f"{trace.trace_id}: floor {walk_floor} from {int(ok.sum())} BLE windows "
                        f"({why})", err=True)
 

@@ -157,9 +157,10 @@ class SiteMaps:
         only floor bundle. Wi-Fi decides whenever it classifies a scan of the walk, even when
         BLE would say another floor: on the real site1 walks (10-fold by walk) Wi-Fi puts
         every walk on its floor, BLE 96.3 % (``docs/radio.md``). Except a Wi-Fi model of one
-        floor (Wi-Fi surveyed on one floor only) on a site of several: it puts every scan it
-        knows on that floor, so the BLE model decides first and the Wi-Fi one only when BLE
-        does not.
+        model that lacks some of the site's floors (Wi-Fi surveyed on only some of them),
+        which puts every walk on a floor it knows: when the BLE model names a floor the
+        Wi-Fi model lacks, BLE decides; otherwise (BLE names a floor Wi-Fi knows, or cannot
+        tell) Wi-Fi does.
 
         Returns
         -------
@@ -190,7 +191,7 @@ class SiteMaps:
         if floor_name and floor_name in self._by_name:
             return self._by_name[floor_name], "floor name in the trace header"
         missing = []
-        deferred = None  # a Wi-Fi model of one floor: answers only when BLE does not
+        deferred = None  # a Wi-Fi model lacking floors: BLE may name one of those first
         for name, what, model, scans in (
                 ("Wi-Fi", "Wi-Fi scans", self.floor_model, wifi_scans),
                 ("BLE", "BLE windows", self.ble_floor_model, ble_scans)):
@@ -217,12 +218,16 @@ class SiteMaps:
                                         "which has no bundle")
             how = f"{name} floor model ({n_on} of {n_known} {what} on it)"
             known = getattr(model, "floors", None)
-            if name == "Wi-Fi" and known is not None and len(known) == 1 \
-                    and len(self.bundles) > 1 and self.ble_floor_model is not None:
-                # it puts every scan it knows on its floor: no evidence against the others
-                deferred = found, how
-                missing.append(f"the Wi-Fi floor model knows one floor only ({known[0]})")
+            lacking = sorted(set(self._by_name) - {str(f) for f in known}) \
+                if known is not None else []
+            if name == "Wi-Fi" and lacking and self.ble_floor_model is not None:
+                # it puts a walk on a floor it knows even when the walk is on one it lacks
+                deferred = found, how, {str(f) for f in known}
+                missing.append(f"the Wi-Fi floor model lacks floor {', '.join(lacking)}")
                 continue
+            if deferred is not None and best in deferred[2]:
+                # BLE names a floor the Wi-Fi model knows: Wi-Fi, the better of the two, decides
+                return deferred[0], f"{deferred[1]}; {', '.join(missing)}"
             return found, how + (f"; {', '.join(missing)}" if missing else "")
         if deferred is not None:
             return deferred[0], f"{deferred[1]}; {', '.join(missing)}"

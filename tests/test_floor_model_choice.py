@@ -1,14 +1,15 @@
-"""Review of the BLE floor model (site bundle tables, SiteMaps.choose, ``floor --kind``).
+"""Floor models of a site bundle: which one decides a walk's floor, and incomplete models.
 
-- A Wi-Fi floor model fitted on one floor (Wi-Fi surveyed on one floor only: the other floors
-  walked with a phone that logs BLE only) classifies every Wi-Fi scan, always onto that floor:
-  it decided before the BLE model, which knows the floors, so every walk with Wi-Fi was put on
-  the Wi-Fi floor.
+- A Wi-Fi floor model that lacks some of the site's floors (Wi-Fi surveyed on only some of
+  them, the others walked with a phone that logs BLE only) puts every walk on a floor it knows:
+  when the BLE model names a floor the Wi-Fi model lacks, BLE decides (it used to decide only
+  after Wi-Fi, so every walk with Wi-Fi landed on the Wi-Fi floors).
 - A site bundle whose floor model tables are incomplete (coef without intercept) or that
-  announces a model in ``metrics`` without its tables loaded without the model, silently: a
-  walk's floor then came from the other model, or the error blamed an old build.
-- A malformed ``ble_floor_*`` table was reported as ``floor_coef``/``floor_intercept``, without
-  the bundle's path.
+  announces a model in ``metrics`` without its tables is refused, naming what is there and
+  what is missing (it loaded without the model, silently).
+- A malformed ``ble_floor_*`` table is named as such, with the bundle's path.
+- The whole sample site, with both floor models in its site bundle, builds to the same bytes
+  twice.
 """
 
 from __future__ import annotations
@@ -80,7 +81,7 @@ def wifi_on_f1_only(built, sample_store, tmp_path_factory) -> Path:  # noqa: F81
                       radio.site_content(site_id))
 
 
-def test_a_wifi_floor_model_of_one_floor_does_not_outvote_the_ble_model(wifi_on_f1_only):
+def test_a_wifi_floor_model_lacking_a_floor_does_not_outvote_the_ble_model(wifi_on_f1_only):
     maps = SiteMaps.open(wifi_on_f1_only)
     assert maps.floor_model.floors.tolist() == ["F1"]
     for f in F2_WALKS[:3]:  # Wi-Fi and BLE, recorded on F2
@@ -88,14 +89,18 @@ def test_a_wifi_floor_model_of_one_floor_does_not_outvote_the_ble_model(wifi_on_
         assert scans_of(t) and ble_scans_of(t)
         bundle, how = maps.choose(t.trace_id, "", "", "", scans_of(t), ble_scans_of(t))
         assert bundle.manifest["floor_name"] == "F2", how
-        assert how.startswith("BLE floor model (") and "knows one floor only" in how
+        assert how.startswith("BLE floor model (") and "lacks floor F2" in how
+    # BLE names a floor the Wi-Fi model knows: Wi-Fi decides
+    t = read_trace(sorted((SITE / "F1" / "path_data_files").glob("*.txt.gz"))[0])
+    bundle, how = maps.choose(t.trace_id, "", "", "", scans_of(t), ble_scans_of(t))
+    assert bundle.manifest["floor_name"] == "F1" and how.startswith("Wi-Fi floor model ("), how
     # without BLE windows the one-floor Wi-Fi model still answers, as before
     t = read_trace(F2_WALKS[0])
     bundle, how = maps.choose(t.trace_id, "", "", "", scans_of(t), [])
     assert bundle.manifest["floor_name"] == "F1" and how.startswith("Wi-Fi floor model (")
 
 
-def test_floor_auto_does_not_let_a_one_floor_wifi_model_decide(wifi_on_f1_only):
+def test_floor_auto_does_not_let_a_wifi_model_lacking_a_floor_decide(wifi_on_f1_only):
     res = CliRunner().invoke(main, ["floor", str(wifi_on_f1_only), str(F2_WALKS[0])])
     assert res.exit_code == 0, res.output
     rows = list(csv.DictReader(io.StringIO(res.stdout)))
@@ -144,3 +149,14 @@ def test_a_malformed_ble_floor_table_is_named(built, tmp_path):
     out = _with_site(built, tmp_path / "c", replace={"ble_floor_coef": text})
     with pytest.raises(LocalizationError, match="ble_floor_coef"):
         SiteMaps.open(out)
+
+
+def test_the_site_with_both_floor_models_builds_to_the_same_bytes_twice(built, tmp_path):
+    again = tmp_path / "again"
+    res = CliRunner().invoke(main, ["build", str(SITE), "-o", str(again)])
+    assert res.exit_code == 0, res.output
+    assert "ble_floor_model" in load_bundle(again / "_site").manifest["metrics"]
+    files = sorted(p.relative_to(built) for p in built.rglob("*") if p.is_file())
+    assert {str(f).split("/")[0] for f in files} == {"F1", "F2", "_site"}
+    assert files == sorted(p.relative_to(again) for p in again.rglob("*") if p.is_file())
+    assert all((built / f).read_bytes() == (again / f).read_bytes() for f in files)
