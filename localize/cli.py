@@ -137,7 +137,7 @@ def _prepare_walk(trace, maps, start_opt: str | tuple[float, float], waypoints_x
     from survey.step_summaries import ble_scans_of, step_summaries
 
     steps = step_summaries(trace)
-    ble = ble_scans_of(trace)
+    ble = ble_scans_of(trace, maps.ble_window_ms)  # as the bundles' BLE was grouped
     bundle, chosen = maps.choose(steps.trace_id, steps.site_id, steps.floor_id,
                                  steps.floor_name, steps.scans, ble)
     if "floor model" in chosen:

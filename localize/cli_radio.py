@@ -26,15 +26,16 @@ import numpy as np
 
 from localize.cli_common import WalkFailures, read_walk, trace_files
 from localize.errors import LocalizationError
+from localize.floors import ble_window_ms
 from localize.rssi_calibration import checked_rssi_calibration
 
 
-def _scans(trace, kind: str):
+def _scans(trace, kind: str, ble_window_ms: int):
     """Wi-Fi scans with every row and its age (the floor model was fitted on rows of any age;
-    the fingerprint matcher down-weights old rows), or BLE windows."""
+    the fingerprint matcher down-weights old rows), or BLE windows of ``ble_window_ms``."""
     from survey.step_summaries import ble_scans_of, scans_of
 
-    return scans_of(trace) if kind == "wifi" else ble_scans_of(trace)
+    return scans_of(trace) if kind == "wifi" else ble_scans_of(trace, ble_window_ms)
 
 
 def _site_bundle(path: Path):
@@ -119,7 +120,7 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
 
     def classify(k: str, trace):
         model = models[k]
-        scans = _scans(trace, k)
+        scans = _scans(trace, k, ble_window_ms(site))
         rssi = model.scan_matrix(scans)
         lp = model.log_proba(rssi)
         return model, scans, rssi, lp, np.isfinite(lp).all(axis=1)
@@ -236,14 +237,15 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
 
     def one(f: Path) -> None:
         trace = read_walk(f)
-        scans = _scans(trace, kind)
+        scans = _scans(trace, kind, maps.ble_window_ms)
         if not scans:
             click.echo(f"{trace.trace_id}: no {kind} scans", err=True)
             return
         h = trace.header  # the floor from the header, else the Wi-Fi, else the BLE floor model
         bundle = maps.select_for(trace.trace_id, h.site_id or "", h.floor_id or "",
                                  h.floor_name or "", scans if kind == "wifi" else scans_of(trace),
-                                 scans if kind == "ble" else ble_scans_of(trace))
+                                 scans if kind == "ble" else ble_scans_of(trace,
+                                                                          maps.ble_window_ms))
         pos = bundle_positioner(bundle, kind)
         if pos is None:
             raise LocalizationError(f"{bundle.path}: no {kind} fingerprints in this bundle")

@@ -91,6 +91,13 @@ class SiteMaps:
         self.site_bundle = site_bundle
         self._by_name = {b.manifest.get("floor_name", ""): b for b in self.bundles.values()}
 
+    @property
+    def ble_window_ms(self) -> int:
+        """Length (ms) of the BLE windows the floor bundles' BLE fingerprints (and the site's
+        BLE floor model) were built from: what a walk's BLE rows must be grouped into
+        (:func:`survey.step_summaries.ble_scans_of`)."""
+        return ble_window_ms(next(iter(self.bundles.values())))
+
     @classmethod
     def open(cls, path: str | Path) -> SiteMaps:
         """The floor bundles at ``path``: one floor bundle, a folder of bundles (as
@@ -236,6 +243,30 @@ class SiteMaps:
         raise LocalizationError(f"{where}: the walk names no floor (no floor id or known floor "
                                 f"name in its header) and no floor model decided: "
                                 f"{'; '.join(missing)}; floors: {sorted(self._by_name)}")
+
+
+#: BLE window (ms) of bundles whose manifest does not record one (they were all built with it)
+DEFAULT_BLE_WINDOW_MS = 2000
+
+
+def ble_window_ms(bundle: MapBundle) -> int:
+    """The BLE window (ms) a bundle was built with (its manifest's
+    ``build.params.radio.ble_window_ms``, a site bundle's ``build.radio_params.ble_window_ms``;
+    :data:`DEFAULT_BLE_WINDOW_MS` when it does not say).
+
+    Raises
+    ------
+    LocalizationError
+        A recorded value that is not a whole number of ms between 100 and 600,000.
+    """
+    build = bundle.manifest.get("build") or {}
+    radio = build.get("radio_params") or (build.get("params") or {}).get("radio") or {}
+    value = radio.get("ble_window_ms", DEFAULT_BLE_WINDOW_MS) if isinstance(radio, dict) \
+        else DEFAULT_BLE_WINDOW_MS
+    if isinstance(value, bool) or not isinstance(value, int) or not 100 <= value <= 600_000:
+        raise LocalizationError(f"{bundle.path}: build.params.radio.ble_window_ms is "
+                                f"{value!r}, not a window length in ms (100-600000)")
+    return value
 
 
 def _walk_floor(model: FloorModel, scans: Sequence[RadioScan], *, summed: bool

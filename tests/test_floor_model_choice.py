@@ -160,3 +160,21 @@ def test_the_site_with_both_floor_models_builds_to_the_same_bytes_twice(built, t
     assert {str(f).split("/")[0] for f in files} == {"F1", "F2", "_site"}
     assert files == sorted(p.relative_to(again) for p in again.rglob("*") if p.is_file())
     assert all((built / f).read_bytes() == (again / f).read_bytes() for f in files)
+
+
+def test_ble_windows_are_grouped_as_the_bundles_were_built(built):
+    """Localization grouped a walk's BLE rows into 2 s windows whatever the build used
+    (``RadioParams.ble_window_ms``, which the manifests record): the window now comes from the
+    bundles."""
+    from types import SimpleNamespace
+
+    from localize.floors import ble_window_ms
+
+    assert SiteMaps.open(built).ble_window_ms == 2000
+    assert ble_window_ms(load_bundle(built / "_site")) == 2000
+    for build, want in (({"params": {"radio": {"ble_window_ms": 3000}}}, 3000),
+                        ({"radio_params": {"ble_window_ms": 5000}}, 5000), ({}, 2000)):
+        assert ble_window_ms(SimpleNamespace(manifest={"build": build}, path="b")) == want
+    with pytest.raises(LocalizationError, match="ble_window_ms is 0, not a window length"):
+        ble_window_ms(SimpleNamespace(manifest={"build": {"radio_params": {
+            "ble_window_ms": 0}}}, path="b"))
