@@ -1,5 +1,6 @@
 """Fixtures of the Wi-Fi/BLE tests: the simulated sample site, ingested and processed once per
-session, and its ground truth (devices with their RSSI distortion)."""
+session, its bundles built once per session (read only: copy them to change them), and its
+ground truth (devices with their RSSI distortion)."""
 
 from __future__ import annotations
 
@@ -24,6 +25,19 @@ def sample_store(tmp_path_factory) -> Path:
     ingest([SITE / "F1" / "path_data_files", SITE / "F2" / "path_data_files"], store)
     process_store(store)
     return store
+
+
+@pytest.fixture(scope="session")
+def built(tmp_path_factory) -> Path:
+    """The whole sample site built with `indoormap build` (floors and ``_site``)."""
+    from click.testing import CliRunner
+
+    from survey.cli import main
+
+    out = tmp_path_factory.mktemp("sample_bundles") / "bundles"
+    res = CliRunner().invoke(main, ["build", str(SITE), "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    return out
 
 
 @pytest.fixture(scope="session")

@@ -33,17 +33,9 @@ from survey.step_summaries import ble_scans_of, scans_of
 from survey.store import SurveyStore
 from survey.trace_reader import read_trace
 
-from radio_fixtures import SITE, sample_store  # noqa: F401  (fixture)
+from radio_fixtures import SITE, built, sample_store  # noqa: F401  (fixtures)
 
 F2_WALKS = sorted((SITE / "F2" / "path_data_files").glob("*.txt.gz"))
-
-
-@pytest.fixture(scope="module")
-def built(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("floor_ble_review") / "bundles"
-    res = CliRunner().invoke(main, ["build", str(SITE), "-o", str(out)])
-    assert res.exit_code == 0, res.output
-    return out
 
 
 def _with_site(built: Path, target: Path, content: BundleContent | None = None, *,

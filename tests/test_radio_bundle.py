@@ -29,15 +29,8 @@ from mapping.matching import default_matcher, default_walk_matcher
 from mapping.radio_scans import scan_set
 from survey.cli import main
 
-from radio_fixtures import SITE, ble_obs, device_of, sample_store, sample_truth, wifi_obs  # noqa: F401
-
-
-@pytest.fixture(scope="module")
-def built(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("radio_bundle") / "bundles"
-    res = CliRunner().invoke(main, ["build", str(SITE), "-o", str(out)])
-    assert res.exit_code == 0, res.output
-    return out
+from radio_fixtures import (  # noqa: F401  (fixtures)
+    SITE, ble_obs, built, device_of, sample_store, sample_truth, wifi_obs)
 
 
 def _tables(bundle, prefix: str) -> dict:
