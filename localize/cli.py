@@ -139,7 +139,8 @@ def _prepare_walk(trace, maps, start_opt: str | tuple[float, float], waypoints_x
     steps = step_summaries(trace)
     ble = ble_scans_of(trace, maps.ble_window_ms)  # as the bundles' BLE was grouped
     bundle, chosen = maps.choose(steps.trace_id, steps.site_id, steps.floor_id,
-                                 steps.floor_name, steps.scans, ble)
+                                 steps.floor_name, steps.scans, ble,
+                                 device_model=trace.header.model or "")
     if "floor model" in chosen:
         click.echo(f"{trace.trace_id}: floor {bundle.manifest.get('floor_name', '')} by the "
                    f"{chosen}", err=True)

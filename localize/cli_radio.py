@@ -26,7 +26,7 @@ import numpy as np
 
 from localize.cli_common import WalkFailures, read_walk, trace_files
 from localize.errors import LocalizationError
-from localize.floors import ble_window_ms
+from localize.floors import ble_window_ms, device_table
 from localize.rssi_calibration import checked_rssi_calibration
 
 
@@ -118,10 +118,15 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
     scan_rows: list[dict] = []
     failures = WalkFailures()
 
+    devices = device_table(site)
+
     def classify(k: str, trace):
         model = models[k]
         scans = _scans(trace, k, ble_window_ms(site))
         rssi = model.scan_matrix(scans)
+        kb = devices.get(trace.header.model or "") if k == "wifi" else None
+        if kb is not None:  # as the model's training RSSI was mapped (the device table)
+            rssi = kb[0] * rssi + kb[1]
         lp = model.log_proba(rssi)
         return model, scans, rssi, lp, np.isfinite(lp).all(axis=1)
 
@@ -245,7 +250,8 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
         bundle = maps.select_for(trace.trace_id, h.site_id or "", h.floor_id or "",
                                  h.floor_name or "", scans if kind == "wifi" else scans_of(trace),
                                  scans if kind == "ble" else ble_scans_of(trace,
-                                                                          maps.ble_window_ms))
+                                                                          maps.ble_window_ms),
+                                 device_model=h.model or "")
         pos = bundle_positioner(bundle, kind)
         if pos is None:
             raise LocalizationError(f"{bundle.path}: no {kind} fingerprints in this bundle")

@@ -67,10 +67,16 @@ class SiteMaps:
         ``floor_model`` classifies none of its Wi-Fi scans.
     site_bundle : str, optional
         What the models came from, for messages (:meth:`open` sets it; "" = none given).
+    devices : dict, optional
+        Phone model -> ``(k, b)``: the device table the Wi-Fi floor model's training RSSI was
+        mapped through (``calibrated = k * rssi + b``, dBm); a walk of a listed phone is
+        mapped the same way before its Wi-Fi scans are classified (:meth:`open` reads it
+        from the site bundle's ``devices`` table).
     """
 
     def __init__(self, bundles: Iterable[MapBundle], floor_model: FloorModel | None = None,
-                 ble_floor_model: FloorModel | None = None, site_bundle: str = ""):
+                 ble_floor_model: FloorModel | None = None, site_bundle: str = "",
+                 devices: dict[str, tuple[float, float]] | None = None):
         self.bundles: dict[str, MapBundle] = {}
         sites = set()
         for b in bundles:
@@ -89,6 +95,7 @@ class SiteMaps:
         self.floor_model = floor_model
         self.ble_floor_model = ble_floor_model
         self.site_bundle = site_bundle
+        self.devices = dict(devices or {})
         self._by_name = {b.manifest.get("floor_name", ""): b for b in self.bundles.values()}
 
     @property
@@ -132,28 +139,32 @@ class SiteMaps:
         try:
             return cls(floors, floor_model=models.get("wifi"),
                        ble_floor_model=models.get("ble"),
-                       site_bundle=str(site[0].path) if site else "")
+                       site_bundle=str(site[0].path) if site else "",
+                       devices=device_table(site[0]) if site else None)
         except LocalizationError as err:
             raise LocalizationError(f"{path}: {err}") from err
 
     def select(self, steps: StepSummaries,
-               ble_scans: Sequence[RadioScan | None] | None = None) -> MapBundle:
+               ble_scans: Sequence[RadioScan | None] | None = None, *,
+               device_model: str = "") -> MapBundle:
         """The bundle of the walk's floor (see :meth:`choose`); ``ble_scans`` are the walk's
         BLE windows (:func:`survey.step_summaries.ble_scans_of`), the steps carry its Wi-Fi
         scans."""
         return self.choose(steps.trace_id, steps.site_id, steps.floor_id, steps.floor_name,
-                           steps.scans, ble_scans)[0]
+                           steps.scans, ble_scans, device_model=device_model)[0]
 
     def select_for(self, trace_id: str, site_id: str, floor_id: str, floor_name: str,
                    wifi_scans: Sequence[RadioScan | None] | None,
-                   ble_scans: Sequence[RadioScan | None] | None = None) -> MapBundle:
+                   ble_scans: Sequence[RadioScan | None] | None = None, *,
+                   device_model: str = "") -> MapBundle:
         """The bundle of a walk's floor (see :meth:`choose`)."""
-        return self.choose(trace_id, site_id, floor_id, floor_name, wifi_scans, ble_scans)[0]
+        return self.choose(trace_id, site_id, floor_id, floor_name, wifi_scans, ble_scans,
+                           device_model=device_model)[0]
 
     def choose(self, trace_id: str, site_id: str, floor_id: str, floor_name: str,
                wifi_scans: Sequence[RadioScan | None] | None,
-               ble_scans: Sequence[RadioScan | None] | None = None
-               ) -> tuple[MapBundle, str]:
+               ble_scans: Sequence[RadioScan | None] | None = None, *,
+               device_model: str = "") -> tuple[MapBundle, str]:
         """The bundle of a walk's floor and how it was chosen (a phrase for logs).
 
         In order: the floor id, else the floor name the trace header gives (empty strings
@@ -167,7 +178,9 @@ class SiteMaps:
         model that lacks some of the site's floors (Wi-Fi surveyed on only some of them),
         which puts every walk on a floor it knows: when the BLE model names a floor the
         Wi-Fi model lacks, BLE decides; otherwise (BLE names a floor Wi-Fi knows, or cannot
-        tell) Wi-Fi does.
+        tell) Wi-Fi does. A walk's Wi-Fi RSSI is first mapped through :attr:`devices`'s
+        entry for ``device_model`` (its phone model), as the model's training RSSI was;
+        other phones' scans are classified as they are.
 
         Returns
         -------
@@ -213,7 +226,9 @@ class SiteMaps:
             if not heard:
                 missing.append(f"no {what} in the walk")
                 continue
-            best, n_on, n_known = _walk_floor(model, heard, summed=name == "BLE")
+            best, n_on, n_known = _walk_floor(
+                model, heard, summed=name == "BLE",
+                calibration=self.devices.get(device_model) if name == "Wi-Fi" else None)
             if best is None:
                 missing.append(f"none of its {len(heard)} {what} hears a transmitter the "
                                f"{name} floor model knows")
@@ -269,24 +284,34 @@ def ble_window_ms(bundle: MapBundle) -> int:
     return value
 
 
-def _walk_floor(model: FloorModel, scans: Sequence[RadioScan], *, summed: bool
+def _walk_floor(model: FloorModel, scans: Sequence[RadioScan], *, summed: bool,
+                calibration: tuple[float, float] | None = None
                 ) -> tuple[str | None, int, int]:
     """The floor of a walk's scans under a floor model, the number of scans put on it alone
     and the number of scans it classifies (those hearing a transmitter it knows).
 
-    ``summed`` with a model that has ``scan_matrix`` and ``log_proba``
-    (:class:`~localize.floor_classifier.FloorClassifier`): the floor of the largest summed
-    log-probability (as :meth:`mapping.floor_model.FloorModel.predict_walks`); else the floor
+    With a model that has ``scan_matrix`` and ``log_proba``
+    (:class:`~localize.floor_classifier.FloorClassifier`), its RSSI first mapped through
+    ``calibration`` ``(k, b)`` when given: with ``summed`` the floor of the largest summed
+    log-probability (as :meth:`mapping.floor_model.FloorModel.predict_walks`), else the floor
     most scans are put on (ties: the first of them in the walk). None when no scan is
     classified."""
-    if summed and hasattr(model, "log_proba") and hasattr(model, "scan_matrix"):
-        lp = np.asarray(model.log_proba(model.scan_matrix(scans)), dtype=np.float64)
+    if hasattr(model, "log_proba") and hasattr(model, "scan_matrix"):
+        rssi = np.asarray(model.scan_matrix(scans), dtype=np.float64)
+        if calibration is not None:
+            rssi = calibration[0] * rssi + calibration[1]
+        lp = np.asarray(model.log_proba(rssi), dtype=np.float64)
         ok = np.isfinite(lp).all(axis=1)
         if not ok.any():
             return None, 0, 0
-        best = int(np.argmax(lp[ok].sum(axis=0)))
-        return str(model.floors[best]), int((np.argmax(lp[ok], axis=1) == best).sum()), \
-            int(ok.sum())
+        each = np.argmax(lp[ok], axis=1)
+        if summed:
+            best = int(np.argmax(lp[ok].sum(axis=0)))
+        else:  # most scans; ties: the floor met first in the walk
+            counts = np.bincount(each, minlength=len(model.floors))
+            tied = np.flatnonzero(counts == counts.max())
+            best = int(each[np.isin(each, tied)][0])
+        return str(model.floors[best]), int((each == best).sum()), int(ok.sum())
     votes: dict[str, int] = {}
     for scan in scans:
         f = model.floor_of(scan)
@@ -296,3 +321,32 @@ def _walk_floor(model: FloorModel, scans: Sequence[RadioScan], *, summed: bool
         return None, 0, 0
     best_floor = max(votes, key=votes.get)
     return best_floor, votes[best_floor], sum(votes.values())
+
+
+def device_table(bundle: MapBundle) -> dict[str, tuple[float, float]]:
+    """Phone model -> ``(k, b)`` of a bundle's ``devices`` table (the Wi-Fi RSSI maps
+    ``calibrated = k * rssi + b`` the build fitted); empty without one.
+
+    Raises
+    ------
+    LocalizationError
+        A table without the ``device_model``, ``k`` and ``b`` columns, or with values that
+        :func:`~localize.rssi_calibration.checked_rssi_calibration` refuses.
+    """
+    from localize.rssi_calibration import checked_rssi_calibration
+
+    if not bundle.has_table("devices"):
+        return {}
+    table = bundle.table("devices")
+    missing = [c for c in ("device_model", "k", "b") if c not in table.column_names]
+    if missing:
+        raise LocalizationError(f"{bundle.path}: table 'devices' lacks columns {missing}")
+    out = {}
+    for model, k, b in zip(table.column("device_model").to_pylist(),
+                           table.column("k").to_pylist(), table.column("b").to_pylist()):
+        try:
+            out[str(model)] = checked_rssi_calibration(float(k), float(b))
+        except (TypeError, ValueError, LocalizationError) as err:
+            raise LocalizationError(f"{bundle.path}: table 'devices', phone {model!r}: "
+                                    f"{err}") from err
+    return out

@@ -170,3 +170,27 @@ def test_ble_windows_are_grouped_as_the_bundles_were_built(built):
     with pytest.raises(LocalizationError, match="ble_window_ms is 0, not a window length"):
         ble_window_ms(SimpleNamespace(manifest={"build": {"radio_params": {
             "ble_window_ms": 0}}}, path="b"))
+
+
+def test_a_known_phones_wifi_rssi_is_calibrated_before_its_floor_is_chosen(built):
+    """The Wi-Fi floor model is fitted on RSSI mapped through the device table (each phone
+    model's ``k, b``), and a walk's scans were classified unmapped: a phone reading 30 dB
+    low looked like one far from the access points. Here a model that puts a scan on F2 when
+    it hears ``a`` above -50 dBm: the walk's phone hears it at -70 dBm and reads 30 dB low."""
+    import numpy as np
+
+    from localize.floor_classifier import FloorClassifier
+    from localize.floors import device_table
+    from localize.steps import RadioScan
+
+    floors = [load_bundle(built / f) for f in ("F1", "F2")]
+    model = FloorClassifier(np.array(["F1", "F2"]), np.array(["a"]), np.array([[0.0], [20.0]]),
+                            np.array([0.0, -10.0]))
+    maps = SiteMaps(floors, floor_model=model, devices={"PhoneX": (1.0, 30.0)})
+    scans = [RadioScan(1000 * i, np.array(["a"]), np.array([-70.0])) for i in range(3)]
+    pick = {m: maps.choose("w", "", "", "", scans, device_model=m)[0].manifest["floor_name"]
+            for m in ("PhoneX", "other")}
+    assert pick == {"PhoneX": "F2", "other": "F1"}  # an unknown phone: as it reads
+    # SiteMaps.open takes the table from the site bundle
+    assert SiteMaps.open(built).devices == device_table(load_bundle(built / "_site"))
+    assert SiteMaps.open(built).devices  # the sample's phones are in it
