@@ -266,9 +266,27 @@ def _swap_in(new: Path, target: Path, aside: Path) -> bool:
     return False
 
 
+def folder_identity(path: Path) -> str:
+    """What tells a staged folder from the one it replaces, wherever a rename puts it: the
+    sha256 of its files' relative paths, sizes and modification times (ns). Inode numbers do
+    not do: vfat and exfat renumber them across a remount, and some file systems report 0."""
+    h = hashlib.sha256()
+    for dirpath, dirnames, filenames in sorted(os.walk(path)):
+        dirnames.sort()
+        for name in sorted(filenames):
+            p = os.path.join(dirpath, name)
+            st = os.stat(p, follow_symlinks=False)
+            h.update(f"{os.path.relpath(p, path)}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
+    return h.hexdigest()
+
+
+def _is(path: Path, identity: str) -> bool:
+    return path.is_dir() and not path.is_symlink() and folder_identity(path) == identity
+
+
 def _journal_entries(parent: Path, moves: list[tuple[Path, Path]]) -> list[dict[str, Any]]:
     return [{"staged": _staged_name(parent, staged), "target": target.name,
-             "inode": os.stat(staged).st_ino} for staged, target in moves]
+             "identity": folder_identity(staged)} for staged, target in moves]
 
 
 def _staged_name(parent: Path, staged: Path) -> str:
@@ -393,7 +411,7 @@ def replace_together(moves: list[tuple[Path, Path]], *, overwrite: bool = False)
     shutil.rmtree(aside, ignore_errors=True)
 
 
-def _read_journal(parent: Path) -> tuple[str, list[tuple[Path, Path, int]], Path] | None:
+def _read_journal(parent: Path) -> tuple[str, list[tuple[Path, Path, str]], Path] | None:
     """The journal in ``parent`` (its owner, moves and aside folder, paths checked); None
     when there is none."""
     journal = parent / JOURNAL_NAME
@@ -407,7 +425,7 @@ def _read_journal(parent: Path) -> tuple[str, list[tuple[Path, Path, int]], Path
         record = json.loads(text)
         owner = str(record["owner"])
         moves = [(parent / _inside(m["staged"]), parent / _inside(m["target"], depth=1),
-                  int(m["inode"])) for m in record["moves"]]
+                  str(m["identity"])) for m in record["moves"]]
         aside = parent / _inside(record["aside"], depth=1)
         for first in {aside, *(parent / staged.relative_to(parent).parts[0]
                                for staged, _, _ in moves)}:
@@ -451,10 +469,10 @@ def _finish_journal(parent: Path, *, take_over: bool) -> bool:
         return False
     journal = parent / JOURNAL_NAME
     todo = []  # every move checked before any is made: none is made if one cannot be
-    for i, (staged, target, inode) in enumerate(moves):
-        if target.exists() and os.stat(target).st_ino == inode:
+    for i, (staged, target, identity) in enumerate(moves):
+        if _is(target, identity):
             continue  # moved in before the kill (a swapped old target may lie at staged)
-        if not staged.is_dir() or os.stat(staged).st_ino != inode:
+        if not _is(staged, identity):
             raise PublishError(f"{journal}: an interrupted publication cannot be finished: "
                                f"{staged} is gone, so {target} would not match the rest of "
                                f"{parent}: build the outputs again")
@@ -465,8 +483,8 @@ def _finish_journal(parent: Path, *, take_over: bool) -> bool:
     fsync_dir(parent)
     journal.unlink()
     fsync_dir(parent)
-    for staged, _, inode in moves:
-        if staged.exists() and os.stat(staged).st_ino != inode:
+    for staged, _, identity in moves:
+        if staged.exists() and not _is(staged, identity):
             shutil.rmtree(staged, ignore_errors=True)
     shutil.rmtree(aside, ignore_errors=True)
     return True

@@ -8,7 +8,8 @@ import stat
 import pytest
 
 from survey.errors import PublishError
-from survey.publish import DIR_MODE, FILE_MODE, atomic_directory, atomic_write_bytes
+from survey.publish import DIR_MODE, FILE_MODE, atomic_directory, atomic_write_bytes, \
+    folder_identity
 
 
 def test_atomic_write_refuses_overwrite_and_uses_umask_permissions(tmp_path):
@@ -185,7 +186,7 @@ def test_the_journal_of_a_live_process_is_left_alone(tmp_path):
     (tmp_path / JOURNAL_NAME).write_text(json.dumps({
         "format": 1, "owner": tmp_prefix(""), "aside": "x",
         "moves": [{"staged": "stage/a", "target": "a",
-                   "inode": os.stat(tmp_path / "stage" / "a").st_ino}]}))
+                   "identity": folder_identity(tmp_path / "stage" / "a")}]}))
     assert not finish_interrupted_publication(tmp_path)  # this process: still at work
     assert (tmp_path / "a" / "v").read_text() == "old"
     (tmp_path / JOURNAL_NAME).write_text("{not json")
@@ -231,7 +232,33 @@ def test_a_tampered_journal_cannot_move_or_delete_outside_its_folder(tmp_path):
         (out / JOURNAL_NAME).write_text(json.dumps({
             "format": 1, "owner": "1-dead-", "aside": aside,
             "moves": [{"staged": staged, "target": target,
-                       "inode": os.stat(victim).st_ino}]}))
+                       "identity": folder_identity(victim)}]}))
         with pytest.raises(PublishError, match="damaged publication journal"):
             finish_interrupted_publication(out)
     assert (victim / "keep").read_text() == "x"
+
+
+def test_a_staged_folder_is_known_by_its_files_not_its_inode(tmp_path):
+    """vfat and exfat renumber inodes across a remount (the power cut the journal is for):
+    the staged folders were known by inode, so such a journal could not be finished. They
+    are known by their files' names, sizes and times now; a copy with those kept (new
+    inodes) is the same folder, a folder whose files changed is not."""
+    import shutil
+
+    from survey.publish import finish_interrupted_publication
+
+    _old_set_and_staged_new(tmp_path)
+    _kill_replace_together(tmp_path, "replace_together:after-0")
+    for n in "bc":  # what a remount does to the inode numbers
+        shutil.copytree(tmp_path / "stage" / n, tmp_path / "stage" / f"{n}2")
+        shutil.rmtree(tmp_path / "stage" / n)
+        os.replace(tmp_path / "stage" / f"{n}2", tmp_path / "stage" / n)
+    assert finish_interrupted_publication(tmp_path)
+    assert [(tmp_path / n / "v").read_text() for n in "abc"] == ["new"] * 3
+
+    (tmp_path / "again").mkdir()
+    _old_set_and_staged_new(tmp_path / "again")
+    _kill_replace_together(tmp_path / "again", "replace_together:after-0")
+    (tmp_path / "again" / "stage" / "c" / "v").write_text("other")  # not what was staged
+    with pytest.raises(PublishError, match="stage/c is gone"):
+        finish_interrupted_publication(tmp_path / "again")

@@ -17,7 +17,8 @@ import pytest
 
 import survey.publish as pub
 from survey.errors import PublishError
-from survey.publish import JOURNAL_NAME, finish_interrupted_publication, replace_together
+from survey.publish import JOURNAL_NAME, finish_interrupted_publication, folder_identity, \
+    replace_together
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -79,10 +80,15 @@ def test_exchange_paths_is_false_where_ctypes_cannot_open_the_c_library(tmp_path
     assert (target / "x").read_text() == "2"
 
 
-def _dead_journal(root: Path, names: str = "abc", done: int = 1) -> None:
-    """The state a writer killed after its first ``done`` moves (with the swap) leaves."""
+def _dead_journal(root: Path, names: str = "abc", done: int = 1, *,
+                  bundles: bool = False) -> None:
+    """The state a writer killed after its first ``done`` moves (with the swap) leaves; with
+    ``bundles`` every folder is a bundle folder as far as ``bundle_dirs`` is concerned."""
     stage = ".tmp-999999-dead-stage"
     _old_set_and_staged_new(root, names, stage)
+    for folder in (root, root / stage) if bundles else ():
+        for n in names:
+            (folder / n / "manifest.json").write_text("{}")
     moves = [(root / stage / n, root / n) for n in names]
     (root / JOURNAL_NAME).write_text(json.dumps({
         "format": 1, "owner": "4194304-dead-", "aside": ".tmp-999999-dead-aside",
@@ -237,10 +243,7 @@ def test_a_bundle_missing_between_two_renames_is_found_when_opened_by_its_own_pa
     OUT/b, not in OUT where it is."""
     from localize.bundle import bundle_dirs
 
-    _dead_journal(tmp_path, done=1)
-    for root in (tmp_path, tmp_path / ".tmp-999999-dead-stage"):
-        for n in "abc":
-            (root / n / "manifest.json").write_text("{}")
+    _dead_journal(tmp_path, done=1, bundles=True)
     (tmp_path / ".tmp-999999-dead-aside").mkdir()
     os.replace(tmp_path / "b", tmp_path / ".tmp-999999-dead-aside" / "1")  # killed here
     assert bundle_dirs(tmp_path / "b") == [tmp_path / "b"]
@@ -330,10 +333,11 @@ def test_a_journal_cannot_reach_outside_its_folder_through_a_link(tmp_path, link
     if linked == "staged":
         os.symlink(victim, out / ".tmp-1-x-stage")
         moves = [{"staged": ".tmp-1-x-stage/F1", "target": "a",
-                  "inode": os.stat(out / "a").st_ino}]
+                  "identity": folder_identity(out / "a")}]
         aside = ".tmp-1-x-aside"
     else:
-        moves = [{"staged": "staged-b", "target": "b", "inode": os.stat(out / "staged-b").st_ino}]
+        moves = [{"staged": "staged-b", "target": "b",
+                  "identity": folder_identity(out / "staged-b")}]
         aside = ".tmp-1-x-aside"
         os.symlink(victim, out / aside)
     (out / JOURNAL_NAME).write_text(json.dumps({
