@@ -194,3 +194,26 @@ def test_a_known_phones_wifi_rssi_is_calibrated_before_its_floor_is_chosen(built
     # SiteMaps.open takes the table from the site bundle
     assert SiteMaps.open(built).devices == device_table(load_bundle(built / "_site"))
     assert SiteMaps.open(built).devices  # the sample's phones are in it
+
+
+def test_a_device_row_outside_the_given_limits_does_not_refuse_the_site():
+    """The build applies whatever (k, b) its RMA fit gives (no limits: a phone with a
+    compressed RSSI scale gets k = 4, b = 210 dB); the Wi-Fi floor model was fitted on RSSI
+    mapped so. device_table checked every row against the limits for *user-given*
+    calibrations, so one such phone made SiteMaps.open (and `floor`) refuse the whole site,
+    for walks of every other phone too."""
+    from types import SimpleNamespace
+
+    import pyarrow as pa
+
+    from localize.floors import device_table
+
+    table = pa.table({"device_model": ["ref", "squashed"], "k": [1.0, 4.0],
+                      "b": [0.0, 210.0]})
+    bundle = SimpleNamespace(path="site", has_table=lambda n: n == "devices",
+                             table=lambda n: table)
+    assert device_table(bundle) == {"ref": (1.0, 0.0), "squashed": (4.0, 210.0)}
+    bad = pa.table({"device_model": ["x"], "k": [float("nan")], "b": [0.0]})
+    with pytest.raises(LocalizationError, match="phone 'x'"):
+        device_table(SimpleNamespace(path="site", has_table=lambda n: True,
+                                     table=lambda n: bad))
