@@ -268,15 +268,17 @@ def _swap_in(new: Path, target: Path, aside: Path) -> bool:
 
 def folder_identity(path: Path) -> str:
     """What tells a staged folder from the one it replaces, wherever a rename puts it: the
-    sha256 of its files' relative paths, sizes and modification times (ns). Inode numbers do
-    not do: vfat and exfat renumber them across a remount, and some file systems report 0."""
+    sha256 of its files' relative paths and contents. Inode numbers do not do (vfat and exfat
+    renumber them across a remount, some file systems report 0), nor do modification times
+    (coarse on vfat, shifted by its local-time clock); two folders of one identity hold the
+    same files, so taking one for the other changes nothing."""
     h = hashlib.sha256()
     for dirpath, dirnames, filenames in sorted(os.walk(path)):
         dirnames.sort()
         for name in sorted(filenames):
             p = os.path.join(dirpath, name)
-            st = os.stat(p, follow_symlinks=False)
-            h.update(f"{os.path.relpath(p, path)}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
+            digest = "link" if os.path.islink(p) else file_sha256(p)
+            h.update(f"{os.path.relpath(p, path)}\0{digest}\n".encode())
     return h.hexdigest()
 
 
