@@ -283,7 +283,7 @@ class SurveyStore:
         (with ``parts_json``) and :meth:`upgrade_schema` left ``store.json`` at version 1
         (an older indoormap would otherwise drop the part hashes at its next commit)."""
         path = self.root / "catalog.parquet"
-        if self.schema_version() != SCHEMA_VERSION and path.exists():
+        if self.schema_version() < SCHEMA_VERSION and path.exists():
             try:
                 names = pq.read_schema(path).names
             except (OSError, pa.ArrowException):
