@@ -118,17 +118,12 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
     scan_rows: list[dict] = []
     failures = WalkFailures()
 
-    devices = device_table(site)
-
-    def classify(k: str, trace):
-        model = models[k]
-        scans = _scans(trace, k, ble_window_ms(site))
-        rssi = model.scan_matrix(scans)
-        kb = devices.get(trace.header.model or "") if k == "wifi" else None
-        if kb is not None:  # as the model's training RSSI was mapped (the device table)
-            rssi = kb[0] * rssi + kb[1]
-        lp = model.log_proba(rssi)
-        return model, scans, rssi, lp, np.isfinite(lp).all(axis=1)
+    devices, window_ms = device_table(site), ble_window_ms(site)
+    tried_auto = [k for k in ("wifi", "ble") if k in models]
+    # auto: Wi-Fi when it classifies a scan, else BLE; BLE first when the Wi-Fi model lacks
+    # floors and BLE puts the walk on one of them, as SiteMaps.choose
+    lacking = sorted(set(map(str, models["ble"].floors)) - set(map(str, models["wifi"].floors))
+                     ) if kind == "auto" and len(tried_auto) == 2 else []
 
     def one(f: Path) -> None:
         trace = read_walk(f)
@@ -137,18 +132,26 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
                                     f"{trace.header.site_id}, but the site bundle {site.path} "
                                     f"is of site {site.site_id}")
         recorded = trace.header.floor_name or ""
-        tried = [kind] if kind != "auto" else [k for k in ("wifi", "ble") if k in models]
-        # auto: Wi-Fi when it classifies a scan, else BLE; BLE first when the Wi-Fi model
-        # lacks floors and BLE puts the walk on one of them, as SiteMaps.choose
-        lacking = sorted(set(map(str, models["ble"].floors))
-                         - set(map(str, models["wifi"].floors))) if len(tried) == 2 else []
+        classified: dict[str, tuple] = {}
+
+        def classify(k: str):
+            if k not in classified:
+                model = models[k]
+                scans = _scans(trace, k, window_ms)
+                rssi = model.scan_matrix(scans, devices.get(trace.header.model or "")
+                                         if k == "wifi" else None)
+                lp = model.log_proba(rssi)
+                classified[k] = model, scans, rssi, lp, np.isfinite(lp).all(axis=1)
+            return classified[k]
+
+        tried = [kind] if kind != "auto" else tried_auto
         if lacking:
-            _, _, _, lp_b, ok_b = classify("ble", trace)
+            _, _, _, lp_b, ok_b = classify("ble")
             if ok_b.any() and str(models["ble"].floors[np.argmax(lp_b[ok_b].sum(axis=0))]) \
                     in lacking:
                 tried = ["ble"]
         for k in tried:
-            model, scans, rssi, lp, ok = classify(k, trace)
+            model, scans, rssi, lp, ok = classify(k)
             if ok.any():
                 break
         n_known = np.isfinite(rssi).sum(axis=1)

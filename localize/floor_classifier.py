@@ -148,9 +148,13 @@ class FloorClassifier:
         except LocalizationError as err:
             raise LocalizationError(f"{bundle.path}: {err}") from err
 
-    def scan_matrix(self, scans: Sequence[RadioScan | None]) -> NDArray[np.float64]:
-        """RSSI of ``scans`` over :attr:`aps`, shape (S, A) (dBm; NaN = not heard)."""
-        return scan_rssi_matrix(scans, self._index)
+    def scan_matrix(self, scans: Sequence[RadioScan | None],
+                    calibration: tuple[float, float] | None = None) -> NDArray[np.float64]:
+        """RSSI of ``scans`` over :attr:`aps`, shape (S, A) (dBm; NaN = not heard), mapped
+        through ``calibration`` ``(k, b)`` (``k * rssi + b``) when given: a phone's device
+        table entry, as the model's training RSSI was mapped."""
+        rssi = scan_rssi_matrix(scans, self._index)
+        return rssi if calibration is None else calibration[0] * rssi + calibration[1]
 
     def log_proba(self, rssi_dbm: ArrayLike) -> NDArray[np.float64]:
         """Log-probability per floor, shape (S, F), of scans as a matrix over :attr:`aps`."""

@@ -297,10 +297,8 @@ def _walk_floor(model: FloorModel, scans: Sequence[RadioScan], *, summed: bool,
     most scans are put on (ties: the first of them in the walk). None when no scan is
     classified."""
     if hasattr(model, "log_proba") and hasattr(model, "scan_matrix"):
-        rssi = np.asarray(model.scan_matrix(scans), dtype=np.float64)
-        if calibration is not None:
-            rssi = calibration[0] * rssi + calibration[1]
-        lp = np.asarray(model.log_proba(rssi), dtype=np.float64)
+        lp = np.asarray(model.log_proba(model.scan_matrix(scans, calibration)),
+                        dtype=np.float64)
         ok = np.isfinite(lp).all(axis=1)
         if not ok.any():
             return None, 0, 0

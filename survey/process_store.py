@@ -217,15 +217,25 @@ def _sensors_record(row) -> dict | None:
     return rec if isinstance(rec, dict) else None
 
 
-def _group_inputs_sha256(store: SurveyStore, rows: pd.DataFrame, max_samples: int,
-                         seed: int) -> str | None:
-    """Hash of what a device group's session keys and fits depend on: this code's
-    :data:`SESSION_FIT_VERSION` and libraries, the fit's parameters, the models, and each walk
-    (in the order the fit reads them) with its raw file's and sensors part's sha256. None when
-    a walk's sensors part is not there as recorded (missing, changed, or schema 1 without a
-    recorded hash): the walks are then read, which names the unreadable ones."""
+def _fit_inputs(max_samples: int, seed: int) -> dict:
+    """What every device group's session fit depends on besides its walks: this code's
+    :data:`SESSION_FIT_VERSION`, source and libraries, and the fit's parameters."""
     import scipy
 
+    return {"version": SESSION_FIT_VERSION,
+            "software": {"indoormap": __version__, "numpy": np.__version__,
+                         "scipy": scipy.__version__, "code": _fit_code_sha256()},
+            "params": {"max_samples": max_samples, "seed": seed,
+                       "calibration_sessions": _defaults(calibration_sessions),
+                       "fit_ellipsoid": _defaults(fit_ellipsoid)}}
+
+
+def _group_inputs_sha256(store: SurveyStore, rows: pd.DataFrame, common: dict) -> str | None:
+    """Hash of what a device group's session keys and fits depend on: ``common``
+    (:func:`_fit_inputs`), the models, and each walk (in the order the fit reads them) with
+    its raw file's and sensors part's sha256. None when a walk's sensors part is not there as
+    recorded (missing, changed, or schema 1 without a recorded hash): the walks are then read,
+    which names the unreadable ones."""
     walks = []
     for row in rows.itertuples(index=False):
         rec = _sensors_record(row)
@@ -233,13 +243,7 @@ def _group_inputs_sha256(store: SurveyStore, rows: pd.DataFrame, max_samples: in
         if rec is None or not files_match({"sensors": path}, {"sensors": rec}):
             return None
         walks.append([row.site, row.floor, row.trace_id, row.sha256, rec["sha256"]])
-    inputs = {"version": SESSION_FIT_VERSION,
-              "software": {"indoormap": __version__, "numpy": np.__version__,
-                           "scipy": scipy.__version__, "code": _fit_code_sha256()},
-              "params": {"max_samples": max_samples, "seed": seed,
-                         "calibration_sessions": _defaults(calibration_sessions),
-                         "fit_ellipsoid": _defaults(fit_ellipsoid)},
-              "models": sorted(set(rows["device_model"])), "walks": walks}
+    inputs = {**common, "models": sorted(set(rows["device_model"])), "walks": walks}
     return hashlib.sha256(json.dumps(inputs, sort_keys=True, default=repr).encode()).hexdigest()
 
 
@@ -329,9 +333,10 @@ def store_session_fits(store: SurveyStore, models: Iterable[str], max_samples: i
     new = {name: entry for name, entry in stored.items() if name in present}
     changed = problem is not None or len(new) != len(stored)
     sessions, fits = {}, {}
+    common = _fit_inputs(max_samples, seed)  # the code's sources are read once, not per group
     for name in sorted({device_group(m) for m in models} & present):
         rows = everything[group_of == name]
-        key = _group_inputs_sha256(store, rows, max_samples, seed)
+        key = _group_inputs_sha256(store, rows, common)
         hit = cached.get(name)
         if key is not None and hit is not None and hit["key"] == key \
                 and set(hit["sessions"]) == set(rows["trace_id"]):

@@ -366,7 +366,7 @@ def replace_together(moves: list[tuple[Path, Path]], *, overwrite: bool = False)
     with _publication_lock(parent) as locked:
         found = _read_journal(parent)
         if found is not None and not locked and found[0] != tmp_prefix("") \
-                and _owner_alive(TMP_PREFIX + found[0], TMP_PREFIX):
+                and _journal_owner_alive(found[0]):
             raise PublishError(f"{parent}: another indoormap (process "
                                f"{found[0].split('-')[0]}) is publishing there; try again "
                                "when it is done")
@@ -439,6 +439,12 @@ def _read_journal(parent: Path) -> tuple[str, list[tuple[Path, Path, str]], Path
     return owner, moves, aside
 
 
+def _journal_owner_alive(owner: str) -> bool:
+    """Whether the process that wrote a journal (its ``owner``, :func:`tmp_prefix` ``("")``)
+    still runs."""
+    return _owner_alive(TMP_PREFIX + owner, TMP_PREFIX)
+
+
 def finish_interrupted_publication(parent: str | os.PathLike) -> bool:
     """Finish the moves of a :func:`replace_together` whose process was killed among them
     (its journal in ``parent``), so that the set of outputs is the new one throughout;
@@ -453,7 +459,7 @@ def finish_interrupted_publication(parent: str | os.PathLike) -> bool:
     """
     parent = Path(parent)
     found = _read_journal(parent)
-    if found is None or _owner_alive(TMP_PREFIX + found[0], TMP_PREFIX):
+    if found is None or _journal_owner_alive(found[0]):
         return False  # (a live writer: not waited for)
     with _publication_lock(parent):
         return _finish_journal(parent, take_over=False)
@@ -467,7 +473,7 @@ def _finish_journal(parent: Path, *, take_over: bool) -> bool:
     if found is None:
         return False
     owner, moves, aside = found
-    if not take_over and _owner_alive(TMP_PREFIX + owner, TMP_PREFIX):
+    if not take_over and _journal_owner_alive(owner):
         return False
     journal = parent / JOURNAL_NAME
     todo = []  # every move checked before any is made: none is made if one cannot be
@@ -485,8 +491,7 @@ def _finish_journal(parent: Path, *, take_over: bool) -> bool:
     fsync_dir(parent)
     journal.unlink()
     fsync_dir(parent)
-    for staged, _, identity in moves:
-        if staged.exists() and not _is(staged, identity):
-            shutil.rmtree(staged, ignore_errors=True)
+    for staged, _, _ in moves:  # every target holds its new folder: what is left is old
+        shutil.rmtree(staged, ignore_errors=True)
     shutil.rmtree(aside, ignore_errors=True)
     return True
