@@ -23,7 +23,7 @@ import tempfile
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from .errors import PublishError
 
@@ -103,6 +103,18 @@ def _owner_alive(name: str, prefix: str) -> bool:
     except PermissionError:
         return True  # another user's live process
     return True
+
+
+def _process_started(pid: int) -> str | None:
+    """When process ``pid`` started, as ``"<boot id>/<start time in clock ticks>"`` (Linux's
+    ``/proc``); None where that cannot be read (another system, no such process). A pid
+    reused by a later process, or after a reboot, gives another value."""
+    try:
+        boot = Path("/proc/sys/kernel/random/boot_id").read_text().strip()
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        return f"{boot}/{stat[stat.rindex(')') + 2:].split()[19]}"
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 def remove_stale_temporaries(parent: str | os.PathLike, prefix: str = TMP_PREFIX) -> int:
@@ -365,10 +377,10 @@ def replace_together(moves: list[tuple[Path, Path]], *, overwrite: bool = False)
     journal = parent / JOURNAL_NAME
     with _publication_lock(parent) as locked:
         found = _read_journal(parent)
-        if found is not None and not locked and found[0] != tmp_prefix("") \
-                and _journal_owner_alive(found[0]):
+        if found is not None and not locked and found.owner != tmp_prefix("") \
+                and found.owner_alive():
             raise PublishError(f"{parent}: another indoormap (process "
-                               f"{found[0].split('-')[0]}) is publishing there; try again "
+                               f"{found.owner.split('-')[0]}) is publishing there; try again "
                                "when it is done")
         # under the lock a journal is a killed writer's (live ones hold the lock), or this
         # process's own after an undo that failed
@@ -376,6 +388,7 @@ def replace_together(moves: list[tuple[Path, Path]], *, overwrite: bool = False)
         aside = Path(tempfile.mkdtemp(prefix=tmp_prefix(), dir=parent))
         atomic_write_bytes(journal, json.dumps({
             "format": 1, "owner": tmp_prefix(""), "aside": aside.name,
+            "started": _process_started(os.getpid()),
             "moves": _journal_entries(parent, moves)}, indent=1).encode(), overwrite=True)
         done: list[tuple[Path, Path, bool, bool]] = []  # staged, target, swapped, existed
         try:
@@ -413,9 +426,25 @@ def replace_together(moves: list[tuple[Path, Path]], *, overwrite: bool = False)
     shutil.rmtree(aside, ignore_errors=True)
 
 
-def _read_journal(parent: Path) -> tuple[str, list[tuple[Path, Path, str]], Path] | None:
-    """The journal in ``parent`` (its owner, moves and aside folder, paths checked); None
-    when there is none."""
+class _Journal(NamedTuple):
+    owner: str  # :func:`tmp_prefix` ``("")`` of the process that wrote it
+    moves: list[tuple[Path, Path, str]]  # staged, target, the staged folder's identity
+    aside: Path
+    started: str | None  # :func:`_process_started` of that process, when known
+
+    def owner_alive(self) -> bool:
+        """Whether the process that wrote the journal still runs: its pid is in use and,
+        where the system says when processes started, by the same process (not by a later
+        one that was given the pid, e.g. after a reboot)."""
+        if not _owner_alive(TMP_PREFIX + self.owner, TMP_PREFIX):
+            return False
+        pid = int(self.owner.split("-")[0])
+        now = _process_started(pid) if self.started and pid != os.getpid() else None
+        return now is None or now == self.started
+
+
+def _read_journal(parent: Path) -> _Journal | None:
+    """The journal in ``parent`` (paths checked); None when there is none."""
     journal = parent / JOURNAL_NAME
     try:
         text = journal.read_text()
@@ -426,6 +455,7 @@ def _read_journal(parent: Path) -> tuple[str, list[tuple[Path, Path, str]], Path
     try:
         record = json.loads(text)
         owner = str(record["owner"])
+        started = record.get("started")
         moves = [(parent / _inside(m["staged"]), parent / _inside(m["target"], depth=1),
                   str(m["identity"])) for m in record["moves"]]
         aside = parent / _inside(record["aside"], depth=1)
@@ -436,13 +466,7 @@ def _read_journal(parent: Path) -> tuple[str, list[tuple[Path, Path, str]], Path
     except (ValueError, KeyError, TypeError) as exc:
         raise PublishError(f"{journal}: damaged publication journal ({exc}); the outputs "
                            f"in {parent} may be a mix of two builds: build them again") from exc
-    return owner, moves, aside
-
-
-def _journal_owner_alive(owner: str) -> bool:
-    """Whether the process that wrote a journal (its ``owner``, :func:`tmp_prefix` ``("")``)
-    still runs."""
-    return _owner_alive(TMP_PREFIX + owner, TMP_PREFIX)
+    return _Journal(owner, moves, aside, started if isinstance(started, str) else None)
 
 
 def finish_interrupted_publication(parent: str | os.PathLike) -> bool:
@@ -459,7 +483,7 @@ def finish_interrupted_publication(parent: str | os.PathLike) -> bool:
     """
     parent = Path(parent)
     found = _read_journal(parent)
-    if found is None or _journal_owner_alive(found[0]):
+    if found is None or found.owner_alive():
         return False  # (a live writer: not waited for)
     with _publication_lock(parent):
         return _finish_journal(parent, take_over=False)
@@ -472,9 +496,9 @@ def _finish_journal(parent: Path, *, take_over: bool) -> bool:
     found = _read_journal(parent)
     if found is None:
         return False
-    owner, moves, aside = found
-    if not take_over and _journal_owner_alive(owner):
+    if not take_over and found.owner_alive():
         return False
+    moves, aside = found.moves, found.aside
     journal = parent / JOURNAL_NAME
     todo = []  # every move checked before any is made: none is made if one cannot be
     for i, (staged, target, identity) in enumerate(moves):

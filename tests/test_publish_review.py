@@ -346,3 +346,31 @@ def test_a_journal_cannot_reach_outside_its_folder_through_a_link(tmp_path, link
         finish_interrupted_publication(out)
     assert sorted(p.name for p in victim.iterdir()) == ["F1"]
     assert (victim / "F1" / "keep").read_text() == "x"
+
+
+@pytest.mark.skipif(pub._process_started(os.getpid()) is None,
+                    reason="the system does not say when processes started (/proc)")
+def test_a_journal_whose_pid_now_belongs_to_another_process_is_finished(tmp_path):
+    """After a reboot (or a wrap of the pids) a killed writer's pid can belong to a live,
+    unrelated process. Readers took the journal for a live writer's and read a mix of two
+    builds until the next writer came; the journal also records when its writer started."""
+    _old_set_and_staged_new(tmp_path)
+    other = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        def journal(started):
+            (tmp_path / JOURNAL_NAME).write_text(json.dumps({
+                "format": 1, "owner": f"{other.pid}-0badc0de-", "aside": "aside",
+                "started": started,
+                "moves": [{"staged": f"stage/{n}", "target": n,
+                           "identity": folder_identity(tmp_path / "stage" / n)}
+                          for n in "abc"]}))
+
+        journal(pub._process_started(other.pid))  # its writer: at work, left alone
+        assert finish_interrupted_publication(tmp_path) is False
+        assert _contents(tmp_path) == ["old"] * 3
+        journal(pub._process_started(os.getpid()))  # a process started at another time
+        assert finish_interrupted_publication(tmp_path) is True
+        assert _contents(tmp_path) == ["new"] * 3
+    finally:
+        other.kill()
+        other.wait()
