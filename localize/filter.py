@@ -12,6 +12,7 @@ re-draws them around the last estimate with a growing spread (counted as a recov
 from __future__ import annotations
 
 from dataclasses import replace
+from functools import partial
 
 import numpy as np
 from numpy.typing import NDArray
@@ -34,7 +35,7 @@ from localize.smoothing import Genealogy
 from localize.stepper import StepInputs, advance
 from localize.steps import RadioScan, StepSummaries, StepSummary
 from localize.track import Estimate, Track
-from localize.update import radio_likelihood, radio_update
+from localize.update import position_update, radio_likelihood, radio_update
 
 __all__ = ["BaseLocalizer", "Localizer", "first_radio_fix", "make_rng"]
 
@@ -126,6 +127,13 @@ class BaseLocalizer:
             x_m, y_m, sigma = fix
         self._keep_genealogy = False  # streaming: real-time estimates only
         x_m, y_m = self._checked_start((x_m, y_m))
+        self._last = self._start_at(x_m, y_m, float(t_ms), sigma, half_width_m)
+        return self._last
+
+    def begin(self, x_m: float, y_m: float, t_ms: float, sigma: float | None,
+              half_width_m: float | None = None) -> Estimate:
+        """Start at ``(x_m, y_m)`` (m) known to ``sigma`` (m; None: exactly, a given start),
+        as :meth:`run` starts; for a localizer run inside another one."""
         self._last = self._start_at(x_m, y_m, float(t_ms), sigma, half_width_m)
         return self._last
 
@@ -261,6 +269,14 @@ class Localizer(BaseLocalizer):
         self.genealogy: Genealogy | None = None
         self.n_recoveries = 0
         self._consecutive = np.zeros(1, dtype=np.int64)
+        self.guide: BaseLocalizer | None = None
+        self._guided = False
+        p = self.params
+        if radio is not None and p.radio_guide == "align" and (
+                p.radio_update or p.radio_inject_fraction > 0):
+            from localize.align import WalkAligner  # (align builds on this module)
+
+            self.guide = WalkAligner(bundle, radio=radio)
 
     def _start_at(self, x: float, y: float, t_ms: float, sigma: float | None,
                   half_width_m: float | None) -> Estimate:
@@ -279,6 +295,11 @@ class Localizer(BaseLocalizer):
         self._fit: list[float] | None = None  # radio fit averages (fast, slow)
         self.n_recoveries = 0
         self._consecutive = np.zeros(1, dtype=np.int64)
+        # the alignment would hold a given start (sigma None) as a fix of 1 m, and a wrong
+        # one for its whole window: from a given start the filter uses the fixes themselves
+        self._guided = self.guide is not None and sigma is not None
+        if self._guided:
+            self.guide.begin(x, y, t_ms, sigma, half_width_m)
         mx, my, spread = estimate(self.state)
         return Estimate(t_ms, float(mx[0]), float(my[0]), float(spread[0]), 1.0, False,
                         self.bundle.floor_id)
@@ -303,10 +324,11 @@ class Localizer(BaseLocalizer):
                          np.array([s.attitude]), np.array([s.relative_heading_deg]),
                          np.array([s.delta_acc_ms2]))
         extra = None
-        if s.scan is not None and self.radio is not None and (
+        if self._guided:
+            extra = partial(self._guide_step, guide=self.guide.step(s))
+        elif s.scan is not None and self.radio is not None and (
                 p.radio_update or p.radio_inject_fraction > 0):
-            def extra(state: ParticleState) -> None:
-                self._radio_step(state, s.scan)
+            extra = partial(self._radio_step, scan=s.scan)
         out = advance(st, self.fmap, p, self.rng, inp,
                       np.array([[self._last.x_m, self._last.y_m]]), self._consecutive,
                       raw_strength_ut=s.mag_strength_ut, extra_update=extra)
@@ -351,6 +373,19 @@ class Localizer(BaseLocalizer):
                     return
             hw = max(p.radio_sigma_floor_m, p.init_from_fix_scale * float(fix[2]))
             inject(st, self.fmap, p, self.rng, 0, share, fix[:2], hw)
+
+    def _guide_step(self, st: ParticleState, guide: Estimate) -> None:
+        """Weight update and/or particle injection around the walk alignment's position
+        (``radio_guide="align"``)."""
+        p = self.params
+        sigma = max(guide.spread_m, p.guide_sigma_m)
+        if p.radio_update:
+            position_update(st, 0, guide.x_m, guide.y_m, sigma, p.radio_outlier)
+        if p.radio_inject_fraction > 0 and np.hypot(
+                guide.x_m - self._last.x_m,
+                guide.y_m - self._last.y_m) >= p.guide_inject_distance_m:
+            inject(st, self.fmap, p, self.rng, 0, p.radio_inject_fraction,
+                   (guide.x_m, guide.y_m), p.init_from_fix_scale * sigma)
 
     def _fit_share(self, st: ParticleState, lk: NDArray) -> float:
         """Augmented MCL: share of particles to inject from how well the cloud fits the

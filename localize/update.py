@@ -163,7 +163,17 @@ def radio_update(st: ParticleState, row: int, radio: RadioModel, scan: RadioScan
         if fix is None:
             return False
         fx, fy, sig = fix
-        sig = max(float(sig), params.radio_sigma_floor_m)
-        g = np.exp(-((x - fx) ** 2 + (y - fy) ** 2) / (2.0 * sig * sig))
+        position_update(st, row, fx, fy, max(float(sig), params.radio_sigma_floor_m), eps)
+        return True
     st.w[row] = st.w[row] * ((1.0 - eps) * g + eps)
     return True
+
+
+def position_update(st: ParticleState, row: int, x_m: float, y_m: float, sigma_m: float,
+                    outlier: float) -> None:
+    """Multiply row ``row``'s weights by a Gaussian of SD ``sigma_m`` (m) around the position
+    ``(x_m, y_m)`` (m), mixed with a uniform share ``outlier`` (a wrong position does not kill
+    the particles)."""
+    x, y = st.x[row], st.y[row]
+    g = np.exp(-((x - x_m) ** 2 + (y - y_m) ** 2) / (2.0 * sigma_m * sigma_m))
+    st.w[row] = st.w[row] * ((1.0 - outlier) * g + outlier)
