@@ -20,7 +20,7 @@ from localize.bundle import MapBundle
 from localize.errors import LocalizationError
 from localize.filter import BaseLocalizer, Localizer, check_step_time
 from localize.maps import FilterMap
-from localize.methods import METHODS, PARTICLE_FILTERS, SMOOTHABLE, WEIGHT_MODE_OF
+from localize.methods import METHODS, PARTICLE_FILTERS, SMOOTHABLE, WEIGHT_MODE_OF, auto_method
 from localize.params import FilterParams
 from localize.radio import RadioModel
 from localize.steps import StepSummaries, StepSummary
@@ -112,10 +112,13 @@ def make_localizer(method: str, bundle: MapBundle, params: FilterParams | None =
     """Build a localizer of the named method (see :data:`METHODS`).
 
     For the particle-filter methods ``params`` gives everything but the weight mode, which
-    the method fixes.
+    the method fixes. ``auto`` builds the one :func:`~localize.methods.auto_method` picks
+    for the bundle (its ``method`` attribute names it).
     """
     if method not in METHODS:
         raise LocalizationError(f"unknown method {method!r}; expected one of {sorted(METHODS)}")
+    if method == "auto":  # by the floor map's measured quality (localize.methods)
+        method = auto_method(bundle.manifest.get("metrics") or {})[0]
     if method == "pdr":
         return PdrLocalizer(bundle, radio=radio)
     if method == "radio":

@@ -28,14 +28,14 @@ import click
 import numpy as np
 
 from localize.cli_common import AliasedOption, TraceIds, WalkFailures, read_walk, trace_files
-from localize.methods import METHODS, SMOOTHABLE
+from localize.methods import METHODS, SMOOTHABLE, auto_method
 from survey.publish import refuse_to_replace
 
 START_HELP = ("auto (the walk's first Wi-Fi fix; for a walk without one, its first BLE fix; "
               "else its first waypoint), waypoint, radio, or X,Y (m).")
 PARTICLES_HELP = "Particles of the particle filters (default 300)."
 #: Method names of ``evaluate --method`` (comma-separated, or the option repeated).
-DEFAULT_EVALUATE_METHODS = ("indoormap", "pf_no_mag", "pdr")
+DEFAULT_EVALUATE_METHODS = ("auto", "indoormap", "align", "pf_no_mag", "pdr")
 
 
 def _method_names(values: tuple[str, ...]) -> list[str]:
@@ -171,8 +171,10 @@ def _params(particles: int | None):
                                                                    path_type=Path),
               help="Output folder: <trace_id>.parquet|csv and <trace_id>.png per walk "
                    "(<trace_id>.smoothed.* with --smooth).")
-@click.option("--method", default="indoormap", show_default=True,
-              type=click.Choice(list(METHODS)))
+@click.option("--method", default="auto", show_default=True,
+              type=click.Choice(list(METHODS)),
+              help="auto: the particle filter (indoormap) on a floor whose magnetic map "
+                   "predicts walks it did not see, else align (the choice is printed).")
 @click.option("--start", default="auto", show_default=True, help=START_HELP)
 @click.option("--particles", type=click.IntRange(1, 1_000_000), default=None,
               help=PARTICLES_HELP)
@@ -221,18 +223,22 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
             refuse_to_replace(existing, overwrite)  # before the work, not after
         xy_wp = waypoints_of(trace)[1]
         wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp)
+        used = method
+        if method == "auto":
+            chosen, why = auto_method(bundle.manifest.get("metrics") or {})
+            used = f"auto: {chosen}, as {why}"
         loc = make_localizer(method, bundle, _params(particles), radio=wr.radio, rng=seed)
         track = loc.run(wr.steps, start_xy=start_xy, smooth=smooth)
         _write_table(track.to_arrow(), target, fmt, overwrite=overwrite)
         msg = (f"{trace.trace_id}: {len(track)} {'smoothed ' if smooth else ''}steps on "
                f"{bundle.floor_id} "
-               f"({bundle.manifest.get('floor_name', '')}), start {how}, "
+               f"({bundle.manifest.get('floor_name', '')}) by {used}, start {how}, "
                f"{track.n_recoveries} recoveries -> {target}")
         if plot:
             kind = "smoothed offline" if smooth else "real time"
-            if plot_track(png, bundle, {method: track}, xy_wp,
+            if plot_track(png, bundle, {loc.method: track}, xy_wp,
                           title=f"{trace.trace_id} on {bundle.manifest.get('floor_name', '')} "
-                                f"({bundle.floor_id[:12]}): {method}, {kind}, start {how}"):
+                                f"({bundle.floor_id[:12]}): {loc.method}, {kind}, start {how}"):
                 msg += f", {png.name}"
             else:
                 msg += " (no plot: matplotlib not installed)"

@@ -35,7 +35,7 @@ from .floorplan import FloorPlan
 from .grid import reachable_mask
 from .field_layers import FIELD_LAYERS, field_rasters, floor_steps, levelling_samples, \
     reduce_field
-from .holdout import BANDWIDTH_CANDIDATES_M, choose_smoothing
+from .holdout import BANDWIDTH_CANDIDATES_M, choose_smoothing, heldout_quality
 from .interpolate import DEGREE, RasterParams, raster
 from .levelling import LevellingParams, empty_residuals, fit_session_residuals
 from .radio_build import RadioParams, SiteRadio, build_site_radio
@@ -249,6 +249,11 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
                "smoothing_cv_shape_rmse_ut": {  # inf: a candidate that predicted nothing
                    k: v if np.isfinite(v) else None for k, v in smoothing_scores.items()},
                "n_samples": reduction.n_samples, "heading_offset_floor_median_deg": global_offset}
+    quality = heldout_quality(grid, mask, reduction.cv_x_m, reduction.cv_y_m,
+                              reduction.cv_strength_ut, reduction.cv_walk, raster_params)
+    if quality:  # how well the strength layer predicts walks it did not see
+        metrics["heldout_strength"] = {k: v if np.isfinite(v) else None
+                                       for k, v in quality.items()}
     tables = {"source_walks": pa.Table.from_pandas(walks, preserve_index=False),
               "levelling": pa.Table.from_pandas(lev.astype({"session": "str"}),
                                                 preserve_index=False)}

@@ -104,6 +104,8 @@ def metrics(per_walk: list[tuple[NDArray, NDArray, NDArray, NDArray]]) -> dict[s
     o, p, sr = np.concatenate(obs), np.concatenate(pred), np.concatenate(shape_res)
 
     def corr(a: list[NDArray], b: list[NDArray]) -> float:
+        if not a:  # no walk covers the span
+            return float("nan")
         a, b = np.concatenate(a), np.concatenate(b)
         if len(a) < 3 or np.std(a) == 0 or np.std(b) == 0:
             return float("nan")
@@ -309,19 +311,11 @@ def choose_smoothing(grid: Grid, mask: NDArray[np.bool_], x: NDArray, y: NDArray
     ridges = tuple(ridge_candidates) if degree >= 1 else (None,)
     curvatures = tuple(curvature_candidates) if degree == 2 else (None,)
     x, y, values = x[::subsample], y[::subsample], values[::subsample]
-    walk_code = np.unique(np.asarray(walk)[::subsample], return_inverse=True)[1]
-    n_walks = walk_code.max() + 1 if len(walk_code) else 0
-    if n_walks < 3:
+    cv = _WalkFolds.of(grid, mask, x, y, values, walk[::subsample], folds)
+    if cv is None:
         return base, {}
-    w, cell, mean = walk_cell_means(grid, x, y, values, walk_code)
-    total = cell_stats(grid, cell, mean)
-    n_folds = min(folds, n_walks)
-    group = np.arange(n_walks) % n_folds
-    fold_of_pair = group[w]
-    train = [total - cell_stats(grid, cell[fold_of_pair == g], mean[fold_of_pair == g])
-             for g in range(n_folds)]
-    held_out = [group[walk_code] == g for g in range(n_folds)]
-    lookups = [BilinearLookup.at(grid, mask, x[sel], y[sel]) for sel in held_out]
+    walk_code, train, held_out, lookups = cv.walk_code, cv.train, cv.held_out, cv.lookups
+    n_folds = len(train)
     keys = list(product(candidates, prior_candidates, ridges, curvatures))
     per_bandwidth = len(keys) // len(candidates)  # keys run bandwidth-major
     squares, counts = np.zeros(len(keys)), np.zeros(len(keys))
@@ -354,6 +348,80 @@ def choose_smoothing(grid: Grid, mask: NDArray[np.bool_], x: NDArray, y: NDArray
             replace(chosen, curvature_ridge=curv)
     return chosen, {"/".join(f"{v:g}" for v in k if v is not None): float(s)
                     for k, s in scores.items()}
+
+
+@dataclass
+class _WalkFolds:
+    """Grouped k-fold over walks of one floor's samples: the cell statistics without each
+    fold's walks, and the lookups at that fold's samples."""
+
+    walk_code: NDArray[np.int64]  # rank of each sample's walk
+    train: list[CellStats]
+    held_out: list[NDArray[np.bool_]]  # per fold, its samples
+    lookups: list[BilinearLookup]
+
+    @classmethod
+    def of(cls, grid: Grid, mask: NDArray[np.bool_], x: NDArray, y: NDArray, values: NDArray,
+           walk: NDArray, folds: int) -> _WalkFolds | None:
+        """The folds (walk ``i`` in fold ``i % folds``); None with fewer than 3 walks."""
+        walk_code = np.unique(np.asarray(walk), return_inverse=True)[1]
+        n_walks = walk_code.max() + 1 if len(walk_code) else 0
+        if n_walks < 3:
+            return None
+        w, cell, mean = walk_cell_means(grid, x, y, values, walk_code)
+        total = cell_stats(grid, cell, mean)
+        n_folds = min(folds, n_walks)
+        group = np.arange(n_walks) % n_folds
+        fold_of_pair = group[w]
+        train = [total - cell_stats(grid, cell[fold_of_pair == g], mean[fold_of_pair == g])
+                 for g in range(n_folds)]
+        held_out = [group[walk_code] == g for g in range(n_folds)]
+        lookups = [BilinearLookup.at(grid, mask, x[sel], y[sel]) for sel in held_out]
+        return cls(walk_code, train, held_out, lookups)
+
+
+def heldout_quality(grid: Grid, mask: NDArray[np.bool_], x: NDArray, y: NDArray,
+                    values: NDArray, walk: NDArray, params: RasterParams, *, folds: int = 5
+                    ) -> dict[str, float]:
+    """How well a map made with ``params`` predicts walks it did not see: grouped k-fold over
+    walks (the folds of :func:`choose_smoothing`), scored as :func:`metrics` does.
+
+    ``x``, ``y`` (m), ``values`` (uT, e.g. the levelled strength) and ``walk`` are per sample,
+    each walk's samples together and in time order (the changes along a walk are taken in
+    that order). Returns ``shape_rmse_ut``, ``constant_shape_rmse_ut`` (a map of one value:
+    each walk's own median removed), ``skill`` (``1 - shape_rmse / constant``),
+    ``corr_0.7m``, ``corr_5m`` (map against observed change along the held-out walks),
+    ``n_walks`` and ``folds``; empty with fewer than 3 walks or a method without a kernel.
+    """
+    if not params.kernel_based:
+        return {}
+    cv = _WalkFolds.of(grid, mask, x, y, values, walk, folds)
+    if cv is None:
+        return {}
+    degree = DEGREE[params.method]
+    pred = np.full(len(values), np.nan)
+    for g, sel in enumerate(cv.held_out):
+        sums = kernel_sums(grid, mask, cv.train[g], params.bandwidth_m, params.max_distance_m,
+                           degree=degree, cells=cv.lookups[g].cells(grid))
+        mean = kernel_mean(sums, params.prior_walks, prior_of(cv.train[g])[0],
+                           params.slope_ridge if degree >= 1 else None,
+                           params.curvature_ridge if degree == 2 else 0.0)
+        pred[sel] = cv.lookups[g](mean)
+    n_walks = int(cv.walk_code.max()) + 1
+    starts = np.flatnonzero(np.r_[True, np.diff(cv.walk_code) != 0])
+    per_walk = [(values[a:b], pred[a:b], x[a:b], y[a:b])
+                for a, b in zip(starts, np.r_[starts[1:], len(values)])]
+    got = metrics(per_walk)
+    if not got:
+        return {}
+    ok = np.isfinite(pred) & np.isfinite(values)
+    centred = [v[k] - np.median(v[k]) for v, p, _, _ in per_walk
+               for k in [np.isfinite(v) & np.isfinite(p)] if k.sum() >= 5]
+    constant = float(np.sqrt(np.mean(np.concatenate(centred) ** 2)))
+    return {"shape_rmse_ut": got["shape_rmse"], "constant_shape_rmse_ut": constant,
+            "skill": 1.0 - got["shape_rmse"] / constant if constant > 0 else float("nan"),
+            "corr_0.7m": got["corr_0.7m"], "corr_5m": got["corr_5m"],
+            "n_samples": int(ok.sum()), "n_walks": n_walks, "folds": len(cv.train)}
 
 
 def _centred_squares(residuals: NDArray[np.float64], walk: NDArray[np.int64]

@@ -1,0 +1,120 @@
+"""The build's measure of its magnetic map (held-out strength) and the localizer method chosen
+by it (``--method auto``)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from localize_fixtures import f1_bundle, sim_walks, truth_bundles  # noqa: F401  (fixtures)
+from radio_fixtures import SITE, built  # noqa: F401  (fixture)
+
+from localize.align import WalkAligner
+from localize.baselines import make_localizer
+from localize.bundle import Grid, MapBundle, load_bundle
+from localize.filter import Localizer
+from localize.methods import AUTO_MIN_CORR_5M, METHODS, SMOOTHABLE, auto_method
+from mapping.holdout import choose_smoothing, heldout_quality
+from mapping.interpolate import RasterParams
+from survey.cli import main
+
+GRID = Grid(0.0, 0.0, 0.25, 160, 40)  # 40 x 10 m
+MASK = np.ones(GRID.shape, dtype=bool)
+
+
+def _walks(rng, field, n_walks=8):
+    """Walks along x at y = 2-8 m, each walk's samples in order; ``field(x, y, k)`` (uT)."""
+    x, y, v, walk = [], [], [], []
+    for k in range(n_walks):
+        xs = np.arange(1.0, 39.0, 0.1)
+        ys = 2.0 + 6.0 * k / (n_walks - 1) + 0.1 * rng.standard_normal(len(xs))
+        x.append(xs)
+        y.append(ys)
+        v.append(field(xs, ys, k))
+        walk.append(np.full(len(xs), k))
+    return (np.concatenate(x), np.concatenate(y), np.concatenate(v),
+            np.concatenate(walk))
+
+
+def test_held_out_quality_tells_a_map_that_predicts_from_one_that_does_not():
+    """A field the walks share is predicted for walks left out (high skill, field changes
+    over 5 m correlated); fields each walk sees alone (what another walk measured there does
+    not repeat) are not: skill about 0 and the 5 m correlation near 0."""
+    rng = np.random.default_rng(3)
+    params = RasterParams(method="local_linear", bandwidth_m=1.0, prior_walks=0.5)
+
+    def shared(x, y, k):
+        return 45.0 + 6.0 * np.sin(x / 1.5) + 2.0 * np.cos(y) + 0.5 * rng.standard_normal(len(x))
+
+    phases = rng.uniform(0, 2 * np.pi, 8)
+
+    def own(x, y, k):
+        return 45.0 + 6.0 * np.sin(x / 1.5 + phases[k]) + 0.5 * rng.standard_normal(len(x))
+
+    good = heldout_quality(GRID, MASK, *_walks(rng, shared), params)
+    bad = heldout_quality(GRID, MASK, *_walks(rng, own), params)
+    assert good["skill"] > 0.7 and good["corr_5m"] > 0.9 and good["corr_0.7m"] > 0.5
+    assert bad["skill"] < 0.2 and abs(bad["corr_5m"]) < 0.3
+    assert good["n_walks"] == 8 and good["folds"] == 5
+    assert good["constant_shape_rmse_ut"] > 3.0 > good["shape_rmse_ut"]
+    assert heldout_quality(GRID, MASK, *_walks(rng, shared, n_walks=2), params) == {}
+    assert heldout_quality(GRID, MASK, *_walks(rng, shared), RasterParams(method="linear")) \
+        == {}
+
+
+def test_held_out_shape_rmse_is_the_cross_validations_score_of_the_chosen_map():
+    """Same folds, same residuals: the quality the build records is the score that chose
+    the map."""
+    rng = np.random.default_rng(4)
+    x, y, v, walk = _walks(rng, lambda x, y, k: 45.0 + 4.0 * np.sin(x / 2.0)
+                           + 0.3 * rng.standard_normal(len(x)))
+    chosen, scores = choose_smoothing(GRID, MASK, x, y, v, walk, RasterParams(method="kernel"),
+                                      candidates=(0.5, 1.0, 2.0), subsample=1)
+    got = heldout_quality(GRID, MASK, x, y, v, walk, chosen)
+    assert got["shape_rmse_ut"] == pytest.approx(min(scores.values()), rel=1e-9)
+
+
+def test_auto_method_follows_the_recorded_map_quality():
+    def metrics(corr):
+        return {"heldout_strength": {"corr_5m": corr, "skill": 0.2}}
+
+    assert auto_method(metrics(0.3)) == ("align", "the magnetic map's held-out 5 m change "
+                                                  "correlation 0.30 < 0.5")
+    assert auto_method(metrics(AUTO_MIN_CORR_5M))[0] == "indoormap"
+    assert auto_method(metrics(0.86))[0] == "indoormap"
+    for unmeasured in ({}, {"heldout_strength": None}, metrics(None), metrics(math.nan)):
+        assert auto_method(unmeasured) == ("indoormap",
+                                           "the bundle records no held-out map quality")
+    assert "auto" in METHODS and "auto" in SMOOTHABLE
+
+
+def test_auto_builds_the_chosen_localizer(f1_bundle):  # noqa: F811
+    def with_corr(corr):
+        manifest = {**f1_bundle.manifest, "metrics": {"heldout_strength": {"corr_5m": corr}}}
+        return MapBundle(f1_bundle.path, manifest, f1_bundle.grid, f1_bundle.mask,
+                         f1_bundle.layers, f1_bundle.std)
+
+    assert "heldout_strength" not in f1_bundle.manifest.get("metrics", {})  # truth map
+    assert type(make_localizer("auto", f1_bundle)) is Localizer
+    assert type(make_localizer("auto", with_corr(0.8))) is Localizer
+    loc = make_localizer("auto", with_corr(0.3))
+    assert type(loc) is WalkAligner and loc.method == "align"
+
+
+def test_the_build_records_its_maps_quality_and_localize_says_what_auto_chose(
+        built, tmp_path):  # noqa: F811
+    """The sample site's floors (6 walks each) carry their held-out strength scores; its
+    simulated field repeats across walks, so ``auto`` runs the particle filter there."""
+    for floor in ("F1", "F2"):
+        q = load_bundle(built / floor).manifest["metrics"]["heldout_strength"]
+        assert q["n_walks"] == 6 and q["folds"] == 5
+        assert 0.0 < q["skill"] < 1.0 and AUTO_MIN_CORR_5M < q["corr_5m"] <= 1.0
+        assert q["shape_rmse_ut"] < q["constant_shape_rmse_ut"]
+    walk = next((SITE / "F1" / "path_data_files").iterdir())
+    res = CliRunner().invoke(main, ["localize", str(built), str(walk), "-o",
+                                    str(tmp_path / "out"), "--no-plot"])
+    assert res.exit_code == 0, res.output
+    assert "by auto: indoormap, as the magnetic map's held-out 5 m change correlation" \
+        in res.output
