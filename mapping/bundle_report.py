@@ -10,15 +10,18 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from localize.methods import auto_method
+
 if TYPE_CHECKING:
     from localize.bundle import Grid, MapBundle
 
 
 def metric_lines(manifest: dict) -> dict[str, str]:
     """What a bundle's build chose and reached, a line each (keyed ``smoothing``,
-    ``coverage``, ``floor_model``, ``ble_floor_model``): a floor bundle's smoothing picked by
-    cross-validation and the survey's coverage of the reachable area; a site bundle's floor
-    models with their cross-validated accuracy."""
+    ``heldout``, ``coverage``, ``floor_model``, ``ble_floor_model``): a floor bundle's
+    smoothing picked by cross-validation, its strength map's held-out scores (and the method
+    ``localize --method auto`` takes there) and the survey's coverage of the reachable area; a
+    site bundle's floor models with their cross-validated accuracy."""
     mt = manifest.get("metrics") or {}
     lines = {}
     if isinstance(mt.get("interpolator"), str):
@@ -33,6 +36,16 @@ def metric_lines(manifest: dict) -> dict[str, str]:
             if _is_number(mt.get(key))]
         lines["smoothing"] = ("smoothing " + ", ".join(parts)
                               + (f" (cross-validated shape RMSE {best:.2f} uT)" if best else ""))
+    held = mt.get("heldout_strength")
+    if isinstance(held, dict) and _is_number(held.get("skill")):
+        corr = [f"{span} {held[k]:.2f}" for k, span in (("corr_0.7m", "0.7 m"),
+                                                         ("corr_5m", "5 m"))
+                if _is_number(held.get(k))]
+        lines["heldout"] = (f"strength on walks the map did not see ({held.get('folds', '?')} "
+                            f"folds of {held.get('n_walks', '?')} walks): skill "
+                            f"{held['skill']:.2f}"
+                            + (f", change correlation over {', '.join(corr)}" if corr else "")
+                            + f"; localize --method auto runs {auto_method(mt)[0]}")
     cov = mt.get("coverage")
     if isinstance(cov, dict) and cov:
         lines["coverage"] = "reachable area near a sample: " + ", ".join(

@@ -112,6 +112,10 @@ def test_the_build_records_its_maps_quality_and_localize_says_what_auto_chose(
         assert q["n_walks"] == 6 and q["folds"] == 5
         assert 0.0 < q["skill"] < 1.0 and AUTO_MIN_CORR_5M < q["corr_5m"] <= 1.0
         assert q["shape_rmse_ut"] < q["constant_shape_rmse_ut"]
+    info = CliRunner().invoke(main, ["bundle", "info", str(built / "F1")])
+    assert info.exit_code == 0, info.output
+    assert "strength on walks the map did not see (5 folds of 6 walks): skill 0." in info.output
+    assert "5 m 0." in info.output and "localize --method auto runs indoormap" in info.output
     walk = next((SITE / "F1" / "path_data_files").iterdir())
     res = CliRunner().invoke(main, ["localize", str(built), str(walk), "-o",
                                     str(tmp_path / "out"), "--no-plot"])
