@@ -173,8 +173,9 @@ def _params(particles: int | None):
                    "(<trace_id>.smoothed.* with --smooth).")
 @click.option("--method", default="auto", show_default=True,
               type=click.Choice(list(METHODS)),
-              help="auto: the particle filter (indoormap) on a floor whose magnetic map "
-                   "predicts walks it did not see, else align (the choice is printed).")
+              help="auto: the particle filter (indoormap), guided by the walk alignment, on "
+                   "a floor whose magnetic map predicts walks it did not see, else align (the "
+                   "choice is printed).")
 @click.option("--start", default="auto", show_default=True, help=START_HELP)
 @click.option("--particles", type=click.IntRange(1, 1_000_000), default=None,
               help=PARTICLES_HELP)
@@ -225,8 +226,8 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
         wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp)
         used = method
         if method == "auto":
-            chosen, why = auto_method(bundle.manifest.get("metrics") or {})
-            used = f"auto: {chosen}, as {why}"
+            choice = auto_method(bundle.manifest.get("metrics") or {})
+            used = f"auto: {choice.label}, as {choice.why}"
         loc = make_localizer(method, bundle, _params(particles), radio=wr.radio, rng=seed)
         track = loc.run(wr.steps, start_xy=start_xy, smooth=smooth)
         _write_table(track.to_arrow(), target, fmt, overwrite=overwrite)

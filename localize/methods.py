@@ -8,18 +8,21 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from typing import NamedTuple
 
-#: ``auto`` takes the particle filter on a floor whose strength map predicts the field's change
-#: over 5 m of walks it did not see with at least this correlation (the build's
-#: ``metrics.heldout_strength.corr_5m``), else the alignment. Set between the two sites
-#: measured (docs/localize.md): the simulated floors, 0.77-0.87, where the filter's magnetic
-#: update works, and the ILC mall, 0.27-0.33, where it does not and the alignment is better.
+#: ``auto`` takes the particle filter, guided by the walk alignment, on a floor whose strength
+#: map predicts the field's change over 5 m of walks it did not see with at least this
+#: correlation (the build's ``metrics.heldout_strength.corr_5m``), else the alignment alone.
+#: Set between the two sites measured (docs/localize.md): the simulated floors, 0.77-0.87,
+#: where the filter's magnetic update works, and the ILC mall, 0.27-0.33, where it does not
+#: and the alignment is better.
 AUTO_MIN_CORR_5M = 0.5
 
 #: Method name -> description. ``auto`` is the default of ``indoormap localize``.
 METHODS: dict[str, str] = {
-    "auto": "indoormap where the floor's magnetic map predicts walks it did not see (the "
-            f"build's held-out 5 m change correlation >= {AUTO_MIN_CORR_5M}), else align",
+    "auto": "indoormap guided by align where the floor's magnetic map predicts walks it did "
+            f"not see (the build's held-out 5 m change correlation >= {AUTO_MIN_CORR_5M}), "
+            "else align",
     "indoormap": "particle filter, mass-centered MMSE/MMAE/MMPE update (papers 000/001)",
     "pf_no_mag": "particle filter without magnetic update (PDR + map constraints)",
     "magpp_gaussian": "particle filter, Gaussian likelihood of strength deltas (002-style)",
@@ -39,19 +42,31 @@ PARTICLE_FILTERS = tuple(WEIGHT_MODE_OF)
 SMOOTHABLE = (*PARTICLE_FILTERS, "align", "auto")
 
 
-def auto_method(metrics: Mapping) -> tuple[str, str]:
-    """The method ``auto`` runs on a floor bundle with these manifest ``metrics``, and why.
+class AutoChoice(NamedTuple):
+    """What ``auto`` runs on a floor bundle (:func:`auto_method`)."""
 
-    ``indoormap`` (the particle filter) when the strength map's held-out 5 m change
-    correlation is :data:`AUTO_MIN_CORR_5M` or more, or when the bundle does not record it
-    (built before it was measured, or from fewer than 3 walks); else ``align``.
+    method: str  #: a name of :data:`METHODS`
+    guided: bool  #: the filter takes its radio evidence from the walk alignment
+    why: str  #: the reason, as a phrase ("the magnetic map's held-out ...")
+
+    @property
+    def label(self) -> str:
+        return f"{self.method} guided by align" if self.guided else self.method
+
+
+def auto_method(metrics: Mapping) -> AutoChoice:
+    """What ``auto`` runs on a floor bundle with these manifest ``metrics``.
+
+    The particle filter guided by the walk alignment (``FilterParams.radio_guide="align"``)
+    when the strength map's held-out 5 m change correlation is :data:`AUTO_MIN_CORR_5M` or
+    more; ``align`` when it is less; the filter on the fixes, as before the measure existed,
+    when the bundle does not record it (built before, or from fewer than 3 walks).
     """
     quality = metrics.get("heldout_strength") or {}
     corr = quality.get("corr_5m") if isinstance(quality, Mapping) else None
     if not isinstance(corr, (int, float)) or not math.isfinite(corr):
-        return "indoormap", "the bundle records no held-out map quality"
+        return AutoChoice("indoormap", False, "the bundle records no held-out map quality")
+    measured = f"the magnetic map's held-out 5 m change correlation {corr:.2f}"
     if corr >= AUTO_MIN_CORR_5M:
-        return "indoormap", (f"the magnetic map's held-out 5 m change correlation {corr:.2f} "
-                             f">= {AUTO_MIN_CORR_5M}")
-    return "align", (f"the magnetic map's held-out 5 m change correlation {corr:.2f} < "
-                     f"{AUTO_MIN_CORR_5M}")
+        return AutoChoice("indoormap", True, f"{measured} >= {AUTO_MIN_CORR_5M}")
+    return AutoChoice("align", False, f"{measured} < {AUTO_MIN_CORR_5M}")

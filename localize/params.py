@@ -180,7 +180,8 @@ class FilterParams:
         step, as a Gaussian of ``max(its spread, guide_sigma_m)``, with the injection when it is
         ``guide_inject_distance_m`` or more from the estimate; it costs the alignment's time
         (about 6 ms per step). Better on the simulated site with built maps, neutral on the
-        real traces, worse where the alignment is poor (docs/localize.md). After a given start
+        real traces, worse where the alignment is poor (docs/localize.md); ``--method auto``
+        uses it on floors whose magnetic map is good. After a given start
         position the fixes are used (the alignment would hold the start as a fix of 1 m, a
         wrong one for its whole window). Without a radio model neither is used.
     guide_sigma_m : float

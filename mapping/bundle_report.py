@@ -45,7 +45,7 @@ def metric_lines(manifest: dict) -> dict[str, str]:
                             f"folds of {held.get('n_walks', '?')} walks): skill "
                             f"{held['skill']:.2f}"
                             + (f", change correlation over {', '.join(corr)}" if corr else "")
-                            + f"; localize --method auto runs {auto_method(mt)[0]}")
+                            + f"; localize --method auto runs {auto_method(mt).label}")
     cov = mt.get("coverage")
     if isinstance(cov, dict) and cov:
         lines["coverage"] = "reachable area near a sample: " + ", ".join(

@@ -99,7 +99,7 @@ def test_every_method_runs(f1_bundle, sim_walks, method):  # noqa: F811
     loc = make_localizer(method, f1_bundle, FilterParams(n_particles=100), radio=radio, rng=0)
     track = loc.run(w.steps)  # start from the first Wi-Fi fix
     assert len(track) == len(w.steps) and np.isfinite(track.x_m).all()
-    assert track.method == (auto_method(f1_bundle.manifest.get("metrics") or {})[0]
+    assert track.method == (auto_method(f1_bundle.manifest.get("metrics") or {}).method
                             if method == "auto" else method)
     assert np.median(step_errors(track, w.true_xy)) < 15.0
 

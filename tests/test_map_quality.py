@@ -16,6 +16,7 @@ from localize.baselines import make_localizer
 from localize.bundle import Grid, MapBundle, load_bundle
 from localize.filter import Localizer
 from localize.methods import AUTO_MIN_CORR_5M, METHODS, SMOOTHABLE, auto_method
+from localize.params import FilterParams
 from mapping.holdout import choose_smoothing, heldout_quality
 from mapping.interpolate import RasterParams
 from survey.cli import main
@@ -80,12 +81,14 @@ def test_auto_method_follows_the_recorded_map_quality():
     def metrics(corr):
         return {"heldout_strength": {"corr_5m": corr, "skill": 0.2}}
 
-    assert auto_method(metrics(0.3)) == ("align", "the magnetic map's held-out 5 m change "
-                                                  "correlation 0.30 < 0.5")
-    assert auto_method(metrics(AUTO_MIN_CORR_5M))[0] == "indoormap"
-    assert auto_method(metrics(0.86))[0] == "indoormap"
+    low = auto_method(metrics(0.3))
+    assert (low.method, low.guided, low.label) == ("align", False, "align")
+    assert low.why == "the magnetic map's held-out 5 m change correlation 0.30 < 0.5"
+    for good in (AUTO_MIN_CORR_5M, 0.86):
+        assert auto_method(metrics(good))[:2] == ("indoormap", True)
+    assert auto_method(metrics(0.86)).label == "indoormap guided by align"
     for unmeasured in ({}, {"heldout_strength": None}, metrics(None), metrics(math.nan)):
-        assert auto_method(unmeasured) == ("indoormap",
+        assert auto_method(unmeasured) == ("indoormap", False,
                                            "the bundle records no held-out map quality")
     assert "auto" in METHODS and "auto" in SMOOTHABLE
 
@@ -97,8 +100,11 @@ def test_auto_builds_the_chosen_localizer(f1_bundle):  # noqa: F811
                          f1_bundle.layers, f1_bundle.std)
 
     assert "heldout_strength" not in f1_bundle.manifest.get("metrics", {})  # truth map
-    assert type(make_localizer("auto", f1_bundle)) is Localizer
-    assert type(make_localizer("auto", with_corr(0.8))) is Localizer
+    plain = make_localizer("auto", f1_bundle, FilterParams(n_particles=50))
+    assert type(plain) is Localizer and plain.params.radio_guide == "fixes"
+    guided = make_localizer("auto", with_corr(0.8), FilterParams(n_particles=50), radio=object())
+    assert type(guided) is Localizer and guided.params.radio_guide == "align"
+    assert guided.params.n_particles == 50 and type(guided.guide) is WalkAligner
     loc = make_localizer("auto", with_corr(0.3))
     assert type(loc) is WalkAligner and loc.method == "align"
 
@@ -106,7 +112,8 @@ def test_auto_builds_the_chosen_localizer(f1_bundle):  # noqa: F811
 def test_the_build_records_its_maps_quality_and_localize_says_what_auto_chose(
         built, tmp_path):  # noqa: F811
     """The sample site's floors (6 walks each) carry their held-out strength scores; its
-    simulated field repeats across walks, so ``auto`` runs the particle filter there."""
+    simulated field repeats across walks, so ``auto`` runs the particle filter there, guided
+    by the alignment."""
     for floor in ("F1", "F2"):
         q = load_bundle(built / floor).manifest["metrics"]["heldout_strength"]
         assert q["n_walks"] == 6 and q["folds"] == 5
@@ -115,10 +122,10 @@ def test_the_build_records_its_maps_quality_and_localize_says_what_auto_chose(
     info = CliRunner().invoke(main, ["bundle", "info", str(built / "F1")])
     assert info.exit_code == 0, info.output
     assert "strength on walks the map did not see (5 folds of 6 walks): skill 0." in info.output
-    assert "5 m 0." in info.output and "localize --method auto runs indoormap" in info.output
+    assert "5 m 0." in info.output and "localize --method auto runs indoormap guided by align" in info.output
     walk = next((SITE / "F1" / "path_data_files").iterdir())
     res = CliRunner().invoke(main, ["localize", str(built), str(walk), "-o",
                                     str(tmp_path / "out"), "--no-plot"])
     assert res.exit_code == 0, res.output
-    assert "by auto: indoormap, as the magnetic map's held-out 5 m change correlation" \
-        in res.output
+    assert "by auto: indoormap guided by align, as the magnetic map's held-out 5 m change " \
+        "correlation 0." in res.output
