@@ -113,15 +113,14 @@ def make_localizer(method: str, bundle: MapBundle, params: FilterParams | None =
 
     For the particle-filter methods ``params`` gives everything but the weight mode, which
     the method fixes. ``auto`` builds the one :func:`~localize.methods.auto_method` picks
-    for the bundle (its ``method`` attribute names it; a filter it guides by the alignment
-    has ``params.radio_guide == "align"``).
+    for the bundle (its ``method`` attribute names it; ``params.radio_guide`` is set by the
+    choice: ``"align"`` where it guides the filter, else ``"fixes"``).
     """
     if method not in METHODS:
         raise LocalizationError(f"unknown method {method!r}; expected one of {sorted(METHODS)}")
     if method == "auto":  # by the floor map's measured quality (localize.methods)
         method, guided, _ = auto_method(bundle.manifest.get("metrics") or {})
-        if guided:
-            params = replace(params or FilterParams(), radio_guide="align")
+        params = replace(params or FilterParams(), radio_guide="align" if guided else "fixes")
     if method == "pdr":
         return PdrLocalizer(bundle, radio=radio)
     if method == "radio":

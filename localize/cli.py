@@ -174,8 +174,9 @@ def _params(particles: int | None):
 @click.option("--method", default="auto", show_default=True,
               type=click.Choice(list(METHODS)),
               help="auto: the particle filter (indoormap), guided by the walk alignment, on "
-                   "a floor whose magnetic map predicts walks it did not see, else align (the "
-                   "choice is printed).")
+                   "a floor whose magnetic map predicts walks it did not see, else align; the "
+                   "filter on the fixes for bundles that do not record it (the choice is "
+                   "printed).")
 @click.option("--start", default="auto", show_default=True, help=START_HELP)
 @click.option("--particles", type=click.IntRange(1, 1_000_000), default=None,
               help=PARTICLES_HELP)
@@ -224,12 +225,16 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
             refuse_to_replace(existing, overwrite)  # before the work, not after
         xy_wp = waypoints_of(trace)[1]
         wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp)
-        used = method
-        if method == "auto":
-            choice = auto_method(bundle.manifest.get("metrics") or {})
-            used = f"auto: {choice.label}, as {choice.why}"
         loc = make_localizer(method, bundle, _params(particles), radio=wr.radio, rng=seed)
         track = loc.run(wr.steps, start_xy=start_xy, smooth=smooth)
+        used = method
+        if method == "auto":  # what ran (the guide needs a radio fix to start from)
+            choice = auto_method(bundle.manifest.get("metrics") or {})
+            guided = getattr(loc, "guided", False)
+            used = (f"auto: {loc.method}{' guided by align' if guided else ''}, as {choice.why}"
+                    + (" (not guided: a given start)" if choice.guided and not guided
+                       and start_xy is not None else
+                       " (not guided: no radio model)" if choice.guided and not guided else ""))
         _write_table(track.to_arrow(), target, fmt, overwrite=overwrite)
         msg = (f"{trace.trace_id}: {len(track)} {'smoothed ' if smooth else ''}steps on "
                f"{bundle.floor_id} "

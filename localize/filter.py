@@ -126,14 +126,12 @@ class BaseLocalizer:
                 raise LocalizationError("the radio model gives no fix for the start scan")
             x_m, y_m, sigma = fix
         self._keep_genealogy = False  # streaming: real-time estimates only
-        x_m, y_m = self._checked_start((x_m, y_m))
-        self._last = self._start_at(x_m, y_m, float(t_ms), sigma, half_width_m)
-        return self._last
+        return self.begin(*self._checked_start((x_m, y_m)), t_ms, sigma, half_width_m)
 
     def begin(self, x_m: float, y_m: float, t_ms: float, sigma: float | None,
               half_width_m: float | None = None) -> Estimate:
         """Start at ``(x_m, y_m)`` (m) known to ``sigma`` (m; None: exactly, a given start),
-        as :meth:`run` starts; for a localizer run inside another one."""
+        unchecked, as :meth:`start` and :meth:`run` do; for a localizer run inside another."""
         self._last = self._start_at(x_m, y_m, float(t_ms), sigma, half_width_m)
         return self._last
 
@@ -403,6 +401,12 @@ class Localizer(BaseLocalizer):
         if slow <= 0:
             return 0.0
         return float(min(p.radio_inject_fraction, max(0.0, 1.0 - fast / slow)))
+
+    @property
+    def guided(self) -> bool:
+        """Whether this run's radio evidence is the walk alignment's position
+        (``params.radio_guide="align"``, a radio model, and a start from a radio fix)."""
+        return self._guided
 
     @property
     def particles(self) -> tuple[NDArray, NDArray, NDArray]:

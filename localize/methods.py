@@ -60,12 +60,15 @@ def auto_method(metrics: Mapping) -> AutoChoice:
     The particle filter guided by the walk alignment (``FilterParams.radio_guide="align"``)
     when the strength map's held-out 5 m change correlation is :data:`AUTO_MIN_CORR_5M` or
     more; ``align`` when it is less; the filter on the fixes, as before the measure existed,
-    when the bundle does not record it (built before, or from fewer than 3 walks).
+    when the bundle does not record it (built before, or from fewer than 3 walks) or records
+    no 5 m correlation (no held-out walk spans 5 m).
     """
     quality = metrics.get("heldout_strength") or {}
-    corr = quality.get("corr_5m") if isinstance(quality, Mapping) else None
-    if not isinstance(corr, (int, float)) or not math.isfinite(corr):
+    if not isinstance(quality, Mapping) or not quality:
         return AutoChoice("indoormap", False, "the bundle records no held-out map quality")
+    corr = quality.get("corr_5m")
+    if not isinstance(corr, (int, float)) or not math.isfinite(corr):
+        return AutoChoice("indoormap", False, "none of the bundle's held-out walks spans 5 m")
     measured = f"the magnetic map's held-out 5 m change correlation {corr:.2f}"
     if corr >= AUTO_MIN_CORR_5M:
         return AutoChoice("indoormap", True, f"{measured} >= {AUTO_MIN_CORR_5M}")

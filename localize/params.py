@@ -178,12 +178,14 @@ class FilterParams:
         (:class:`~localize.align.WalkAligner` run beside the filter on the same steps and
         fixes: the step track fitted to all the walk's fixes so far and to the walls), at every
         step, as a Gaussian of ``max(its spread, guide_sigma_m)``, with the injection when it is
-        ``guide_inject_distance_m`` or more from the estimate; it costs the alignment's time
-        (about 6 ms per step). Better on the simulated site with built maps, neutral on the
-        real traces, worse where the alignment is poor (docs/localize.md); ``--method auto``
-        uses it on floors whose magnetic map is good. After a given start
-        position the fixes are used (the alignment would hold the start as a fix of 1 m, a
-        wrong one for its whole window). Without a radio model neither is used.
+        ``guide_inject_distance_m`` or more from the estimate (``radio_sigma_floor_m``,
+        ``radio_inject_distance_m`` and ``radio_inject_rule`` are then not used); it costs
+        the alignment's time (about 6 ms per step). Better on the simulated site with built
+        maps, neutral on the real traces, worse where the alignment is poor
+        (docs/localize.md); ``--method auto`` uses it on floors whose magnetic map is good.
+        After a given start position the fixes are used (the alignment would hold the start
+        as a fix of 1 m, a wrong one for its whole window); :attr:`Localizer.guided` says
+        which ran. Without a radio model neither is used.
     guide_sigma_m : float
         Smallest SD (m) of the Gaussian around the alignment's position.
     guide_inject_distance_m : float

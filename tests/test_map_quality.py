@@ -10,6 +10,7 @@ import pytest
 from click.testing import CliRunner
 from localize_fixtures import f1_bundle, sim_walks, truth_bundles  # noqa: F401  (fixtures)
 from radio_fixtures import SITE, built  # noqa: F401  (fixture)
+from test_localize_align import _BiasedRadio, _f1_with_scans
 
 from localize.align import WalkAligner
 from localize.baselines import make_localizer
@@ -87,9 +88,12 @@ def test_auto_method_follows_the_recorded_map_quality():
     for good in (AUTO_MIN_CORR_5M, 0.86):
         assert auto_method(metrics(good))[:2] == ("indoormap", True)
     assert auto_method(metrics(0.86)).label == "indoormap guided by align"
-    for unmeasured in ({}, {"heldout_strength": None}, metrics(None), metrics(math.nan)):
+    for unmeasured in ({}, {"heldout_strength": None}, {"heldout_strength": {}}):
         assert auto_method(unmeasured) == ("indoormap", False,
                                            "the bundle records no held-out map quality")
+    for short in (metrics(None), metrics(math.nan)):  # no held-out walk spans 5 m
+        assert auto_method(short) == ("indoormap", False,
+                                      "none of the bundle's held-out walks spans 5 m")
     assert "auto" in METHODS and "auto" in SMOOTHABLE
 
 
@@ -107,6 +111,26 @@ def test_auto_builds_the_chosen_localizer(f1_bundle):  # noqa: F811
     assert guided.params.n_particles == 50 and type(guided.guide) is WalkAligner
     loc = make_localizer("auto", with_corr(0.3))
     assert type(loc) is WalkAligner and loc.method == "align"
+    asked = FilterParams(radio_guide="align")  # the choice decides, whatever was asked
+    assert make_localizer("auto", f1_bundle, asked, radio=object()).guide is None
+
+
+def test_auto_guides_the_filter_only_from_a_radio_fix(f1_bundle, sim_walks):  # noqa: F811
+    """On a good map `auto` runs the guided filter: from the walk's first fix its track is
+    not the plain filter's; from a given start it is (the guide would hold the start)."""
+    manifest = {**f1_bundle.manifest, "metrics": {"heldout_strength": {"corr_5m": 0.8}}}
+    good = MapBundle(f1_bundle.path, manifest, f1_bundle.grid, f1_bundle.mask,
+                     f1_bundle.layers, f1_bundle.std)
+    w = _f1_with_scans(sim_walks)[0]
+    for start, guided in ((None, True), (tuple(w.true_xy[0]), False)):
+        tracks = []
+        for method in ("auto", "indoormap"):
+            loc = make_localizer(method, good, FilterParams(n_particles=100),
+                                 radio=_BiasedRadio(w, 90), rng=0)
+            tracks.append(loc.run(w.steps, start_xy=start))
+            assert loc.guided is (guided and method == "auto")
+        same = np.array_equal(tracks[0].x_m, tracks[1].x_m)
+        assert same is not guided
 
 
 def test_the_build_records_its_maps_quality_and_localize_says_what_auto_chose(
@@ -129,3 +153,9 @@ def test_the_build_records_its_maps_quality_and_localize_says_what_auto_chose(
     assert res.exit_code == 0, res.output
     assert "by auto: indoormap guided by align, as the magnetic map's held-out 5 m change " \
         "correlation 0." in res.output
+    res = CliRunner().invoke(main, ["localize", str(built), str(walk), "-o",
+                                    str(tmp_path / "out"), "--no-plot", "--overwrite",
+                                    "--start", "waypoint"])
+    assert res.exit_code == 0, res.output
+    assert "by auto: indoormap, as the magnetic map's held-out" in res.output
+    assert "(not guided: a given start)" in res.output
