@@ -15,7 +15,9 @@ fingerprints, as ``indoormap localize``; truth maps have none and use ``--radio 
 the other folds' scans; walks without Wi-Fi start at their first waypoint, counted), except
 ``pdr@wp0``: PDR with 0.7 m steps from the first waypoint, the ILC baseline.
 ``name[smoothed]`` rows are the same filter smoothed offline over the whole walk
-(:mod:`localize.smoothing`): not what a phone shows in real time. ``indoormap`` runs the default parameters;
+(:mod:`localize.smoothing`): not what a phone shows in real time. ``auto`` is what
+``indoormap localize`` runs by default (the filter guided by the alignment, or the alignment
+alone, by the fold bundle's measured map quality); ``indoormap`` runs the filter's default parameters;
 ``indoormap[paper]`` the papers' (W 3, K 70, T 0.05 on strength, azimuth and polar, radio for
 the start only, 300 particles); ``indoormap[weinberg]`` the Weinberg step model. Prints, per data set, floor and method, the
 error at the waypoints and (simulation) at every step: median, p80, mean (m).

@@ -42,7 +42,7 @@ SHARED_SITE = REPO.parent / "shared" / "ilc" / "site1"
 
 #: Methods in table order; "pdr@wp0" is PDR from the first waypoint (the ILC baseline);
 #: "name[variant]" runs a method with other parameters (:data:`VARIANTS`).
-ALL_METHODS = ("indoormap", "indoormap[smoothed]", "indoormap[paper]", "indoormap[weinberg]",
+ALL_METHODS = ("auto", "indoormap", "indoormap[smoothed]", "indoormap[paper]", "indoormap[weinberg]",
                "pf_no_mag", "pf_no_mag[smoothed]", "magpp_gaussian", "magicol_dtw", "pdr",
                "pdr@wp0", "radio", "align", "align[smoothed]")
 
