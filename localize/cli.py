@@ -227,14 +227,15 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
         wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp)
         loc = make_localizer(method, bundle, _params(particles), radio=wr.radio, rng=seed)
         track = loc.run(wr.steps, start_xy=start_xy, smooth=smooth)
+        guided = getattr(loc, "guided", False)
+        ran = f"{loc.method} guided by align" if guided else loc.method
         used = method
         if method == "auto":  # what ran (the guide needs a radio fix to start from)
             choice = auto_method(bundle.manifest.get("metrics") or {})
-            guided = getattr(loc, "guided", False)
-            used = (f"auto: {loc.method}{' guided by align' if guided else ''}, as {choice.why}"
-                    + (" (not guided: a given start)" if choice.guided and not guided
-                       and start_xy is not None else
-                       " (not guided: no radio model)" if choice.guided and not guided else ""))
+            used = f"auto: {ran}, as {choice.why}"
+            if choice.guided and not guided:
+                used += (" (not guided: a given start)" if start_xy is not None
+                         else " (not guided: no radio model)")
         _write_table(track.to_arrow(), target, fmt, overwrite=overwrite)
         msg = (f"{trace.trace_id}: {len(track)} {'smoothed ' if smooth else ''}steps on "
                f"{bundle.floor_id} "
@@ -242,9 +243,9 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
                f"{track.n_recoveries} recoveries -> {target}")
         if plot:
             kind = "smoothed offline" if smooth else "real time"
-            if plot_track(png, bundle, {loc.method: track}, xy_wp,
+            if plot_track(png, bundle, {ran: track}, xy_wp,
                           title=f"{trace.trace_id} on {bundle.manifest.get('floor_name', '')} "
-                                f"({bundle.floor_id[:12]}): {loc.method}, {kind}, start {how}"):
+                                f"({bundle.floor_id[:12]}): {ran}, {kind}, start {how}"):
                 msg += f", {png.name}"
             else:
                 msg += " (no plot: matplotlib not installed)"
