@@ -390,7 +390,8 @@ def heldout_quality(grid: Grid, mask: NDArray[np.bool_], x: NDArray, y: NDArray,
     each walk's samples together and in time order (the changes along a walk are taken in
     that order). Returns ``shape_rmse_ut``, ``constant_shape_rmse_ut`` (a map of one value:
     each walk's own median removed), ``skill`` (``1 - shape_rmse / constant``),
-    ``corr_0.7m``, ``corr_5m`` (map against observed change along the held-out walks),
+    ``corr_0.7m``, ``corr_5m`` (map against observed change along the held-out walks; NaN
+    when no held-out walk spans the distance), ``n_samples`` (held-out samples predicted),
     ``n_walks`` and ``folds``; empty with fewer than 3 walks or a method without a kernel.
     """
     if not params.kernel_based:
