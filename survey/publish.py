@@ -79,8 +79,20 @@ def _fsync_tree(root: Path) -> None:
         fsync_dir(dirpath)
 
 
-#: Marks this process's temporaries apart from those of a dead process that had its pid.
-_PROCESS_TOKEN = secrets.token_hex(4)
+def _start_ticks(pid: int) -> str | None:
+    """When process ``pid`` started, in clock ticks since boot (Linux's ``/proc``); None where
+    that cannot be read (another system, no such process)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        return stat[stat.rindex(")") + 2:].split()[19]
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+#: Marks this process's temporaries apart from those of a dead process that had its pid: a
+#: random part, plus ``s<start ticks>`` where the system tells (another live process given
+#: the pid later has other start ticks).
+_PROCESS_TOKEN = secrets.token_hex(4) + (f"s{t}" if (t := _start_ticks(os.getpid())) else "")
 
 
 def tmp_prefix(prefix: str = TMP_PREFIX) -> str:
@@ -101,20 +113,22 @@ def _owner_alive(name: str, prefix: str) -> bool:
     except ProcessLookupError:
         return False
     except PermissionError:
-        return True  # another user's live process
-    return True
+        pass  # another user's live process
+    _, _, started = rest.partition("-")[0].partition("s")
+    now = _start_ticks(int(pid)) if started else None
+    return now is None or now == started  # else the pid now belongs to a later process
 
 
 def _process_started(pid: int) -> str | None:
     """When process ``pid`` started, as ``"<boot id>/<start time in clock ticks>"`` (Linux's
     ``/proc``); None where that cannot be read (another system, no such process). A pid
     reused by a later process, or after a reboot, gives another value."""
+    ticks = _start_ticks(pid)
     try:
         boot = Path("/proc/sys/kernel/random/boot_id").read_text().strip()
-        stat = Path(f"/proc/{pid}/stat").read_text()
-        return f"{boot}/{stat[stat.rindex(')') + 2:].split()[19]}"
-    except (OSError, ValueError, IndexError):
+    except OSError:
         return None
+    return f"{boot}/{ticks}" if ticks else None
 
 
 def remove_stale_temporaries(parent: str | os.PathLike, prefix: str = TMP_PREFIX) -> int:

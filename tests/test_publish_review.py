@@ -348,6 +348,30 @@ def test_a_journal_cannot_reach_outside_its_folder_through_a_link(tmp_path, link
     assert (victim / "F1" / "keep").read_text() == "x"
 
 
+@pytest.mark.skipif(pub._start_ticks(os.getpid()) is None,
+                    reason="the system does not say when processes started (/proc)")
+def test_a_temporary_whose_pid_now_belongs_to_another_process_is_stale(tmp_path):
+    """A killed build's staging folder (``.tmp-<pid>-<token>-...``) was kept for as long as any
+    process had its pid; the token carries its process's start time, so another process given
+    the pid later no longer keeps it (temporaries of older indoormaps, without one, are judged
+    by the pid alone)."""
+    other = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        ticks = pub._start_ticks(other.pid)
+        names = {"its own": f".tmp-{other.pid}-0badc0des{ticks}-a",
+                 "an earlier owner's": f".tmp-{other.pid}-0badc0des{int(ticks) - 1}-b",
+                 "no start recorded": f".tmp-{other.pid}-0badc0de-c"}
+        for name in names.values():
+            (tmp_path / name).mkdir()
+        assert pub.remove_stale_temporaries(tmp_path) == 1
+        assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+            [names["its own"], names["no start recorded"]])
+    finally:
+        other.kill()
+        other.wait()
+    assert pub.tmp_prefix().endswith(f"s{pub._start_ticks(os.getpid())}-")
+
+
 @pytest.mark.skipif(pub._process_started(os.getpid()) is None,
                     reason="the system does not say when processes started (/proc)")
 def test_a_journal_whose_pid_now_belongs_to_another_process_is_finished(tmp_path):
