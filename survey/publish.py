@@ -487,7 +487,9 @@ def finish_interrupted_publication(parent: str | os.PathLike) -> bool:
     """Finish the moves of a :func:`replace_together` whose process was killed among them
     (its journal in ``parent``), so that the set of outputs is the new one throughout;
     True if there was one to finish. A journal whose process still runs is left alone.
-    Two processes finishing one journal take turns (the folder's lock).
+    Two processes finishing one journal take turns (the folder's lock). A journal whose moves
+    were all made before the kill is left where this process cannot remove it (a read-only
+    mount or copy of the folder): the set is whole and is read as it is.
 
     Raises
     ------
@@ -523,6 +525,16 @@ def _finish_journal(parent: Path, *, take_over: bool) -> bool:
                                f"{staged} is gone, so {target} would not match the rest of "
                                f"{parent}: build the outputs again")
         todo.append((i, staged, target))
+    if not todo:  # every move was made before the kill: the set is whole, only litter is left
+        try:
+            journal.unlink()
+        except OSError:  # a folder this process cannot write (a read-only mount or copy)
+            return False  # is read as it is
+        fsync_dir(parent)
+        for staged, _, _ in moves:
+            shutil.rmtree(staged, ignore_errors=True)
+        shutil.rmtree(aside, ignore_errors=True)
+        return True
     aside.mkdir(exist_ok=True)
     for i, staged, target in todo:
         _swap_in(staged, target, aside / str(i))

@@ -398,3 +398,46 @@ def test_a_journal_whose_pid_now_belongs_to_another_process_is_finished(tmp_path
     finally:
         other.kill()
         other.wait()
+
+
+def _killed_bundle_set(root: Path, crash_at: str) -> None:
+    from test_publish import _KILLED_SET
+
+    _old_set_and_staged_new(root)
+    for n in "abc":  # bundle folders as far as bundle_dirs is concerned
+        for folder in (root, root / "stage"):
+            (folder / n / "manifest.json").write_text("{}")
+    res = subprocess.run([sys.executable, "-c", _KILLED_SET, str(root), "exchange"],
+                         env={**os.environ, "INDOORMAP_CRASH_AT": crash_at}, cwd=ROOT,
+                         check=False)
+    assert res.returncode == 70 and (root / JOURNAL_NAME).exists()
+
+
+def test_a_finished_set_in_a_folder_that_cannot_be_written_is_read_as_it_is(tmp_path,
+                                                                            monkeypatch):
+    """Killed after its last move, before removing its journal, then the folder made read-only
+    (a read-only mount, a copy): the set is whole, yet readers failed on the journal they could
+    not remove. They read it now; a set with moves still to make is refused as before."""
+    from localize.bundle import bundle_dirs
+    from survey.errors import BundleError
+
+    done, half = tmp_path / "done", tmp_path / "half"
+    done.mkdir()
+    half.mkdir()
+    _killed_bundle_set(done, "replace_together:before-cleanup")
+    _killed_bundle_set(half, "replace_together:after-0")
+
+    def read_only(method):
+        def refuse(self, *args, **kwargs):
+            if tmp_path in (self, *self.parents):
+                raise PermissionError(13, "Read-only file system", str(self))
+            return method(self, *args, **kwargs)
+        return refuse
+
+    monkeypatch.setattr(Path, "unlink", read_only(Path.unlink))
+    monkeypatch.setattr(Path, "mkdir", read_only(Path.mkdir))
+    assert [p.name for p in bundle_dirs(done)] == ["a", "b", "c"]
+    assert _contents(done) == ["new"] * 3 and (done / JOURNAL_NAME).exists()
+    with pytest.raises(BundleError, match="cannot be finished.*Read-only file system"):
+        bundle_dirs(half)
+    assert _contents(half) == ["new", "old", "old"]
