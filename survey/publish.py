@@ -79,20 +79,22 @@ def _fsync_tree(root: Path) -> None:
         fsync_dir(dirpath)
 
 
-def _start_ticks(pid: int) -> str | None:
-    """When process ``pid`` started, in clock ticks since boot (Linux's ``/proc``); None where
-    that cannot be read (another system, no such process)."""
+def _start_mark(pid: int) -> str | None:
+    """When process ``pid`` started: its start time in clock ticks since boot, ``b`` and the
+    first 8 hex digits of the boot id (Linux's ``/proc``); None where that cannot be read
+    (another system, no such process). A pid given to a later process, also after a reboot,
+    gives another mark."""
     try:
         stat = Path(f"/proc/{pid}/stat").read_text()
-        return stat[stat.rindex(")") + 2:].split()[19]
+        boot = Path("/proc/sys/kernel/random/boot_id").read_text().strip()
+        return f"{stat[stat.rindex(')') + 2:].split()[19]}b{boot[:8]}"
     except (OSError, ValueError, IndexError):
         return None
 
 
-#: Marks this process's temporaries apart from those of a dead process that had its pid: a
-#: random part, plus ``s<start ticks>`` where the system tells (another live process given
-#: the pid later has other start ticks).
-_PROCESS_TOKEN = secrets.token_hex(4) + (f"s{t}" if (t := _start_ticks(os.getpid())) else "")
+#: Marks this process's temporaries (and journals) apart from those of a dead process that had
+#: its pid: a random part, plus ``s<start mark>`` where the system tells.
+_PROCESS_TOKEN = secrets.token_hex(4) + (f"s{m}" if (m := _start_mark(os.getpid())) else "")
 
 
 def tmp_prefix(prefix: str = TMP_PREFIX) -> str:
@@ -115,20 +117,8 @@ def _owner_alive(name: str, prefix: str) -> bool:
     except PermissionError:
         pass  # another user's live process
     _, _, started = rest.partition("-")[0].partition("s")
-    now = _start_ticks(int(pid)) if started else None
+    now = _start_mark(int(pid)) if started else None
     return now is None or now == started  # else the pid now belongs to a later process
-
-
-def _process_started(pid: int) -> str | None:
-    """When process ``pid`` started, as ``"<boot id>/<start time in clock ticks>"`` (Linux's
-    ``/proc``); None where that cannot be read (another system, no such process). A pid
-    reused by a later process, or after a reboot, gives another value."""
-    ticks = _start_ticks(pid)
-    try:
-        boot = Path("/proc/sys/kernel/random/boot_id").read_text().strip()
-    except OSError:
-        return None
-    return f"{boot}/{ticks}" if ticks else None
 
 
 def remove_stale_temporaries(parent: str | os.PathLike, prefix: str = TMP_PREFIX) -> int:
@@ -402,7 +392,6 @@ def replace_together(moves: list[tuple[Path, Path]], *, overwrite: bool = False)
         aside = Path(tempfile.mkdtemp(prefix=tmp_prefix(), dir=parent))
         atomic_write_bytes(journal, json.dumps({
             "format": 1, "owner": tmp_prefix(""), "aside": aside.name,
-            "started": _process_started(os.getpid()),
             "moves": _journal_entries(parent, moves)}, indent=1).encode(), overwrite=True)
         done: list[tuple[Path, Path, bool, bool]] = []  # staged, target, swapped, existed
         try:
@@ -444,17 +433,11 @@ class _Journal(NamedTuple):
     owner: str  # :func:`tmp_prefix` ``("")`` of the process that wrote it
     moves: list[tuple[Path, Path, str]]  # staged, target, the staged folder's identity
     aside: Path
-    started: str | None  # :func:`_process_started` of that process, when known
 
     def owner_alive(self) -> bool:
-        """Whether the process that wrote the journal still runs: its pid is in use and,
-        where the system says when processes started, by the same process (not by a later
-        one that was given the pid, e.g. after a reboot)."""
-        if not _owner_alive(TMP_PREFIX + self.owner, TMP_PREFIX):
-            return False
-        pid = int(self.owner.split("-")[0])
-        now = _process_started(pid) if self.started and pid != os.getpid() else None
-        return now is None or now == self.started
+        """Whether the process that wrote the journal still runs (its token's start mark
+        tells it from a later process given its pid)."""
+        return _owner_alive(TMP_PREFIX + self.owner, TMP_PREFIX)
 
 
 def _read_journal(parent: Path) -> _Journal | None:
@@ -469,7 +452,6 @@ def _read_journal(parent: Path) -> _Journal | None:
     try:
         record = json.loads(text)
         owner = str(record["owner"])
-        started = record.get("started")
         moves = [(parent / _inside(m["staged"]), parent / _inside(m["target"], depth=1),
                   str(m["identity"])) for m in record["moves"]]
         aside = parent / _inside(record["aside"], depth=1)
@@ -480,7 +462,7 @@ def _read_journal(parent: Path) -> _Journal | None:
     except (ValueError, KeyError, TypeError) as exc:
         raise PublishError(f"{journal}: damaged publication journal ({exc}); the outputs "
                            f"in {parent} may be a mix of two builds: build them again") from exc
-    return _Journal(owner, moves, aside, started if isinstance(started, str) else None)
+    return _Journal(owner, moves, aside)
 
 
 def finish_interrupted_publication(parent: str | os.PathLike) -> bool:

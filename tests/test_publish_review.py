@@ -348,7 +348,7 @@ def test_a_journal_cannot_reach_outside_its_folder_through_a_link(tmp_path, link
     assert (victim / "F1" / "keep").read_text() == "x"
 
 
-@pytest.mark.skipif(pub._start_ticks(os.getpid()) is None,
+@pytest.mark.skipif(pub._start_mark(os.getpid()) is None,
                     reason="the system does not say when processes started (/proc)")
 def test_a_temporary_whose_pid_now_belongs_to_another_process_is_stale(tmp_path):
     """A killed build's staging folder (``.tmp-<pid>-<token>-...``) was kept for as long as any
@@ -357,9 +357,9 @@ def test_a_temporary_whose_pid_now_belongs_to_another_process_is_stale(tmp_path)
     by the pid alone)."""
     other = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
     try:
-        ticks = pub._start_ticks(other.pid)
-        names = {"its own": f".tmp-{other.pid}-0badc0des{ticks}-a",
-                 "an earlier owner's": f".tmp-{other.pid}-0badc0des{int(ticks) - 1}-b",
+        mark = pub._start_mark(other.pid)
+        names = {"its own": f".tmp-{other.pid}-0badc0des{mark}-a",
+                 "an earlier owner's": f".tmp-{other.pid}-0badc0des1{mark}-b",
                  "no start recorded": f".tmp-{other.pid}-0badc0de-c"}
         for name in names.values():
             (tmp_path / name).mkdir()
@@ -369,30 +369,30 @@ def test_a_temporary_whose_pid_now_belongs_to_another_process_is_stale(tmp_path)
     finally:
         other.kill()
         other.wait()
-    assert pub.tmp_prefix().endswith(f"s{pub._start_ticks(os.getpid())}-")
+    assert pub.tmp_prefix().endswith(f"s{pub._start_mark(os.getpid())}-")
 
 
-@pytest.mark.skipif(pub._process_started(os.getpid()) is None,
+@pytest.mark.skipif(pub._start_mark(os.getpid()) is None,
                     reason="the system does not say when processes started (/proc)")
 def test_a_journal_whose_pid_now_belongs_to_another_process_is_finished(tmp_path):
     """After a reboot (or a wrap of the pids) a killed writer's pid can belong to a live,
     unrelated process. Readers took the journal for a live writer's and read a mix of two
-    builds until the next writer came; the journal also records when its writer started."""
+    builds until the next writer came; the journal's owner token records when its writer
+    started."""
     _old_set_and_staged_new(tmp_path)
     other = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
     try:
         def journal(started):
             (tmp_path / JOURNAL_NAME).write_text(json.dumps({
-                "format": 1, "owner": f"{other.pid}-0badc0de-", "aside": "aside",
-                "started": started,
+                "format": 1, "owner": f"{other.pid}-0badc0des{started}-", "aside": "aside",
                 "moves": [{"staged": f"stage/{n}", "target": n,
                            "identity": folder_identity(tmp_path / "stage" / n)}
                           for n in "abc"]}))
 
-        journal(pub._process_started(other.pid))  # its writer: at work, left alone
+        journal(pub._start_mark(other.pid))  # its writer: at work, left alone
         assert finish_interrupted_publication(tmp_path) is False
         assert _contents(tmp_path) == ["old"] * 3
-        journal(pub._process_started(os.getpid()))  # a process started at another time
+        journal(pub._start_mark(os.getpid()))  # a process started at another time
         assert finish_interrupted_publication(tmp_path) is True
         assert _contents(tmp_path) == ["new"] * 3
     finally:
