@@ -28,7 +28,7 @@ import click
 import numpy as np
 
 from localize.cli_common import AliasedOption, TraceIds, WalkFailures, read_walk, trace_files
-from localize.methods import METHODS, SMOOTHABLE, auto_method
+from localize.methods import METHODS, SMOOTHABLE, auto_method, method_label
 from survey.publish import refuse_to_replace
 
 START_HELP = ("auto (the walk's first Wi-Fi fix; for a walk without one, its first BLE fix; "
@@ -83,8 +83,8 @@ def _start_of(start_opt: str | tuple[float, float], wr, waypoints_xy
     except LocalizationError as err:
         given = start_opt if isinstance(start_opt, str) else "X,Y"
         raise LocalizationError(f"{err} (--start {given})") from err
-    if xy is None and wr.reason:
-        how += f" ({wr.reason})"
+    if wr.kind == "ble":  # why BLE, at a BLE start or for the fixes after a given one
+        how += f" ({wr.reason})" if xy is None else f"; BLE fixes ({wr.reason})"
     return xy, how
 
 
@@ -147,8 +147,6 @@ def _prepare_walk(trace, maps, start_opt: str | tuple[float, float], waypoints_x
     _warn_if_source_walk(bundle, trace.trace_id)
     wr = walk_radio(bundle, trace.header.model, steps, ble)
     start_xy, how = _start_of(start_opt, wr, waypoints_xy)
-    if wr.kind == "ble" and start_xy is not None:  # a start at a BLE fix says so already
-        how += f"; BLE fixes ({wr.reason})"
     _warn_if_off_floor(bundle, start_xy)
     return wr, bundle, start_xy, how
 
@@ -228,7 +226,7 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
         loc = make_localizer(method, bundle, _params(particles), radio=wr.radio, rng=seed)
         track = loc.run(wr.steps, start_xy=start_xy, smooth=smooth)
         guided = getattr(loc, "guided", False)
-        ran = f"{loc.method} guided by align" if guided else loc.method
+        ran = method_label(loc.method, guided)
         used = method
         if method == "auto":  # what ran (the guide needs a radio fix to start from)
             choice = auto_method(bundle.manifest.get("metrics") or {})

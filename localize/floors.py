@@ -239,17 +239,16 @@ class SiteMaps:
                 raise LocalizationError(f"{where}: the {name} floor model says floor {best}, "
                                         "which has no bundle")
             how = f"{name} floor model ({n_on} of {n_known} {what} on it)"
-            known = getattr(model, "floors", None)
+            known = getattr(model, "floors", None) if name == "Wi-Fi" else None
             lacking = sorted(set(self._by_name) - {str(f) for f in known}) \
                 if known is not None else []
-            if name == "Wi-Fi" and lacking and self.ble_floor_model is not None:
+            if lacking and self.ble_floor_model is not None:
                 # it puts a walk on a floor it knows even when the walk is on one it lacks
                 deferred = found, how, {str(f) for f in known}
                 missing.append(f"the Wi-Fi floor model lacks floor {', '.join(lacking)}")
                 continue
             if deferred is not None and best in deferred[2]:
-                # BLE names a floor the Wi-Fi model knows: Wi-Fi, the better of the two, decides
-                return deferred[0], f"{deferred[1]}; {', '.join(missing)}"
+                break  # BLE names a floor the Wi-Fi model knows: Wi-Fi, the better, decides
             return found, how + (f"; {', '.join(missing)}" if missing else "")
         if deferred is not None:
             return deferred[0], f"{deferred[1]}; {', '.join(missing)}"

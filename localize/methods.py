@@ -51,7 +51,12 @@ class AutoChoice(NamedTuple):
 
     @property
     def label(self) -> str:
-        return f"{self.method} guided by align" if self.guided else self.method
+        return method_label(self.method, self.guided)
+
+
+def method_label(method: str, guided: bool) -> str:
+    """How a run is named: the method, and whether the walk alignment guided the filter."""
+    return f"{method} guided by align" if guided else method
 
 
 def auto_method(metrics: Mapping) -> AutoChoice:

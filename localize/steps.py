@@ -112,6 +112,17 @@ class RadioScan:
                          np.asarray(self.rssi_dbm)[keep], np.asarray(self.age_ms)[keep])
 
 
+def attach_scans(step_t_ms: NDArray, scans: Sequence[RadioScan]) -> list[RadioScan | None]:
+    """One slot per step (times ``step_t_ms``, ms): each scan in the first step at or after
+    its time; of two scans within one step, the later; a scan after the last step dropped."""
+    slots: list[RadioScan | None] = [None] * len(step_t_ms)
+    for scan in sorted(scans, key=lambda sc: sc.t_ms):
+        i = int(np.searchsorted(step_t_ms, scan.t_ms, side="left"))
+        if i < len(slots):
+            slots[i] = scan
+    return slots
+
+
 @dataclass(frozen=True)
 class StepSummary:
     """The sensor summary of one step (scalars, plus optional raw samples and a scan).
@@ -291,9 +302,4 @@ class StepSummaries:
         >>> [sc is not None for sc in s.with_scans([scan]).scans]
         [False, False, True]
         """
-        slots: list[RadioScan | None] = [None] * len(self)
-        for scan in sorted(scans, key=lambda sc: sc.t_ms):
-            i = int(np.searchsorted(self.t_ms, scan.t_ms, side="left"))
-            if i < len(self):
-                slots[i] = scan
-        return self.with_columns(scans=tuple(slots))
+        return self.with_columns(scans=tuple(attach_scans(self.t_ms, scans)))

@@ -51,7 +51,7 @@ def metric_lines(manifest: dict) -> dict[str, str]:
         lines["coverage"] = "reachable area near a sample: " + ", ".join(
             f"{100 * v:.0f} % within {k.removeprefix('within_').removesuffix('m')} m"
             for k, v in cov.items() if _is_number(v))
-    for key, label in (("floor_model", "floor model"), ("ble_floor_model", "floor model")):
+    for key in ("floor_model", "ble_floor_model"):
         fm = mt.get(key)
         if isinstance(fm, dict) and isinstance(fm.get("floors"), list):
             kind = "Wi-Fi" if fm.get("kind") == "wifi" else "BLE" if fm.get("kind") == "ble" \
@@ -59,7 +59,7 @@ def metric_lines(manifest: dict) -> dict[str, str]:
             unit = "scan" if kind == "Wi-Fi" else "window"
             cv = [f"{100 * fm[k]:.1f} % per {what}" for k, what in (
                 ("cv_scan_accuracy", unit), ("cv_walk_accuracy", "walk")) if _is_number(fm.get(k))]
-            lines[key] = (f"{label} ({kind}, {fm.get('transmitters', '?')} transmitters): "
+            lines[key] = (f"floor model ({kind}, {fm.get('transmitters', '?')} transmitters): "
                           f"floors {', '.join(map(str, fm['floors']))}"
                           + (f"; cross-validated {', '.join(cv)}" if cv else ""))
     return lines

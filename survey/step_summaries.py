@@ -28,7 +28,8 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from localize.steps import RadioScan, StepSummaries, attitude_codes, ble_transmitter_ids
+from localize.steps import RadioScan, StepSummaries, attach_scans, attitude_codes, \
+    ble_transmitter_ids
 from survey.attitude import AttitudeParams, classify_attitude
 from survey.errors import ProcessingError
 from survey.field_features import field_features
@@ -214,11 +215,7 @@ def step_summaries(trace: Trace, params: StepSummaryParams = StepSummaryParams()
 
     att = classify_attitude(acc_t, acc_xyz, st, params.attitude)
 
-    scans: list[RadioScan | None] = [None] * len(st)
-    for scan in scans_of(trace, params.max_scan_age_ms):
-        i = int(np.searchsorted(st, scan.t_ms, side="left"))
-        if i < len(st):
-            scans[i] = scan  # two scans within one step: the later one wins
+    scans = attach_scans(st, scans_of(trace, params.max_scan_age_ms))
     if params.include_ble:
         for i, (keys, vals) in _ble_scans(trace, st).items():
             old = scans[i]
