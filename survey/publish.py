@@ -212,17 +212,11 @@ def atomic_directory(target: str | os.PathLike, *, overwrite: bool = False,
         crash_point(f"{crash_prefix}:before-fsync")
         _fsync_tree(tmp)
         crash_point(f"{crash_prefix}:before-rename")
-        if target.exists() and exchange_paths(tmp, target):
-            fsync_dir(target.parent)
-            shutil.rmtree(tmp, ignore_errors=True)  # now the old target
-        elif target.exists():
-            old = Path(tempfile.mkdtemp(prefix=tmp_prefix(), dir=target.parent))
-            os.replace(target, old / "old")
-            os.replace(tmp, target)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, target)
+        aside = Path(tempfile.mkdtemp(prefix=tmp_prefix(), dir=target.parent))
+        _swap_in(tmp, target, aside / "old")  # a swapped old target is left at tmp
         fsync_dir(target.parent)
+        shutil.rmtree(aside, ignore_errors=True)
+        shutil.rmtree(tmp, ignore_errors=True)
         crash_point(f"{crash_prefix}:after-rename")
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
