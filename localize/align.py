@@ -43,7 +43,7 @@ from localize.errors import LocalizationError
 from localize.filter import BaseLocalizer, check_step_time
 from localize.params import MAX_STEP_M
 from localize.radio import RadioModel
-from localize.steps import StepSummaries, StepSummary
+from localize.steps import AttitudeCode, StepSummaries, StepSummary
 from localize.track import Estimate, Track
 
 __all__ = ["AlignParams", "WalkAligner", "distance_from_mask_m", "walk_shape"]
@@ -107,15 +107,25 @@ class AlignParams:
             raise LocalizationError(f"scale_range must be 0 < low <= high, got {self.scale_range}")
 
 
-def _headings(compass_deg: NDArray, gyro_deg: NDArray) -> tuple[NDArray[np.float64], float]:
-    """Walking azimuth per step (rad) and the turn (rad) that put the gyroscope heading onto
-    the compass (the circular mean of their difference); the compass itself, turn 0, when a
-    step has no gyroscope heading."""
+def _headings(compass_deg: NDArray, gyro_deg: NDArray, axis: NDArray | None = None
+              ) -> tuple[NDArray[np.float64], float, bool]:
+    """Walking azimuth per step (rad), the turn (rad) that put the gyroscope heading onto
+    the compass (the circular mean of their difference; the compass itself, turn 0, when a
+    step has no gyroscope heading), and whether the walk may run the other way round.
+
+    ``axis`` marks steps whose compass is the walking axis, either way along it (a carried
+    phone, :attr:`~localize.steps.AttitudeCode.CARRIED`): the turn comes from the other steps,
+    or, when those are fewer, from the axis steps, and the walk may then be turned by 180 deg.
+    """
     compass, gyro = np.radians(compass_deg), np.radians(gyro_deg)
+    axis = np.zeros(len(compass), bool) if axis is None else np.asarray(axis, bool)
+    both_ways = bool(axis.sum() > (~axis).sum())
     if not np.isfinite(gyro).all():
-        return compass, 0.0
-    turn = float(np.angle(np.mean(np.exp(1j * (compass - gyro)))))
-    return gyro + turn, turn
+        return compass, 0.0, both_ways
+    use = axis if both_ways else ~axis
+    turn = float(np.angle(np.mean(np.exp(1j * (compass[use] - gyro[use]))))) if use.any() \
+        else 0.0
+    return gyro + turn, turn, both_ways
 
 
 def _moves(delta_acc_ms2: NDArray, heading_rad: NDArray, p: AlignParams
@@ -128,11 +138,13 @@ def _moves(delta_acc_ms2: NDArray, heading_rad: NDArray, p: AlignParams
     return np.minimum(length, MAX_STEP_M) * np.exp(1j * (np.pi / 2 - heading_rad))
 
 
-def _shape(compass_deg: NDArray, gyro_deg: NDArray, delta_acc_ms2: NDArray, p: AlignParams
-           ) -> tuple[NDArray[np.complex128], float]:
-    """The step track of :func:`walk_shape` from its columns, and the anchor turn (rad)."""
-    heading, anchor = _headings(compass_deg, gyro_deg)
-    return np.concatenate([[0j], np.cumsum(_moves(delta_acc_ms2, heading, p))]), anchor
+def _shape(compass_deg: NDArray, gyro_deg: NDArray, delta_acc_ms2: NDArray, p: AlignParams,
+           axis: NDArray | None = None) -> tuple[NDArray[np.complex128], float, bool]:
+    """The step track of :func:`walk_shape` from its columns, the anchor turn (rad) and
+    whether the track may run the other way round (:func:`_headings`)."""
+    heading, anchor, both_ways = _headings(compass_deg, gyro_deg, axis)
+    return (np.concatenate([[0j], np.cumsum(_moves(delta_acc_ms2, heading, p))]), anchor,
+            both_ways)
 
 
 def walk_shape(steps: StepSummaries, params: AlignParams = AlignParams()
@@ -141,7 +153,7 @@ def walk_shape(steps: StepSummaries, params: AlignParams = AlignParams()
     fits: ``(m + 1,)`` complex positions (x east + i y north, m), 0 before the first step
     and after each step (module docstring: how)."""
     return _shape(steps.compass_deg, steps.relative_heading_deg, steps.delta_acc_ms2,
-                  params)[0]
+                  params, steps.attitude == AttitudeCode.CARRIED)[0]
 
 
 def _scan_time(scan, step_t_ms: float) -> float:
@@ -243,6 +255,7 @@ class WalkAligner(BaseLocalizer):
         self._compass: list[float] = []
         self._gyro: list[float] = []
         self._swing: list[float] = []
+        self._axis: list[bool] = []
         self._fix_t: list[float] = []
         self._fix_z: list[complex] = []
         self._start_given = False
@@ -272,9 +285,9 @@ class WalkAligner(BaseLocalizer):
             if located is not None:
                 fix = (_scan_time(s.scan, s.t_ms), located)
         return self._advance(s.t_ms, s.compass_deg, s.relative_heading_deg, s.delta_acc_ms2,
-                             fix)
+                             s.attitude == AttitudeCode.CARRIED, fix)
 
-    def _advance(self, t_ms, compass_deg, gyro_deg, swing, fix) -> Estimate:
+    def _advance(self, t_ms, compass_deg, gyro_deg, swing, axis, fix) -> Estimate:
         """Take one step (and its fix ``(t_ms, (x, y, sigma))``, if any), then align again:
         over the whole grid when a fix came, else around the last alignment (the new step
         can still meet a wall)."""
@@ -282,6 +295,7 @@ class WalkAligner(BaseLocalizer):
         self._compass.append(float(compass_deg))
         self._gyro.append(float(gyro_deg))
         self._swing.append(float(swing))
+        self._axis.append(bool(axis))
         if fix is not None:
             self._fix_t.append(fix[0])
             self._fix_z.append(complex(fix[1][0], fix[1][1]))
@@ -297,8 +311,9 @@ class WalkAligner(BaseLocalizer):
         t = np.asarray(self._t)
         first = max(min(int(np.searchsorted(t, t[-1] - p.window_s * 1000.0)), len(t) - 1) - 1,
                     0)
-        shape, anchor = _shape(np.asarray(self._compass[first:]), np.asarray(self._gyro[first:]),
-                               np.asarray(self._swing[first:]), p)
+        shape, anchor, both_ways = _shape(
+            np.asarray(self._compass[first:]), np.asarray(self._gyro[first:]),
+            np.asarray(self._swing[first:]), p, np.asarray(self._axis[first:]))
         times = t[first:]
         fix_t, fix_z = np.asarray(self._fix_t), np.asarray(self._fix_z)
         keep = fix_t >= times[0]
@@ -308,19 +323,22 @@ class WalkAligner(BaseLocalizer):
         around = None
         if local and self._fit is not None and self._fit[2] <= first:
             rot, scale, fit_first, fit_pos = self._fit  # its position at this window's origin:
-            around = (float(np.degrees(rot - anchor)), scale, fit_pos[first - fit_first])
-        best = self._align(shape, times, fix_t[keep], fix_z[keep], start_given, around)
+            around = (float(np.mod(np.degrees(rot - anchor) + 180.0, 360.0) - 180.0), scale,
+                      fit_pos[first - fit_first])
+        best = self._align(shape, times, fix_t[keep], fix_z[keep], start_given, both_ways,
+                           around)
         pos = best.shift + best.factor * shape
         self._pos, self._spread = pos[-1], best.spread_m
         self._fit = (float(np.angle(best.factor)) + anchor, abs(best.factor), first, pos)
         self._stale = False
 
     def _align(self, shape: NDArray, times: NDArray, fix_t: NDArray, fix_z: NDArray,
-               start_given: bool, around: tuple[float, float, complex] | None = None) -> _Best:
+               start_given: bool, both_ways: bool = False,
+               around: tuple[float, float, complex] | None = None) -> _Best:
         at_fix = np.interp(fix_t, times, shape.real) + 1j * np.interp(fix_t, times, shape.imag)
         ci = np.linalg.inv(_fix_covariance(fix_t / 1000.0, start_given, self.params))
         return _Search(self.bundle, self._off_mask_m, self.params, shape, fix_z, at_fix,
-                       ci).run(around)
+                       ci, both_ways).run(around)
 
     # -- batch -----------------------------------------------------------------------------
     def run(self, steps: StepSummaries, start_xy: tuple[float, float] | None = None, *,
@@ -354,8 +372,9 @@ class WalkAligner(BaseLocalizer):
         if smooth:
             return self._offline(steps, start, later)
         by_step = {i: (t, f) for i, t, f in later}
+        axis = steps.attitude == AttitudeCode.CARRIED
         est = [self._advance(steps.t_ms[i], steps.compass_deg[i],
-                             steps.relative_heading_deg[i], steps.delta_acc_ms2[i],
+                             steps.relative_heading_deg[i], steps.delta_acc_ms2[i], axis[i],
                              by_step.get(i)) for i in range(len(steps))]
         track = Track.from_estimates(start, est, method=self.method, trace_id=steps.trace_id,
                                      floor_id=self.bundle.floor_id)
@@ -364,11 +383,13 @@ class WalkAligner(BaseLocalizer):
 
     def _offline(self, steps: StepSummaries, start: Estimate, later: list) -> Track:
         """One alignment of the whole walk; ``later``: its fixes after the start's."""
-        shape = walk_shape(steps, self.params)
+        shape, _, both_ways = _shape(steps.compass_deg, steps.relative_heading_deg,
+                                     steps.delta_acc_ms2, self.params,
+                                     steps.attitude == AttitudeCode.CARRIED)
         times = np.concatenate([[start.t_ms], steps.t_ms])
         fix_t = np.asarray(self._fix_t + [t for _, t, _ in later])
         fix_z = np.asarray(self._fix_z + [complex(f[0], f[1]) for _, _, f in later])
-        best = self._align(shape, times, fix_t, fix_z, self._start_given)
+        best = self._align(shape, times, fix_t, fix_z, self._start_given, both_ways)
         pos = best.shift + best.factor * shape
         n, floor = len(steps), self.bundle.floor_id
         first = Estimate(start.t_ms, float(pos[0].real), float(pos[0].imag), best.spread_m,
@@ -400,8 +421,9 @@ class _Search:
     """Grid search of ``(rotation, scale, shift)``; see :class:`WalkAligner`."""
 
     def __init__(self, bundle: MapBundle, off_mask_m: NDArray, p: AlignParams, shape: NDArray,
-                 fix_z: NDArray, at_fix: NDArray, ci: NDArray) -> None:
+                 fix_z: NDArray, at_fix: NDArray, ci: NDArray, both_ways: bool = False) -> None:
         self.grid, self.off_mask_m = bundle.grid, off_mask_m
+        self.both_ways = both_ways  # rotations near 180 deg are as likely as near 0
         self.p, self.shape, self.fix_z, self.at_fix = p, shape, fix_z, at_fix
         self.ci = ci
         self.ones_ci = ci.sum(axis=0)          # 1^T C^-1
@@ -438,11 +460,15 @@ class _Search:
         if around is None:
             rot = np.arange(-p.rotation_range_deg, p.rotation_range_deg + 1e-9,
                             p.rotation_step_deg)
+            if self.both_ways:
+                rot = np.concatenate([rot, rot + 180.0])
             scale = np.arange(p.scale_range[0], p.scale_range[1] + 1e-9, p.scale_step)
             best = self._grid(rot, scale, p.search_half_width_m, p.shift_step_m)
         else:
             r0, s0, shift0 = around
             rot = r0 + np.arange(-1, 2) * p.rotation_step_deg
+            if self.both_ways:  # the other way along the axis, from the same origin
+                rot = np.concatenate([rot, rot + 180.0])
             scale = s0 + np.arange(-1, 2) * p.scale_step
             best = self._grid(rot, scale[scale > 0], 1.0, p.shift_step_m / 2, centre=shift0)
         # finer around the best: a fifth of each step
@@ -472,7 +498,8 @@ class _Search:
             for s in scale:
                 a = s * np.exp(1j * np.radians(r))
                 fix_ll, shifts = self._fix_scores(a, grid, centre)
-                prior = -0.5 * (r / p.heading_sd_deg) ** 2 - 0.5 * (np.log(s) / p.scale_sd) ** 2
+                dr = np.mod(r + 90.0, 180.0) - 90.0 if self.both_ways else r
+                prior = -0.5 * (dr / p.heading_sd_deg) ** 2 - 0.5 * (np.log(s) / p.scale_sd) ** 2
                 bound = fix_ll + prior
                 rows.append((float(bound.max()), complex(a), bound, shifts))
         rows.sort(key=lambda row: -row[0])

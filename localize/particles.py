@@ -66,6 +66,10 @@ class ParticleState:
         Step-length genomes (eq. 13): ``L = a f + b``.
     bias : ndarray (u, n)
         Heading-bias genome (rad).
+    flip : ndarray (u, n)
+        Which way along the walking axis the particle goes on steps whose compass is an axis
+        (:attr:`~localize.steps.AttitudeCode.CARRIED`): 0 along the compass, 1 against it.
+        Half the particles start with each, and resampling keeps the way that fits.
     w : ndarray (u, n)
         Weights (not normalised).
     off_s, off_c : ndarray (u, n)
@@ -87,7 +91,7 @@ class ParticleState:
         by genealogy (:mod:`localize.smoothing`).
     """
 
-    _BASE = ("x", "y", "a", "b", "bias", "w", "off_s", "off_c")
+    _BASE = ("x", "y", "a", "b", "bias", "w", "off_s", "off_c", "flip")
     _PREV = ("prev_x", "prev_y")
 
     def __init__(self, u: int, n: int, layout: dict[str, tuple[int, int]], std_names=(),
@@ -299,6 +303,7 @@ def init_state(fmap: FilterMap, params: FilterParams, rng: np.random.Generator,
     clamp_genomes(st, params)
     if params.heading_bias_sd_deg > 0:
         st.bias = rng.normal(0.0, np.radians(params.heading_bias_sd_deg), (u, n))
+    st.flip = np.arange(n) % 2
     st.w = 1.0
     observe(st, fmap, params, None, shift=False)
     return st
@@ -315,7 +320,8 @@ def clamp_genomes(st: ParticleState, p: FilterParams) -> None:
 
 def move(st: ParticleState, fmap: FilterMap, params: FilterParams, rng: np.random.Generator,
          compass_deg: NDArray, freq_hz: NDArray, turn_deg: NDArray,
-         delta_acc_ms2: NDArray | None = None) -> NDArray[np.bool_]:
+         delta_acc_ms2: NDArray | None = None, compass_axis: NDArray | None = None
+         ) -> NDArray[np.bool_]:
     """Move every particle by one step (001 eqs. 13-15); returns which stayed reachable.
 
     Parameters
@@ -326,6 +332,9 @@ def move(st: ParticleState, fmap: FilterMap, params: FilterParams, rng: np.rando
     delta_acc_ms2 : ndarray (u,), optional
         Acceleration swing of the step (m/s^2), the input of the Weinberg model (NaN or None
         = nominal).
+    compass_axis : ndarray of bool (u,), optional
+        Users whose compass is the walking axis this step: each particle goes the way its
+        ``flip`` says.
 
     Returns
     -------
@@ -366,6 +375,8 @@ def move(st: ParticleState, fmap: FilterMap, params: FilterParams, rng: np.rando
     e = (st.bias + f32(np.radians(p.heading_noise_deg)) * z[4]).astype(f32, copy=False)
     se, ce = np.sin(e), np.cos(e)
     c_rad = np.radians(np.asarray(compass_deg, dtype=np.float64)).reshape(u, 1)
+    if compass_axis is not None and np.any(compass_axis):
+        c_rad = c_rad + np.pi * (st.flip * np.asarray(compass_axis, bool).reshape(u, 1))
     sc, cc = np.sin(c_rad).astype(f32), np.cos(c_rad).astype(f32)
     if p.use_heading_offset:
         os_, oc = st.off_s, st.off_c
@@ -520,8 +531,9 @@ def reinit_rows(st: ParticleState, fmap: FilterMap, params: FilterParams,
                 half_widths_m: NDArray) -> NDArray[np.float64]:
     """Re-draw the particles of some users around new centres (recovery after all died).
 
-    Genomes are kept (they carry the learned step length); positions, weights and the map
-    histories of those rows are reset. Returns the half-widths actually used (m).
+    Genomes are kept (they carry the learned step length); positions, weights, the map
+    histories and the way along a carried phone's axis (``flip``, half each way) of those rows
+    are reset. Returns the half-widths actually used (m).
     """
     rows = np.asarray(rows, dtype=np.intp)
     n = st.shape[1]
@@ -533,6 +545,7 @@ def reinit_rows(st: ParticleState, fmap: FilterMap, params: FilterParams,
         if st.has_prev:
             st.prev_x[r], st.prev_y[r] = x, y
         st.w[r] = 1.0
+        st.flip[r] = np.arange(n) % 2
         st.data[st.feature_rows(), r] = np.nan
         st.cut_lineage(r)
     keys = _lookup_keys(fmap, params)
@@ -557,8 +570,8 @@ def inject(st: ParticleState, fmap: FilterMap, params: FilterParams, rng: np.ran
     Guards against a filter locked onto a wrong corridor (a wrong start, or a lost track): the
     newcomers sit uniformly on the reachable cells of the square around the fix, inherit the
     genomes of random particles (the learned step length), start with empty error histories
-    (they are judged from their next step on) and the mean weight of the user. Returns how many
-    particles were replaced.
+    (they are judged from their next step on), the mean weight of the user, and half each way
+    along a carried phone's axis (``flip``). Returns how many particles were replaced.
     """
     n = st.shape[1]
     k = round(fraction * n)
@@ -575,6 +588,7 @@ def inject(st: ParticleState, fmap: FilterMap, params: FilterParams, rng: np.ran
     if st.has_prev:
         st.prev_x[row, idx], st.prev_y[row, idx] = pts
     st.w[row, idx] = w_mean
+    st.flip[row, idx] = np.arange(k) % 2
     st.cut_lineage(row, idx)
     keys = _lookup_keys(fmap, params)
     if keys:

@@ -91,14 +91,16 @@ def advance(st: ParticleState, fmap: FilterMap, params: FilterParams, rng: np.ra
         Further weight update (e.g. radio) applied before recovery and resampling.
     """
     p = params
+    carried = np.asarray(inp.attitude) == int(AttitudeCode.CARRIED)
     ok = move(st, fmap, p, rng, inp.compass_deg, inp.frequency_hz, inp.turn_deg,
-              inp.delta_acc_ms2)
+              inp.delta_acc_ms2, compass_axis=carried)
     ufh = np.asarray(inp.attitude) == int(AttitudeCode.UFH)
     obs = {"strength": np.asarray(inp.strength_ut, dtype=np.float64),
            "azimuth": np.where(ufh, inp.azimuth_deg, np.nan),
            "polar": np.where(ufh, inp.polar_deg, np.nan)}
     if inp.relative_heading_deg is not None:
-        obs["deviation"] = np.asarray(inp.compass_deg) - np.asarray(inp.relative_heading_deg)
+        obs["deviation"] = np.where(carried, np.nan, np.asarray(inp.compass_deg)
+                                    - np.asarray(inp.relative_heading_deg))
     observe(st, fmap, p, obs)
     magnetic_update(st, fmap, p, inp.attitude, raw_strength_ut)
     if extra_update is not None:

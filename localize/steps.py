@@ -33,9 +33,12 @@ class AttitudeCode(IntEnum):
     UFNH = 2
     UNF = 3
     NOT_UPWARD = 4
+    #: Not upward, with the top edge up or down (a swinging hand, a pocket): the compass is
+    #: the walking axis, either way along it (:mod:`survey.carried_heading`).
+    CARRIED = 5
 
 
-_NAMES = {"UNKNOWN": 0, "UFH": 1, "UFNH": 2, "UNF": 3, "NU": 4, "NOT_UPWARD": 4}
+_NAMES = {"UNKNOWN": 0, "UFH": 1, "UFNH": 2, "UNF": 3, "NU": 4, "NOT_UPWARD": 4, "CARRIED": 5}
 
 
 def attitude_codes(names: ArrayLike) -> NDArray[np.int8]:

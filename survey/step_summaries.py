@@ -6,7 +6,9 @@ processing on the survey side with the same building blocks as :mod:`survey.proc
 - steps from the accelerometer (:func:`survey.steps.detect_steps`): time, frequency and the
   peak-to-valley swing;
 - compass heading of the phone at the middle of each step cycle from the rotation vector
-  (:func:`survey.rotation.heading_deg`), and the turn of each step from the gyroscope about the
+  (:func:`survey.rotation.heading_deg`); on cycles where the phone's top edge points up or
+  down (a swinging hand, a pocket) the walking axis instead
+  (:func:`survey.carried_heading.carried_heading_deg`), and the turn of each step from the gyroscope about the
   vertical (:func:`survey.process.gyro_heading_deg`; the compass when there is no gyroscope);
 - the magnetometer, calibrated as :func:`survey.process.calibrated_field` decides (device-
   calibrated stream first), rotated into the earth frame with the interpolated rotation vector;
@@ -28,9 +30,10 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from localize.steps import RadioScan, StepSummaries, attach_scans, attitude_codes, \
-    ble_transmitter_ids
+from localize.steps import AttitudeCode, RadioScan, StepSummaries, attach_scans, \
+    attitude_codes, ble_transmitter_ids
 from survey.attitude import AttitudeParams, classify_attitude
+from survey.carried_heading import CarriedHeadingParams, carried_heading_deg
 from survey.errors import ProcessingError
 from survey.field_features import field_features
 from survey.process import _stream, calibrated_field, compass_track_deg, gyro_heading_deg
@@ -57,12 +60,16 @@ class StepSummaryParams:
     include_ble : bool
         Add beacon sightings (key ``ble:<uuid>:<major>:<minor>``) to the scan of their step.
     attitude : AttitudeParams
+    carried : CarriedHeadingParams
+        When a step's top edge counts as pointing up or down (its compass is then the
+        walking axis, and its attitude :attr:`localize.steps.AttitudeCode.CARRIED`).
     """
 
     max_cycle_ms: float = 1000.0
     max_scan_age_ms: int | None = None
     include_ble: bool = False
     attitude: AttitudeParams = field(default_factory=AttitudeParams)
+    carried: CarriedHeadingParams = field(default_factory=CarriedHeadingParams)
 
 
 def scans_of(trace: Trace, max_age_ms: float | None = None) -> list[RadioScan]:
@@ -176,6 +183,8 @@ def step_summaries(trace: Trace, params: StepSummaryParams = StepSummaryParams()
 
     compass = compass_track_deg(tid, rot_t, rot)
     compass_mid = np.mod(np.interp(mid, *compass), 360.0)
+    carried = carried_heading_deg(acc_t, acc_xyz, rot_t, rot, start, st, params.carried)
+    compass_mid = np.where(np.isfinite(carried), carried, compass_mid)
     gyro = gyro_heading_deg(trace.sensors, rot_t, rot)
     if gyro is not None:
         rel_start = np.interp(start, *gyro)
@@ -214,6 +223,8 @@ def step_summaries(trace: Trace, params: StepSummaryParams = StepSummaryParams()
         np.empty(0)
 
     att = classify_attitude(acc_t, acc_xyz, st, params.attitude)
+    attitude = attitude_codes(att.attitude)
+    attitude[np.isfinite(carried)] = AttitudeCode.CARRIED  # their compass is an axis
 
     scans = attach_scans(st, scans_of(trace, params.max_scan_age_ms))
     if params.include_ble:
@@ -232,7 +243,7 @@ def step_summaries(trace: Trace, params: StepSummaryParams = StepSummaryParams()
     return StepSummaries(
         t_ms=st, frequency_hz=steps.frequency_hz, delta_acc_ms2=steps.delta_acc_ms2,
         compass_deg=compass_mid, turn_deg=turn, strength_ut=strength, azimuth_deg=azimuth,
-        polar_deg=polar, attitude=attitude_codes(att.attitude),
+        polar_deg=polar, attitude=attitude,
         relative_heading_deg=relative, mag_offsets=offsets, mag_strength_ut=raw,
         scans=tuple(scans), trace_id=tid, site_id=h.site_id or "", floor_id=h.floor_id or "",
         floor_name=h.floor_name or "", extra={"calibration": decision})
