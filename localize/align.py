@@ -27,7 +27,9 @@ The shape: each step moves ``step_length_nominal_m * (swing / weinberg_nominal)`
 acceleration swing ``(a_max - a_min)^(1/4)``; the nominal length when the swing is unknown)
 along the gyroscope heading, turned onto the compass by the circular mean of the compass
 minus the gyroscope heading over the walk (the compass heading itself where a step has no
-gyroscope heading).
+gyroscope heading). When most steps carry their phone top edge up or down (a swinging hand, a
+pocket: :attr:`~localize.steps.AttitudeCode.CARRIED`), their compass is the walking axis,
+either way along it, and the rotations are searched around 180 deg as well as around 0.
 """
 
 from __future__ import annotations
