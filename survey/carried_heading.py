@@ -47,8 +47,8 @@ class CarriedHeadingParams:
         the eyes, stay below it; a hanging or pocketed phone, swinging +-35 deg, averages to
         a vertical ``y`` axis.
     window_steps : int
-        Trailing step cycles (steep ones count) whose accelerations give the walking
-        direction's angle to the reference axis.
+        Trailing step cycles whose accelerations give the walking axis's angle to the
+        reference axis (cycles that are not steep add nothing).
     """
 
     steep_deg: float = 20.0

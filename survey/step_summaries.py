@@ -8,8 +8,8 @@ processing on the survey side with the same building blocks as :mod:`survey.proc
 - compass heading of the phone at the middle of each step cycle from the rotation vector
   (:func:`survey.rotation.heading_deg`); on cycles where the phone's top edge points up or
   down (a swinging hand, a pocket) the walking axis instead
-  (:func:`survey.carried_heading.carried_heading_deg`), and the turn of each step from the gyroscope about the
-  vertical (:func:`survey.process.gyro_heading_deg`; the compass when there is no gyroscope);
+  (:func:`survey.carried_heading.carried_heading_deg`), and the turn of each step from the
+  gyroscope about the vertical (:func:`survey.process.gyro_heading_deg`; the compass when there is no gyroscope);
 - the magnetometer, calibrated as :func:`survey.process.calibrated_field` decides (device-
   calibrated stream first), rotated into the earth frame with the interpolated rotation vector;
   its features (:func:`survey.field_features.field_features`) averaged over each step cycle
@@ -183,8 +183,9 @@ def step_summaries(trace: Trace, params: StepSummaryParams = StepSummaryParams()
 
     compass = compass_track_deg(tid, rot_t, rot)
     compass_mid = np.mod(np.interp(mid, *compass), 360.0)
-    carried = carried_heading_deg(acc_t, acc_xyz, rot_t, rot, start, st, params.carried)
-    compass_mid = np.where(np.isfinite(carried), carried, compass_mid)
+    axis = carried_heading_deg(acc_t, acc_xyz, rot_t, rot, start, st, params.carried)
+    carried = np.isfinite(axis)
+    compass_mid[carried] = axis[carried]
     gyro = gyro_heading_deg(trace.sensors, rot_t, rot)
     if gyro is not None:
         rel_start = np.interp(start, *gyro)
@@ -224,7 +225,7 @@ def step_summaries(trace: Trace, params: StepSummaryParams = StepSummaryParams()
 
     att = classify_attitude(acc_t, acc_xyz, st, params.attitude)
     attitude = attitude_codes(att.attitude)
-    attitude[np.isfinite(carried)] = AttitudeCode.CARRIED  # their compass is an axis
+    attitude[carried] = AttitudeCode.CARRIED  # their compass is an axis
 
     scans = attach_scans(st, scans_of(trace, params.max_scan_age_ms))
     if params.include_ble:
