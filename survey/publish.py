@@ -303,12 +303,12 @@ def _journal_entries(parent: Path, moves: list[tuple[Path, Path]]) -> list[dict[
 
 def _staged_name(parent: Path, staged: Path) -> str:
     """How the journal names a staged folder: relative to ``parent``, ``/``-separated (also
-    on Windows), as :func:`_inside` accepts it; ValueError for a folder it cannot name."""
+    on Windows), as :func:`_temporary` accepts it; ValueError for a folder it cannot name."""
     try:
-        return _inside(Path(os.path.relpath(staged, parent)).as_posix())
+        return _temporary(Path(os.path.relpath(staged, parent)).as_posix())
     except ValueError:
         raise ValueError(f"replace_together: {staged} is not a staging folder in {parent} "
-                         "(one or two levels deep)") from None
+                         f"(one or two levels deep, in a {TMP_PREFIX}* temporary)") from None
 
 
 def _inside(name: object, depth: int = 2) -> str:
@@ -317,6 +317,22 @@ def _inside(name: object, depth: int = 2) -> str:
     parts = str(name).split("/")
     if not 0 < len(parts) <= depth or any(p in ("", ".", "..") or "\\" in p for p in parts):
         raise ValueError(f"unsafe path {name!r}")
+    return str(name)
+
+
+def _temporary(name: object, depth: int = 2) -> str:
+    """A journal's path to a staged or set-aside folder, checked: :func:`_inside`, and in a
+    ``TMP_PREFIX`` temporary, the only folders a publication deletes, so that a damaged or
+    tampered journal cannot delete an output (or anything else) in the folder."""
+    if not _inside(name, depth).startswith(TMP_PREFIX):
+        raise ValueError(f"{name!r} is not in a {TMP_PREFIX}* temporary")
+    return str(name)
+
+
+def _target(name: object) -> str:
+    """A journal's target, checked: one plain name, neither a temporary nor the journal."""
+    if _inside(name, depth=1).startswith(TMP_PREFIX) or name == JOURNAL_NAME:
+        raise ValueError(f"{name!r} cannot be a published output")
     return str(name)
 
 
@@ -368,8 +384,9 @@ def replace_together(moves: list[tuple[Path, Path]], *, overwrite: bool = False)
     parent = moves[0][1].parent
     if any(target.parent != parent for _, target in moves):
         raise ValueError("replace_together: every target must be in one folder")
-    for staged, _ in moves:
+    for staged, target in moves:
         _staged_name(parent, staged)  # the journal can name it
+        _target(target.name)
         if not staged.is_dir():
             raise PublishError(f"{staged}: nothing staged to publish")
     journal = parent / JOURNAL_NAME
@@ -446,9 +463,9 @@ def _read_journal(parent: Path) -> _Journal | None:
     try:
         record = json.loads(text)
         owner = str(record["owner"])
-        moves = [(parent / _inside(m["staged"]), parent / _inside(m["target"], depth=1),
+        moves = [(parent / _temporary(m["staged"]), parent / _target(m["target"]),
                   str(m["identity"])) for m in record["moves"]]
-        aside = parent / _inside(record["aside"], depth=1)
+        aside = parent / _temporary(record["aside"], depth=1)
         for first in {aside, *(parent / staged.relative_to(parent).parts[0]
                                for staged, _, _ in moves)}:
             if first.is_symlink():  # it would lead the moves and deletions elsewhere

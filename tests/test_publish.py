@@ -74,7 +74,7 @@ def test_replace_together_undoes_its_moves_when_one_fails(tmp_path):
     for name in ("a", "b"):
         (tmp_path / name).mkdir()
         (tmp_path / name / "v").write_text("old")
-    stage = tmp_path / "stage"
+    stage = tmp_path / ".tmp-stage"
     (stage / "a").mkdir(parents=True)
     (stage / "a" / "v").write_text("new")  # stage/b is missing: its move fails
     with pytest.raises(OSError):
@@ -86,7 +86,7 @@ def test_replace_together_undoes_its_moves_when_one_fails(tmp_path):
     replace_together([(stage / "a", tmp_path / "a"), (stage / "b", tmp_path / "b")],
                      overwrite=True)
     assert [(tmp_path / n / "v").read_text() for n in ("a", "b")] == ["new", "new"]
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "b", "stage"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".tmp-stage", "a", "b"]
 
 
 _KILLED_SET = """
@@ -96,7 +96,7 @@ import survey.publish as p
 if sys.argv[2] == "no-exchange":
     p.exchange_paths = lambda a, b: False
 root = Path(sys.argv[1])
-p.replace_together([(root / "stage" / n, root / n) for n in ("a", "b", "c")], overwrite=True)
+p.replace_together([(root / ".tmp-stage" / n, root / n) for n in ("a", "b", "c")], overwrite=True)
 """
 
 
@@ -104,8 +104,8 @@ def _old_set_and_staged_new(root):
     for name in ("a", "b", "c"):
         (root / name).mkdir()
         (root / name / "v").write_text("old")
-        (root / "stage" / name).mkdir(parents=True)
-        (root / "stage" / name / "v").write_text("new")
+        (root / ".tmp-stage" / name).mkdir(parents=True)
+        (root / ".tmp-stage" / name / "v").write_text("new")
 
 
 def _kill_replace_together(root, crash_at, mode="exchange"):
@@ -136,8 +136,7 @@ def test_a_set_of_moves_killed_midway_is_finished_by_the_next_writer(tmp_path, c
         assert seen.get("a") == "new" and seen.get("c") == "old"  # mixed until finished
     remove_stale_temporaries(tmp_path)
     assert [(tmp_path / n / "v").read_text() for n in "abc"] == ["new"] * 3
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "b", "c", "stage"]
-    assert not list((tmp_path / "stage").iterdir())
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "b", "c"]  # staging gone too
 
 
 def test_a_killed_set_of_bundles_is_finished_when_a_reader_opens_the_folder(tmp_path):
@@ -148,7 +147,7 @@ def test_a_killed_set_of_bundles_is_finished_when_a_reader_opens_the_folder(tmp_
 
     _old_set_and_staged_new(tmp_path)
     for n in "abc":  # make them bundle folders as far as bundle_dirs is concerned
-        for root in (tmp_path, tmp_path / "stage"):
+        for root in (tmp_path, tmp_path / ".tmp-stage"):
             (root / n / "manifest.json").write_text("{}")
     _kill_replace_together(tmp_path, "replace_together:after-0")
     assert [p.name for p in bundle_dirs(tmp_path)] == ["a", "b", "c"]
@@ -167,11 +166,11 @@ def test_a_journal_that_cannot_be_finished_is_reported(tmp_path):
 
     _old_set_and_staged_new(tmp_path)
     _kill_replace_together(tmp_path, "replace_together:after-0")
-    shutil.rmtree(tmp_path / "stage" / "c")
-    with pytest.raises(BundleError, match="interrupted and cannot be finished.*stage/c is gone"):
+    shutil.rmtree(tmp_path / ".tmp-stage" / "c")
+    with pytest.raises(BundleError, match="interrupted and cannot be finished.*tmp-stage/c is gone"):
         bundle_dirs(tmp_path)
     assert (tmp_path / "b" / "v").read_text() == "old"  # no move made when one cannot be
-    assert (tmp_path / "stage" / "b").is_dir()
+    assert (tmp_path / ".tmp-stage" / "b").is_dir()
     with pytest.warns(UserWarning, match="journal is removed"):
         remove_stale_temporaries(tmp_path)
     assert not (tmp_path / JOURNAL_NAME).exists()
@@ -184,9 +183,9 @@ def test_the_journal_of_a_live_process_is_left_alone(tmp_path):
 
     _old_set_and_staged_new(tmp_path)
     (tmp_path / JOURNAL_NAME).write_text(json.dumps({
-        "format": 1, "owner": tmp_prefix(""), "aside": "x",
-        "moves": [{"staged": "stage/a", "target": "a",
-                   "identity": folder_identity(tmp_path / "stage" / "a")}]}))
+        "format": 1, "owner": tmp_prefix(""), "aside": ".tmp-x",
+        "moves": [{"staged": ".tmp-stage/a", "target": "a",
+                   "identity": folder_identity(tmp_path / ".tmp-stage" / "a")}]}))
     assert not finish_interrupted_publication(tmp_path)  # this process: still at work
     assert (tmp_path / "a" / "v").read_text() == "old"
     (tmp_path / JOURNAL_NAME).write_text("{not json")
@@ -226,7 +225,7 @@ def test_a_tampered_journal_cannot_move_or_delete_outside_its_folder(tmp_path):
     (victim / "keep").write_text("x")
     out = tmp_path / "out"
     out.mkdir()
-    for staged, target, aside in (("../victim", "a", ".tmp-1-x-"), ("stage/a", "../victim",
+    for staged, target, aside in (("../victim", "a", ".tmp-1-x-"), (".tmp-stage/a", "../victim",
                                   ".tmp-1-x-"), (".tmp-1-x-/a", "a", "../victim"),
                                   ("/abs", "a", ".tmp-1-x-"), ("stage/../../victim", "a", "x")):
         (out / JOURNAL_NAME).write_text(json.dumps({
@@ -250,16 +249,16 @@ def test_a_staged_folder_is_known_by_its_files_not_its_inode(tmp_path):
     _old_set_and_staged_new(tmp_path)
     _kill_replace_together(tmp_path, "replace_together:after-0")
     for n in "bc":  # what a remount does to the inode numbers
-        shutil.copytree(tmp_path / "stage" / n, tmp_path / "stage" / f"{n}2")
-        shutil.rmtree(tmp_path / "stage" / n)
-        os.replace(tmp_path / "stage" / f"{n}2", tmp_path / "stage" / n)
+        shutil.copytree(tmp_path / ".tmp-stage" / n, tmp_path / ".tmp-stage" / f"{n}2")
+        shutil.rmtree(tmp_path / ".tmp-stage" / n)
+        os.replace(tmp_path / ".tmp-stage" / f"{n}2", tmp_path / ".tmp-stage" / n)
     assert finish_interrupted_publication(tmp_path)
     assert [(tmp_path / n / "v").read_text() for n in "abc"] == ["new"] * 3
 
     (tmp_path / "again").mkdir()
     _old_set_and_staged_new(tmp_path / "again")
     _kill_replace_together(tmp_path / "again", "replace_together:after-0")
-    (tmp_path / "again" / "stage" / "c" / "v").write_text("other")  # not what was staged
+    (tmp_path / "again" / ".tmp-stage" / "c" / "v").write_text("other")  # not what was staged
     with pytest.raises(PublishError, match="stage/c is gone"):
         finish_interrupted_publication(tmp_path / "again")
 
@@ -273,7 +272,7 @@ def test_an_old_target_with_the_staged_folders_names_sizes_and_times_is_not_take
     from survey.publish import remove_stale_temporaries
 
     _old_set_and_staged_new(tmp_path)  # "old" and "new": same name, same size
-    for root in (tmp_path, tmp_path / "stage"):
+    for root in (tmp_path, tmp_path / ".tmp-stage"):
         for n in "abc":
             os.utime(root / n / "v", ns=(1_700_000_000_000_000_000,) * 2)
     _kill_replace_together(tmp_path, "replace_together:after-0")

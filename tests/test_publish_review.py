@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 
-def _old_set_and_staged_new(root: Path, names: str = "abc", stage: str = "stage") -> None:
+def _old_set_and_staged_new(root: Path, names: str = "abc", stage: str = ".tmp-stage") -> None:
     for name in names:
         (root / name).mkdir()
         (root / name / "v").write_text("old")
@@ -46,13 +46,13 @@ def test_a_move_failing_after_its_old_target_went_aside_keeps_the_old_target(
     real = os.replace
 
     def failing(src, dst):
-        if Path(src) == tmp_path / "stage" / "b":
+        if Path(src) == tmp_path / ".tmp-stage" / "b":
             raise OSError(errno.EIO, "injected")
         return real(src, dst)
 
     monkeypatch.setattr(os, "replace", failing)
     with pytest.raises(OSError, match="injected"):
-        replace_together([(tmp_path / "stage" / n, tmp_path / n) for n in "ab"],
+        replace_together([(tmp_path / ".tmp-stage" / n, tmp_path / n) for n in "ab"],
                          overwrite=True)
     monkeypatch.setattr(os, "replace", real)
     assert _contents(tmp_path, "ab") == ["old", "old"]
@@ -167,7 +167,7 @@ def slow(new, target, aside):
     return real(new, target, aside)
 p._swap_in = slow
 root = Path(sys.argv[1])
-p.replace_together([(root / "stage1" / n, root / n) for n in "ab"], overwrite=True)
+p.replace_together([(root / ".tmp-stage1" / n, root / n) for n in "ab"], overwrite=True)
 """
 
 
@@ -176,16 +176,16 @@ def test_two_writers_into_one_folder_take_turns(tmp_path):
     its journal over the first's and removed it when done: the first then failed on its own
     journal (FileNotFoundError after its moves), and a kill of it would have left its set
     mixed with no journal to finish it."""
-    _old_set_and_staged_new(tmp_path, "ab", "stage1")
-    (tmp_path / "stage2" / "c").mkdir(parents=True)
-    (tmp_path / "stage2" / "c" / "v").write_text("new")
+    _old_set_and_staged_new(tmp_path, "ab", ".tmp-stage1")
+    (tmp_path / ".tmp-stage2" / "c").mkdir(parents=True)
+    (tmp_path / ".tmp-stage2" / "c" / "v").write_text("new")
     first = subprocess.Popen([sys.executable, "-c", _SLOW_WRITER, str(tmp_path)],
                              cwd=ROOT, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 20
     while not (tmp_path / JOURNAL_NAME).exists():  # the first is among its moves
         assert first.poll() is None and time.monotonic() < deadline
         time.sleep(0.01)
-    replace_together([(tmp_path / "stage2" / "c", tmp_path / "c")])
+    replace_together([(tmp_path / ".tmp-stage2" / "c", tmp_path / "c")])
     assert first.wait(20) == 0, first.stderr.read()
     assert _contents(tmp_path) == ["new"] * 3
     assert not (tmp_path / JOURNAL_NAME).exists()
@@ -205,9 +205,9 @@ def test_without_a_lock_a_second_writer_refuses_a_live_writers_journal(tmp_path,
             "moves": pub._journal_entries(tmp_path, [
                 (tmp_path / ".tmp-live" / n, tmp_path / n) for n in "ab"])})
         (tmp_path / JOURNAL_NAME).write_text(journal)
-        (tmp_path / "stage" / "c").mkdir(parents=True)
+        (tmp_path / ".tmp-stage" / "c").mkdir(parents=True)
         with pytest.raises(PublishError, match="is publishing there"):
-            replace_together([(tmp_path / "stage" / "c", tmp_path / "c")])
+            replace_together([(tmp_path / ".tmp-stage" / "c", tmp_path / "c")])
         assert (tmp_path / JOURNAL_NAME).read_text() == journal
     finally:
         live.kill()
@@ -258,7 +258,7 @@ def test_a_staging_folder_the_journal_cannot_name_is_refused_before_any_move(tmp
     (tmp_path / "out").mkdir()
     _old_set_and_staged_new(tmp_path / "out", "ab", "deep/stage")
     with pytest.raises(ValueError, match="staging"):
-        replace_together([(tmp_path / "out" / "deep" / "stage" / n, tmp_path / "out" / n)
+        replace_together([(tmp_path / "out" / "deep" / ".tmp-stage" / n, tmp_path / "out" / n)
                           for n in "ab"], overwrite=True)
     assert _contents(tmp_path / "out", "ab") == ["old", "old"]
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["a", "b", "deep"]
@@ -329,15 +329,15 @@ def test_a_journal_cannot_reach_outside_its_folder_through_a_link(tmp_path, link
     out = tmp_path / "out"
     for n in "ab":
         (out / n).mkdir(parents=True)
-    (out / "staged-b").mkdir()
+    (out / ".tmp-1-x-staged-b").mkdir()
     if linked == "staged":
         os.symlink(victim, out / ".tmp-1-x-stage")
         moves = [{"staged": ".tmp-1-x-stage/F1", "target": "a",
                   "identity": folder_identity(out / "a")}]
         aside = ".tmp-1-x-aside"
     else:
-        moves = [{"staged": "staged-b", "target": "b",
-                  "identity": folder_identity(out / "staged-b")}]
+        moves = [{"staged": ".tmp-1-x-staged-b", "target": "b",
+                  "identity": folder_identity(out / ".tmp-1-x-staged-b")}]
         aside = ".tmp-1-x-aside"
         os.symlink(victim, out / aside)
     (out / JOURNAL_NAME).write_text(json.dumps({
@@ -384,9 +384,9 @@ def test_a_journal_whose_pid_now_belongs_to_another_process_is_finished(tmp_path
     try:
         def journal(started):
             (tmp_path / JOURNAL_NAME).write_text(json.dumps({
-                "format": 1, "owner": f"{other.pid}-0badc0des{started}-", "aside": "aside",
-                "moves": [{"staged": f"stage/{n}", "target": n,
-                           "identity": folder_identity(tmp_path / "stage" / n)}
+                "format": 1, "owner": f"{other.pid}-0badc0des{started}-", "aside": ".tmp-aside",
+                "moves": [{"staged": f".tmp-stage/{n}", "target": n,
+                           "identity": folder_identity(tmp_path / ".tmp-stage" / n)}
                           for n in "abc"]}))
 
         journal(pub._start_mark(other.pid))  # its writer: at work, left alone
@@ -405,7 +405,7 @@ def _killed_bundle_set(root: Path, crash_at: str) -> None:
 
     _old_set_and_staged_new(root)
     for n in "abc":  # bundle folders as far as bundle_dirs is concerned
-        for folder in (root, root / "stage"):
+        for folder in (root, root / ".tmp-stage"):
             (folder / n / "manifest.json").write_text("{}")
     res = subprocess.run([sys.executable, "-c", _KILLED_SET, str(root), "exchange"],
                          env={**os.environ, "INDOORMAP_CRASH_AT": crash_at}, cwd=ROOT,
@@ -441,3 +441,31 @@ def test_a_finished_set_in_a_folder_that_cannot_be_written_is_read_as_it_is(tmp_
     with pytest.raises(BundleError, match="cannot be finished.*Read-only file system"):
         bundle_dirs(half)
     assert _contents(half) == ["new", "old", "old"]
+
+
+@pytest.mark.parametrize("field", ["staged", "aside", "target"])
+def test_a_tampered_journal_cannot_delete_an_output_in_its_folder(tmp_path, field):
+    """Session 29: the journal's names were only kept inside OUT, so a journal naming a
+    published bundle (F1) as a staged folder, whose identity it copied, had the finisher take
+    the set for whole and delete F1; naming F1 as the aside folder deleted it too. Staged
+    and aside folders must be ``.tmp-`` temporaries now, and a target cannot be one."""
+    out = tmp_path / "out"
+    for n in ("F1", "F2"):
+        (out / n).mkdir(parents=True)
+        (out / n / "manifest.json").write_text(n)
+    (out / ".tmp-1-x-stage" / "F2").mkdir(parents=True)
+    staged, target, aside = ".tmp-1-x-stage/F2", "F2", ".tmp-1-x-aside"
+    identity = folder_identity(out / "F2")  # the move looks made: staged folders are deleted
+    if field == "staged":
+        staged = "F1"
+    elif field == "aside":
+        aside = "F1"
+    else:
+        target = ".tmp-1-x-stage"
+    (out / JOURNAL_NAME).write_text(json.dumps({
+        "format": 1, "owner": "4194304-dead-", "aside": aside,
+        "moves": [{"staged": staged, "target": target, "identity": identity}]}))
+    with pytest.raises(PublishError, match="damaged publication journal"):
+        finish_interrupted_publication(out)
+    assert [(out / n / "manifest.json").read_text() for n in ("F1", "F2")] == ["F1", "F2"]
+    assert (out / ".tmp-1-x-stage" / "F2").is_dir()
