@@ -102,7 +102,11 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
       recorded_floor  the floor the trace file names (empty if none)
       kind            the model used: wifi (scans) or ble (BLE windows)
     """
+    from localize.bundle import bundle_dirs, is_bundle_dir
     from localize.floor_classifier import site_floor_models
+    from localize.floors import SiteMaps, unknown_phone_calibration
+
+    from mapping.registry import SITE_BUNDLE
 
     site = _site_bundle(site_path)
     models = site_floor_models(site)
@@ -119,6 +123,10 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
     failures = WalkFailures()
 
     devices, window_ms = device_table(site), ble_window_ms(site)
+    # beside floor bundles (a build's OUT), a phone the device table does not know is
+    # calibrated online against them, as localize does (SiteMaps.choose)
+    floor_maps = SiteMaps.open(site_path) if not is_bundle_dir(site_path) and any(
+        d.name != SITE_BUNDLE for d in bundle_dirs(site_path)) else None
     tried_auto = [k for k in ("wifi", "ble") if k in models]
     # auto: Wi-Fi when it classifies a scan, else BLE; BLE first when the Wi-Fi model lacks
     # floors and BLE puts the walk on one of them, as SiteMaps.choose
@@ -138,8 +146,15 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
             if k not in classified:
                 model = models[k]
                 scans = _scans(trace, k, window_ms)
-                rssi = model.scan_matrix(scans, devices.get(trace.header.model or "")
-                                         if k == "wifi" else None)
+                cal = devices.get(trace.header.model or "") if k == "wifi" else None
+                if k == "wifi" and cal is None and floor_maps is not None:
+                    cal = unknown_phone_calibration(model, [s for s in scans if s is not None],
+                                                    floor_maps.floor_bundle)
+                    if cal is not None:
+                        click.echo(f"{trace.trace_id}: phone {trace.header.model or '?'} not in "
+                                   f"the device table; Wi-Fi RSSI calibrated online, "
+                                   f"k={cal[0]:.3f}, b={cal[1]:+.1f} dB", err=True)
+                rssi = model.scan_matrix(scans, cal)
                 lp = model.log_proba(rssi)
                 classified[k] = model, scans, rssi, lp, np.isfinite(lp).all(axis=1)
             return classified[k]
