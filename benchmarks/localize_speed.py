@@ -37,7 +37,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from localize.bundle import Grid, load_bundle
-from localize.engine import MultiUserEngine
+from localize.engine import MultiUserEngine, RadioFixes
 from localize.filter import Localizer
 from localize.params import FilterParams
 from localize.particles import observe
@@ -141,11 +141,14 @@ def per_step_times(bundle, n: int, mode: str, steps: list[StepSummary], repeats:
     return t_update, t_step
 
 
-def engine_users_per_core(bundle, users: int, ticks: int, dtype) -> tuple[float, float, float]:
+def engine_users_per_core(bundle, users: int, ticks: int, dtype, fix_every: int = 0
+                          ) -> tuple[float, float, float]:
     """(tick seconds, users per core at the step period, bytes per user).
 
     Users walk east or west along the east-west corridors (0.62 m steps), their observed
-    strength is the map's at their true position plus noise."""
+    strength is the map's at their true position plus noise. With ``fix_every`` > 0 every
+    user also gets a radio fix (true position plus 4 m noise per axis) at one tick in
+    ``fix_every``, staggered across users (a Wi-Fi scan every 2 s is one step in three)."""
     p = FilterParams(n_particles=300, n_particles_start=0)
     eng = MultiUserEngine(bundle, p, rng=0, dtype=dtype)
     rng = np.random.default_rng(1)
@@ -155,16 +158,25 @@ def engine_users_per_core(bundle, users: int, ticks: int, dtype) -> tuple[float,
     eng.add_users(np.column_stack([x, y]))
     off = bundle.sample("heading_offset", x, y)
 
+    phase = np.arange(users) % max(fix_every, 1)
+    count = [0]
+
     def tick():
         nonlocal x
         x = x + np.where(east, 0.62, -0.62)
+        fixes = None
+        if fix_every:
+            has = phase == count[0] % fix_every
+            count[0] += 1
+            fixes = RadioFixes(np.where(has, x + rng.normal(0, 4, users), np.nan),
+                               np.where(has, y + rng.normal(0, 4, users), np.nan))
         inp = StepInputs(compass_deg=(np.where(east, 90.0, 270.0) + off
                                       + rng.normal(0, 3, users)) % 360.0,
                          frequency_hz=np.full(users, 1.6), turn_deg=np.zeros(users),
                          strength_ut=bundle.sample("strength", x, y) + rng.normal(0, 0.6, users),
                          azimuth_deg=np.zeros(users), polar_deg=np.full(users, 133.0),
                          attitude=np.full(users, int(AttitudeCode.UFH)))
-        eng.tick(None, inp)
+        eng.tick(None, inp, fixes)
 
     tick()
     t = _median_time(tick, ticks)
@@ -198,14 +210,17 @@ def main(argv=None) -> None:
                   f"{du / mu:>5.0f}x {du / m3:>5.0f}x   {ms * 1e3:>8.3f} {ds * 1e3:>9.2f} "
                   f"{ds / ms:>5.0f}x")
         print(f"\nMulti-user engine, N = 300 particles per user, step period {STEP_PERIOD_S} s")
-        print(f"{'users':>7} {'dtype':>8} {'tick ms':>9} {'us/user-step':>13} "
+        print("(radio: none, or a fix for every user every third step, as Wi-Fi scans every "
+              "2 s)")
+        print(f"{'users':>7} {'dtype':>8} {'radio':>6} {'tick ms':>9} {'us/user-step':>13} "
               f"{'users/core':>11} {'KB/user':>8}")
         sizes = (300, 1000) if args.quick else (300, 1000, 3000)
         for users in sizes:
-            for dtype in (np.float32, np.float64):
+            for dtype, fix_every in ((np.float32, 0), (np.float32, 3), (np.float64, 0)):
                 t, upc, b = engine_users_per_core(bundle, users, 5 if args.quick else 15,
-                                                  dtype)
-                print(f"{users:>7} {np.dtype(dtype).name:>8} {t * 1e3:>9.1f} "
+                                                  dtype, fix_every)
+                print(f"{users:>7} {np.dtype(dtype).name:>8} "
+                      f"{'1/3' if fix_every else '-':>6} {t * 1e3:>9.1f} "
                       f"{t / users * 1e6:>13.1f} {upc:>11.0f} {b / 1024:>8.1f}")
         print(f"\n(map rasters are shared by all users of a floor: {bundle.grid.width} x "
               f"{bundle.grid.height} cells)")

@@ -169,11 +169,11 @@ def radio_update(st: ParticleState, row: int, radio: RadioModel, scan: RadioScan
     return True
 
 
-def position_update(st: ParticleState, row: int, x_m: float, y_m: float, sigma_m: float,
-                    outlier: float) -> None:
+def position_update(st: ParticleState, row: int | NDArray[np.intp], x_m: float | NDArray,
+                    y_m: float | NDArray, sigma_m: float | NDArray, outlier: float) -> None:
     """Multiply row ``row``'s weights by a Gaussian of SD ``sigma_m`` (m) around the position
     ``(x_m, y_m)`` (m), mixed with a uniform share ``outlier`` (a wrong position does not kill
-    the particles)."""
+    the particles). Several rows at once: ``row`` of shape (k,) and the others (k, 1)."""
     x, y = st.x[row], st.y[row]
     g = np.exp(-((x - x_m) ** 2 + (y - y_m) ** 2) / (2.0 * sigma_m * sigma_m))
     st.w[row] = st.w[row] * ((1.0 - outlier) * g + outlier)

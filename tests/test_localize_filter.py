@@ -304,3 +304,53 @@ def test_step_errors_needs_one_true_position_per_step():
     np.testing.assert_allclose(step_errors(track, [[0, 0], [1, 1], [2, 0]]), [0, 1, 0])
     with pytest.raises(ValueError, match="1 true positions for a track of 3 steps"):
         step_errors(track, [[0.0, 0.0]])  # before: broadcast against every step
+
+
+def test_engine_radio_fixes_bring_wrongly_started_users_back(f1_bundle, sim_walks):  # noqa: F811
+    """Session 29: the multi-user engine had no radio input, so a server could only start its
+    users where it was told and never correct them. Users started 10 m off their true start
+    (a wrong Wi-Fi fix) now come back with unbiased 3 m fixes every fourth step (the
+    Gaussian update and the re-seeding around far fixes, as the single-user filter with a
+    radio model that only locates); without fixes they stay lost. A tick whose fixes are all
+    NaN is the tick without fixes, to the bit."""
+    from localize.engine import RadioFixes
+
+    walks = _f1(sim_walks)
+    n = min(len(v.steps) for v in walks)
+    cols = ["compass_deg", "frequency_hz", "turn_deg", "strength_ut", "azimuth_deg",
+            "polar_deg", "attitude"]
+    rng = np.random.default_rng(5)
+    angle = rng.uniform(0, 2 * np.pi, len(walks))
+    starts = np.array([v.true_xy[0] for v in walks]) + 10.0 * np.column_stack(
+        [np.cos(angle), np.sin(angle)])
+    true = np.stack([v.true_xy[:n] for v in walks])  # (users, steps, 2)
+    noisy = true + rng.normal(0.0, 3.0, true.shape)
+
+    def run(with_fixes: bool, nan_fixes: bool = False) -> np.ndarray:
+        p = FilterParams(n_particles_start=0, init_half_width_m=3.0)
+        eng = MultiUserEngine(f1_bundle, p, rng=3)
+        ids = eng.add_users(starts)
+        est = []
+        for i in range(n):
+            inp = StepInputs(*(np.array([getattr(v.steps, c)[i] for v in walks]) for c in cols))
+            fixes = None
+            if with_fixes and i % 4 == 0:
+                fixes = RadioFixes(noisy[:, i, 0], noisy[:, i, 1], np.full(len(walks), 3.0))
+            elif nan_fixes:
+                fixes = RadioFixes(np.full(len(walks), np.nan), np.full(len(walks), np.nan))
+            out = eng.tick(ids, inp, fixes)
+            est.append(np.column_stack([out.x_m, out.y_m]))
+        err = np.hypot(*(np.stack(est, axis=1) - true).transpose(2, 0, 1))
+        return err[:, n // 2:]  # the second half of every walk
+
+    lost, found = run(False), run(True)
+    assert (np.median(found, axis=1) < 1.5).all()  # 0.3-0.5 m
+    assert (np.median(lost, axis=1) > 5.0).sum() >= 4  # 5 of 6 stay 8-12 m off
+    np.testing.assert_array_equal(run(False, nan_fixes=True), lost)
+    eng = MultiUserEngine(f1_bundle, FilterParams(n_particles_start=0), rng=3)
+    ids = eng.add_users(starts[:2])
+    before = eng.state.x.copy()
+    inp = StepInputs(*(np.array([getattr(v.steps, c)[0] for v in walks[:2]]) for c in cols))
+    with pytest.raises(LocalizationError, match=r"radio fixes y_m has shape \(3,\)"):
+        eng.tick(ids, inp, RadioFixes(np.zeros(2), np.zeros(3)))
+    np.testing.assert_array_equal(eng.state.x, before)
