@@ -37,7 +37,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from localize.bundle import Grid, load_bundle
-from localize.engine import MultiUserEngine, RadioFixes
+from localize.engine import MultiUserEngine
 from localize.filter import Localizer
 from localize.params import FilterParams
 from localize.particles import observe
@@ -168,8 +168,8 @@ def engine_users_per_core(bundle, users: int, ticks: int, dtype, fix_every: int 
         if fix_every:
             has = phase == count[0] % fix_every
             count[0] += 1
-            fixes = RadioFixes(np.where(has, x + rng.normal(0, 4, users), np.nan),
-                               np.where(has, y + rng.normal(0, 4, users), np.nan))
+            fixes = np.where(has[:, None], np.column_stack([x, y])
+                             + rng.normal(0, 4, (users, 2)), np.nan)
         inp = StepInputs(compass_deg=(np.where(east, 90.0, 270.0) + off
                                       + rng.normal(0, 3, users)) % 360.0,
                          frequency_hz=np.full(users, 1.6), turn_deg=np.zeros(users),

@@ -13,7 +13,7 @@ compares per-user raw sequences and stays single-user). Radio fixes (a Wi-Fi or 
 per user, located by the caller, e.g. with the bundle's
 :class:`~localize.fingerprint_positioner.FingerprintPositioner`) update and re-seed the users
 that have one, as the single-user filter does with the default distance rule
-(:class:`RadioFixes`).
+(:meth:`MultiUserEngine.tick`).
 
 Examples
 --------
@@ -24,7 +24,7 @@ Examples
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import fields
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -38,25 +38,7 @@ from localize.particles import ParticleState, estimate, init_state, inject, need
 from localize.stepper import StepInputs, StepOutputs, advance
 from localize.update import position_update
 
-__all__ = ["MultiUserEngine", "RadioFixes"]
-
-
-@dataclass(frozen=True)
-class RadioFixes:
-    """Radio fixes of the users of a tick, arrays of shape (u,) in the tick's user order.
-
-    Attributes
-    ----------
-    x_m, y_m : ndarray
-        Fix position (m, map frame); NaN for a user without a fix at this step.
-    sigma_m : ndarray, optional
-        The fix's accuracy (m, e.g. ``RadioFix.sigma_m``); NaN or absent: the filter's
-        ``radio_sigma_floor_m``. Smaller values are raised to it.
-    """
-
-    x_m: NDArray[np.float64]
-    y_m: NDArray[np.float64]
-    sigma_m: NDArray[np.float64] | None = None
+__all__ = ["MultiUserEngine"]
 
 
 class MultiUserEngine:
@@ -154,7 +136,8 @@ class MultiUserEngine:
 
     # -- ticks ----------------------------------------------------------------------------
     def tick(self, ids: ArrayLike | None, inputs: StepInputs,
-             fixes: RadioFixes | None = None) -> StepOutputs:
+             fix_xy_m: ArrayLike | None = None, fix_sigma_m: ArrayLike | None = None
+             ) -> StepOutputs:
         """Advance the users ``ids`` (all users when None) by one step each.
 
         Parameters
@@ -163,14 +146,19 @@ class MultiUserEngine:
             Users that took a step since the last tick.
         inputs : StepInputs
             Their step summaries, arrays of shape (k,) in the order of ``ids``.
-        fixes : RadioFixes, optional
-            Their radio fixes at this step (NaN: none). A user with one has its weights
-            multiplied by a Gaussian around it (``max(sigma_m, radio_sigma_floor_m)``, mixed
-            with a uniform share ``radio_outlier``) when ``params.radio_update``, and, when the
-            fix is ``radio_inject_distance_m`` or more from its last estimate, a share
+        fix_xy_m : array_like (k, 2), optional
+            Their radio fixes at this step (m, map frame; NaN rows: no fix), e.g. the
+            ``xy_m`` of :meth:`FingerprintPositioner.locate_scans
+            <localize.fingerprint_positioner.FingerprintPositioner.locate_scans>` over one
+            scan or None per user. A user with one has its weights multiplied by a Gaussian
+            around it (SD ``max(fix_sigma_m, radio_sigma_floor_m)``, mixed with a uniform share
+            ``radio_outlier``) when ``params.radio_update``, and, when the fix is
+            ``radio_inject_distance_m`` or more from its last estimate, a share
             ``radio_inject_fraction`` of its particles re-drawn around it: the single-user
             filter's update with a radio model that only locates (its ``"fit"`` rule and
             ``radio_guide="align"`` are single-user).
+        fix_sigma_m : array_like (k,), optional
+            The fixes' accuracy (m; NaN or absent: ``radio_sigma_floor_m``).
 
         Returns
         -------
@@ -183,10 +171,13 @@ class MultiUserEngine:
             ids = np.asarray(ids, dtype=np.int64).ravel()
             if len(np.unique(ids)) != len(ids):
                 raise LocalizationError("a user id appears twice in one tick")
-        _check_inputs(inputs, self.user_ids if ids is None else ids, fixes)
+        users = self.user_ids if ids is None else ids
+        _check_inputs(inputs, users)
+        fixes = None if fix_xy_m is None else _checked_fixes(fix_xy_m, fix_sigma_m, len(users),
+                                                            self.params.radio_sigma_floor_m)
         rows = slice(None) if ids is None else self.rows_of(ids)
         last = self.last_xy[rows]
-        extra = None if fixes is None else (lambda st: self._fix_update(st, fixes, last))
+        extra = None if fixes is None else (lambda st: self._fix_update(st, *fixes, last))
         if ids is None:
             out = advance(self.state, self.fmap, self.params, self.rng, inputs, last,
                           self.consecutive, extra_update=extra)
@@ -202,21 +193,17 @@ class MultiUserEngine:
         return out
 
 
-    def _fix_update(self, st: ParticleState, fixes: RadioFixes,
-                    last_xy: NDArray[np.float64]) -> None:
-        """The radio update of :meth:`tick` on the tick's rows ``st`` (their last estimates
-        ``last_xy``, shape (k, 2))."""
+    def _fix_update(self, st: ParticleState, fix_xy: NDArray[np.float64],
+                    sigma: NDArray[np.float64], last_xy: NDArray[np.float64]) -> None:
+        """The radio update of :meth:`tick` on the tick's rows ``st``: fixes (k, 2) (m; NaN:
+        none), their SDs (k,) (m) and the rows' last estimates (k, 2)."""
         p = self.params
-        fx = np.asarray(fixes.x_m, dtype=np.float64).reshape(-1)
-        fy = np.asarray(fixes.y_m, dtype=np.float64).reshape(-1)
-        sig = np.full(len(fx), np.nan) if fixes.sigma_m is None else \
-            np.asarray(fixes.sigma_m, dtype=np.float64).reshape(-1)
-        sig = np.fmax(sig, p.radio_sigma_floor_m)  # NaN: the floor
-        rows = np.flatnonzero(np.isfinite(fx) & np.isfinite(fy))
+        rows = np.flatnonzero(np.isfinite(fix_xy).all(axis=1))
         if rows.size == 0:
             return
+        fx, fy = fix_xy[:, 0], fix_xy[:, 1]
         if p.radio_update:  # one vectorized update over every user with a fix
-            position_update(st, rows, fx[rows, None], fy[rows, None], sig[rows, None],
+            position_update(st, rows, fx[rows, None], fy[rows, None], sigma[rows, None],
                             p.radio_outlier)
         if p.radio_inject_fraction > 0:  # rare (far fixes): one user at a time
             far = rows[np.hypot(fx[rows] - last_xy[rows, 0], fy[rows] - last_xy[rows, 1])
@@ -224,21 +211,37 @@ class MultiUserEngine:
             for r in far:
                 inject(st, self.fmap, p, self.rng, int(r), p.radio_inject_fraction,
                        (fx[r], fy[r]), max(p.radio_sigma_floor_m,
-                                           p.init_from_fix_scale * float(sig[r])))
+                                           p.init_from_fix_scale * float(sigma[r])))
 
 
-def _check_inputs(inputs: StepInputs, ids: NDArray[np.int64],
-                  fixes: RadioFixes | None = None) -> None:
-    """Every array of ``inputs`` (and ``fixes``) one value per user of ``ids``, and a finite
-    compass heading for each: checked before any state moves, so that one bad user cannot
-    leave the others half advanced."""
+def _checked_fixes(fix_xy_m: ArrayLike, fix_sigma_m: ArrayLike | None, k: int,
+                   floor_m: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Fixes as (k, 2) and their SDs as (k,) (NaN or absent: ``floor_m``; raised to it), or a
+    LocalizationError before anyone moves."""
+    xy = np.asarray(fix_xy_m, dtype=np.float64)
+    if xy.shape == (2,) and k == 1:
+        xy = xy.reshape(1, 2)
+    if xy.shape != (k, 2):
+        raise LocalizationError(f"fix_xy_m has shape {xy.shape}, expected ({k}, 2): one fix "
+                                "(or a NaN row) per user")
+    sigma = np.full(k, np.nan) if fix_sigma_m is None else \
+        np.asarray(fix_sigma_m, dtype=np.float64).reshape(-1)
+    if sigma.shape != (k,):
+        raise LocalizationError(f"fix_sigma_m has {sigma.size} values, expected {k}: one per "
+                                "user")
+    return xy, np.fmax(sigma, floor_m)  # NaN: the floor
+
+
+def _check_inputs(inputs: StepInputs, ids: NDArray[np.int64]) -> None:
+    """Every array of ``inputs`` one value per user of ``ids``, and a finite compass heading
+    for each: checked before any state moves, so that one bad user cannot leave the others
+    half advanced."""
     shapes = [(len(ids),)] + ([()] if len(ids) == 1 else [])  # one user: scalars too
-    for what, given in (("tick input", inputs), ("radio fixes", fixes)):
-        for f in fields(given) if given is not None else ():
-            values = getattr(given, f.name)
-            if values is not None and np.shape(values) not in shapes:
-                raise LocalizationError(f"{what} {f.name} has shape {np.shape(values)}, "
-                                        f"expected ({len(ids)},): one value per user")
+    for f in fields(inputs):
+        values = getattr(inputs, f.name)
+        if values is not None and np.shape(values) not in shapes:
+            raise LocalizationError(f"tick input {f.name} has shape {np.shape(values)}, "
+                                    f"expected ({len(ids)},): one value per user")
     bad = ~np.isfinite(np.asarray(inputs.compass_deg, dtype=float).reshape(-1))
     if bad.any():
         raise LocalizationError(f"users {ids[bad][:10].tolist()}: no compass heading "

@@ -313,8 +313,6 @@ def test_engine_radio_fixes_bring_wrongly_started_users_back(f1_bundle, sim_walk
     Gaussian update and the re-seeding around far fixes, as the single-user filter with a
     radio model that only locates); without fixes they stay lost. A tick whose fixes are all
     NaN is the tick without fixes, to the bit."""
-    from localize.engine import RadioFixes
-
     walks = _f1(sim_walks)
     n = min(len(v.steps) for v in walks)
     cols = ["compass_deg", "frequency_hz", "turn_deg", "strength_ut", "azimuth_deg",
@@ -333,12 +331,12 @@ def test_engine_radio_fixes_bring_wrongly_started_users_back(f1_bundle, sim_walk
         est = []
         for i in range(n):
             inp = StepInputs(*(np.array([getattr(v.steps, c)[i] for v in walks]) for c in cols))
-            fixes = None
             if with_fixes and i % 4 == 0:
-                fixes = RadioFixes(noisy[:, i, 0], noisy[:, i, 1], np.full(len(walks), 3.0))
+                out = eng.tick(ids, inp, noisy[:, i], np.full(len(walks), 3.0))
             elif nan_fixes:
-                fixes = RadioFixes(np.full(len(walks), np.nan), np.full(len(walks), np.nan))
-            out = eng.tick(ids, inp, fixes)
+                out = eng.tick(ids, inp, np.full((len(walks), 2), np.nan))
+            else:
+                out = eng.tick(ids, inp)
             est.append(np.column_stack([out.x_m, out.y_m]))
         err = np.hypot(*(np.stack(est, axis=1) - true).transpose(2, 0, 1))
         return err[:, n // 2:]  # the second half of every walk
@@ -351,6 +349,10 @@ def test_engine_radio_fixes_bring_wrongly_started_users_back(f1_bundle, sim_walk
     ids = eng.add_users(starts[:2])
     before = eng.state.x.copy()
     inp = StepInputs(*(np.array([getattr(v.steps, c)[0] for v in walks[:2]]) for c in cols))
-    with pytest.raises(LocalizationError, match=r"radio fixes y_m has shape \(3,\)"):
-        eng.tick(ids, inp, RadioFixes(np.zeros(2), np.zeros(3)))
-    np.testing.assert_array_equal(eng.state.x, before)
+    for call, match in [(lambda: eng.tick(ids, inp, np.zeros((3, 2))),
+                         r"fix_xy_m has shape \(3, 2\), expected \(2, 2\)"),
+                        (lambda: eng.tick(ids, inp, np.zeros((2, 2)), np.ones(3)),
+                         "fix_sigma_m has 3 values, expected 2")]:
+        with pytest.raises(LocalizationError, match=match):
+            call()
+        np.testing.assert_array_equal(eng.state.x, before)
