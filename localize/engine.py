@@ -192,7 +192,6 @@ class MultiUserEngine:
         self.n_recoveries[rows] += out.recovered
         return out
 
-
     def _fix_update(self, st: ParticleState, fix_xy: NDArray[np.float64],
                     sigma: NDArray[np.float64], last_xy: NDArray[np.float64]) -> None:
         """The radio update of :meth:`tick` on the tick's rows ``st``: fixes (k, 2) (m; NaN:
