@@ -34,7 +34,8 @@ from localize.errors import LocalizationError
 from localize.filter import make_rng
 from localize.maps import FilterMap
 from localize.params import FilterParams
-from localize.particles import ParticleState, estimate, init_state, inject, needed_layers
+from localize.particles import (ParticleState, estimate, init_state, inject_around_fix,
+                                needed_layers)
 from localize.stepper import StepInputs, StepOutputs, advance
 from localize.update import position_update
 
@@ -208,9 +209,8 @@ class MultiUserEngine:
             far = rows[np.hypot(fx[rows] - last_xy[rows, 0], fy[rows] - last_xy[rows, 1])
                        >= p.radio_inject_distance_m]
             for r in far:
-                inject(st, self.fmap, p, self.rng, int(r), p.radio_inject_fraction,
-                       (fx[r], fy[r]), max(p.radio_sigma_floor_m,
-                                           p.init_from_fix_scale * float(sigma[r])))
+                inject_around_fix(st, self.fmap, p, self.rng, int(r), p.radio_inject_fraction,
+                                  (fx[r], fy[r]), sigma[r])
 
 
 def _checked_fixes(fix_xy_m: ArrayLike, fix_sigma_m: ArrayLike | None, k: int,

@@ -27,6 +27,7 @@ from localize.particles import (
     estimate,
     init_state,
     inject,
+    inject_around_fix,
     needed_layers,
     resample,
 )
@@ -369,8 +370,7 @@ class Localizer(BaseLocalizer):
                 far = np.hypot(fix[0] - self._last.x_m, fix[1] - self._last.y_m)
                 if far < p.radio_inject_distance_m:
                     return
-            hw = max(p.radio_sigma_floor_m, p.init_from_fix_scale * float(fix[2]))
-            inject(st, self.fmap, p, self.rng, 0, share, fix[:2], hw)
+            inject_around_fix(st, self.fmap, p, self.rng, 0, share, fix[:2], fix[2])
 
     def _guide_step(self, st: ParticleState, guide: Estimate) -> None:
         """Weight update and/or particle injection around the walk alignment's position

@@ -232,8 +232,8 @@ class SiteMaps:
             if not heard:
                 missing.append(f"no {what} in the walk")
                 continue
-            calibration, calibrated = (self.devices.get(device_model) if name == "Wi-Fi"
-                                       else None), ""
+            calibration = self.devices.get(device_model) if name == "Wi-Fi" else None
+            calibrated = ""
             if name == "Wi-Fi" and calibration is None:  # a phone the table does not know
                 calibration = unknown_phone_calibration(model, heard, self.floor_bundle)
                 if calibration is not None:

@@ -609,6 +609,15 @@ def inject(st: ParticleState, fmap: FilterMap, params: FilterParams, rng: np.ran
     return k
 
 
+def inject_around_fix(st: ParticleState, fmap: FilterMap, params: FilterParams,
+                      rng: np.random.Generator, row: int, fraction: float,
+                      fix_xy: Sequence[float], sigma_m: float) -> int:
+    """:func:`inject` around a radio fix of accuracy ``sigma_m`` (m): the square's half-width
+    is ``max(radio_sigma_floor_m, init_from_fix_scale * sigma_m)``."""
+    return inject(st, fmap, params, rng, row, fraction, fix_xy,
+                  max(params.radio_sigma_floor_m, params.init_from_fix_scale * float(sigma_m)))
+
+
 def estimate_mode(st: ParticleState, cell_m: float = 1.0, size: int = 64
                   ) -> tuple[NDArray, NDArray]:
     """Position of the densest part of each user's particle cloud.
