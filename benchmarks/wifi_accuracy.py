@@ -31,9 +31,10 @@ floor), on the held-out BLE windows (2 s); its walk figure is the rule the local
 (:meth:`localize.floors.SiteMaps.choose`: summed log-probabilities of the walk's windows). The
 folds group the Wi-Fi walks: a walk with BLE and no Wi-Fi is never held out. Both models
 again on held-out RSSI mapped through the transforms below (phones the device table does not
-know), as it reads and calibrated online against the fingerprints of the floor the raw
-scans chose (Wi-Fi: the first 8 scans, what ``localize`` does since session 29; BLE: all the
-walk's windows, a trial that is worse per walk and not used).
+know), and through ``rssi - 12`` with the rows that then read below -100 dBm lost (a phone
+that hears less, not only reads lower): the Wi-Fi model (levels) as it reads and calibrated
+online against the fingerprints of the floor the raw scans chose (the first 8 scans, what
+``localize`` does); the BLE model (presence) as it reads, which is what ``localize`` does.
 
 Device calibration: every held-out walk's RSSI is mapped through ``0.85 * rssi - 8`` and,
 harsher, ``rssi - 12`` (phones that report weaker values). Without calibration the walk is
@@ -70,8 +71,24 @@ REPO = Path(__file__).resolve().parents[1]
 SITE = REPO.parent / "shared" / "ilc" / "site1"
 TRANSFORMS = ((0.85, -8.0), (1.0, -12.0))
 CAL_SCANS = 8
-#: the floor models' transforms: the survey phones' own RSSI too (calibrated online as well)
-FLOOR_TRANSFORMS = ((1.0, 0.0),) + TRANSFORMS
+#: the floor models' phones (k, b, rows below this many dBm lost or None): the survey phones'
+#: own RSSI too (calibrated online as well), and a phone that hears less
+FLOOR_PHONES = ((1.0, 0.0, None),) + tuple((k, b, None) for k, b in TRANSFORMS) + \
+    ((1.0, -12.0, -100.0),)
+
+
+def phone_tag(k: float, b: float, lost_below: float | None) -> str:
+    return f"k={k:g},b={b:g}" + ("" if lost_below is None else f",lost<{lost_below:g}")
+
+
+def as_phone(scans: ScanSet, k: float, b: float, lost_below: float | None) -> ScanSet:
+    """``scans`` as a phone would read them whose RSSI is ``k * rssi + b`` (dBm) and which
+    hears nothing below ``lost_below`` dBm (None: hears all)."""
+    moved = scans.transformed(k, b)
+    if lost_below is None:
+        return moved
+    rssi = np.where(moved.rssi_dbm < lost_below, np.nan, moved.rssi_dbm)
+    return ScanSet(moved.scans, moved.aps, rssi, moved.age_ms)
 
 
 def prepare_store(store: Path, floors: list[str]) -> None:
@@ -98,14 +115,12 @@ def errors(matcher, db, scans: ScanSet) -> np.ndarray:
     return np.linalg.norm(res.xy_m - scans.xy_m, axis=1)
 
 
-def calibrated_walk(scans: ScanSet, db, n_scans: int | None = CAL_SCANS
-                    ) -> tuple[ScanSet, float, float]:
-    """Estimate (k, b) from the first ``n_scans`` scans (None: all; rows <= 3 s) and apply
-    it to all."""
+def calibrated_walk(scans: ScanSet, db) -> tuple[ScanSet, float, float]:
+    """Estimate (k, b) from the first ``CAL_SCANS`` scans (rows <= 3 s) and apply it to all."""
     dense = db.dense()
-    first = np.argsort(scans.scans["t_ms"].to_numpy(), kind="stable")[:n_scans]
+    first = np.argsort(scans.scans["t_ms"].to_numpy(), kind="stable")[:CAL_SCANS]
     rssi, age = align_scans(scans.subset(np.isin(np.arange(len(scans)), first)), dense.aps)
-    rssi = np.where(age > 3000, np.nan, rssi)  # (BLE windows carry no age: NaN)
+    rssi = np.where(age > 3000, np.nan, rssi)
     cal = estimate_rssi_calibration(rssi, dense.mean_dbm, dense.var_db2)
     return scans.transformed(cal.k, cal.b), cal.k, cal.b
 
@@ -154,7 +169,7 @@ def evaluate(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: list[st
                 one = scans.subset(scans.scans["trace_id"].to_numpy().astype(str) == walk)
                 if len(one) == 0:
                     continue
-                for tk, tb in FLOOR_TRANSFORMS:
+                for tk, tb in ((1.0, 0.0),) + TRANSFORMS:
                     moved = one.transformed(tk, tb)
                     tag = f"k={tk:g},b={tb:g}"
                     out.setdefault((f, f"{tag} untreated"), []).append(errors(knn, grid, moved))
@@ -176,13 +191,14 @@ def evaluate(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: list[st
             rows["walk"].append(w.to_numpy())
             rows["walk_truth"].append(test.groupby("trace_id")["floor"].first()
                                       .reindex(w.index).to_numpy())
-            kind = "wifi" if model is radio.floor_model else "ble"
-            for tk, tb in FLOOR_TRANSFORMS:
-                moved = s.transformed(tk, tb)  # a phone the device table does not know
+            for phone in FLOOR_PHONES:
+                moved = as_phone(s, *phone)  # a phone the device table does not know
                 first = model.predict_walks(moved)
-                tag = f"k={tk:g},b={tb:g}"
+                tag = phone_tag(*phone)
                 rows.setdefault(f"scan {tag}", []).append(model.predict(moved))
                 rows.setdefault(f"walk {tag}", []).append(first.reindex(w.index).to_numpy())
+                if model is not radio.floor_model:  # BLE: read as it is
+                    continue
                 # as the localizer does (SiteMaps.choose): calibrated online against the
                 # fingerprints of the floor the raw scans chose, then classified again
                 walk_of = moved.scans["trace_id"].to_numpy().astype(str)
@@ -190,11 +206,10 @@ def evaluate(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: list[st
                 walk_fix = {}
                 for walk, f0 in first.items():
                     mine = walk_of == walk
-                    if f0 == "" or (f0, kind) not in radio.fingerprints:
+                    if f0 == "" or (f0, "wifi") not in radio.fingerprints:
                         continue
                     fixed, _, _ = calibrated_walk(moved.subset(mine),
-                                                  radio.fingerprints[(f0, kind)],
-                                                  CAL_SCANS if kind == "wifi" else None)
+                                                  radio.fingerprints[(f0, "wifi")])
                     scan_fix[mine] = model.predict(fixed)
                     walk_fix[walk] = model.predict_walks(fixed).iloc[0]
                 rows.setdefault(f"scan {tag} cal", []).append(scan_fix.astype(str))
@@ -286,13 +301,12 @@ def main() -> int:
               f"{100 * (walk == walk_truth).mean():.2f} % of {len(walk)}")
         print(pd.crosstab(pd.Series(truth, name="floor"), pd.Series(scan, name="pred"))
               .to_string())
-        for tk, tb in FLOOR_TRANSFORMS:
-            tag = f"k={tk:g},b={tb:g}"
+        for phone in FLOOR_PHONES:
+            tag = phone_tag(*phone)
             cal_what = ("calibrated online on the floor the raw scans chose, first "
-                        f"{CAL_SCANS} scans, as localize does" if rows is fl else
-                        "calibrated online on the floor the raw windows chose, all windows: "
-                        "a trial, worse per walk, not what localize does")
-            for cal, what in (("", "as it reads"), (" cal", cal_what)):
+                        f"{CAL_SCANS} scans, as localize does")
+            for cal, what in (("", "as it reads"),) + (((" cal", cal_what),) if rows is fl
+                                                         else ()):
                 moved, moved_walk = (np.concatenate(rows[f"{k} {tag}{cal}"])
                                      for k in ("scan", "walk"))
                 print(f"  RSSI mapped through {tag} ({what}): per {scans} "

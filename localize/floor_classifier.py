@@ -1,10 +1,18 @@
 """The site bundle's floor model, applied to scans (numpy only).
 
 Fitting lives in :mod:`mapping.floor_model`; this module holds the arithmetic both sides share:
-features ``(rssi + 100) / 100`` clipped to [0, 1] (0 = not heard) and a multinomial logistic
-model ``softmax(coef @ x + intercept)``. The site bundle stores it as two tables:
-``floor_coef`` (``ap, floor, coef``) and ``floor_intercept`` (``floor, intercept``); its kind
-(``wifi``, or ``ble`` for a site surveyed without Wi-Fi) is ``metrics.floor_model.kind``.
+the features of a transmitter in a scan, and a multinomial logistic model
+``softmax(coef @ x + intercept)``. Two features (:func:`scan_features`):
+
+- ``level``: ``(rssi + 100) / 100`` clipped to [0, 1] (0 = not heard); Wi-Fi's;
+- ``presence``: 1 if heard, else 0. BLE's since November 2026: it reads the same whatever
+  offset a phone's RSSI has, and on the real site1 traces it is also better than the level for
+  the survey phones themselves (docs/radio.md).
+
+The site bundle stores a model as two tables: ``floor_coef`` (``ap, floor, coef``) and
+``floor_intercept`` (``floor, intercept``); its kind (``wifi``, or ``ble`` for a site surveyed
+without Wi-Fi) is ``metrics.floor_model.kind``, its feature ``metrics.floor_model.feature``
+(``level`` when absent: bundles built before the feature was recorded).
 Beside a Wi-Fi model a site bundle may hold a BLE one, ``ble_floor_coef`` and
 ``ble_floor_intercept`` (bundles built before it have none): :meth:`FloorClassifier.from_bundle`
 with ``kind`` picks the model of a kind, :func:`site_floor_models` gives all.
@@ -28,19 +36,31 @@ if TYPE_CHECKING:  # annotations only
 
     from localize.bundle import MapBundle
 
-__all__ = ["FloorClassifier", "floor_log_proba", "floor_model_kind", "level_features",
-           "site_floor_models"]
+__all__ = ["FEATURES", "FloorClassifier", "floor_log_proba", "floor_model_kind",
+           "level_features", "scan_features", "site_floor_models"]
 
 COEF_TABLE, INTERCEPT_TABLE = "floor_coef", "floor_intercept"
 #: Prefix of the tables of the BLE floor model beside a Wi-Fi one (``ble_floor_coef``, ...).
 BLE_PREFIX = "ble_"
 KINDS = ("wifi", "ble")
+#: The features a floor model can be fitted on (:func:`scan_features`).
+FEATURES = ("level", "presence")
 
 
 def level_features(rssi_dbm: ArrayLike) -> NDArray[np.float64]:
     """``(rssi + 100) / 100`` clipped to [0, 1]; 0 where not heard (NaN). Same shape."""
     r = np.asarray(rssi_dbm, dtype=np.float64)
     return np.clip(np.nan_to_num((r + 100.0) / 100.0, nan=0.0), 0.0, 1.0)
+
+
+def scan_features(rssi_dbm: ArrayLike, feature: str = "level") -> NDArray[np.float64]:
+    """A floor model's features of RSSI values (dBm, NaN = not heard), same shape:
+    :func:`level_features` for ``level``, 1 where heard and 0 elsewhere for ``presence``."""
+    if feature == "level":
+        return level_features(rssi_dbm)
+    if feature == "presence":
+        return np.isfinite(np.asarray(rssi_dbm, dtype=np.float64)).astype(np.float64)
+    raise LocalizationError(f"floor model feature must be one of {FEATURES}, not {feature!r}")
 
 
 def floor_log_proba(features: ArrayLike, coef: ArrayLike, intercept: ArrayLike
@@ -67,14 +87,20 @@ class FloorClassifier:
         Feature transmitters, sorted.
     coef : ndarray, shape (F, A)
     intercept : ndarray, shape (F,)
+    feature : str
+        What a transmitter in a scan gives the model (:data:`FEATURES`).
     """
 
     floors: NDArray[np.str_]
     aps: NDArray[np.str_]
     coef: NDArray[np.float64]
     intercept: NDArray[np.float64]
+    feature: str = "level"
 
     def __post_init__(self) -> None:
+        if self.feature not in FEATURES:
+            raise LocalizationError(f"floor model feature must be one of {FEATURES}, not "
+                                    f"{self.feature!r}")
         if self.coef.shape != (len(self.floors), len(self.aps)) or \
                 self.intercept.shape != (len(self.floors),):
             raise LocalizationError(f"floor model: coef {self.coef.shape} / intercept "
@@ -84,9 +110,10 @@ class FloorClassifier:
 
     @classmethod
     def from_tables(cls, coef_table: pa.Table, intercept_table: pa.Table,
-                    prefix: str = "") -> FloorClassifier:
+                    prefix: str = "", feature: str = "level") -> FloorClassifier:
         """From the ``floor_coef`` and ``floor_intercept`` tables (pyarrow) of a site bundle
-        (``prefix``: ``ble_`` for the BLE model's, named so in errors)."""
+        (``prefix``: ``ble_`` for the BLE model's, named so in errors) and the model's
+        ``feature``."""
         import pyarrow as pa
 
         coef_name, intercept_name = prefix + COEF_TABLE, prefix + INTERCEPT_TABLE
@@ -114,7 +141,7 @@ class FloorClassifier:
             raise LocalizationError(f"{coef_name} names floors that {intercept_name} lacks")
         coef = np.zeros((len(floors), len(aps)))
         coef[f_idx, a_idx] = values
-        return cls(floors, aps, coef, intercept)
+        return cls(floors, aps, coef, intercept, feature)
 
     @classmethod
     def from_bundle(cls, bundle: MapBundle, kind: str | None = None) -> FloorClassifier | None:
@@ -132,7 +159,8 @@ class FloorClassifier:
         names = (prefix + COEF_TABLE, prefix + INTERCEPT_TABLE)
         has = [bundle.has_table(n) for n in names]
         metric = "ble_floor_model" if prefix else "floor_model"
-        announced = isinstance((bundle.manifest.get("metrics") or {}).get(metric), dict)
+        summary = (bundle.manifest.get("metrics") or {}).get(metric)
+        announced = isinstance(summary, dict)
         if has[0] != has[1] or announced != has[0]:  # a model is both tables and its metric
             said = [f"table {n}" for n, h in zip(names, has) if h] + (
                 [f"metrics.{metric}"] if announced else [])
@@ -144,7 +172,8 @@ class FloorClassifier:
         if not has[0]:
             return None
         try:
-            return cls.from_tables(bundle.table(names[0]), bundle.table(names[1]), prefix)
+            return cls.from_tables(bundle.table(names[0]), bundle.table(names[1]), prefix,
+                                   summary.get("feature", "level"))
         except LocalizationError as err:
             raise LocalizationError(f"{bundle.path}: {err}") from err
 
@@ -158,7 +187,8 @@ class FloorClassifier:
 
     def log_proba(self, rssi_dbm: ArrayLike) -> NDArray[np.float64]:
         """Log-probability per floor, shape (S, F), of scans as a matrix over :attr:`aps`."""
-        return floor_log_proba(level_features(rssi_dbm), self.coef, self.intercept)
+        return floor_log_proba(scan_features(rssi_dbm, self.feature), self.coef,
+                               self.intercept)
 
     def floors_of(self, scans: Sequence[RadioScan | None]) -> NDArray[np.str_]:
         """Floor per scan; ``""`` for a scan without a known transmitter."""

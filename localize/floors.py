@@ -179,7 +179,7 @@ class SiteMaps:
         summed; a model without ``log_proba``: the floor most windows are put on); else the
         only floor bundle. Wi-Fi decides whenever it classifies a scan of the walk, even when
         BLE would say another floor: on the real site1 walks (10-fold by walk) Wi-Fi puts
-        every walk on its floor, BLE 96.3 % (``docs/radio.md``). Except a Wi-Fi model of one
+        every walk on its floor, BLE 98.3 % (``docs/radio.md``). Except a Wi-Fi model of one
         model that lacks some of the site's floors (Wi-Fi surveyed on only some of them),
         which puts every walk on a floor it knows: when the BLE model names a floor the
         Wi-Fi model lacks, BLE decides; otherwise (BLE names a floor Wi-Fi knows, or cannot

@@ -1,17 +1,18 @@
 """Floor classification from Wi-Fi (or BLE) scans, stored as plain arrays (no pickle).
 
-Model: multinomial logistic regression on the *level* of each transmitter in a scan,
-``(rssi + 100) / 100`` clipped to [0, 1] (0 = not heard), fitted with scikit-learn (L2, C = 1)
-and kept as numpy arrays: ``coef`` (floors x transmitters) and ``intercept`` (floors). Rows of
-any age are used (a transmitter heard at all says which floor the phone is on). Grouped 5-fold
-by walk, scans right: site1 (3 floors) level 100.00 %, presence 99.96 %; simulated sample site
-level 100 %, presence 92.5 % (a whole walk wrong); default simulated site 99.73 % / 99.95 %.
-Scans should be on the survey device's RSSI scale (calibrate other phones first).
+Model: multinomial logistic regression on a feature of each transmitter in a scan
+(:func:`localize.floor_classifier.scan_features`): its *level* ``(rssi + 100) / 100`` clipped to
+[0, 1], or its *presence* (1 if heard); 0 = not heard. Fitted with scikit-learn (L2, C = 1) and
+kept as numpy arrays: ``coef`` (floors x transmitters) and ``intercept`` (floors). Rows of any
+age are used (a transmitter heard at all says which floor the phone is on).
 
-The build fits it on Wi-Fi scans and, beside it, on the 2 s BLE windows
-(:mod:`mapping.radio_build`: the floor of walks without Wi-Fi). BLE, walks held out: site1
-87.44 % of the windows, 96.30 % of the walks (10-fold, ``benchmarks/wifi_accuracy.py``);
-simulated sample site 88.43 % / 91.67 % (5-fold).
+The build fits a Wi-Fi model on levels (grouped 5-fold by walk, scans right: site1 (3 floors)
+level 100.00 %, presence 99.96 %; simulated sample site level 100 %, presence 92.5 % (a whole
+walk wrong); default simulated site 99.73 % / 99.95 %), whose scans should be on the survey
+device's RSSI scale (calibrate other phones first), and beside it a BLE model on the 2 s
+windows' presence (:mod:`mapping.radio_build`: the floor of walks without Wi-Fi), which any
+RSSI offset leaves alone. BLE, walks held out (``benchmarks/wifi_accuracy.py --folds 10``) on
+site1: see ``docs/radio.md``.
 
 - one scan: ``softmax(coef @ x + intercept)``;
 - a short sequence (the last ``window`` scans of a walk) or a whole walk: the floor with the
@@ -38,7 +39,7 @@ import pandas as pd
 from numpy.typing import NDArray
 from scipy import sparse
 
-from localize.floor_classifier import FloorClassifier, floor_log_proba, level_features
+from localize.floor_classifier import FEATURES, FloorClassifier, floor_log_proba, scan_features
 from localize.steps import RadioScan
 
 from .errors import FingerprintError
@@ -98,7 +99,12 @@ class FloorModel:
         """Log-probability of every floor per scan, shape (S, F); NaN rows for scans without
         a known transmitter."""
         rssi, _ = align_scans(scans, self.aps)
-        return floor_log_proba(level_features(rssi), self.coef, self.intercept)
+        return floor_log_proba(scan_features(rssi, self.feature), self.coef, self.intercept)
+
+    @property
+    def feature(self) -> str:
+        """What a transmitter in a scan gives the model (``level`` or ``presence``)."""
+        return str(self.meta.get("feature", "level"))
 
     def _label(self, lp: NDArray[np.float64]) -> NDArray[np.str_]:
         ok = np.isfinite(lp).all(axis=1)
@@ -142,7 +148,7 @@ class FloorModel:
 
     def classifier(self) -> FloorClassifier:
         """The localizer's view of this model (what the site bundle holds)."""
-        return FloorClassifier(self.floors, self.aps, self.coef, self.intercept)
+        return FloorClassifier(self.floors, self.aps, self.coef, self.intercept, self.feature)
 
     def floor_of(self, scan: RadioScan | None) -> str | None:
         """Floor of one scan given as the localizer's ``RadioScan``; None when no
@@ -172,6 +178,7 @@ class FloorModel:
         if int(meta.pop("format_version")) != FORMAT_VERSION:
             raise FingerprintError("unsupported floor model format version")
         meta["skipped_floors"] = [f for f in str(meta.get("skipped_floors", "")).split(";") if f]
+        _check_feature(str(meta.get("feature", "level")))
         floors = tables["intercept"]["floor"].to_numpy().astype(str)
         coef_t = tables["coef"]
         aps = np.unique(coef_t["ap"].to_numpy().astype(str))
@@ -202,9 +209,14 @@ def _floor_tables(obs_by_floor: Mapping[str, pd.DataFrame]
     return tables, skipped
 
 
-def _design(tables: Mapping[str, pd.DataFrame], aps: NDArray[np.str_]
+def _check_feature(feature: str) -> None:
+    if feature not in FEATURES:
+        raise FingerprintError(f"floor model feature must be one of {FEATURES}, not {feature!r}")
+
+
+def _design(tables: Mapping[str, pd.DataFrame], aps: NDArray[np.str_], feature: str
             ) -> tuple[sparse.csr_matrix, NDArray[np.str_], NDArray[np.str_]]:
-    """Level features (sparse, scans x ``aps``: a scan hears a few dozen of the site's
+    """Features (sparse, scans x ``aps``: a scan hears a few dozen of the site's
     transmitters), floor label and walk of every scan of every floor. Built from the long
     observation tables directly: memory grows with the rows, never with scans x transmitters."""
     rows, cols, vals, ys, traces = [], [], [], [], []
@@ -212,11 +224,11 @@ def _design(tables: Mapping[str, pd.DataFrame], aps: NDArray[np.str_]
     for floor, obs in tables.items():
         scan_idx, scan_ids = pd.factorize(obs["scan_id"], sort=True)
         col = text_codes(obs["ap"], aps)  # per distinct AP, not per row
-        level = level_features(obs["rssi_dbm"].to_numpy(np.float64))
-        keep = (col >= 0) & (level > 0)
+        value = scan_features(obs["rssi_dbm"].to_numpy(np.float64), feature)
+        keep = (col >= 0) & (value > 0)
         rows.append(scan_idx[keep] + n)
         cols.append(col[keep])
-        vals.append(level[keep])
+        vals.append(value[keep])
         ys.append(np.full(len(scan_ids), floor, dtype=object))
         walk = np.empty(len(scan_ids), dtype=object)
         walk_code, walk_names = pd.factorize(obs["trace_id"], use_na_sentinel=False)
@@ -249,7 +261,7 @@ def _feature_aps(tables: Mapping[str, pd.DataFrame], min_scans: int) -> NDArray[
 
 def cross_validate_floor_model(obs_by_floor: Mapping[str, pd.DataFrame], *, folds: int = 5,
                                c: float = 1.0, min_scans: int = 3, window: int = 5,
-                               seed: int = 0) -> FloorCV:
+                               seed: int = 0, feature: str = "level") -> FloorCV:
     """Floor accuracy with walks held out (grouped k-fold; walks shuffled with ``seed``).
 
     Parameters
@@ -264,7 +276,10 @@ def cross_validate_floor_model(obs_by_floor: Mapping[str, pd.DataFrame], *, fold
         A transmitter becomes a feature when heard in at least this many training scans.
     window : int
         Scans per sequence for ``sequence_accuracy``.
+    feature : str
+        ``level`` or ``presence`` (module docstring).
     """
+    _check_feature(feature)
     tables, _ = _floor_tables(obs_by_floor)
     walks = distinct_text(pd.concat([o["trace_id"].drop_duplicates() for o in tables.values()]))
     folds = int(min(folds, len(walks)))
@@ -277,7 +292,7 @@ def cross_validate_floor_model(obs_by_floor: Mapping[str, pd.DataFrame], *, fold
         held = {f: o["trace_id"].isin(fold_of.index[fold_of == k]).to_numpy()
                 for f, o in tables.items()}
         train = {f: o[~held[f]] for f, o in tables.items() if (~held[f]).any()}
-        model = _fit(train, c=c, min_scans=min_scans, skipped=[])
+        model = _fit(train, c=c, min_scans=min_scans, skipped=[], feature=feature)
         for floor, o in tables.items():
             if not held[floor].any():
                 continue
@@ -296,25 +311,25 @@ def cross_validate_floor_model(obs_by_floor: Mapping[str, pd.DataFrame], *, fold
                    window, confusion)
 
 
-def _fit(tables: Mapping[str, pd.DataFrame], *, c: float, min_scans: int, skipped: list[str]
-         ) -> FloorModel:
+def _fit(tables: Mapping[str, pd.DataFrame], *, c: float, min_scans: int, skipped: list[str],
+         feature: str) -> FloorModel:
     aps = _feature_aps(tables, min_scans)
     if len(tables) == 1:  # nothing to tell apart: no design matrix, no regression
         (floor, obs), = tables.items()
         floors, coef, intercept = np.array([floor]), np.zeros((1, len(aps))), np.zeros(1)
         n_scans, walks = obs["scan_id"].nunique(), distinct_text(obs["trace_id"])
     else:
-        x, y, walks = _design(tables, aps)
+        x, y, walks = _design(tables, aps, feature)
         floors, coef, intercept = _fit_arrays(x, y, c)
         n_scans = len(y)
-    meta = {"feature": "level", "c": float(c), "n_scans": int(n_scans),
+    meta = {"feature": feature, "c": float(c), "n_scans": int(n_scans),
             "n_walks": len(np.unique(walks)), "skipped_floors": list(skipped)}
     return FloorModel(floors, aps, coef, intercept, meta)
 
 
 def fit_floor_model(obs_by_floor: Mapping[str, pd.DataFrame], *, c: float = 1.0,
                     min_scans: int = 3, cv_folds: int = 0, window: int = 5,
-                    seed: int = 0) -> FloorModel:
+                    seed: int = 0, feature: str = "level") -> FloorModel:
     """Fit the floor classifier of a site.
 
     Parameters
@@ -322,7 +337,7 @@ def fit_floor_model(obs_by_floor: Mapping[str, pd.DataFrame], *, c: float = 1.0,
     obs_by_floor : mapping
         Floor name -> observation table (:mod:`mapping.radio_scans`; rows of any age). A floor
         with an empty table is skipped and listed in ``meta["skipped_floors"]``.
-    c, min_scans, window, seed
+    c, min_scans, window, seed, feature
         See :func:`cross_validate_floor_model`.
     cv_folds : int
         If >= 2, cross-validate first and store the accuracies in ``meta`` (``cv_folds``,
@@ -333,13 +348,14 @@ def fit_floor_model(obs_by_floor: Mapping[str, pd.DataFrame], *, c: float = 1.0,
     FingerprintError
         No floor has a scan, or a table lacks columns.
     """
+    _check_feature(feature)
     tables, skipped = _floor_tables(obs_by_floor)
-    model = _fit(tables, c=c, min_scans=min_scans, skipped=skipped)
+    model = _fit(tables, c=c, min_scans=min_scans, skipped=skipped, feature=feature)
     meta = {**model.meta, "cv_folds": 0, "cv_scan_accuracy": np.nan,
             "cv_walk_accuracy": np.nan, "cv_sequence_accuracy": np.nan}
     if cv_folds >= 2 and len(tables) >= 2:
-        cv = cross_validate_floor_model(tables, folds=cv_folds, c=c,
-                                        min_scans=min_scans, window=window, seed=seed)
+        cv = cross_validate_floor_model(tables, folds=cv_folds, c=c, min_scans=min_scans,
+                                        window=window, seed=seed, feature=feature)
         meta.update(cv_folds=cv.folds, cv_scan_accuracy=cv.scan_accuracy,
                     cv_walk_accuracy=cv.walk_accuracy, cv_sequence_accuracy=cv.sequence_accuracy)
     return replace(model, meta=meta)

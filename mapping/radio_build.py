@@ -18,7 +18,9 @@ One pass over the processed Wi-Fi and BLE rows of every floor of a site:
    floor model** (same fit, on the BLE windows the BLE fingerprints are built from) when BLE
    rows of kept transmitters are on at least two floors: ``ble_floor_coef``,
    ``ble_floor_intercept``, ``ble_floor_meta``, for walks without Wi-Fi (an iPhone logs BLE
-   only) that name no floor.
+   only) that name no floor. The Wi-Fi model reads levels, the BLE one presence
+   (``RadioParams.wifi_floor_feature``, ``ble_floor_feature``): an unknown phone's Wi-Fi RSSI can be calibrated online
+   against the fingerprints, a BLE window's few beacons cannot (docs/radio.md).
 
 The rows are reduced walk by walk (bounded memory, ``docs/reliability.md``): AP selection
 (:class:`~mapping.ap_selection.APEvidence`) and fingerprints
@@ -75,6 +77,9 @@ class RadioParams:
     floor_model: bool = True
     floor_cv_folds: int = 5
     floor_model_max_rows: int = 750_000
+    #: What a transmitter in a scan gives each kind's floor model (``level``, ``presence``).
+    wifi_floor_feature: str = "level"
+    ble_floor_feature: str = "presence"
     seed: int = 0
 
     def to_dict(self) -> dict:
@@ -330,7 +335,8 @@ class SiteRadio:
 def _floor_model_metrics(model: FloorModel, kind: str) -> dict:
     """A floor model's summary for the site manifest's metrics."""
     m = model.meta
-    return {"kind": kind, "floors": model.floors.tolist(), "transmitters": int(len(model.aps)),
+    return {"kind": kind, "feature": model.feature, "floors": model.floors.tolist(),
+            "transmitters": int(len(model.aps)),
             "cv_folds": int(m.get("cv_folds", 0)),
             **{k: (None if not np.isfinite(m.get(k, np.nan)) else float(m[k]))
                for k in ("cv_scan_accuracy", "cv_sequence_accuracy", "cv_walk_accuracy")}}
@@ -571,9 +577,10 @@ def reduce_site_radio(source: WalkSource, device_of: pd.Series, floors: Sequence
 def _fit_and_say(by_floor: dict[str, pd.DataFrame], kind: str, what: str, params: RadioParams,
                  say: Callable[[str], None]) -> FloorModel:
     """The floor model of ``kind`` fitted and cross-validated on ``by_floor``, logged."""
-    model = fit_floor_model(by_floor, cv_folds=params.floor_cv_folds, seed=params.seed)
+    model = fit_floor_model(by_floor, cv_folds=params.floor_cv_folds, seed=params.seed,
+                            feature=getattr(params, f"{kind}_floor_feature"))
     m = model.meta
-    say(f"floor model ({kind}{what}): {len(model.floors)} floors, {len(model.aps)} "
-        f"transmitters; cross-validated per scan {format_share(m['cv_scan_accuracy'])}, per "
+    say(f"floor model ({kind}{what}, {model.feature}): {len(model.floors)} floors, "
+        f"{len(model.aps)} transmitters; cross-validated per scan {format_share(m['cv_scan_accuracy'])}, per "
         f"walk {format_share(m['cv_walk_accuracy'])}")
     return model

@@ -39,9 +39,9 @@ F2_WALKS = sorted((SITE / "F2" / "path_data_files").glob("*.txt.gz"))
 
 
 def _with_site(built: Path, target: Path, content: BundleContent | None = None, *,
-               drop=(), replace=None, metrics_drop=()) -> Path:
+               drop=(), replace=None, metrics_drop=(), metrics_replace=None) -> Path:
     """The floor bundles of ``built`` beside ``content`` (or ``built``'s site bundle with
-    tables dropped or replaced, metrics dropped) as ``_site``."""
+    tables dropped or replaced, metrics dropped or replaced) as ``_site``."""
     for floor in ("F1", "F2"):
         shutil.copytree(built / floor, target / floor)
     if content is None:
@@ -51,7 +51,8 @@ def _with_site(built: Path, target: Path, content: BundleContent | None = None, 
         tables.update(replace or {})
         content = BundleContent(site_id=m["site_id"], floor_id="", floor_name="", kind="site",
                                 tables=tables, build=m["build"],
-                                metrics={k: v for k, v in m["metrics"].items()
+                                metrics={k: v for k, v in {**m["metrics"],
+                                                           **(metrics_replace or {})}.items()
                                          if k not in metrics_drop})
     write_bundle(target / "_site", content)
     return target
@@ -141,6 +142,27 @@ def test_a_malformed_ble_floor_table_is_named(built, tmp_path):
     out = _with_site(built, tmp_path / "c", replace={"ble_floor_coef": text})
     with pytest.raises(LocalizationError, match="ble_floor_coef"):
         SiteMaps.open(out)
+
+
+def test_a_floor_models_feature_comes_from_the_site_manifest(built, tmp_path):
+    """BLE reads presence, Wi-Fi levels; a site bundle built before the feature was recorded
+    reads levels, as its models were fitted on; an unknown feature is refused, naming it."""
+    site = load_bundle(built / "_site")
+    metrics = site.manifest["metrics"]
+    assert metrics["floor_model"]["feature"] == "level"
+    assert metrics["ble_floor_model"]["feature"] == "presence"
+    maps = SiteMaps.open(built)
+    assert (maps.floor_model.feature, maps.ble_floor_model.feature) == ("level", "presence")
+    old = {k: {n: v for n, v in metrics[k].items() if n != "feature"}
+           for k in ("floor_model", "ble_floor_model")}
+    before = SiteMaps.open(_with_site(built, tmp_path / "old", metrics_replace=old))
+    assert (before.floor_model.feature, before.ble_floor_model.feature) == ("level", "level")
+    out = _with_site(built, tmp_path / "odd", metrics_replace={
+        "ble_floor_model": {**metrics["ble_floor_model"], "feature": "rank"}})
+    with pytest.raises(LocalizationError, match="floor model feature must be one of "
+                                                r"\('level', 'presence'\), not 'rank'") as err:
+        SiteMaps.open(out)
+    assert str(out / "_site") in str(err.value)
 
 
 def test_the_site_with_both_floor_models_builds_to_the_same_bytes_twice(built, tmp_path):
