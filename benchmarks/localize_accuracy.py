@@ -12,7 +12,10 @@
 
 Every walk starts from its first Wi-Fi fix (``--radio bundle``, default: the fold bundle's
 fingerprints, as ``indoormap localize``; truth maps have none and use ``--radio knn``, a kNN over
-the other folds' scans; walks without Wi-Fi start at their first waypoint, counted), except
+the other folds' scans; walks without Wi-Fi start at their first waypoint, counted), or with
+``--radio ble`` as a phone that logs BLE only would run (an iPhone app): the Wi-Fi scans left
+out, its first BLE fix and the fold bundle's BLE fingerprints over its 2 s BLE windows,
+calibrated online as ``indoormap localize`` does; except
 ``pdr@wp0``: PDR with 0.7 m steps from the first waypoint, the ILC baseline.
 ``name[smoothed]`` rows are the same filter smoothed offline over the whole walk
 (:mod:`localize.smoothing`): not what a phone shows in real time. ``auto`` is what
@@ -23,7 +26,7 @@ the start only, 300 particles); ``indoormap[weinberg]`` the Weinberg step model.
 error at the waypoints and (simulation) at every step: median, p80, mean (m).
 
 Usage: ``python benchmarks/localize_accuracy.py [--work DIR] [--methods a,b] [--skip-real]
-[--skip-sim] [--maps truth,built] [--radio bundle|knn]``
+[--skip-sim] [--maps truth,built] [--radio bundle|knn|ble]``
 """
 
 from __future__ import annotations
@@ -67,7 +70,8 @@ def run_floors(floors: dict, methods, params: FilterParams, label: str, steps: b
         for i, test in enumerate(folds):
             bundle = bundle_of(i)
             res.merge(run_fold(walks, test, bundle, methods, params, start="wifi",
-                               radio=fold_radio(radio, walks, test, bundle)))
+                               radio=fold_radio(radio, walks, test, bundle),
+                               ble=radio == "ble"))
         print_table(f"{label} {floor}: {len(walks)} walks, 5-fold by walk "
                     f"({time.time() - t0:.0f} s)", res, methods,
                     ("wp", "step") if steps else ("wp",))
@@ -86,9 +90,11 @@ def main(argv=None) -> None:
     ap.add_argument("--methods", default=",".join(ALL_METHODS))
     ap.add_argument("--maps", default="truth,built", help="simulation maps: truth, built")
     ap.add_argument("--params", default="{}", help="JSON FilterParams overrides")
-    ap.add_argument("--radio", default="bundle", choices=("bundle", "knn"),
+    ap.add_argument("--radio", default="bundle", choices=("bundle", "knn", "ble"),
                     help="radio model: the bundle's Wi-Fi fingerprints (as indoormap localize; "
-                         "truth maps have none and use the kNN) or a kNN over training scans")
+                         "truth maps have none and use the kNN), a kNN over training scans, "
+                         "or the bundle's BLE fingerprints over the walks' BLE windows, their "
+                         "Wi-Fi left out (a phone that logs BLE only, as an iPhone app)")
     ap.add_argument("--skip-sim", action="store_true")
     ap.add_argument("--skip-real", action="store_true")
     args = ap.parse_args(argv)

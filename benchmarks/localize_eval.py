@@ -73,6 +73,7 @@ class EvalWalk:
     wp_xy: np.ndarray
     true_xy: np.ndarray | None = None      # truth at every step (simulation only)
     radio_refs: list[tuple[RadioScan, np.ndarray]] = field(default_factory=list)
+    ble_scans: list[RadioScan] = field(default_factory=list)  # 2 s BLE windows
 
 
 # -- walks ---------------------------------------------------------------------------------
@@ -117,6 +118,8 @@ def _save_walks(path: Path, walks: list[EvalWalk]) -> None:
         for k, v in _scans_arrays([r for r, _ in w.radio_refs]).items():
             arrays[f"{i}/ref_{k}"] = v
         arrays[f"{i}/ref_xy"] = np.array([xy for _, xy in w.radio_refs]).reshape(-1, 2)
+        for k, v in _scans_arrays(list(w.ble_scans)).items():
+            arrays[f"{i}/ble_{k}"] = v
         arrays[f"{i}/wp_t"], arrays[f"{i}/wp_xy"] = w.wp_t, w.wp_xy
         if w.true_xy is not None:
             arrays[f"{i}/true_xy"] = w.true_xy
@@ -142,8 +145,10 @@ def _load_walks(path: Path) -> list[EvalWalk]:
                               floor_name=m["floor_name"])
         ref = {k: a[f"{i}/ref_{k}"] for k in _SCAN_KEYS}
         refs = _scans_from(ref, len(ref["slot"]))
+        ble = {k: a[f"{i}/ble_{k}"] for k in _SCAN_KEYS} if f"{i}/ble_slot" in a else None
         out.append(EvalWalk(m["trace_id"], m["floor"], steps, a[f"{i}/wp_t"], a[f"{i}/wp_xy"],
-                            a.get(f"{i}/true_xy"), list(zip(refs, a[f"{i}/ref_xy"]))))
+                            a.get(f"{i}/true_xy"), list(zip(refs, a[f"{i}/ref_xy"])),
+                            [] if ble is None else _scans_from(ble, len(ble["slot"]))))
     return out
 
 
@@ -187,7 +192,7 @@ def sim_walks(site: Path, floor: str, work: Path) -> list[EvalWalk]:
     def make():
         import pandas as pd
 
-        from survey.step_summaries import scans_of, step_summaries, waypoints_of
+        from survey.step_summaries import ble_scans_of, scans_of, step_summaries, waypoints_of
         from survey.trace_reader import read_trace
 
         sj = json.loads((site / "truth" / "site.json").read_text())
@@ -208,10 +213,10 @@ def sim_walks(site: Path, floor: str, work: Path) -> list[EvalWalk]:
             wp_t, wp_xy = waypoints_of(trace)
             refs = [(s, at([s.t_ms])[0]) for s in scans_of(trace)]
             out.append(EvalWalk(w["trace_id"], floor, steps, wp_t, wp_xy, at(steps.t_ms),
-                                refs))
+                                refs, ble_scans_of(trace)))
         return out
 
-    return _cache(work / "cache" / f"{site.name}_{floor}_walks_{source_digest('survey')}.npz",
+    return _cache(work / "cache" / f"{site.name}_{floor}_walks2_{source_digest('survey')}.npz",
                   make)
 
 
@@ -219,7 +224,7 @@ def real_walks(floor_dir: Path, work: Path) -> list[EvalWalk]:
     """Walks of a real floor; scans positioned by time interpolation between waypoints."""
     def make():
         from survey.errors import IndoormapError
-        from survey.step_summaries import scans_of, step_summaries, waypoints_of
+        from survey.step_summaries import ble_scans_of, scans_of, step_summaries, waypoints_of
         from survey.trace_reader import find_trace_files, read_trace
 
         out = []
@@ -239,10 +244,10 @@ def real_walks(floor_dir: Path, work: Path) -> list[EvalWalk]:
                     refs.append((s, np.array([np.interp(s.t_ms, wp_t, wp_xy[:, 0]),
                                               np.interp(s.t_ms, wp_t, wp_xy[:, 1])])))
             out.append(EvalWalk(trace.trace_id, floor_dir.name, steps, wp_t, wp_xy, None,
-                                refs))
+                                refs, ble_scans_of(trace)))
         return out
 
-    return _cache(work / "cache" / f"ilc_{floor_dir.parent.name}_{floor_dir.name}_walks_"
+    return _cache(work / "cache" / f"ilc_{floor_dir.parent.name}_{floor_dir.name}_walks2_"
                   f"{source_digest('survey')}.npz", make)
 
 
@@ -263,9 +268,12 @@ def fold_radio(kind: str, walks: list[EvalWalk], test: list[str], bundle: MapBun
     ``indoormap localize`` uses, without its per-phone RSSI calibration: the ILC walks share
     one phone model, and calibrating online changed the fixes' errors by 0.01 m in session
     19; bundles without fingerprints, e.g. truth maps, fall back to the kNN), or ``"knn"``, a
-    kNN over the training walks' scans."""
-    if kind not in ("bundle", "knn"):
-        raise ValueError(f"radio must be 'bundle' or 'knn', got {kind!r}")
+    kNN over the training walks' scans. ``"ble"``: None here, :func:`run_fold` takes each
+    walk's BLE windows and calibrates the bundle's BLE fingerprints for it."""
+    if kind not in ("bundle", "knn", "ble"):
+        raise ValueError(f"radio must be 'bundle', 'knn' or 'ble', got {kind!r}")
+    if kind == "ble":
+        return None
     if kind == "bundle":
         from localize.fingerprint_positioner import FingerprintPositioner
 
@@ -377,17 +385,26 @@ class RunResult:
 
 def run_fold(walks: list[EvalWalk], test_ids: list[str], bundle: MapBundle, methods,
              params: FilterParams, *, start: str = "wifi", seed: int = 0,
-             radio=None) -> RunResult:
+             radio=None, ble: bool = False) -> RunResult:
     """Localize the test walks of one fold with every method.
 
     ``start``: ``"wifi"`` (first radio fix of the walk; walks without one start at their first
     waypoint, noted), ``"waypoint"`` (first waypoint) or ``"truth"`` (true position, sim).
+    ``ble``: every walk as a phone that logs no Wi-Fi (an iPhone) runs it: its steps carry its
+    BLE windows and its radio is the bundle's BLE fingerprints calibrated online for it
+    (:func:`localize.walk_radio.radio_for_walk`, what ``indoormap localize`` does for such a
+    walk); ``radio`` is then ignored.
     """
+    from localize.walk_radio import radio_for_walk
+
     res = RunResult()
     fmaps: dict[str, FilterMap] = {}
     for w in walks:
         if w.trace_id not in test_ids:
             continue
+        if ble:
+            radio = radio_for_walk(bundle, None, w.ble_scans, kind="ble")[0]
+            w = replace(w, steps=w.steps.with_scans(w.ble_scans))
         wp0 = (float(w.wp_xy[0, 0]), float(w.wp_xy[0, 1]))
         start_xy, t_start = None, None
         if start == "truth" and w.true_xy is not None:
@@ -401,7 +418,8 @@ def run_fold(walks: list[EvalWalk], test_ids: list[str], bundle: MapBundle, meth
                             and (f := radio.locate(s)) is not None), None)
             if fix is None:
                 start_xy, t_start = wp0, float(w.wp_t[0])
-                res.notes.append(f"{w.trace_id}: no Wi-Fi fix, started at the first waypoint")
+                res.notes.append(f"{w.trace_id}: no {'BLE' if ble else 'Wi-Fi'} fix, started at "
+                                 "the first waypoint")
         for m in methods:
             name, p, smooth = _variant(m, params)
             s_xy, t0 = start_xy, t_start
