@@ -145,10 +145,10 @@ def _load_walks(path: Path) -> list[EvalWalk]:
                               floor_name=m["floor_name"])
         ref = {k: a[f"{i}/ref_{k}"] for k in _SCAN_KEYS}
         refs = _scans_from(ref, len(ref["slot"]))
-        ble = {k: a[f"{i}/ble_{k}"] for k in _SCAN_KEYS} if f"{i}/ble_slot" in a else None
+        ble = {k: a[f"{i}/ble_{k}"] for k in _SCAN_KEYS}
         out.append(EvalWalk(m["trace_id"], m["floor"], steps, a[f"{i}/wp_t"], a[f"{i}/wp_xy"],
                             a.get(f"{i}/true_xy"), list(zip(refs, a[f"{i}/ref_xy"])),
-                            [] if ble is None else _scans_from(ble, len(ble["slot"]))))
+                            _scans_from(ble, len(ble["slot"]))))
     return out
 
 
