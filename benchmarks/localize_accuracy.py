@@ -70,8 +70,8 @@ def run_floors(floors: dict, methods, params: FilterParams, label: str, steps: b
         for i, test in enumerate(folds):
             bundle = bundle_of(i)
             res.merge(run_fold(walks, test, bundle, methods, params, start="wifi",
-                               radio=fold_radio(radio, walks, test, bundle),
-                               ble=radio == "ble"))
+                               radio=None if radio == "ble" else
+                               fold_radio(radio, walks, test, bundle), ble=radio == "ble"))
         print_table(f"{label} {floor}: {len(walks)} walks, 5-fold by walk "
                     f"({time.time() - t0:.0f} s)", res, methods,
                     ("wp", "step") if steps else ("wp",))

@@ -268,12 +268,9 @@ def fold_radio(kind: str, walks: list[EvalWalk], test: list[str], bundle: MapBun
     ``indoormap localize`` uses, without its per-phone RSSI calibration: the ILC walks share
     one phone model, and calibrating online changed the fixes' errors by 0.01 m in session
     19; bundles without fingerprints, e.g. truth maps, fall back to the kNN), or ``"knn"``, a
-    kNN over the training walks' scans. ``"ble"``: None here, :func:`run_fold` takes each
-    walk's BLE windows and calibrates the bundle's BLE fingerprints for it."""
-    if kind not in ("bundle", "knn", "ble"):
-        raise ValueError(f"radio must be 'bundle', 'knn' or 'ble', got {kind!r}")
-    if kind == "ble":
-        return None
+    kNN over the training walks' scans (BLE: :func:`run_fold`'s ``ble``)."""
+    if kind not in ("bundle", "knn"):
+        raise ValueError(f"radio must be 'bundle' or 'knn', got {kind!r}")
     if kind == "bundle":
         from localize.fingerprint_positioner import FingerprintPositioner
 
@@ -402,8 +399,9 @@ def run_fold(walks: list[EvalWalk], test_ids: list[str], bundle: MapBundle, meth
     for w in walks:
         if w.trace_id not in test_ids:
             continue
+        walk_radio = radio
         if ble:
-            radio = radio_for_walk(bundle, None, w.ble_scans, kind="ble")[0]
+            walk_radio = radio_for_walk(bundle, None, w.ble_scans, kind="ble")[0]
             w = replace(w, steps=w.steps.with_scans(w.ble_scans))
         wp0 = (float(w.wp_xy[0, 0]), float(w.wp_xy[0, 1]))
         start_xy, t_start = None, None
@@ -413,9 +411,9 @@ def run_fold(walks: list[EvalWalk], test_ids: list[str], bundle: MapBundle, meth
             start_xy, t_start = wp0, float(w.wp_t[0])
         elif start == "wifi":
             fix = None
-            if radio is not None and w.steps.scans is not None:
+            if walk_radio is not None and w.steps.scans is not None:
                 fix = next((f for s in w.steps.scans if s is not None
-                            and (f := radio.locate(s)) is not None), None)
+                            and (f := walk_radio.locate(s)) is not None), None)
             if fix is None:
                 start_xy, t_start = wp0, float(w.wp_t[0])
                 res.notes.append(f"{w.trace_id}: no {'BLE' if ble else 'Wi-Fi'} fix, started at "
@@ -429,10 +427,10 @@ def run_fold(walks: list[EvalWalk], test_ids: list[str], bundle: MapBundle, meth
                 if name in PARTICLE_FILTERS:
                     if m not in fmaps:  # pack the layers once per fold and row
                         fmaps[m] = make_localizer(name, bundle, p, rng=seed).fmap
-                    loc = make_localizer(name, bundle, p, radio=radio, rng=seed,
+                    loc = make_localizer(name, bundle, p, radio=walk_radio, rng=seed,
                                          fmap=fmaps[m])
                 else:
-                    loc = make_localizer(name, bundle, p, radio=radio, rng=seed)
+                    loc = make_localizer(name, bundle, p, radio=walk_radio, rng=seed)
                 t = time.process_time()
                 track = loc.run(w.steps, start_xy=s_xy,
                                 start_t_ms=t0 if t0 is not None and t0 < w.steps.t_ms[0]

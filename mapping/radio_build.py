@@ -19,8 +19,9 @@ One pass over the processed Wi-Fi and BLE rows of every floor of a site:
    rows of kept transmitters are on at least two floors: ``ble_floor_coef``,
    ``ble_floor_intercept``, ``ble_floor_meta``, for walks without Wi-Fi (an iPhone logs BLE
    only) that name no floor. The Wi-Fi model reads levels, the BLE one presence
-   (``RadioParams.wifi_floor_feature``, ``ble_floor_feature``): an unknown phone's Wi-Fi RSSI can be calibrated online
-   against the fingerprints, a BLE window's few beacons cannot (docs/radio.md).
+   (``RadioParams.wifi_floor_feature``, ``ble_floor_feature``): an unknown phone's Wi-Fi
+   RSSI can be calibrated online against the fingerprints, a BLE window's few beacons cannot
+   (docs/radio.md).
 
 The rows are reduced walk by walk (bounded memory, ``docs/reliability.md``): AP selection
 (:class:`~mapping.ap_selection.APEvidence`) and fingerprints
@@ -581,6 +582,7 @@ def _fit_and_say(by_floor: dict[str, pd.DataFrame], kind: str, what: str, params
                             feature=getattr(params, f"{kind}_floor_feature"))
     m = model.meta
     say(f"floor model ({kind}{what}, {model.feature}): {len(model.floors)} floors, "
-        f"{len(model.aps)} transmitters; cross-validated per scan {format_share(m['cv_scan_accuracy'])}, per "
+        f"{len(model.aps)} transmitters; cross-validated per scan "
+        f"{format_share(m['cv_scan_accuracy'])}, per "
         f"walk {format_share(m['cv_walk_accuracy'])}")
     return model

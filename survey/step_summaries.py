@@ -9,7 +9,8 @@ processing on the survey side with the same building blocks as :mod:`survey.proc
   (:func:`survey.rotation.heading_deg`); on cycles where the phone's top edge points up or
   down (a swinging hand, a pocket) the walking axis instead
   (:func:`survey.carried_heading.carried_heading_deg`), and the turn of each step from the
-  gyroscope about the vertical (:func:`survey.process.gyro_heading_deg`; the compass when there is no gyroscope);
+  gyroscope about the vertical (:func:`survey.process.gyro_heading_deg`; the compass when
+  there is no gyroscope);
 - the magnetometer, calibrated as :func:`survey.process.calibrated_field` decides (device-
   calibrated stream first), rotated into the earth frame with the interpolated rotation vector;
   its features (:func:`survey.field_features.field_features`) averaged over each step cycle
