@@ -15,7 +15,8 @@ fingerprints, as ``indoormap localize``; truth maps have none and use ``--radio 
 the other folds' scans; walks without Wi-Fi start at their first waypoint, counted), or with
 ``--radio ble`` as a phone that logs BLE only would run (an iPhone app): the Wi-Fi scans left
 out, its first BLE fix and the fold bundle's BLE fingerprints over its 2 s BLE windows,
-calibrated online as ``indoormap localize`` does; except
+calibrated online as ``indoormap localize`` does (``--ble-rssi K,B``: their BLE RSSI read as
+``k * rssi + b``, a phone on another scale); except
 ``pdr@wp0``: PDR with 0.7 m steps from the first waypoint, the ILC baseline.
 ``name[smoothed]`` rows are the same filter smoothed offline over the whole walk
 (:mod:`localize.smoothing`): not what a phone shows in real time. ``auto`` is what
@@ -26,7 +27,7 @@ the start only, 300 particles); ``indoormap[weinberg]`` the Weinberg step model.
 error at the waypoints and (simulation) at every step: median, p80, mean (m).
 
 Usage: ``python benchmarks/localize_accuracy.py [--work DIR] [--methods a,b] [--skip-real]
-[--skip-sim] [--maps truth,built] [--radio bundle|knn|ble]``
+[--skip-sim] [--maps truth,built] [--radio bundle|knn|ble] [--ble-rssi K,B]``
 """
 
 from __future__ import annotations
@@ -55,6 +56,7 @@ from localize_eval import (
     sim_site,
     sim_walks,
     truth_bundle_of,
+    with_ble_rssi,
 )
 
 from localize.params import FilterParams
@@ -95,11 +97,19 @@ def main(argv=None) -> None:
                          "truth maps have none and use the kNN), a kNN over training scans, "
                          "or the bundle's BLE fingerprints over the walks' BLE windows, their "
                          "Wi-Fi left out (a phone that logs BLE only, as an iPhone app)")
+    ap.add_argument("--ble-rssi", default="1,0", metavar="K,B",
+                    help="with --radio ble: the walks' BLE RSSI read as k * rssi + b (dBm), a "
+                         "phone on another scale than the survey's (default 1,0: as recorded)")
     ap.add_argument("--skip-sim", action="store_true")
     ap.add_argument("--skip-real", action="store_true")
     args = ap.parse_args(argv)
     args.work.mkdir(parents=True, exist_ok=True)
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    ble_k, ble_b = (float(v) for v in args.ble_rssi.split(","))
+    if (ble_k, ble_b) != (1.0, 0.0):
+        if args.radio != "ble":
+            ap.error("--ble-rssi needs --radio ble")
+        print(f"BLE RSSI read as {ble_k:g} * rssi {ble_b:+g} dB")
     d = json.loads(FilterParams().to_json())
     d.update(json.loads(args.params))
     params = FilterParams.from_dict(d)
@@ -108,7 +118,7 @@ def main(argv=None) -> None:
     if not args.skip_sim:
         site = sim_site(args.work)
         names = ("F1", "F2", "F3")
-        data = {f: sim_walks(site, f, args.work) for f in names}
+        data = {f: with_ble_rssi(sim_walks(site, f, args.work), ble_k, ble_b) for f in names}
         kinds = [k.strip() for k in args.maps.split(",")]
         if "truth" in kinds:
             floors = {}
@@ -144,7 +154,7 @@ def main(argv=None) -> None:
     store = processed_store("ilc_site1", floor_dirs, args.work)
     floors = {}
     for fd in floor_dirs:
-        walks = real_walks(fd, args.work)
+        walks = with_ble_rssi(real_walks(fd, args.work), ble_k, ble_b)
         folds = folds_of(walks)
         floors[fd.name] = (walks, folds, lambda i, fd=fd, folds=folds: built_bundle(
             store, fd, set(folds[i]), args.work, "ilc"))

@@ -251,6 +251,15 @@ def real_walks(floor_dir: Path, work: Path) -> list[EvalWalk]:
                   f"{source_digest('survey')}.npz", make)
 
 
+def with_ble_rssi(walks: list[EvalWalk], k: float, b: float) -> list[EvalWalk]:
+    """The walks with their BLE RSSI read as a phone on another scale would: ``k * rssi + b``
+    (dBm). Their Wi-Fi is left as it is."""
+    if (k, b) == (1.0, 0.0):
+        return walks
+    return [replace(w, ble_scans=[RadioScan(s.t_ms, s.keys, k * s.rssi_dbm + b, s.age_ms)
+                                  for s in w.ble_scans]) for w in walks]
+
+
 def folds_of(walks: list[EvalWalk], k: int = 5, seed: int = 0) -> list[list[str]]:
     """Test trace ids of each of ``k`` folds (a seeded permutation of the sorted ids)."""
     ids = sorted(w.trace_id for w in walks)

@@ -19,7 +19,9 @@ scan's neighbours are then picked with the prior its walk's other scans give
 (:func:`localize.radio_match.walk_scores`).
 
 Missing-transmitter policy: transmitters the bundle does not know are ignored; a scan that
-hears none of the bundle's transmitters gives no fix (``None``).
+hears none of the bundle's transmitters gives no fix (``None``), and so does one whose
+strongest known transmitter reads below :attr:`FingerprintPositioner.min_strongest_dbm`
+(BLE: :data:`localize.radio_match.BLE_MIN_STRONGEST_DBM`).
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from localize.errors import LocalizationError
 from localize.radio_match import (
     AGE_DECAY_MS,
     AGE_FRESH_MS,
+    BLE_MIN_STRONGEST_DBM,
     ReferenceMotion,
     WalkSmoothing,
     age_weights,
@@ -44,6 +47,7 @@ from localize.radio_match import (
     scan_matrices,
     smoothed_distances,
     sorensen_distances,
+    too_weak,
     walk_scores,
 )
 from localize.rssi_calibration import (OnlineCalibration, checked_rssi_calibration,
@@ -118,6 +122,11 @@ class FingerprintPositioner:
         Scan rows older than ``age_fresh_ms`` weigh ``exp(-(age - fresh) / decay)`` (ms; the
         mapping matcher's :data:`~localize.radio_match.AGE_FRESH_MS` and
         :data:`~localize.radio_match.AGE_DECAY_MS`); rows of unknown age weigh 1.
+    min_strongest_dbm : float
+        A scan whose strongest known transmitter reads below this (dBm, after the
+        calibration) is not located (no fix, no likelihood); -inf (the default) locates
+        every scan that hears a known transmitter. :meth:`from_bundle` sets
+        :data:`~localize.radio_match.BLE_MIN_STRONGEST_DBM` for BLE.
     """
 
     aps: NDArray[np.str_]
@@ -134,6 +143,7 @@ class FingerprintPositioner:
     likelihood_sigma_m: float = 3.0
     age_fresh_ms: float = AGE_FRESH_MS
     age_decay_ms: float = AGE_DECAY_MS
+    min_strongest_dbm: float = float("-inf")
 
     def __post_init__(self) -> None:
         shape = (len(self.xy_m), len(self.aps))
@@ -149,6 +159,8 @@ class FingerprintPositioner:
         if not (self.age_fresh_ms >= 0 and self.age_decay_ms > 0):
             raise LocalizationError("fingerprints: age_fresh_ms must be >= 0 and "
                                     "age_decay_ms positive")
+        if np.isnan(self.min_strongest_dbm):
+            raise LocalizationError("fingerprints: min_strongest_dbm is NaN")
         ref = powed(self.mean_dbm) * self.detection_rate
         object.__setattr__(self, "_ref", ref)
         object.__setattr__(self, "_neighbours", reference_neighbours(
@@ -191,9 +203,14 @@ class FingerprintPositioner:
     @classmethod
     def from_bundle(cls, bundle: MapBundle, kind: str = "wifi", **kw
                     ) -> FingerprintPositioner | None:
-        """The positioner of a floor bundle's ``kind`` fingerprints; None when it has none."""
+        """The positioner of a floor bundle's ``kind`` fingerprints; None when it has none.
+        BLE windows need a beacon at :data:`~localize.radio_match.BLE_MIN_STRONGEST_DBM` or
+        stronger to be located
+        (``min_strongest_dbm`` in ``kw`` overrides it)."""
         if kind not in fingerprint_kinds(bundle):
             return None
+        if kind == "ble":
+            kw.setdefault("min_strongest_dbm", BLE_MIN_STRONGEST_DBM)
         return cls.from_tables(bundle.table(RP_TABLE.format(kind=kind)),
                                bundle.table(FP_TABLE.format(kind=kind)), **kw)
 
@@ -242,8 +259,10 @@ class FingerprintPositioner:
 
     def _query(self, rssi: NDArray[np.float64], age_ms: ArrayLike | None
                ) -> NDArray[np.float64]:
-        """Powed scans (S, A), rows down-weighted by age."""
+        """Powed scans (S, A), rows down-weighted by age; all zero for a scan whose strongest
+        value is below :attr:`min_strongest_dbm` (not located)."""
         q = powed(rssi)
+        q[too_weak(rssi, self.min_strongest_dbm)] = 0.0
         if age_ms is None:
             return q
         age = np.asarray(age_ms, dtype=np.float64).reshape(q.shape)

@@ -139,7 +139,8 @@ def estimate_rssi_calibration(rssi_dbm: FloatArray, ref_mean_dbm: FloatArray,
     ref_var_db2 : ndarray, shape (R, A), optional
         RSSI variance per reference point (dB^2; NaN treated as 0).
     k_range, offset_range_db : (float, float)
-        Search ranges of ``k`` and of the offset at ``pivot_dbm``.
+        Search ranges of ``k`` and of the offset at ``pivot_dbm``. ``k_range=(1, 1)`` fits
+        the offset alone (``b``), as BLE needs (:mod:`localize.walk_radio`).
     n_candidates : int
         Reference points kept per scan by transmitter-set similarity.
     min_shared : int
@@ -182,14 +183,14 @@ def estimate_rssi_calibration(rssi_dbm: FloatArray, ref_mean_dbm: FloatArray,
 
     k_lo, k_hi = k_range
     o_lo, o_hi = offset_range_db
-    ks, offs = np.linspace(k_lo, k_hi, 16), np.linspace(o_lo, o_hi, 21)
+    ks, offs = np.linspace(k_lo, k_hi, 16 if k_hi > k_lo else 1), np.linspace(o_lo, o_hi, 21)
     for _ in range(3):  # coarse grid, then two finer grids around the best cell
         kk, oo = (a.ravel() for a in np.meshgrid(ks, offs, indexing="ij"))
         cost = _costs(rssi, mean, var, cand, kk, to_b(kk, oo), min_shared,
                       noise_ratio)
         i = int(np.argmin(cost))
-        dk, do = (ks[1] - ks[0]), (offs[1] - offs[0])
-        ks = np.clip(np.linspace(kk[i] - dk, kk[i] + dk, 11), k_lo, k_hi)
+        dk, do = (ks[1] - ks[0]) if len(ks) > 1 else 0.0, (offs[1] - offs[0])
+        ks = np.unique(np.clip(np.linspace(kk[i] - dk, kk[i] + dk, 11), k_lo, k_hi))
         offs = np.clip(np.linspace(oo[i] - do, oo[i] + do, 11), o_lo, o_hi)
     k_best, b_best = float(kk[i]), float(to_b(kk[i], oo[i]))
     ident = float(_costs(rssi, mean, var, cand, np.array([1.0]), np.array([0.0]),

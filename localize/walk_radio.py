@@ -5,7 +5,8 @@ A phone model in the bundle's device table (fitted on Wi-Fi) uses its stored RSS
 ``calibrated = k * rssi + b``; any other phone, and BLE, is calibrated online from the walk's
 first :data:`ONLINE_CALIBRATION_SCANS` scans (a search for the ``(k, b)`` most consistent with
 the map, no positions needed) when at least :data:`MIN_CALIBRATION_SCANS` of them hear enough
-known transmitters, else left uncalibrated. Positioners are cached per bundle id: bundles are
+known transmitters, else left uncalibrated. BLE is fitted an offset alone, applied only when
+it exceeds :data:`BLE_MIN_OFFSET_DB`. Positioners are cached per bundle id: bundles are
 content-addressed, so the cache cannot go stale, and a folder of walks builds each bundle's
 positioner once.
 
@@ -25,7 +26,7 @@ from localize.filter import first_radio_fix
 from localize.fingerprint_positioner import FingerprintPositioner
 from localize.steps import RadioScan, StepSummaries
 
-__all__ = ["MIN_CALIBRATION_SCANS", "ONLINE_CALIBRATION_SCANS", "WalkRadio",
+__all__ = ["BLE_MIN_OFFSET_DB", "MIN_CALIBRATION_SCANS", "ONLINE_CALIBRATION_SCANS", "WalkRadio",
            "bundle_positioner", "radio_for_walk", "walk_radio"]
 
 #: Scans of a walk used to calibrate an unknown phone's RSSI online.
@@ -33,6 +34,13 @@ ONLINE_CALIBRATION_SCANS = 8
 #: Fewer usable scans than this leave the phone uncalibrated: from one BLE window the search
 #: found k = 1.7, b = +74 dB and tripled the walk's error (6.79 m against 2.14 m uncalibrated).
 MIN_CALIBRATION_SCANS = 3
+#: BLE is calibrated by an offset alone (``k = 1``), and only when the offset found is larger
+#: than this (dB). A walk's few 2 s BLE windows hear a handful of beacons over a narrow RSSI
+#: range: on the survey phones' own site1 walks the slope-and-offset search found slopes from
+#: 0.5 to 1.42 (10th-90th percentile) and the offset alone spreads by about 3.4 dB around 0,
+#: so calibrating every walk made the survey phones' fixes worse (7.17 m median against
+#: 6.68 m uncalibrated), while a phone 12 dB low needs it (10.76 m uncalibrated).
+BLE_MIN_OFFSET_DB = 4.0
 
 _CACHE_SIZE = 16
 _POSITIONERS: dict[tuple[str, str], FingerprintPositioner | None] = {}
@@ -84,12 +92,18 @@ def radio_for_walk(bundle: MapBundle, device_model: str | None,
     first = [s for s in (scans or []) if s is not None][:ONLINE_CALIBRATION_SCANS]
     if not first:
         return pos, "uncalibrated (no scan to calibrate from)"
-    cal = pos.online_calibration(first)
+    ble = kind == "ble"
+    cal = pos.online_calibration(first, k_range=(1.0, 1.0)) if ble else \
+        pos.online_calibration(first)
     if cal.n_scans < MIN_CALIBRATION_SCANS:
         return pos, (f"uncalibrated ({cal.n_scans} of the first {len(first)} scans hear enough "
                      f"known transmitters to calibrate from; {MIN_CALIBRATION_SCANS} needed)")
+    if ble and abs(cal.b) <= BLE_MIN_OFFSET_DB:
+        return pos, (f"uncalibrated (the BLE offset found online from {cal.n_scans} scans, "
+                     f"{cal.b:+.1f} dB, is within {BLE_MIN_OFFSET_DB:g} dB)")
     return pos.with_calibration(cal.k, cal.b), \
-        f"online from {cal.n_scans} scans (k={cal.k:.3f}, b={cal.b:+.1f} dB)"
+        f"online from {cal.n_scans} scans ({'offset only, ' if ble else f'k={cal.k:.3f}, '}" \
+        f"b={cal.b:+.1f} dB)"
 
 
 @dataclass(frozen=True)

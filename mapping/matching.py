@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 from localize.radio_match import (
     AGE_DECAY_MS,
     AGE_FRESH_MS,
+    BLE_MIN_STRONGEST_DBM,
     ReferenceMotion,
     WalkSmoothing,
     age_weights,
@@ -46,6 +47,7 @@ from localize.radio_match import (
     reference_neighbours,
     smoothed_distances,
     sorensen_distances,
+    too_weak,
     walk_scores,
 )
 
@@ -100,6 +102,7 @@ def _empty_result(n: int, k: int) -> MatchResult:
 class _Matcher:
     k: int
     min_aps: int
+    min_strongest_dbm: float = float("-inf")
     dense_: DenseFingerprints | None = None
 
     def fit(self, db: FingerprintDB) -> _Matcher:
@@ -129,7 +132,7 @@ class _Matcher:
         n_aps = np.isfinite(rssi).sum(axis=1).astype(np.int64)
         k = min(self.k, len(dense.xy_m))
         out = _empty_result(len(scans), k)
-        ok = n_aps >= max(self.min_aps, 1)
+        ok = (n_aps >= max(self.min_aps, 1)) & ~too_weak(rssi, self.min_strongest_dbm)
         if ok.any():
             cost = self._dist(rssi[ok], age[ok])
             pick = self._pick(cost, scans.scans, ok)
@@ -315,14 +318,23 @@ class GaussianMatch(_Matcher):
         return -cost.min(axis=1) / self._n_heard
 
 
-def default_matcher(walk_smoothing: WalkSmoothing | None = None) -> WeightedKNN:
+def default_matcher(walk_smoothing: WalkSmoothing | None = None, kind: str = "wifi"
+                    ) -> WeightedKNN:
     """indoormap's default matcher: Sorensen kNN on the powed representation (k = 5, 1/d^4
     weights, detection-weighted references, each reference point's distance mixed half and
     half with its 1 m neighbourhood's), with rows older than 2.5 s down-weighted with a 4 s
-    decay when the scans carry row ages; each scan on its own unless ``walk_smoothing``."""
-    return WeightedKNN(k=5, weight_power=4.0, age_fresh_ms=AGE_FRESH_MS,
-                       age_decay_ms=AGE_DECAY_MS, neighbour_mix=0.5, neighbour_sigma_m=1.0,
-                       walk_smoothing=walk_smoothing)
+    decay when the scans carry row ages; each scan on its own unless ``walk_smoothing``.
+    For ``kind="ble"`` a window whose strongest beacon reads below
+    :data:`~localize.radio_match.BLE_MIN_STRONGEST_DBM` is not located, as in the localizer's
+    :class:`~localize.fingerprint_positioner.FingerprintPositioner`."""
+    if kind not in ("wifi", "ble"):
+        raise FingerprintError(f"kind must be 'wifi' or 'ble', not {kind!r}")
+    m = WeightedKNN(k=5, weight_power=4.0, age_fresh_ms=AGE_FRESH_MS,
+                    age_decay_ms=AGE_DECAY_MS, neighbour_mix=0.5, neighbour_sigma_m=1.0,
+                    walk_smoothing=walk_smoothing)
+    if kind == "ble":
+        m.min_strongest_dbm = BLE_MIN_STRONGEST_DBM
+    return m
 
 
 def default_walk_matcher() -> WeightedKNN:

@@ -184,7 +184,7 @@ def heldout_radio(obs: dict[str, pd.DataFrame], device_of: pd.Series, floors: li
             if len(t) == 0:
                 continue
             scans = scan_set(t)
-            matcher = default_matcher().fit(db)
+            matcher = default_matcher(kind=kind).fit(db)
             for key, smoothing in ((kind, None), (f"{kind} walk", WalkSmoothing())):
                 matcher.walk_smoothing = smoothing
                 res = matcher.predict(scans)

@@ -19,7 +19,7 @@ from localize.errors import LocalizationError
 from localize.fingerprint_positioner import FingerprintPositioner, fingerprint_kinds
 from localize.floor_classifier import FloorClassifier
 from localize.floors import SiteMaps
-from localize.radio_match import WalkSmoothing
+from localize.radio_match import BLE_MIN_STRONGEST_DBM, WalkSmoothing
 from localize.steps import RadioScan
 from localize.walk_radio import radio_for_walk
 from mapping.fingerprints import FingerprintDB
@@ -131,6 +131,30 @@ def test_localizer_positions_equal_the_mapping_matcher(built, wifi_obs):
         pos.locate_matrix(rssi[:3], None, WalkSmoothing())
 
 
+def test_ble_fixes_equal_the_mapping_matchers_weak_windows_and_all(built, ble_obs):
+    """`indoormap validate` scores the BLE windows the localizer locates, no others."""
+    b = load_bundle(built / "F2")
+    pos = FingerprintPositioner.from_bundle(b, "ble")
+    db = FingerprintDB.from_tables(_tables(b, "ble"))
+    scans = scan_set(ble_obs["F2"])
+    want = default_matcher(kind="ble").fit(db).predict(scans)
+    idx = np.searchsorted(pos.aps, scans.aps)
+    known = (idx < len(pos.aps)) & (pos.aps[np.minimum(idx, len(pos.aps) - 1)] == scans.aps)
+    rssi = np.full((len(scans), len(pos.aps)), np.nan)
+    rssi[:, idx[known]] = scans.rssi_dbm[:, known]
+    got = pos.locate_matrix(rssi)
+    located = np.isfinite(want.xy_m[:, 0])
+    np.testing.assert_array_equal(np.isfinite(got.xy_m[:, 0]), located)
+    np.testing.assert_allclose(got.xy_m[located], want.xy_m[located], atol=1e-6)
+    weak = np.nanmax(np.where(np.isfinite(rssi), rssi, -np.inf), axis=1) < -88.0
+    assert weak.any() and (np.isfinite(rssi).any(axis=1) & ~weak).any()
+    assert not located[weak].any() and located[~weak & np.isfinite(rssi).any(axis=1)].all()
+    every = default_matcher().fit(db).predict(scans)  # Wi-Fi's rule: every window heard
+    assert np.isfinite(every.xy_m[weak & np.isfinite(rssi).any(axis=1), 0]).all()
+    with pytest.raises(Exception, match="kind must be 'wifi' or 'ble'"):
+        default_matcher(kind="lte")
+
+
 def test_localizer_floor_model_equals_the_fitted_one(built, wifi_obs):
     site = load_bundle(built / "_site")
     clf = FloorClassifier.from_bundle(site)
@@ -184,6 +208,61 @@ def test_unknown_phone_is_calibrated_online(built):
     assert (plain.rssi_k, plain.rssi_b) == (1.0, 0.0)
     assert how == ("uncalibrated (2 of the first 3 scans hear enough known transmitters to "
                    "calibrate from; 3 needed)")
+
+
+def test_ble_is_calibrated_by_an_offset_only_when_it_is_large(built):
+    """A walk's BLE windows hear too few beacons to fit a slope; an offset within the
+    estimate's noise (BLE_MIN_OFFSET_DB) is left alone, a phone reading 12 dB low is not."""
+    b = load_bundle(built / "F2")
+    pos = FingerprintPositioner.from_bundle(b, "ble")
+    rng = np.random.default_rng(3)
+    # windows at the reference points hearing 5 beacons or more (6 on the sample's F2)
+    rich = np.flatnonzero(np.isfinite(pos.mean_dbm).sum(axis=1) >= 5)[:8]
+    assert len(rich) >= 3
+
+    def windows(offset_db: float) -> list[RadioScan]:
+        out = []
+        for i in rich:
+            heard = np.flatnonzero(np.isfinite(pos.mean_dbm[i]))
+            rssi = pos.mean_dbm[i, heard] + offset_db + rng.normal(0.0, 2.0, len(heard))
+            out.append(RadioScan(int(i), pos.aps[heard], rssi))
+        return out
+
+    for offset in (0.0, 2.5, -3.0):
+        plain, how = radio_for_walk(b, None, windows(offset), kind="ble")
+        assert (plain.rssi_k, plain.rssi_b) == (1.0, 0.0), how
+        assert how.startswith("uncalibrated (the BLE offset found online from")
+        assert how.endswith("is within 4 dB)")
+    low, how = radio_for_walk(b, None, windows(-12.0), kind="ble")
+    assert how.startswith("online from") and "offset only" in how
+    assert low.rssi_k == 1.0
+    assert low.rssi_b == pytest.approx(12.0, abs=1.0)
+
+
+def test_a_ble_window_of_weak_beacons_only_is_not_located(built):
+    """Its fixes are twice as far off as the others' on site1 (BLE_MIN_STRONGEST_DBM)."""
+    b = load_bundle(built / "F2")
+    ble = FingerprintPositioner.from_bundle(b, "ble")
+    assert ble.min_strongest_dbm == BLE_MIN_STRONGEST_DBM == -88.0
+    i = int(np.argmax(np.isfinite(ble.mean_dbm).sum(axis=1)))
+    heard = np.flatnonzero(np.isfinite(ble.mean_dbm[i]))
+    levels = np.linspace(-89.0, -99.0, len(heard))
+    weak = RadioScan(0, ble.aps[heard], levels)
+    assert ble.locate(weak) is None
+    assert ble.likelihood(weak, [0.0], [0.0]) is None
+    # one beacon at the limit locates the window; so does a calibration that lifts it there
+    at_limit = RadioScan(0, ble.aps[heard], np.r_[-88.0, levels[1:]])
+    assert ble.locate(at_limit) is not None
+    assert ble.with_calibration(1.0, 1.0).locate(weak) is not None
+    fixes = ble.locate_scans([weak, at_limit])
+    assert np.isnan(fixes.xy_m[0]).all() and np.isfinite(fixes.xy_m[1]).all()
+    # Wi-Fi scans are not cut
+    wifi = FingerprintPositioner.from_bundle(b, "wifi")
+    assert wifi.min_strongest_dbm == -np.inf
+    j = np.flatnonzero(np.isfinite(wifi.mean_dbm[0]))
+    assert wifi.locate(RadioScan(0, wifi.aps[j], np.full(len(j), -95.0))) is not None
+    with pytest.raises(LocalizationError, match="min_strongest_dbm is NaN"):
+        dataclasses.replace(ble, min_strongest_dbm=float("nan"))
 
 
 def _rows(text: str) -> list[dict]:
