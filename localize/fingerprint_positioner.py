@@ -205,8 +205,7 @@ class FingerprintPositioner:
                     ) -> FingerprintPositioner | None:
         """The positioner of a floor bundle's ``kind`` fingerprints; None when it has none.
         BLE windows need a beacon at :data:`~localize.radio_match.BLE_MIN_STRONGEST_DBM` or
-        stronger to be located
-        (``min_strongest_dbm`` in ``kw`` overrides it)."""
+        stronger to be located (``min_strongest_dbm`` in ``kw`` overrides it)."""
         if kind not in fingerprint_kinds(bundle):
             return None
         if kind == "ble":

@@ -22,10 +22,11 @@ from numpy.typing import NDArray
 
 from localize.errors import LocalizationError
 
-__all__ = ["AGE_DECAY_MS", "AGE_FRESH_MS", "BLE_MIN_STRONGEST_DBM", "ReferenceMotion", "ReferenceNeighbours",
-           "WalkSmoothing", "age_weights", "euclidean_distances", "gaussian_loglik",
-           "knn_positions", "powed", "reference_neighbours", "scan_matrices",
-           "scan_rssi_matrix", "smoothed_distances", "sorensen_distances", "too_weak", "walk_scores"]
+__all__ = ["AGE_DECAY_MS", "AGE_FRESH_MS", "BLE_MIN_STRONGEST_DBM", "ReferenceMotion",
+           "ReferenceNeighbours", "WalkSmoothing", "age_weights", "euclidean_distances",
+           "gaussian_loglik", "knn_positions", "powed", "reference_neighbours", "scan_matrices",
+           "scan_rssi_matrix", "smoothed_distances", "sorensen_distances", "too_weak",
+           "walk_scores"]
 
 FloatArray = NDArray[np.float64]
 
@@ -79,7 +80,8 @@ def too_weak(rssi_dbm: FloatArray, min_strongest_dbm: float) -> NDArray[np.bool_
 #: located. On the real site1 traces (held-out 2 s windows, 5-fold by walk) the 11 % of windows
 #: that hear only such beacons are 13.6 m off in median (p80 27.6 m), the others 6.3 m
 #: (12.1 m), and the localizer does better without them (``docs/localize.md``, "Walks without
-#: Wi-Fi"). Wi-Fi scans are not cut: their fixes did not change with a limit of -85 dBm.
+#: Wi-Fi"). Wi-Fi scans are not cut: dropping their rows below -85 dBm left their fixes as
+#: they were.
 BLE_MIN_STRONGEST_DBM = -88.0
 
 #: Scan rows up to this age (ms) count in full; older ones decay (:func:`age_weights`).

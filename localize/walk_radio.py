@@ -26,8 +26,8 @@ from localize.filter import first_radio_fix
 from localize.fingerprint_positioner import FingerprintPositioner
 from localize.steps import RadioScan, StepSummaries
 
-__all__ = ["BLE_MIN_OFFSET_DB", "MIN_CALIBRATION_SCANS", "ONLINE_CALIBRATION_SCANS", "WalkRadio",
-           "bundle_positioner", "radio_for_walk", "walk_radio"]
+__all__ = ["BLE_MIN_OFFSET_DB", "MIN_CALIBRATION_SCANS", "ONLINE_CALIBRATION_SCANS",
+           "WalkRadio", "bundle_positioner", "radio_for_walk", "walk_radio"]
 
 #: Scans of a walk used to calibrate an unknown phone's RSSI online.
 ONLINE_CALIBRATION_SCANS = 8

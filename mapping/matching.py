@@ -184,6 +184,9 @@ class WeightedKNN(_Matcher):
         (:func:`localize.radio_match.smoothed_distances`; 0 = off).
     min_aps : int
         Scans with fewer known transmitters get no position.
+    min_strongest_dbm : float
+        Scans whose strongest known transmitter reads below this (dBm) get no position
+        (:func:`localize.radio_match.too_weak`; -inf = none cut).
     walk_smoothing : WalkSmoothing, optional
         Match the scans of a walk together (:func:`localize.radio_match.walk_scores`): the
         neighbours of a scan are picked with the prior from the walk's other scans (walks by
@@ -196,6 +199,7 @@ class WeightedKNN(_Matcher):
                  use_detection: bool = True, age_fresh_ms: float | None = None,
                  age_decay_ms: float | None = None, neighbour_mix: float = 0.0,
                  neighbour_sigma_m: float = 1.0, min_aps: int = 1,
+                 min_strongest_dbm: float = float("-inf"),
                  walk_smoothing: WalkSmoothing | None = None) -> None:
         if metric not in ("sorensen", "euclidean"):
             raise FingerprintError(f"metric must be 'sorensen' or 'euclidean', not {metric!r}")
@@ -215,6 +219,7 @@ class WeightedKNN(_Matcher):
         self.representation, self.floor_dbm, self.beta = representation, floor_dbm, beta
         self.missing_dbm, self.use_detection = missing_dbm, use_detection
         self.age_fresh_ms, self.age_decay_ms, self.min_aps = age_fresh_ms, age_decay_ms, min_aps
+        self.min_strongest_dbm = float(min_strongest_dbm)
         self.walk_smoothing = walk_smoothing
 
     def _vectors(self, rssi: NDArray[np.float64], age: NDArray[np.float64] | None
@@ -329,12 +334,10 @@ def default_matcher(walk_smoothing: WalkSmoothing | None = None, kind: str = "wi
     :class:`~localize.fingerprint_positioner.FingerprintPositioner`."""
     if kind not in ("wifi", "ble"):
         raise FingerprintError(f"kind must be 'wifi' or 'ble', not {kind!r}")
-    m = WeightedKNN(k=5, weight_power=4.0, age_fresh_ms=AGE_FRESH_MS,
-                    age_decay_ms=AGE_DECAY_MS, neighbour_mix=0.5, neighbour_sigma_m=1.0,
-                    walk_smoothing=walk_smoothing)
-    if kind == "ble":
-        m.min_strongest_dbm = BLE_MIN_STRONGEST_DBM
-    return m
+    return WeightedKNN(k=5, weight_power=4.0, age_fresh_ms=AGE_FRESH_MS,
+                       age_decay_ms=AGE_DECAY_MS, neighbour_mix=0.5, neighbour_sigma_m=1.0,
+                       min_strongest_dbm=BLE_MIN_STRONGEST_DBM if kind == "ble"
+                       else float("-inf"), walk_smoothing=walk_smoothing)
 
 
 def default_walk_matcher() -> WeightedKNN:
