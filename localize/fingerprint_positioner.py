@@ -37,11 +37,11 @@ from localize.errors import LocalizationError
 from localize.radio_match import (
     AGE_DECAY_MS,
     AGE_FRESH_MS,
-    BLE_MIN_STRONGEST_DBM,
     ReferenceMotion,
     WalkSmoothing,
     age_weights,
     knn_positions,
+    min_strongest_dbm,
     powed,
     reference_neighbours,
     scan_matrices,
@@ -208,8 +208,7 @@ class FingerprintPositioner:
         stronger to be located (``min_strongest_dbm`` in ``kw`` overrides it)."""
         if kind not in fingerprint_kinds(bundle):
             return None
-        if kind == "ble":
-            kw.setdefault("min_strongest_dbm", BLE_MIN_STRONGEST_DBM)
+        kw.setdefault("min_strongest_dbm", min_strongest_dbm(kind))
         return cls.from_tables(bundle.table(RP_TABLE.format(kind=kind)),
                                bundle.table(FP_TABLE.format(kind=kind)), **kw)
 

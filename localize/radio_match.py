@@ -24,9 +24,9 @@ from localize.errors import LocalizationError
 
 __all__ = ["AGE_DECAY_MS", "AGE_FRESH_MS", "BLE_MIN_STRONGEST_DBM", "ReferenceMotion",
            "ReferenceNeighbours", "WalkSmoothing", "age_weights", "euclidean_distances",
-           "gaussian_loglik", "knn_positions", "powed", "reference_neighbours", "scan_matrices",
-           "scan_rssi_matrix", "smoothed_distances", "sorensen_distances", "too_weak",
-           "walk_scores"]
+           "gaussian_loglik", "knn_positions", "min_strongest_dbm", "powed",
+           "reference_neighbours", "scan_matrices", "scan_rssi_matrix", "smoothed_distances",
+           "sorensen_distances", "too_weak", "walk_scores"]
 
 FloatArray = NDArray[np.float64]
 
@@ -72,8 +72,19 @@ def too_weak(rssi_dbm: FloatArray, min_strongest_dbm: float) -> NDArray[np.bool_
     """Scans (rows of ``rssi_dbm``, dBm, NaN = not heard) whose strongest value is below
     ``min_strongest_dbm``: not located (:data:`BLE_MIN_STRONGEST_DBM`). Shape (S,)."""
     r = np.asarray(rssi_dbm, dtype=np.float64)
+    if min_strongest_dbm == -np.inf:  # Wi-Fi: nothing is cut, and no pass over the matrix
+        return np.zeros(r.shape[:-1], dtype=bool)
     strongest = np.where(np.isfinite(r), r, -np.inf).max(axis=-1, initial=-np.inf)
     return strongest < min_strongest_dbm
+
+
+def min_strongest_dbm(kind: str) -> float:
+    """The weakest strongest value (dBm) a scan of ``kind`` (``"wifi"``, ``"ble"``) needs to
+    be located: :data:`BLE_MIN_STRONGEST_DBM` for BLE, -inf (every scan) for Wi-Fi. What the
+    localizer's positioner and the mapping side's default matcher both use."""
+    if kind not in ("wifi", "ble"):
+        raise ValueError(f"kind must be 'wifi' or 'ble', not {kind!r}")
+    return BLE_MIN_STRONGEST_DBM if kind == "ble" else float("-inf")
 
 
 #: A BLE window whose strongest known beacon reads below this (dBm, calibrated) is not

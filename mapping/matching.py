@@ -36,13 +36,13 @@ from numpy.typing import NDArray
 from localize.radio_match import (
     AGE_DECAY_MS,
     AGE_FRESH_MS,
-    BLE_MIN_STRONGEST_DBM,
     ReferenceMotion,
     WalkSmoothing,
     age_weights,
     euclidean_distances,
     gaussian_loglik,
     knn_positions,
+    min_strongest_dbm,
     powed,
     reference_neighbours,
     smoothed_distances,
@@ -336,8 +336,7 @@ def default_matcher(walk_smoothing: WalkSmoothing | None = None, kind: str = "wi
         raise FingerprintError(f"kind must be 'wifi' or 'ble', not {kind!r}")
     return WeightedKNN(k=5, weight_power=4.0, age_fresh_ms=AGE_FRESH_MS,
                        age_decay_ms=AGE_DECAY_MS, neighbour_mix=0.5, neighbour_sigma_m=1.0,
-                       min_strongest_dbm=BLE_MIN_STRONGEST_DBM if kind == "ble"
-                       else float("-inf"), walk_smoothing=walk_smoothing)
+                       min_strongest_dbm=min_strongest_dbm(kind), walk_smoothing=walk_smoothing)
 
 
 def default_walk_matcher() -> WeightedKNN:

@@ -25,7 +25,7 @@ from localize.walk_radio import radio_for_walk
 from mapping.fingerprints import FingerprintDB
 from mapping.floor_model import FloorModel
 from mapping.registry import Registry
-from mapping.matching import default_matcher, default_walk_matcher
+from mapping.matching import align_scans, default_matcher, default_walk_matcher
 from mapping.radio_scans import scan_set
 from survey.cli import main
 
@@ -138,10 +138,7 @@ def test_ble_fixes_equal_the_mapping_matchers_weak_windows_and_all(built, ble_ob
     db = FingerprintDB.from_tables(_tables(b, "ble"))
     scans = scan_set(ble_obs["F2"])
     want = default_matcher(kind="ble").fit(db).predict(scans)
-    idx = np.searchsorted(pos.aps, scans.aps)
-    known = (idx < len(pos.aps)) & (pos.aps[np.minimum(idx, len(pos.aps) - 1)] == scans.aps)
-    rssi = np.full((len(scans), len(pos.aps)), np.nan)
-    rssi[:, idx[known]] = scans.rssi_dbm[:, known]
+    rssi = align_scans(scans, pos.aps)[0]
     got = pos.locate_matrix(rssi)
     located = np.isfinite(want.xy_m[:, 0])
     np.testing.assert_array_equal(np.isfinite(got.xy_m[:, 0]), located)
