@@ -36,8 +36,8 @@ if TYPE_CHECKING:  # annotations only
 
     from localize.bundle import MapBundle
 
-__all__ = ["FEATURES", "FloorClassifier", "floor_log_proba", "floor_model_kind",
-           "level_features", "scan_features", "site_floor_models"]
+__all__ = ["FEATURES", "FloorClassifier", "check_feature", "floor_log_proba",
+           "floor_model_kind", "level_features", "scan_features", "site_floor_models"]
 
 COEF_TABLE, INTERCEPT_TABLE = "floor_coef", "floor_intercept"
 #: Prefix of the tables of the BLE floor model beside a Wi-Fi one (``ble_floor_coef``, ...).
@@ -53,14 +53,19 @@ def level_features(rssi_dbm: ArrayLike) -> NDArray[np.float64]:
     return np.clip(np.nan_to_num((r + 100.0) / 100.0, nan=0.0), 0.0, 1.0)
 
 
+def check_feature(feature: str, error: type[Exception] = LocalizationError) -> None:
+    """Raise ``error`` unless ``feature`` is one of :data:`FEATURES`."""
+    if feature not in FEATURES:
+        raise error(f"floor model feature must be one of {FEATURES}, not {feature!r}")
+
+
 def scan_features(rssi_dbm: ArrayLike, feature: str = "level") -> NDArray[np.float64]:
     """A floor model's features of RSSI values (dBm, NaN = not heard), same shape:
     :func:`level_features` for ``level``, 1 where heard and 0 elsewhere for ``presence``."""
+    check_feature(feature)
     if feature == "level":
         return level_features(rssi_dbm)
-    if feature == "presence":
-        return np.isfinite(np.asarray(rssi_dbm, dtype=np.float64)).astype(np.float64)
-    raise LocalizationError(f"floor model feature must be one of {FEATURES}, not {feature!r}")
+    return np.isfinite(np.asarray(rssi_dbm, dtype=np.float64)).astype(np.float64)
 
 
 def floor_log_proba(features: ArrayLike, coef: ArrayLike, intercept: ArrayLike
@@ -98,9 +103,7 @@ class FloorClassifier:
     feature: str = "level"
 
     def __post_init__(self) -> None:
-        if self.feature not in FEATURES:
-            raise LocalizationError(f"floor model feature must be one of {FEATURES}, not "
-                                    f"{self.feature!r}")
+        check_feature(self.feature)
         if self.coef.shape != (len(self.floors), len(self.aps)) or \
                 self.intercept.shape != (len(self.floors),):
             raise LocalizationError(f"floor model: coef {self.coef.shape} / intercept "

@@ -39,7 +39,12 @@ import pandas as pd
 from numpy.typing import NDArray
 from scipy import sparse
 
-from localize.floor_classifier import FEATURES, FloorClassifier, floor_log_proba, scan_features
+from localize.floor_classifier import (
+    FloorClassifier,
+    check_feature,
+    floor_log_proba,
+    scan_features,
+)
 from localize.steps import RadioScan
 
 from .errors import FingerprintError
@@ -178,7 +183,7 @@ class FloorModel:
         if int(meta.pop("format_version")) != FORMAT_VERSION:
             raise FingerprintError("unsupported floor model format version")
         meta["skipped_floors"] = [f for f in str(meta.get("skipped_floors", "")).split(";") if f]
-        _check_feature(str(meta.get("feature", "level")))
+        check_feature(str(meta.get("feature", "level")), FingerprintError)
         floors = tables["intercept"]["floor"].to_numpy().astype(str)
         coef_t = tables["coef"]
         aps = np.unique(coef_t["ap"].to_numpy().astype(str))
@@ -207,11 +212,6 @@ def _floor_tables(obs_by_floor: Mapping[str, pd.DataFrame]
     if not tables:
         raise FingerprintError("no floor has any scan: cannot fit a floor model")
     return tables, skipped
-
-
-def _check_feature(feature: str) -> None:
-    if feature not in FEATURES:
-        raise FingerprintError(f"floor model feature must be one of {FEATURES}, not {feature!r}")
 
 
 def _design(tables: Mapping[str, pd.DataFrame], aps: NDArray[np.str_], feature: str
@@ -279,7 +279,7 @@ def cross_validate_floor_model(obs_by_floor: Mapping[str, pd.DataFrame], *, fold
     feature : str
         ``level`` or ``presence`` (module docstring).
     """
-    _check_feature(feature)
+    check_feature(feature, FingerprintError)
     tables, _ = _floor_tables(obs_by_floor)
     walks = distinct_text(pd.concat([o["trace_id"].drop_duplicates() for o in tables.values()]))
     folds = int(min(folds, len(walks)))
@@ -348,7 +348,7 @@ def fit_floor_model(obs_by_floor: Mapping[str, pd.DataFrame], *, c: float = 1.0,
     FingerprintError
         No floor has a scan, or a table lacks columns.
     """
-    _check_feature(feature)
+    check_feature(feature, FingerprintError)
     tables, skipped = _floor_tables(obs_by_floor)
     model = _fit(tables, c=c, min_scans=min_scans, skipped=skipped, feature=feature)
     meta = {**model.meta, "cv_folds": 0, "cv_scan_accuracy": np.nan,

@@ -68,3 +68,16 @@ def test_floor_without_wifi_is_skipped_and_no_wifi_at_all_refused(wifi_obs):
     assert (single.predict(scan_set(wifi_obs["F2"])) == "F2").all()
     with pytest.raises(FingerprintError, match="lacks"):
         FloorModel.from_tables({"coef": pd.DataFrame({"ap": []})})
+
+
+def test_an_unknown_feature_is_refused_by_fit_cross_validation_and_tables(wifi_obs):
+    """The mapping side raises its own error, naming the feature, before any work."""
+    message = r"feature must be one of \('level', 'presence'\), not 'rank'"
+    with pytest.raises(FingerprintError, match=message):
+        fit_floor_model(wifi_obs, feature="rank")
+    with pytest.raises(FingerprintError, match=message):
+        cross_validate_floor_model(wifi_obs, feature="rank")
+    tables = fit_floor_model(wifi_obs, feature="presence").to_tables()
+    tables["meta"]["feature"] = "rank"
+    with pytest.raises(FingerprintError, match=message):
+        FloorModel.from_tables(tables)
