@@ -100,12 +100,30 @@ def _warn_if_off_floor(bundle, start_xy: tuple[float, float] | None) -> None:
 
 
 def _warn_if_source_walk(bundle, trace_id: str) -> None:
-    """Warn when the bundle was built from this walk (its errors are then optimistic)."""
+    """Warn when the bundle was built from this walk: its track, and any error measured on it,
+    is then better than an unseen walk's would be."""
     if bundle.has_table("source_walks"):
         used = set(bundle.table("source_walks").column("trace_id").to_pylist())
         if trace_id in used:
-            click.echo(f"warning: {trace_id} was used to build {bundle.path}; its errors are "
-                       "optimistic", err=True)
+            click.echo(f"warning: {trace_id} was used to build {bundle.path}: the map has seen "
+                       "it, so its track (and any error measured on it) is better than an unseen "
+                       "walk's would be", err=True)
+
+
+def _warn_if_outside_map(bundle, trace_id: str, waypoints_xy: np.ndarray) -> None:
+    """Warn when waypoints (m, shape (W, 2)) lie where the bundle's strength layer has no
+    data (no survey walk passed near): errors there measure a place the map does not cover,
+    where the radio fixes snap to the nearest surveyed area."""
+    if "strength" not in bundle.layers or not len(waypoints_xy):
+        return
+    off = ~np.isfinite(bundle.sample("strength", waypoints_xy[:, 0], waypoints_xy[:, 1]))
+    if off.any():
+        reach = (((bundle.manifest.get("build") or {}).get("params") or {}).get("raster")
+                 or {}).get("max_distance_m")
+        near = f"within {reach:g} m" if isinstance(reach, (int, float)) else "near"
+        click.echo(f"warning: {int(off.sum())} of {len(off)} waypoints of {trace_id} lie where "
+                   f"{bundle.path} has no map data (no survey sample {near}): its errors there "
+                   "measure a place the map does not cover", err=True)
 
 
 def _write_table(table, target: Path, fmt: str, overwrite: bool = False) -> None:
@@ -164,7 +182,7 @@ def _params(particles: int | None):
 @click.command("localize")
 @click.argument("bundle_path", metavar="BUNDLE",
                 type=click.Path(exists=True, file_okay=False, path_type=Path))
-@click.argument("walks", nargs=-1, required=True, type=click.Path(exists=True))
+@click.argument("walks", nargs=-1, required=True, type=click.Path())
 @click.option("-o", "--out", "out", required=True, type=click.Path(file_okay=False,
                                                                    path_type=Path),
               help="Output folder: <trace_id>.parquet|csv and <trace_id>.png per walk "
@@ -207,8 +225,8 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
 
     start_opt = _parse_start(start)
     maps = SiteMaps.open(bundle_path)
-    files = trace_files(walks)
     failures = WalkFailures()
+    files = trace_files(walks, failures)
     created = not out.exists()
 
     seen = TraceIds()
@@ -261,7 +279,7 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
 @click.command("evaluate")
 @click.argument("bundle_path", metavar="BUNDLE",
                 type=click.Path(exists=True, file_okay=False, path_type=Path))
-@click.argument("walks", nargs=-1, required=True, type=click.Path(exists=True))
+@click.argument("walks", nargs=-1, required=True, type=click.Path())
 @click.option("--method", "--methods", "methods", cls=AliasedOption, old_names=("--methods",),
               multiple=True, default=DEFAULT_EVALUATE_METHODS, metavar="METHOD[,METHOD...]",
               show_default=True,
@@ -312,8 +330,8 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
                 raise click.BadParameter(f"{target.parent} is a file, not a folder")
     start_opt = _parse_start(start)
     maps = SiteMaps.open(bundle_path)
-    files = trace_files(walks)
     failures = WalkFailures()
+    files = trace_files(walks, failures)
     rows = [(m, False) for m in names] + [(m, True) for m in names
                                           if smooth and m in SMOOTHABLE]
     errors: dict[str, list[np.ndarray]] = {_row_name(m, sm): [] for m, sm in rows}
@@ -330,6 +348,7 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
             click.echo(f"{f}: no waypoints, skipped", err=True)
             return
         wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp)
+        _warn_if_outside_map(bundle, trace.trace_id, xy_wp)
         if wr.kind == "ble":  # the scores of this walk are BLE's, not Wi-Fi's
             click.echo(f"{trace.trace_id}: start {how}", err=True)
         for m, sm in rows:  # a method failing on this walk leaves the others' rows alone

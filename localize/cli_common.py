@@ -62,18 +62,25 @@ class AliasedOption(click.Option):
         return self._current_only(super().get_error_hint, ctx)
 
 
-def trace_files(paths: tuple[str, ...]) -> list[Path]:
-    """The trace files (``.txt``, ``.txt.gz``) given or inside the given folders.
+def trace_files(paths: tuple[str, ...], failures: WalkFailures) -> list[Path]:
+    """The trace files (``.txt``, ``.txt.gz``) given or inside the given folders. A path that
+    does not exist is reported to ``failures`` as a walk that failed, and the others go on.
 
     Raises
     ------
     click.UsageError
-        None found.
+        None found, and no path was missing.
     """
     from survey.trace_reader import find_trace_files
 
-    files = find_trace_files(paths)
-    if not files:
+    present = []
+    for p in paths:
+        if Path(p).exists():
+            present.append(p)
+        else:
+            failures.missing(p)
+    files = find_trace_files(present)
+    if not files and not failures.count:
         raise click.UsageError("no trace files (.txt, .txt.gz) found in the given paths")
     unique: dict[Path, Path] = {}
     for f in files:  # one file named twice (relative and absolute, or a folder and a file)
@@ -124,6 +131,13 @@ class WalkFailures:
 
     def __init__(self) -> None:
         self.count = 0
+        self.n_missing = 0  # paths given that do not exist (not among the files run)
+
+    def missing(self, path: str | Path) -> None:
+        """Report a walk path that does not exist."""
+        self.count += 1
+        self.n_missing += 1
+        click.echo(f"error: {path}: no such file or folder", err=True)
 
     def run(self, where: str | Path, fn: Callable[[], T]) -> T | None:
         """``fn()``, or None after reporting an indoormap error (bad trace, no start, ...)
@@ -140,7 +154,8 @@ class WalkFailures:
             return None
 
     def exit_if_any(self, total: int) -> None:
-        """Say how many of ``total`` walks failed and exit with status 1, if any did."""
+        """Say how many of ``total`` walks (the files run, besides the paths missing) failed
+        and exit with status 1, if any did."""
         if self.count:
-            click.echo(f"{self.count} failure(s) in {total} walk(s)", err=True)
+            click.echo(f"{self.count} failure(s) in {total + self.n_missing} walk(s)", err=True)
             sys.exit(1)

@@ -73,7 +73,7 @@ class _CsvRows:
 @click.command("floor")
 @click.argument("site_path", metavar="SITE_BUNDLE",
                 type=click.Path(exists=True, file_okay=False, path_type=Path))
-@click.argument("walks", nargs=-1, required=True, type=click.Path(exists=True))
+@click.argument("walks", nargs=-1, required=True, type=click.Path())
 @click.option("--window", type=click.IntRange(1, 1000), default=5, show_default=True,
               help="Scans in the sequence estimate (this scan and the ones before it).")
 @click.option("--kind", type=click.Choice(["auto", "wifi", "ble"]), default="auto",
@@ -195,7 +195,7 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
             click.echo(f"{trace.trace_id}: floor {walk_floor} from {int(ok.sum())} BLE windows "
                        f"({why})", err=True)
 
-    files = trace_files(walks)
+    files = trace_files(walks, failures)
     for f in files:
         failures.run(f, lambda f=f: one(f))
     if scan_rows:
@@ -211,7 +211,7 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
 @click.command("wifi-locate")
 @click.argument("bundle_path", metavar="BUNDLE",
                 type=click.Path(exists=True, file_okay=False, path_type=Path))
-@click.argument("walks", nargs=-1, required=True, type=click.Path(exists=True))
+@click.argument("walks", nargs=-1, required=True, type=click.Path())
 @click.option("--kind", type=click.Choice(["wifi", "ble"]), default="wifi", show_default=True)
 @click.option("--calibration", default="auto", show_default=True,
               help="RSSI calibration of the walk's phone: auto (Wi-Fi: the bundle's device "
@@ -306,7 +306,7 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
                    + (f"; error vs waypoint track median {np.median(e):.2f} m" if len(e) else ""),
                    err=True)
 
-    files = trace_files(walks)
+    files = trace_files(walks, failures)
     for f in files:
         failures.run(f, lambda f=f: one(f))
     failures.exit_if_any(len(files))

@@ -158,6 +158,15 @@ def test_localize_reports_a_failing_walk_and_goes_on(truth_bundles, tmp_path):  
     res = CliRunner().invoke(main, ["localize", str(truth_bundles["F1"]), str(junk), "-o",
                                     str(nothing)])
     assert res.exit_code == 1 and not nothing.exists()
+    gone = tmp_path / "gone.txt.gz"  # a missing path fails alone, as a bad file does
+    res = CliRunner().invoke(main, args[:3] + [str(gone)] + args[4:] + ["--overwrite"])
+    assert res.exit_code == 1 and f"error: {gone}: no such file or folder" in res.output
+    assert "1 failure(s) in 2 walk(s)" in res.output
+    assert (out / f"{tid}.parquet").read_bytes() == first
+    res = CliRunner().invoke(main, ["localize", str(truth_bundles["F1"]), str(gone), "-o",
+                                    str(nothing)])
+    assert res.exit_code == 1 and "1 failure(s) in 1 walk(s)" in res.output
+    assert not nothing.exists()
 
 
 def test_evaluate_goes_on_past_a_bad_walk_and_a_failing_method(truth_bundles,  # noqa: F811
@@ -167,12 +176,15 @@ def test_evaluate_goes_on_past_a_bad_walk_and_a_failing_method(truth_bundles,  #
     walks = sorted(F1_WALKS.glob("*.txt.gz"))[:2]
     junk = tmp_path / "junk.txt"
     junk.write_text("not a trace\n")
+    gone = tmp_path / "gone.txt.gz"  # a path that does not exist is one failed walk too
     res = CliRunner().invoke(main, ["evaluate", str(truth_bundles["F1"]), *map(str, walks),
-                                    str(junk), "--methods", "pdr,radio", "--start", "waypoint"])
+                                    str(junk), str(gone), "--methods", "pdr,radio", "--start",
+                                    "waypoint"])
     assert res.exit_code == 1
     assert f"error: {junk}: no sensor sample, waypoint or scan" in res.output
+    assert f"error: {gone}: no such file or folder" in res.output
     assert f"error: {walks[0]} (radio):" in res.output
-    assert "3 failure(s) in 3 walk(s)" in res.output
+    assert "4 failure(s) in 4 walk(s)" in res.output
     rows = {ln.split()[0]: ln.split() for ln in res.output.splitlines()
             if ln.startswith(("pdr ", "radio "))}
     assert int(rows["pdr"][1]) > 5 and int(rows["radio"][1]) == 0

@@ -387,9 +387,10 @@ def test_radio_commands_report_a_failing_walk_and_go_on(built, tmp_path):
     junk.write_text("not a trace\n")
     runner = CliRunner()
     for cmd in ("floor", "wifi-locate"):
-        res = runner.invoke(main, [cmd, str(built), str(junk), str(good)])
+        res = runner.invoke(main, [cmd, str(built), str(junk), str(good), str(tmp_path / "no")])
         assert res.exit_code == 1, res.output
-        assert f"error: {junk}:" in res.stderr and "1 failure(s) in 2 walk(s)" in res.stderr
+        assert f"error: {junk}:" in res.stderr and "2 failure(s) in 3 walk(s)" in res.stderr
+        assert f"error: {tmp_path / 'no'}: no such file or folder" in res.stderr
         assert {r["trace_id"] for r in _rows(res.stdout)} == {good.name.split(".")[0]}
         # rows are written as each walk is through: the good walk's come before a later failure
         walks = tmp_path / "walks"  # walks run in path order: the good one, then the bad
@@ -500,3 +501,42 @@ def test_site_maps_open_a_bundle_a_build_folder_or_nothing(built, tmp_path):
         shutil.copytree(built / "F1", twice / name)
     with pytest.raises(LocalizationError, match=f"{twice}: two bundles for floor .*F1_copy"):
         SiteMaps.open(twice)
+
+
+def test_localizing_a_walk_the_map_was_built_from_says_so(built, tmp_path):
+    """A source walk's track is better than an unseen walk's: both commands warn, naming the
+    walk and the bundle."""
+    walk = min((SITE / "F2" / "path_data_files").glob("*.txt*"))
+    tid = walk.name.split(".")[0]
+    assert tid in load_bundle(built / "F2").table("source_walks").column("trace_id").to_pylist()
+    runner = CliRunner()
+    for args in (["localize", str(built), str(walk), "-o", str(tmp_path / "out"), "--no-plot"],
+                 ["evaluate", str(built), str(walk)]):
+        res = runner.invoke(main, [*args, "--method", "pdr"])
+        assert res.exit_code == 0, res.output
+        assert f"warning: {tid} was used to build {built / 'F2'}: the map has seen it" \
+            in res.stderr
+
+
+def test_evaluate_warns_about_waypoints_where_the_map_has_no_data(built, tmp_path):
+    """Waypoints where no survey walk passed (two moved 500 m north, off the floor's grid):
+    evaluate says how many, as their errors measure a place the map does not cover; the
+    walk as recorded gets no such warning."""
+    walk = min((SITE / "F2" / "path_data_files").glob("*.txt*"))
+    with gzip.open(walk, "rt") as src:
+        lines = src.readlines()
+    at = [i for i, ln in enumerate(lines) if "\tTYPE_WAYPOINT\t" in ln]
+    for i in at[-2:]:
+        t, kind, x, y = lines[i].rstrip("\n").split("\t")
+        lines[i] = f"{t}\t{kind}\t{x}\t{float(y) + 500.0}\n"
+    moved = tmp_path / walk.name
+    with gzip.open(moved, "wt") as dst:
+        dst.writelines(lines)
+    runner = CliRunner()
+    res = runner.invoke(main, ["evaluate", str(built), str(moved), "--method", "pdr"])
+    assert res.exit_code == 0, res.output
+    tid = walk.name.split(".")[0]
+    assert f"warning: 2 of {len(at)} waypoints of {tid} lie where {built / 'F2'} has no map " \
+        "data (no survey sample within 3 m)" in res.stderr  # the build's raster reach
+    plain = runner.invoke(main, ["evaluate", str(built), str(walk), "--method", "pdr"])
+    assert plain.exit_code == 0 and "has no map data" not in plain.stderr
