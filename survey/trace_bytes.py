@@ -1,7 +1,11 @@
 """Reading trace files as bytes: plain text or gzip (detected by magic bytes), size-capped.
 
-A damaged or truncated gzip stream is an error in strict mode; in lenient mode the readable
-prefix is kept and a note says what was wrong.
+A truncated gzip stream (a file cut short) is an error in strict mode; in lenient mode its
+readable prefix is kept and a note says what was wrong. A damaged stream (a flipped or lost
+byte: invalid deflate data, or a checksum or length that does not match the text) is refused
+in both modes, as ``gzip -d`` refuses it: inflating goes on past a flipped byte with garbage
+(or with one wrong value, caught by the checksum only) before it fails, and where the text
+stops being what was written cannot be told, so none of it can be trusted.
 """
 
 from __future__ import annotations
@@ -25,8 +29,9 @@ def read_trace_bytes(path: str | os.PathLike, *, strict: bool = False,
                      max_bytes: int = MAX_TRACE_BYTES) -> tuple[bytes, str | None]:
     """Return the trace text as bytes (gunzipped if needed) and a problem note or ``None``.
 
-    A truncated or damaged gzip stream raises in strict mode; in lenient mode the readable
-    prefix is returned with a note (its last, partial line is then reported as bad).
+    A truncated gzip stream raises in strict mode; in lenient mode the readable prefix is
+    returned with a note (its last, partial line is then reported as bad). A damaged stream
+    raises in both modes (module docstring).
     """
     path = Path(path)
     try:
@@ -48,15 +53,16 @@ def read_trace_bytes(path: str | os.PathLike, *, strict: bool = False,
         try:
             out = dec.decompress(data, max_bytes + 1 - total)
         except (zlib.error, _zlib.error) as err:
-            note = f"damaged gzip stream ({err})"
-            out = _salvage(data, max_bytes + 1 - total)
+            raise SurveyFormatError(
+                f"damaged gzip stream ({err}): the text it inflates to is not what was "
+                "written, and where it stops being so cannot be told, so none of it is kept "
+                "(a file that is only cut short keeps its readable part)",
+                path=str(path), reason="gzip") from err
         total += len(out)
         chunks.append(out)
         if total > max_bytes:
             raise SurveyFormatError(f"decompresses to over {max_bytes} bytes, refused",
                                     path=str(path), reason="too_large")
-        if note:
-            break
         if not dec.eof:
             note = "truncated gzip stream"
             break
@@ -69,31 +75,3 @@ def read_trace_bytes(path: str | os.PathLike, *, strict: bool = False,
     if note and strict:
         raise SurveyFormatError(note, path=str(path), reason="gzip")
     return b"".join(chunks), note
-
-
-def _salvage(data: bytes, limit: int) -> bytes:
-    """Decompress as much of a damaged gzip member as possible, in small steps."""
-    dec = zlib.decompressobj(wbits=31)  # the standard one: it can copy its state
-    out = []
-    n = 0
-    step = 1 << 14
-    for i in range(0, len(data), step):
-        before = dec.copy()
-        try:
-            piece = dec.decompress(data[i:i + step], max(limit - n, 1))
-        except zlib.error:
-            # again byte by byte from the state before this chunk: keep what precedes the
-            # damage (a bad checksum in the trailer loses nothing)
-            dec, pieces = before, []
-            for j in range(i, min(i + step, len(data))):
-                try:
-                    pieces.append(dec.decompress(data[j:j + 1], max(limit - n, 1)))
-                except zlib.error:
-                    break
-            out.append(b"".join(pieces))
-            break
-        out.append(piece)
-        n += len(piece)
-        if n >= limit:
-            break
-    return b"".join(out)

@@ -16,7 +16,8 @@ What is checked (see ``docs/trace_format.md`` and ``../shared/RELIABILITY.md`` i
 - strict mode raises nothing but :class:`SurveyFormatError`, and raises exactly when lenient
   mode finds a bad line or a damaged gzip stream, with the same ``file:line: reason`` text as
   lenient's first message;
-- lenient mode always returns; every line is counted once (``accounted_lines() ==
+- lenient mode always returns (but refuses a gzip stream damaged inside, as strict mode
+  does, with the same text: ``survey/trace_bytes.py``); every line is counted once (``accounted_lines() ==
   lines_total``, and ``lines_total`` is the number of lines of the text); the tables have the
   documented columns and dtypes, finite sensor values, valid ranges, and are sorted by time
   within each stream; row counts agree with the per-type record counts;
@@ -94,9 +95,10 @@ def sample_texts(limit: int | None = None) -> list[bytes]:
 
 def damaged_sample_gzip(path: Path) -> Path:
     """Write a damaged gzip trace to ``path``: the first 3,259 bytes of a sample trace's gzip
-    stream with byte 464 inverted, so that inflating stops after a short readable prefix
-    ("invalid distance too far back"). It replays the saved input that once leaked a damaged
-    file's messages into the next file of a batch; it is generated from the simulated sample,
+    stream with byte 464 inverted, so that inflating stops after a short prefix ("invalid
+    distance too far back"; the file is now refused whole, as its prefix cannot be trusted).
+    It replays the saved input that once leaked a damaged file's messages into the next file
+    of a batch; it is generated from the simulated sample,
     never stored, because a stored one would be a trace in the ILC layout."""
     data = bytearray(gzip.compress(sample_texts(1)[0], compresslevel=6, mtime=0)[:3259])
     data[464] ^= 0xFF
@@ -622,7 +624,10 @@ def check_trace_files(paths: Sequence[Path], store: Path | None = None) -> list[
             try:
                 single = read_trace(path)
             except SurveyFormatError as err:
-                p.append(f"lenient_raised: {err.reason}: {err}")  # only unreadable files may
+                if err.reason == "gzip" and "damaged gzip stream" in str(err):
+                    p += _refused_in_both_modes(path, str(err))
+                else:  # only unreadable files, and streams damaged inside, may
+                    p.append(f"lenient_raised: {err.reason}: {err}")
             except Exception as err:  # noqa: BLE001
                 p.append(f"lenient_raised: {type(err).__name__}: {err}")
             try:  # a size limit below the text: refused with the project's error
@@ -652,9 +657,22 @@ def check_trace_files(paths: Sequence[Path], store: Path | None = None) -> list[
             diff = same_trace(single, item) if isinstance(item, Trace) else "a ReadFailure"
             if diff:
                 p.append(f"batch_differs: read_trace vs iter_traces: {diff}")
+        elif isinstance(item, Trace):
+            p.append("batch_differs: iter_traces read what read_trace refused")
     if store is not None:
         problems = [p + check_ingest(paths, store) for p in problems]
     return problems
+
+
+def _refused_in_both_modes(path: Path, lenient: str) -> list[str]:
+    """A gzip stream damaged inside is refused by strict mode too, with the same text."""
+    try:
+        read_trace(path, strict=True)
+    except SurveyFormatError as err:
+        return [] if str(err) == lenient else [f"strict_mismatch: {err} vs lenient {lenient}"]
+    except Exception as err:  # noqa: BLE001
+        return [f"strict_raised: {type(err).__name__}: {err}"]
+    return ["strict_mismatch: strict read what lenient refused as damaged"]
 
 
 def check_ingest(paths: Sequence[Path], store: Path) -> list[str]:
