@@ -81,7 +81,8 @@ def _track_resample(x: NDArray, y: NDArray, series: list[NDArray]) -> list[NDArr
 
 
 def metrics(per_walk: list[tuple[NDArray, NDArray, NDArray, NDArray]]) -> dict[str, float]:
-    """Metrics from a list of (observed, predicted, x, y) per held-out walk (map-only)."""
+    """Metrics from a list of (observed, predicted, x, y) per held-out walk (map-only). NaN
+    (and counts of 0) when no walk has 5 predicted samples."""
     obs, pred, shape_res, d07_o, d07_p, d5_o, d5_p = [], [], [], [], [], [], []
     lag5 = int(round(5.0 / TRACK_STEP_M))
     for o, p, x, y in per_walk:
@@ -100,7 +101,9 @@ def metrics(per_walk: list[tuple[NDArray, NDArray, NDArray, NDArray]]) -> dict[s
             d5_o.append(ro[lag5:] - ro[:-lag5])
             d5_p.append(rp[lag5:] - rp[:-lag5])
     if not obs:
-        return {}
+        nan = float("nan")
+        return {"rmse": nan, "median_abs": nan, "shape_rmse": nan, "corr_0.7m": nan,
+                "corr_5m": nan, "n_samples": 0, "n_walks": 0}
     o, p, sr = np.concatenate(obs), np.concatenate(pred), np.concatenate(shape_res)
 
     def corr(a: list[NDArray], b: list[NDArray]) -> float:
@@ -180,7 +183,8 @@ def leave_one_walk_out(samples: pd.DataFrame, grid: Grid, mask: NDArray[np.bool_
     walks = np.asarray(sorted(s["trace_id"].unique()))
     walk_code = np.searchsorted(walks, s["trace_id"].to_numpy())
     raw_field = s[["mag_east_ut", "mag_north_ut", "mag_up_ut"]].to_numpy(np.float64)
-    fold_of_walk = np.arange(len(walks)) % max(1, levelling_folds)
+    n_folds = max(1, min(levelling_folds, len(walks)))  # no empty folds with few walks
+    fold_of_walk = np.arange(len(walks)) % n_folds
     levelled: dict[tuple[str, int], NDArray] = {}
     collected: dict[tuple[str, str], tuple[NDArray, NDArray, NDArray, NDArray]] = {}
     for pipe in pipelines:
@@ -188,7 +192,7 @@ def leave_one_walk_out(samples: pd.DataFrame, grid: Grid, mask: NDArray[np.bool_
         x, y = s[px].to_numpy(), s[py].to_numpy()
         pred_of = {layer: np.full(len(s), np.nan) for layer in layers}
         obs_of = {layer: np.full(len(s), np.nan) for layer in layers}
-        for fold in range(max(1, levelling_folds) if pipe.level else 1):
+        for fold in range(n_folds if pipe.level else 1):
             if pipe.level:
                 if (pipe.positions, fold) not in levelled:
                     train = ~np.isin(walk_code, np.flatnonzero(fold_of_walk == fold))
@@ -413,7 +417,7 @@ def heldout_quality(grid: Grid, mask: NDArray[np.bool_], x: NDArray, y: NDArray,
     per_walk = [(values[a:b], pred[a:b], x[a:b], y[a:b])
                 for a, b in zip(starts, np.r_[starts[1:], len(values)])]
     got = metrics(per_walk)
-    if not got:
+    if not got["n_walks"]:
         return {}
     ok = np.isfinite(pred) & np.isfinite(values)
     centred = [v[k] - np.median(v[k]) for v, p, _, _ in per_walk

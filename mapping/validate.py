@@ -418,7 +418,15 @@ class FloorData:
 
 def load_floor_data(store: SurveyStore | str | Path, bundle: MapBundle) -> FloorData:
     """Processed tables of the bundle's floor from a survey store (samples with time-linear
-    positions too, as :func:`mapping.holdout.floor_samples_with_baseline_positions` gives)."""
+    positions too, as :func:`mapping.holdout.floor_samples_with_baseline_positions` gives):
+    the walks of the bundle's site (that of its source walks found in the store, else its
+    ``site_id``) on its floor.
+
+    Raises
+    ------
+    ValidationError
+        The store holds no walk of that site and floor (another site's store).
+    """
     from survey.process_store import processed_catalog, processed_table
     from survey.store import SurveyStore
 
@@ -428,10 +436,19 @@ def load_floor_data(store: SurveyStore | str | Path, bundle: MapBundle) -> Floor
     cat = store.catalog()
     walks = {w["trace_id"] for w in m.get("build", {}).get("source_walks", [])}
     mine = cat[cat["trace_id"].isin(walks)]
-    site = str(mine["site"].iloc[0]) if len(mine) else None
-    fcat = cat[(cat["floor"] == floor) & ((cat["site"] == site) if site else True)]
+    # the site of the bundle's own walks in the store, else the bundle's site: never every
+    # site's walks of a floor that happens to share the name
+    site = str(mine["site"].iloc[0]) if len(mine) else str(bundle.site_id or "")
+    fcat = cat[(cat["floor"] == floor) & (cat["site"] == site)]
+    if not len(fcat):
+        sites = sorted(set(cat.loc[cat["floor"] == floor, "site"].astype(str)))
+        raise ValidationError(
+            f"{store.root}: the store holds no walk of {bundle.path}'s site {site or '(none)'}, "
+            f"floor {floor}" + (f" (its {floor} walks are of site {', '.join(sites)})"
+                                if sites else "") + ": validate the bundle with the store "
+            "it was built from")
     pcat = processed_catalog(store)
-    pcat = pcat[(pcat["floor"] == floor) & ((pcat["site"] == site) if site else True)]
+    pcat = pcat[(pcat["floor"] == floor) & (pcat["site"] == site)]
     samples = holdout.floor_samples_with_baseline_positions(store, floor, site)
     steps = processed_table(store, "steps", site=site, floor=floor)
     legs = processed_table(store, "legs", site=site, floor=floor)

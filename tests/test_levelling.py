@@ -144,3 +144,27 @@ def test_held_out_levelling_uses_the_builds_share_of_samples(monkeypatch):
         for n_train, fit_stride in calls:
             assert fit_stride == stride
             assert abs(n_train - len(samples) / 2 / thin) <= 4  # half of the 8 walks
+
+
+def test_held_out_levelling_has_no_empty_folds_and_scores_nothing_as_nan():
+    """More levelling folds than walks: one fold per walk (the report used to list folds
+    without walks); a layer no walk can be scored on gives NaN figures, not a missing column
+    (``validate`` crashed on it with a KeyError)."""
+    from mapping import holdout
+    from mapping.grid import grid_for_extent
+
+    samples = survey(n=200)
+    n_walks = samples["trace_id"].nunique()
+    grid = grid_for_extent(30.0, 3.0, 0.5)
+    pipes = [holdout.Pipeline("constant", level=False, constant=True),
+             holdout.Pipeline("default")]
+    said: list[str] = []
+    table = holdout.leave_one_walk_out(samples, grid, np.ones(grid.shape, bool), pipes,
+                                       levelling_folds=n_walks + 4, progress=said.append)
+    assert said.count("default: fold 1") == 1 and f"default: fold {n_walks}" in said
+    assert f"default: fold {n_walks + 1}" not in said
+    assert np.isfinite(table["shape_rmse"]).all()
+    nothing = holdout.metrics([(np.ones(3), np.ones(3), np.zeros(3), np.arange(3.0))])
+    assert np.isnan(nothing["shape_rmse"]) and nothing["n_walks"] == 0
+    assert set(nothing) == set(holdout.metrics(
+        [(np.arange(9.0), np.arange(9.0) + 1, np.zeros(9), np.arange(9.0))]))

@@ -291,8 +291,10 @@ def test_walking_distance_goes_around_walls():
 
 
 @pytest.mark.parametrize("floor", ["F1"])
-def test_sample_bundle_from_data_is_fast(tmp_path, floor):
-    """The repository's sample (data/sample_site) validates well within 30 s."""
+def test_sample_bundle_from_data_is_fast(tmp_path, floor, sites):
+    """The repository's sample (data/sample_site) validates well within 30 s. Another site's
+    bundle of a floor of the same name is refused with that store, naming both sites,
+    instead of being scored on walks it was not built from."""
     from mapping.build import build_floor
     from mapping.bundle_writer import write_bundle
     from mapping.floorplan import read_floor_plan
@@ -311,6 +313,12 @@ def test_sample_bundle_from_data_is_fast(tmp_path, floor):
     assert took < 90, took  # measured ~10 s; generous for loaded CI machines
     # the 6-walk sample leaves whole corridors unwalked: the report must say where
     assert any(f["check"] == "unsupported_region" for f in metrics["findings"])
+    other = sites["clean"][1]  # a bundle of another simulated site's F1
+    res, metrics = _validate(other, tmp_path / "store", tmp_path / "r2")
+    sample_site = SurveyStore.open(tmp_path / "store").catalog()["site"].iloc[0]
+    assert res.exit_code == 1 and metrics is None and not (tmp_path / "r2").exists()
+    assert f"holds no walk of {other}'s site {load_bundle(other).site_id}, floor F1 (its F1 " \
+        f"walks are of site {sample_site})" in res.output
 
 
 def test_params_are_recorded(reports):
