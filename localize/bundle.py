@@ -346,6 +346,8 @@ def read_manifest(path: Path) -> dict:
         manifest = json.loads(text.decode("utf-8"), parse_constant=_refuse_constant,
                               parse_float=_finite_float)
     except FileNotFoundError as err:
+        if not path.exists():
+            raise BundleError(f"{path}: no such file or folder") from err
         raise BundleError(f"{path}: not a map bundle (no manifest.json)") from err
     except (OSError, UnicodeDecodeError, ValueError, RecursionError) as err:
         raise BundleIntegrityError(f"{mpath}: unreadable manifest ({err})") from err

@@ -129,16 +129,9 @@ def check_floor_names(catalog: pd.DataFrame, summary: IngestSummary, floor: str,
             f"{', '.join(sorted(other['floor'].astype(str).unique()))}")
 
 
-def excluded_walks(catalog: pd.DataFrame, summary: IngestSummary, inputs: list[Path],
-                   exclude: tuple[str, ...], say: Callable[[str], None]) -> set[str]:
-    """Trace ids a build leaves out: the walks of a ``--store`` that are not under its input
-    folders (said), and those ``--exclude`` names by trace id or file name (``@FILE``: one
-    per line); a usage error names an ``--exclude`` that matches no walk."""
-    used = set().union(*(set(ingested_from(catalog, summary, f)["trace_id"]) for f in inputs))
-    outside = set(catalog["trace_id"]) - used
-    if outside:
-        say(f"  left out: {len(outside)} walk(s) of the store not under "
-            f"{', '.join(map(str, inputs))}")
+def exclude_names(exclude: tuple[str, ...]) -> list[str]:
+    """The walk names ``--exclude`` gives: each value, or with ``@FILE`` the file's lines
+    (blank lines and ``#`` comments left out)."""
     names = []
     for item in exclude:
         if item.startswith("@"):
@@ -151,6 +144,40 @@ def excluded_walks(catalog: pd.DataFrame, summary: IngestSummary, inputs: list[P
                       and not n.lstrip().startswith("#")]
         else:
             names.append(item)
+    return names
+
+
+def check_exclude_early(exclude: tuple[str, ...], inputs: list[Path]) -> None:
+    """Before any work: a usage error names an ``--exclude`` that matches no trace file under
+    ``inputs`` (by file name, or the trace id: the name without ``.txt``/``.txt.gz``),
+    rather than after the whole ingest (:func:`excluded_walks` checks again on the
+    ingested walks)."""
+    from survey.trace_reader import find_trace_files, trace_id_from_path
+
+    names = exclude_names(exclude)
+    if not names:
+        return
+    files = find_trace_files([p for p in inputs if p.exists()])
+    known = {f.name for f in files} | {trace_id_from_path(f) for f in files}
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise click.BadParameter(f"{unknown[0]!r} is no walk of this build (a trace id or a "
+                                 f"trace file's name under {', '.join(map(str, inputs))})"
+                                 + (f"; {len(unknown) - 1} more" if len(unknown) > 1 else ""),
+                                 param_hint="--exclude")
+
+
+def excluded_walks(catalog: pd.DataFrame, summary: IngestSummary, inputs: list[Path],
+                   exclude: tuple[str, ...], say: Callable[[str], None]) -> set[str]:
+    """Trace ids a build leaves out: the walks of a ``--store`` that are not under its input
+    folders (said), and those ``--exclude`` names by trace id or file name (``@FILE``: one
+    per line); a usage error names an ``--exclude`` that matches no walk."""
+    used = set().union(*(set(ingested_from(catalog, summary, f)["trace_id"]) for f in inputs))
+    outside = set(catalog["trace_id"]) - used
+    if outside:
+        say(f"  left out: {len(outside)} walk(s) of the store not under "
+            f"{', '.join(map(str, inputs))}")
+    names = exclude_names(exclude)
     mine = catalog[catalog["trace_id"].isin(used)]
     file_names = mine["source_path"].astype(str).map(lambda p: Path(p).name)
     stems = file_names.str.replace(r"\.txt(\.gz)?$", "", regex=True)
@@ -291,6 +318,7 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
                        "every floor)", err=True)
 
     check_targets()
+    check_exclude_early(exclude, inputs)
     remove_stale_temporaries(tempfile.gettempdir(), prefix=TMP_STORE_PREFIX)
     with staging_folder(out) as stage, \
             tempfile.TemporaryDirectory(prefix=tmp_prefix(TMP_STORE_PREFIX)) as tmp:

@@ -35,7 +35,7 @@ def format_summary(s: IngestSummary) -> str:
     lines = ["files:    " + ", ".join(f"{k} {v}" for k, v in sorted(s.status_counts().items()))]
     r = s.rows
     lines.append(f"ingested: {r['traces']} traces, {r['lines']} lines, {r['sensor_rows']} sensor "
-                 f"samples, {r['scans']} Wi-Fi scans ({r['wifi_rows']} rows), {r['ble_rows']} "
+                 f"rows, {r['scans']} Wi-Fi scans ({r['wifi_rows']} rows), {r['ble_rows']} "
                  f"beacon rows, {r['waypoints']} waypoints")
     for title, counts in (("skipped (undocumented types)", s.skipped),
                           ("bad lines (by reason)", s.bad),

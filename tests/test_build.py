@@ -474,6 +474,8 @@ def test_build_from_a_subset_of_walks_builds_that_subset(tmp_path):
     assert site_walks == walks  # the fingerprints' and floor model's walks too
     res = CliRunner().invoke(main, [
         "build", str(train), "--plan", str(SITE / "F1" / "geojson_map.json"),
-        "--exclude", "nosuch", "-o", str(tmp_path / "other")])
+        "--exclude", "nosuch", "--exclude", files[-1].name, "-o", str(tmp_path / "other")])
     assert res.exit_code == 2 and "'nosuch' is no walk of this build" in res.output
+    assert "1 more" in res.output  # the walk left out of the folder is none of its walks
+    assert "ingest" not in res.output  # refused before the work
     assert not (tmp_path / "other").exists()

@@ -297,8 +297,16 @@ def test_infinite_layer_values_are_refused(bundle_dir):
 
 
 def test_not_a_bundle(tmp_path):
+    """A folder without a manifest is no bundle; a path that does not exist says so, in
+    Python and in `bundle verify` (which goes on with the other paths)."""
     with pytest.raises(BundleError, match="no manifest.json"):
         load_bundle(tmp_path)
+    with pytest.raises(BundleError, match="nope: no such file or folder"):
+        load_bundle(tmp_path / "nope")
+    res = CliRunner().invoke(main, ["bundle", "verify", str(tmp_path / "nope"), str(tmp_path)])
+    assert res.exit_code == 1
+    assert f"FAILED  {tmp_path / 'nope'}: {tmp_path / 'nope'}: no such file or folder" \
+        in res.output and f"FAILED  {tmp_path}: {tmp_path}: not a map bundle" in res.output
 
 
 def test_writer_refuses_bad_numbers(tmp_path):

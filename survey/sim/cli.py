@@ -7,6 +7,8 @@ from pathlib import Path
 
 import click
 
+from ..trace_format import STREAM_NAMES
+
 
 @click.command("simulate")
 @click.argument("out_dir", type=click.Path(file_okay=False, dir_okay=True, path_type=Path))
@@ -50,6 +52,7 @@ def simulate(out_dir: Path, preset: str, seed: int | None, overwrite: bool) -> N
         fw = [w for w in walks if w.floor == floor]
         click.echo(f"  {floor}: {len(fw)} walks, {sum(w.length_m for w in fw):.0f} m, "
                    f"{sum((w.end_ms - w.start_ms) for w in fw) / 1000:.0f} s")
-    click.echo(f"  {samples} sensor samples, {sum(w.n_wifi_rows for w in walks)} Wi-Fi rows, "
+    click.echo(f"  {samples * len(STREAM_NAMES)} sensor rows ({samples} sample times x "
+               f"{len(STREAM_NAMES)} streams), {sum(w.n_wifi_rows for w in walks)} Wi-Fi rows, "
                f"{sum(w.n_ble_rows for w in walks)} beacon rows")
     click.echo(f"  {site.n_files} files, {site.n_bytes / 1e6:.2f} MB in {elapsed:.1f} s")
