@@ -12,11 +12,15 @@
 
 Every walk starts from its first Wi-Fi fix (``--radio bundle``, default: the fold bundle's
 fingerprints, as ``indoormap localize``; truth maps have none and use ``--radio knn``, a kNN over
-the other folds' scans; walks without Wi-Fi start at their first waypoint, counted), or with
+the other folds' scans; a walk without a fix starts at its first waypoint, the truth, and is
+left out of the tables, which say how many were: a rule that takes a walk's every fix away
+must not gain by it; ``--csv FILE`` writes every waypoint's error, those walks flagged), or with
 ``--radio ble`` as a phone that logs BLE only would run (an iPhone app): the Wi-Fi scans left
 out, its first BLE fix and the fold bundle's BLE fingerprints over its 2 s BLE windows,
 calibrated online as ``indoormap localize`` does (``--ble-rssi K,B``: their BLE RSSI read as
-``k * rssi + b``, a phone on another scale); except
+``k * rssi + b``, a phone on another scale; ``--ble-min-dbm X``: the weakest strongest beacon
+a window needs to be located, :data:`localize.radio_match.BLE_MIN_STRONGEST_DBM` for this run);
+except
 ``pdr@wp0``: PDR with 0.7 m steps from the first waypoint, the ILC baseline.
 ``name[smoothed]`` rows are the same filter smoothed offline over the whole walk
 (:mod:`localize.smoothing`): not what a phone shows in real time. ``auto`` is what
@@ -27,7 +31,8 @@ the start only, 300 particles); ``indoormap[weinberg]`` the Weinberg step model.
 error at the waypoints and (simulation) at every step: median, p80, mean (m).
 
 Usage: ``python benchmarks/localize_accuracy.py [--work DIR] [--methods a,b] [--skip-real]
-[--skip-sim] [--maps truth,built] [--radio bundle|knn|ble] [--ble-rssi K,B]``
+[--skip-sim] [--maps truth,built] [--radio bundle|knn|ble] [--ble-rssi K,B] [--ble-min-dbm X]
+[--csv FILE]``
 """
 
 from __future__ import annotations
@@ -59,12 +64,15 @@ from localize_eval import (
     with_ble_rssi,
 )
 
+from localize import radio_match
 from localize.params import FilterParams
 
 
 def run_floors(floors: dict, methods, params: FilterParams, label: str, steps: bool,
-               radio: str = "bundle") -> None:
-    """floors: name -> (walks, folds, bundle_of(fold index))."""
+               radio: str = "bundle", rows: list[dict] | None = None) -> None:
+    """floors: name -> (walks, folds, bundle_of(fold index)). Appends every waypoint's error
+    to ``rows`` (data set, floor, method, trace id, whether the walk started at its first
+    waypoint for want of a fix, waypoint index, error in m) when given."""
     pooled = RunResult()
     for floor, (walks, folds, bundle_of) in floors.items():
         t0 = time.time()
@@ -78,6 +86,12 @@ def run_floors(floors: dict, methods, params: FilterParams, label: str, steps: b
                     f"({time.time() - t0:.0f} s)", res, methods,
                     ("wp", "step") if steps else ("wp",))
         pooled.merge(res)
+        if rows is not None:
+            rows.extend({"data": label.rstrip(","), "floor": floor, "method": m, "trace_id": t,
+                         "fallback_start": t in res.fallback, "waypoint": i,
+                         "error_m": float(err)}
+                        for m in methods for t, errs in res.errors(m, fallback=True)
+                        for i, err in enumerate(errs))
         for note in res.notes:
             print(f"  note: {note}")
     if len(floors) > 1:
@@ -100,6 +114,13 @@ def main(argv=None) -> None:
     ap.add_argument("--ble-rssi", default="1,0", metavar="K,B",
                     help="with --radio ble: the walks' BLE RSSI read as k * rssi + b (dBm), a "
                          "phone on another scale than the survey's (default 1,0: as recorded)")
+    ap.add_argument("--ble-min-dbm", type=float, default=None, metavar="X",
+                    help="with --radio ble: locate a BLE window only when its strongest known "
+                         "beacon reads X dBm or more (default: "
+                         "localize.radio_match.BLE_MIN_STRONGEST_DBM)")
+    ap.add_argument("--csv", type=Path, default=None, metavar="FILE",
+                    help="also write every waypoint's error (m) per data set, floor, method and "
+                         "walk, the walks started at their first waypoint included and flagged")
     ap.add_argument("--skip-sim", action="store_true")
     ap.add_argument("--skip-real", action="store_true")
     args = ap.parse_args(argv)
@@ -110,11 +131,40 @@ def main(argv=None) -> None:
         if args.radio != "ble":
             ap.error("--ble-rssi needs --radio ble")
         print(f"BLE RSSI read as {ble_k:g} * rssi {ble_b:+g} dB")
+    if args.ble_min_dbm is not None:
+        if args.radio != "ble":
+            ap.error("--ble-min-dbm needs --radio ble")
+        # The module constant is what radio_match.min_strongest_dbm("ble") returns to the
+        # positioner and the mapping matcher alike; set for this process only.
+        radio_match.BLE_MIN_STRONGEST_DBM = args.ble_min_dbm
+    if args.radio == "ble":
+        print(f"BLE windows located when their strongest beacon reads >= "
+              f"{radio_match.min_strongest_dbm('ble'):g} dBm")
     d = json.loads(FilterParams().to_json())
     d.update(json.loads(args.params))
     params = FilterParams.from_dict(d)
     print(f"parameters: {params.to_json()}")
 
+    rows: list[dict] | None = [] if args.csv else None
+    run_all(args, methods, params, ble_k, ble_b, rows)
+    if rows is not None:
+        write_csv(rows, args.csv)
+
+
+def write_csv(rows: list[dict], path: Path) -> None:
+    """The waypoint errors, written to a temporary sibling and moved into place."""
+    import pandas as pd
+
+    tmp = path.with_name(f".{path.name}.tmp")
+    pd.DataFrame(rows, columns=["data", "floor", "method", "trace_id", "fallback_start",
+                                "waypoint", "error_m"]).to_csv(tmp, index=False)
+    tmp.replace(path)
+    print(f"\nwaypoint errors: {path} ({len(rows)} rows)")
+
+
+def run_all(args, methods, params: FilterParams, ble_k: float, ble_b: float,
+            rows: list[dict] | None) -> None:
+    """The simulated and the real parts, as ``args`` selects."""
     if not args.skip_sim:
         site = sim_site(args.work)
         names = ("F1", "F2", "F3")
@@ -126,7 +176,7 @@ def main(argv=None) -> None:
                 b = truth_bundle_of(site, f, args.work)
                 floors[f] = (data[f], folds_of(data[f]), lambda i, b=b: b)
             run_floors(floors, methods, params, "SIMULATED site, truth maps,", steps=True,
-                       radio=args.radio)
+                       radio=args.radio, rows=rows)
         if "built" in kinds:
             if not builder_available():
                 print("\nSIMULATED site, built maps: skipped (mapping.build not available)")
@@ -140,7 +190,7 @@ def main(argv=None) -> None:
                                      store, site / f, set(folds[i]), args.work, site.name))
                 run_floors(floors, methods, params,
                            "SIMULATED site, maps built without the test walks,", steps=True,
-                           radio=args.radio)
+                           radio=args.radio, rows=rows)
 
     if args.skip_real:
         return
@@ -159,7 +209,7 @@ def main(argv=None) -> None:
         floors[fd.name] = (walks, folds, lambda i, fd=fd, folds=folds: built_bundle(
             store, fd, set(folds[i]), args.work, "ilc"))
     run_floors(floors, methods, params, "REAL traces site1, maps built without the test walks,",
-               steps=False, radio=args.radio)
+               steps=False, radio=args.radio, rows=rows)
 
 
 if __name__ == "__main__":

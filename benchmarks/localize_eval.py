@@ -362,31 +362,51 @@ def built_bundle(store, floor_dir: Path, exclude: set[str], work: Path, tag: str
 
 @dataclass
 class RunResult:
+    """Errors of every method, walk by walk (``walks[method][i]`` is the trace id of
+    ``wp[method][i]`` and ``step[method][i]``). ``fallback`` holds the walks that had no radio
+    fix and started at their first waypoint, i.e. at the truth: :meth:`summary` leaves them
+    out unless asked, so that a rule which takes a walk's every fix away cannot gain by it."""
+
     wp: dict[str, list[np.ndarray]] = field(default_factory=dict)
     step: dict[str, list[np.ndarray]] = field(default_factory=dict)
+    walks: dict[str, list[str]] = field(default_factory=dict)
+    fallback: set[str] = field(default_factory=set)
     seconds: dict[str, float] = field(default_factory=dict)
     steps: dict[str, int] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
 
     def add(self, method: str, track: Track, w: EvalWalk, seconds: float) -> None:
         self.wp.setdefault(method, []).append(waypoint_errors(track, w.wp_t, w.wp_xy))
+        self.walks.setdefault(method, []).append(w.trace_id)
         if w.true_xy is not None:
             self.step.setdefault(method, []).append(step_errors(track, w.true_xy))
         self.seconds[method] = self.seconds.get(method, 0.0) + seconds
         self.steps[method] = self.steps.get(method, 0) + len(track)
 
     def merge(self, other: RunResult) -> None:
-        for d_self, d_other in ((self.wp, other.wp), (self.step, other.step)):
+        for d_self, d_other in ((self.wp, other.wp), (self.step, other.step),
+                                (self.walks, other.walks)):
             for k, v in d_other.items():
                 d_self.setdefault(k, []).extend(v)
+        self.fallback |= other.fallback
         for k, v in other.seconds.items():
             self.seconds[k] = self.seconds.get(k, 0.0) + v
             self.steps[k] = self.steps.get(k, 0) + other.steps[k]
         self.notes.extend(other.notes)
 
-    def summary(self, method: str, what: str = "wp") -> dict[str, float]:
+    def errors(self, method: str, what: str = "wp", fallback: bool = False
+               ) -> list[tuple[str, np.ndarray]]:
+        """``(trace id, errors (m))`` of every walk ``method`` ran, at the waypoints (``wp``)
+        or at every step (``step``); the :attr:`fallback` walks only with ``fallback``."""
         d = self.wp if what == "wp" else self.step
-        return summarize(np.concatenate(d[method]) if d.get(method) else np.empty(0))
+        return [(t, e) for t, e in zip(self.walks.get(method, []), d.get(method, []))
+                if fallback or t not in self.fallback]
+
+    def summary(self, method: str, what: str = "wp", fallback: bool = False
+                ) -> dict[str, float]:
+        """Median, p80, mean and count of the errors (:meth:`errors`)."""
+        e = [e for _, e in self.errors(method, what, fallback)]
+        return summarize(np.concatenate(e) if e else np.empty(0))
 
 
 def run_fold(walks: list[EvalWalk], test_ids: list[str], bundle: MapBundle, methods,
@@ -425,8 +445,9 @@ def run_fold(walks: list[EvalWalk], test_ids: list[str], bundle: MapBundle, meth
                             and (f := walk_radio.locate(s)) is not None), None)
             if fix is None:
                 start_xy, t_start = wp0, float(w.wp_t[0])
+                res.fallback.add(w.trace_id)
                 res.notes.append(f"{w.trace_id}: no {'BLE' if ble else 'Wi-Fi'} fix, started at "
-                                 "the first waypoint")
+                                 "the first waypoint (left out of the table)")
         for m in methods:
             name, p, smooth = _variant(m, params)
             s_xy, t0 = start_xy, t_start
@@ -467,3 +488,7 @@ def print_table(title: str, res: RunResult, methods, what=("wp", "step")) -> Non
                     f"{'':<6}" if s["n"] else f"| {'-':<35}"
         ms = 1000.0 * res.seconds.get(m, 0.0) / max(res.steps.get(m, 1), 1)
         print(line + f"| {ms:.2f}")
+    if res.fallback:
+        ran = {t for ts in res.walks.values() for t in ts}
+        print(f"({len(res.fallback)} of {len(ran)} walks had no radio fix and started at their "
+              "first waypoint, the truth: left out of the rows above)")
