@@ -21,7 +21,7 @@ scan's neighbours are then picked with the prior its walk's other scans give
 Missing-transmitter policy: transmitters the bundle does not know are ignored; a scan that
 hears none of the bundle's transmitters gives no fix (``None``), and so does one whose
 strongest known transmitter reads below :attr:`FingerprintPositioner.min_strongest_dbm`
-(BLE: :data:`localize.radio_match.BLE_MIN_STRONGEST_DBM`).
+(-inf by default: no limit; :data:`localize.radio_match.BLE_MIN_STRONGEST_DBM` says why).
 """
 
 from __future__ import annotations
@@ -126,7 +126,7 @@ class FingerprintPositioner:
         A scan whose strongest known transmitter reads below this (dBm, after the
         calibration) is not located (no fix, no likelihood); -inf (the default) locates
         every scan that hears a known transmitter. :meth:`from_bundle` sets
-        :data:`~localize.radio_match.BLE_MIN_STRONGEST_DBM` for BLE.
+        :data:`~localize.radio_match.BLE_MIN_STRONGEST_DBM` for BLE (-inf by default).
     """
 
     aps: NDArray[np.str_]
@@ -204,8 +204,9 @@ class FingerprintPositioner:
     def from_bundle(cls, bundle: MapBundle, kind: str = "wifi", **kw
                     ) -> FingerprintPositioner | None:
         """The positioner of a floor bundle's ``kind`` fingerprints; None when it has none.
-        BLE windows need a beacon at :data:`~localize.radio_match.BLE_MIN_STRONGEST_DBM` or
-        stronger to be located (``min_strongest_dbm`` in ``kw`` overrides it)."""
+        A BLE window needs a beacon at :data:`~localize.radio_match.BLE_MIN_STRONGEST_DBM`
+        (-inf by default) or stronger to be located (``min_strongest_dbm`` in ``kw``
+        overrides it)."""
         if kind not in fingerprint_kinds(bundle):
             return None
         kw.setdefault("min_strongest_dbm", min_strongest_dbm(kind))

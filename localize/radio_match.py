@@ -70,9 +70,10 @@ def powed(rssi_dbm: FloatArray, floor_dbm: float = -100.0, beta: float = float(n
 
 def too_weak(rssi_dbm: FloatArray, min_strongest_dbm: float) -> NDArray[np.bool_]:
     """Scans (rows of ``rssi_dbm``, dBm, NaN = not heard) whose strongest value is below
-    ``min_strongest_dbm``: not located (:data:`BLE_MIN_STRONGEST_DBM`). Shape (S,)."""
+    ``min_strongest_dbm``: not located (:data:`BLE_MIN_STRONGEST_DBM`; none when -inf).
+    Shape (S,)."""
     r = np.asarray(rssi_dbm, dtype=np.float64)
-    if min_strongest_dbm == -np.inf:  # Wi-Fi: nothing is cut, and no pass over the matrix
+    if min_strongest_dbm == -np.inf:  # the default: nothing is cut, and no pass over the matrix
         return np.zeros(r.shape[:-1], dtype=bool)
     strongest = np.where(np.isfinite(r), r, -np.inf).max(axis=-1, initial=-np.inf)
     return strongest < min_strongest_dbm
@@ -80,20 +81,24 @@ def too_weak(rssi_dbm: FloatArray, min_strongest_dbm: float) -> NDArray[np.bool_
 
 def min_strongest_dbm(kind: str) -> float:
     """The weakest strongest value (dBm) a scan of ``kind`` (``"wifi"``, ``"ble"``) needs to
-    be located: :data:`BLE_MIN_STRONGEST_DBM` for BLE, -inf (every scan) for Wi-Fi. What the
-    localizer's positioner and the mapping side's default matcher both use."""
+    be located: :data:`BLE_MIN_STRONGEST_DBM` for BLE (-inf by default), -inf (every scan)
+    for Wi-Fi. What the localizer's positioner and the mapping side's default matcher both
+    use."""
     if kind not in ("wifi", "ble"):
         raise ValueError(f"kind must be 'wifi' or 'ble', not {kind!r}")
     return BLE_MIN_STRONGEST_DBM if kind == "ble" else float("-inf")
 
 
 #: A BLE window whose strongest known beacon reads below this (dBm, calibrated) is not
-#: located. On the real site1 traces (held-out 2 s windows, 5-fold by walk) the 11 % of windows
-#: that hear only such beacons are 13.6 m off in median (p80 27.6 m), the others 6.3 m
-#: (12.1 m), and the localizer does better without them (``docs/localize.md``, "Walks without
-#: Wi-Fi"). Wi-Fi scans are not cut: dropping their rows below -85 dBm left their fixes as
-#: they were.
-BLE_MIN_STRONGEST_DBM = -88.0
+#: located; -inf (the default): every window that hears a known beacon is. Such windows are
+#: far off on the real site1 traces (below -88 dBm: 13.6 m median against 6.3 m for the others,
+#: held-out 2 s windows), but a limit does not make the localizer better on the walks that keep
+#: a fix (-92 to -76 dBm: within 0.2 m of none in median, 5-fold by walk, three phone scales),
+#: and it leaves walks without any fix: at -88 dBm 24 of 305 walks on the survey phones (10
+#: without a limit), 74 on a phone reading 12 dB low (25), whose users then get no position
+#: (``docs/localize.md``, "Walks without Wi-Fi"). Kept as a setting for sites where it helps;
+#: ``benchmarks/localize_accuracy.py --ble-min-dbm X`` measures it. Wi-Fi scans are never cut.
+BLE_MIN_STRONGEST_DBM = float("-inf")
 
 #: Scan rows up to this age (ms) count in full; older ones decay (:func:`age_weights`).
 AGE_FRESH_MS = 2500.0

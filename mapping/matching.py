@@ -330,7 +330,8 @@ def default_matcher(walk_smoothing: WalkSmoothing | None = None, kind: str = "wi
     half with its 1 m neighbourhood's), with rows older than 2.5 s down-weighted with a 4 s
     decay when the scans carry row ages; each scan on its own unless ``walk_smoothing``.
     For ``kind="ble"`` a window whose strongest beacon reads below
-    :data:`~localize.radio_match.BLE_MIN_STRONGEST_DBM` is not located, as in the localizer's
+    :data:`~localize.radio_match.BLE_MIN_STRONGEST_DBM` (-inf by default: no limit) is not
+    located, as in the localizer's
     :class:`~localize.fingerprint_positioner.FingerprintPositioner`."""
     if kind not in ("wifi", "ble"):
         raise FingerprintError(f"kind must be 'wifi' or 'ble', not {kind!r}")

@@ -8,7 +8,6 @@ import dataclasses
 import gzip
 import io
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -131,23 +130,31 @@ def test_localizer_positions_equal_the_mapping_matcher(built, wifi_obs):
         pos.locate_matrix(rssi[:3], None, WalkSmoothing())
 
 
-def test_ble_fixes_equal_the_mapping_matchers_weak_windows_and_all(built, ble_obs):
-    """`indoormap validate` scores the BLE windows the localizer locates, no others."""
+def test_ble_fixes_equal_the_mapping_matchers_weak_windows_and_all(built, ble_obs,
+                                                                   monkeypatch):
+    """`indoormap validate` scores the BLE windows the localizer locates, no others: every
+    window heard by default, and the same windows under a limit on the strongest beacon
+    (BLE_MIN_STRONGEST_DBM, which both read)."""
+    from localize import radio_match
+
     b = load_bundle(built / "F2")
-    pos = FingerprintPositioner.from_bundle(b, "ble")
     db = FingerprintDB.from_tables(_tables(b, "ble"))
     scans = scan_set(ble_obs["F2"])
-    want = default_matcher(kind="ble").fit(db).predict(scans)
-    rssi = align_scans(scans, pos.aps)[0]
-    got = pos.locate_matrix(rssi)
-    located = np.isfinite(want.xy_m[:, 0])
-    np.testing.assert_array_equal(np.isfinite(got.xy_m[:, 0]), located)
-    np.testing.assert_allclose(got.xy_m[located], want.xy_m[located], atol=1e-6)
-    weak = np.nanmax(np.where(np.isfinite(rssi), rssi, -np.inf), axis=1) < -88.0
-    assert weak.any() and (np.isfinite(rssi).any(axis=1) & ~weak).any()
-    assert not located[weak].any() and located[~weak & np.isfinite(rssi).any(axis=1)].all()
-    every = default_matcher().fit(db).predict(scans)  # Wi-Fi's rule: every window heard
-    assert np.isfinite(every.xy_m[weak & np.isfinite(rssi).any(axis=1), 0]).all()
+    for limit in (-np.inf, -88.0):
+        monkeypatch.setattr(radio_match, "BLE_MIN_STRONGEST_DBM", limit)
+        pos = FingerprintPositioner.from_bundle(b, "ble")
+        want = default_matcher(kind="ble").fit(db).predict(scans)
+        rssi = align_scans(scans, pos.aps)[0]
+        got = pos.locate_matrix(rssi)
+        located = np.isfinite(want.xy_m[:, 0])
+        np.testing.assert_array_equal(np.isfinite(got.xy_m[:, 0]), located)
+        np.testing.assert_allclose(got.xy_m[located], want.xy_m[located], atol=1e-6)
+        heard = np.isfinite(rssi).any(axis=1)
+        weak = np.nanmax(np.where(np.isfinite(rssi), rssi, -np.inf), axis=1) < -88.0
+        assert (weak & heard).any() and (heard & ~weak).any()
+        assert located[heard & ~weak].all()
+        assert located[weak & heard].all() == (limit == -np.inf)
+        assert not located[weak & heard].any() or limit == -np.inf
     with pytest.raises(Exception, match="kind must be 'wifi' or 'ble'"):
         default_matcher(kind="lte")
 
@@ -236,15 +243,19 @@ def test_ble_is_calibrated_by_an_offset_only_when_it_is_large(built):
     assert low.rssi_b == pytest.approx(12.0, abs=1.0)
 
 
-def test_a_ble_window_of_weak_beacons_only_is_not_located(built):
-    """Its fixes are twice as far off as the others' on site1 (BLE_MIN_STRONGEST_DBM)."""
+def test_a_limit_on_the_strongest_beacon_leaves_weak_ble_windows_unlocated(built):
+    """By default every window that hears a known beacon is located (a limit left site1's
+    walks no better and some of them without any fix: BLE_MIN_STRONGEST_DBM); given a limit,
+    a window of weak beacons only gives no fix and no likelihood."""
     b = load_bundle(built / "F2")
-    ble = FingerprintPositioner.from_bundle(b, "ble")
-    assert ble.min_strongest_dbm == BLE_MIN_STRONGEST_DBM == -88.0
+    default = FingerprintPositioner.from_bundle(b, "ble")
+    assert default.min_strongest_dbm == BLE_MIN_STRONGEST_DBM == -np.inf
+    ble = FingerprintPositioner.from_bundle(b, "ble", min_strongest_dbm=-88.0)
     i = int(np.argmax(np.isfinite(ble.mean_dbm).sum(axis=1)))
     heard = np.flatnonzero(np.isfinite(ble.mean_dbm[i]))
     levels = np.linspace(-89.0, -99.0, len(heard))
     weak = RadioScan(0, ble.aps[heard], levels)
+    assert default.locate(weak) is not None
     assert ble.locate(weak) is None
     assert ble.likelihood(weak, [0.0], [0.0]) is None
     # one beacon at the limit locates the window; so does a calibration that lifts it there
