@@ -147,14 +147,13 @@ def exclude_names(exclude: tuple[str, ...]) -> list[str]:
     return names
 
 
-def check_exclude_early(exclude: tuple[str, ...], inputs: list[Path]) -> None:
-    """Before any work: a usage error names an ``--exclude`` that matches no trace file under
-    ``inputs`` (by file name, or the trace id: the name without ``.txt``/``.txt.gz``),
-    rather than after the whole ingest (:func:`excluded_walks` checks again on the
-    ingested walks)."""
+def check_exclude_early(names: list[str], inputs: list[Path]) -> None:
+    """Before any work: a usage error names an ``--exclude`` name (:func:`exclude_names`)
+    that matches no trace file under ``inputs`` (by file name, or the trace id: the name
+    without ``.txt``/``.txt.gz``), rather than after the whole ingest (:func:`excluded_walks`
+    checks again on the ingested walks)."""
     from survey.trace_reader import find_trace_files, trace_id_from_path
 
-    names = exclude_names(exclude)
     if not names:
         return
     files = find_trace_files([p for p in inputs if p.exists()])
@@ -168,16 +167,15 @@ def check_exclude_early(exclude: tuple[str, ...], inputs: list[Path]) -> None:
 
 
 def excluded_walks(catalog: pd.DataFrame, summary: IngestSummary, inputs: list[Path],
-                   exclude: tuple[str, ...], say: Callable[[str], None]) -> set[str]:
+                   names: list[str], say: Callable[[str], None]) -> set[str]:
     """Trace ids a build leaves out: the walks of a ``--store`` that are not under its input
-    folders (said), and those ``--exclude`` names by trace id or file name (``@FILE``: one
-    per line); a usage error names an ``--exclude`` that matches no walk."""
+    folders (said), and those ``--exclude`` names (:func:`exclude_names`) by trace id or
+    file name; a usage error names one that matches no walk."""
     used = set().union(*(set(ingested_from(catalog, summary, f)["trace_id"]) for f in inputs))
     outside = set(catalog["trace_id"]) - used
     if outside:
         say(f"  left out: {len(outside)} walk(s) of the store not under "
             f"{', '.join(map(str, inputs))}")
-    names = exclude_names(exclude)
     mine = catalog[catalog["trace_id"].isin(used)]
     file_names = mine["source_path"].astype(str).map(lambda p: Path(p).name)
     stems = file_names.str.replace(r"\.txt(\.gz)?$", "", regex=True)
@@ -318,7 +316,8 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
                        "every floor)", err=True)
 
     check_targets()
-    check_exclude_early(exclude, inputs)
+    excluding = exclude_names(exclude)  # an @FILE is read once
+    check_exclude_early(excluding, inputs)
     remove_stale_temporaries(tempfile.gettempdir(), prefix=TMP_STORE_PREFIX)
     with staging_folder(out) as stage, \
             tempfile.TemporaryDirectory(prefix=tmp_prefix(TMP_STORE_PREFIX)) as tmp:
@@ -348,7 +347,7 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
             for name, folder in zip(plans, inputs):
                 check_floor_names(cat, summary, name, folder, say,
                                   planned=plan_file is not None)
-        left_out = excluded_walks(cat, summary, inputs, exclude, say)
+        left_out = excluded_walks(cat, summary, inputs, excluding, say)
         reachable = {(s, fl): plans[fl].reachable for s, fl in
                      cat[["site", "floor"]].drop_duplicates().itertuples(index=False)
                      if fl in plans}
