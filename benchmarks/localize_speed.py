@@ -8,7 +8,12 @@ Prints
    magnetometer samples of the step (100 Hz, 0.67 s step period: 67 samples), and their ratio
    (paper 001: 4.4 ms at N = 300, 18x faster than DTW);
 2. users per CPU core of the multi-user engine at N = 300 and a 0.67 s step period (paper 001:
-   130 users per core), with the particle memory per user.
+   130 users per core), with the particle memory per user;
+3. the real-time walk alignment (``localize.align.WalkAligner``, what ``--method auto`` runs
+   on a floor whose magnetic map does not predict held-out walks, as on the real mall): CPU
+   time per step over walks of 1-4 minutes with a radio fix every third step (the search
+   aligns the last 120 s again at every step), against the filter's full step at N = 300 in
+   the same run, and users per core if one user's alignment took a core's share.
 
 Everything runs in this process on one core (BLAS threads pinned to 1) on a synthetic floor
 bundle of 80 x 50 m (0.25 m cells, a corridor grid, a smooth random field). Timings are the
@@ -36,13 +41,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from localize.align import WalkAligner
 from localize.bundle import Grid, load_bundle
 from localize.engine import MultiUserEngine
 from localize.filter import Localizer
 from localize.params import FilterParams
 from localize.particles import observe
 from localize.stepper import StepInputs
-from localize.steps import AttitudeCode, StepSummary
+from localize.steps import AttitudeCode, RadioScan, StepSummary
 from localize.update import magnetic_update
 from mapping.bundle_writer import BundleContent, Layer, write_bundle
 
@@ -183,6 +189,58 @@ def engine_users_per_core(bundle, users: int, ticks: int, dtype, fix_every: int 
     return t, STEP_PERIOD_S / (t / users), eng.bytes_per_user
 
 
+class _NoisyFixes:
+    """A radio model for the alignment: each scan's fix is the walker's true position (the
+    scan's keys hold its index) plus 3 m of noise per axis."""
+
+    def __init__(self, truth_xy: np.ndarray, seed: int = 0) -> None:
+        self.fixes = truth_xy + np.random.default_rng(seed).normal(0.0, 3.0, truth_xy.shape)
+
+    def locate(self, scan: RadioScan) -> tuple[float, float, float]:
+        x, y = self.fixes[int(scan.keys[0])]
+        return float(x), float(y), 3.0
+
+
+def loop_walk(n_steps: int, seed: int = 0) -> tuple[list[StepSummary], _NoisyFixes]:
+    """Steps of 0.65 m every 0.67 s round the 30 x 10 m block between the corridors at
+    y = 1.25 and 11.25 m and x = 1.25 and 31.25 m, compass and gyroscope headings with 3 deg
+    of noise, a scan every third step; and the radio model that locates those scans."""
+    rng = np.random.default_rng(seed)
+    corners = np.array([1.25 + 1.25j, 31.25 + 1.25j, 31.25 + 11.25j, 1.25 + 11.25j])
+    legs = np.abs(np.diff(np.append(corners, corners[0])))
+    at = np.mod(0.65 * np.arange(1, n_steps + 1), legs.sum())
+    leg = np.searchsorted(np.cumsum(legs), at, side="right")
+    direction = (np.roll(corners, -1) - corners)[leg] / legs[leg]
+    pos = corners[leg] + direction * (at - np.concatenate([[0.0], np.cumsum(legs)])[leg])
+    heading = np.degrees(np.arctan2(direction.real, direction.imag)) % 360.0  # from north
+    steps = []
+    for i in range(n_steps):
+        scan = (RadioScan(int(1e12 + 670 * i), np.array([str(i)]), np.array([-60.0]))
+                if i % 3 == 0 else None)
+        steps.append(StepSummary(
+            t_ms=1e12 + 670.0 * i, frequency_hz=1.5, delta_acc_ms2=1.7 ** 4,
+            compass_deg=float(heading[i] + rng.normal(0, 3)) % 360.0, turn_deg=0.0,
+            strength_ut=45.0, azimuth_deg=0.0, polar_deg=133.0,
+            attitude=int(AttitudeCode.UFH),
+            relative_heading_deg=float(heading[i] + rng.normal(0, 3)), scan=scan))
+    return steps, _NoisyFixes(np.column_stack([pos.real, pos.imag]), seed)
+
+
+def align_step_time(bundle, n_steps: int, repeats: int) -> float:
+    """CPU seconds per step of the real-time alignment over a :func:`loop_walk` of
+    ``n_steps`` (median over ``repeats`` walks)."""
+    steps, radio = loop_walk(n_steps)
+
+    def walk():
+        loc = WalkAligner(bundle, radio=radio)
+        loc.start(*radio.locate(steps[0].scan)[:2])
+        for s in steps:
+            loc.step(s)
+
+    walk()  # the bundle's wall tables, once
+    return _median_time(walk, repeats) / n_steps
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="fewer repeats (smoke test)")
@@ -224,6 +282,15 @@ def main(argv=None) -> None:
                       f"{t / users * 1e6:>13.1f} {upc:>11.0f} {b / 1024:>8.1f}")
         print(f"\n(map rasters are shared by all users of a floor: {bundle.grid.width} x "
               f"{bundle.grid.height} cells)")
+        _, filter_step = per_step_times(bundle, 300, "mass_centered", steps, repeats)
+        print("\nReal-time walk alignment, one user (a fix every third step; ms of CPU per "
+              f"step, median of {max(3, repeats // 5)} walks), against the filter's full step "
+              f"at N = 300 ({filter_step * 1e3:.3f} ms) in this run")
+        print(f"{'steps':>7} {'minutes':>8} {'ms/step':>8} {'x filter':>9} {'users/core':>11}")
+        for n_steps in (90, 180, 360):
+            t = align_step_time(bundle, n_steps, max(3, repeats // 5))
+            print(f"{n_steps:>7} {n_steps * STEP_PERIOD_S / 60:>8.1f} {t * 1e3:>8.2f} "
+                  f"{t / filter_step:>8.1f}x {STEP_PERIOD_S / t:>11.0f}")
 
 
 if __name__ == "__main__":

@@ -210,19 +210,30 @@ def distance_from_mask_m(mask: NDArray[np.bool_], cell_m: float, cap_m: float
     return d * cell_m
 
 
-#: Per bundle and cap: :func:`distance_from_mask_m` of its mask, computed once (the CLI and
-#: the benchmarks make one aligner per walk on the same bundle).
-_OFF_MASK_CACHE: WeakKeyDictionary[MapBundle, dict[float, NDArray[np.float64]]] = (
+def wall_tables(off_mask_m: NDArray, cap_m: float
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The squared distance (m^2) from the mask and 1.0 on the mask (else 0.0) of every cell
+    of ``off_mask_m`` (:func:`distance_from_mask_m`), in a frame of one cell of ``cap_m`` (off
+    the grid; a position off it is clipped into the frame), for flat lookups: two
+    ``(height + 2, width + 2)`` arrays."""
+    off2 = np.pad(off_mask_m, 1, constant_values=cap_m) ** 2
+    on = (off2 == 0.0).astype(np.float64)
+    off2.flags.writeable = on.flags.writeable = False
+    return off2, on
+
+
+#: Per bundle and cap: :func:`wall_tables` of its mask, computed once (the CLI and the
+#: benchmarks make one aligner per walk on the same bundle).
+_WALL_CACHE: WeakKeyDictionary[MapBundle, dict[float, tuple[NDArray, NDArray]]] = (
     WeakKeyDictionary())
 
 
-def _off_mask_m(bundle: MapBundle, cap_m: float) -> NDArray[np.float64]:
-    """Distance (m) of every cell of the bundle's grid from its reachable mask, capped."""
-    by_cap = _OFF_MASK_CACHE.setdefault(bundle, {})
+def _bundle_wall_tables(bundle: MapBundle, cap_m: float) -> tuple[NDArray, NDArray]:
+    """:func:`wall_tables` of the bundle's reachable mask, capped at ``cap_m``."""
+    by_cap = _WALL_CACHE.setdefault(bundle, {})
     if cap_m not in by_cap:
-        d = distance_from_mask_m(bundle.mask, bundle.grid.cell_m, cap_m)
-        d.flags.writeable = False
-        by_cap[cap_m] = d
+        by_cap[cap_m] = wall_tables(
+            distance_from_mask_m(bundle.mask, bundle.grid.cell_m, cap_m), cap_m)
     return by_cap[cap_m]
 
 
@@ -254,7 +265,7 @@ class WalkAligner(BaseLocalizer):
                  radio: RadioModel | None = None) -> None:
         super().__init__(bundle, radio=radio)
         self.params = params or AlignParams()
-        self._off_mask_m = _off_mask_m(bundle, self.params.wall_cap_m)
+        self._wall_tables = _bundle_wall_tables(bundle, self.params.wall_cap_m)
         self._reset(0.0)
 
     # -- streaming -------------------------------------------------------------------------
@@ -345,7 +356,7 @@ class WalkAligner(BaseLocalizer):
                around: tuple[float, float, complex] | None = None) -> _Best:
         at_fix = np.interp(fix_t, times, shape.real) + 1j * np.interp(fix_t, times, shape.imag)
         ci = np.linalg.inv(_fix_covariance(fix_t / 1000.0, start_given, self.params))
-        return _Search(self.bundle, self._off_mask_m, self.params, shape, fix_z, at_fix,
+        return _Search(self.bundle, self._wall_tables, self.params, shape, fix_z, at_fix,
                        ci, both_ways).run(around)
 
     # -- batch -----------------------------------------------------------------------------
@@ -426,38 +437,49 @@ SPREAD_MARGIN = 5.0
 class _Search:
     """Grid search of ``(rotation, scale, shift)``; see :class:`WalkAligner`."""
 
-    def __init__(self, bundle: MapBundle, off_mask_m: NDArray, p: AlignParams, shape: NDArray,
-                 fix_z: NDArray, at_fix: NDArray, ci: NDArray, both_ways: bool = False) -> None:
-        self.grid, self.off_mask_m = bundle.grid, off_mask_m
+    def __init__(self, bundle: MapBundle, wall_tables: tuple[NDArray, NDArray], p: AlignParams,
+                 shape: NDArray, fix_z: NDArray, at_fix: NDArray, ci: NDArray,
+                 both_ways: bool = False) -> None:
+        self.grid = bundle.grid
         self.both_ways = both_ways  # rotations near 180 deg are as likely as near 0
         self.p, self.shape, self.fix_z, self.at_fix = p, shape, fix_z, at_fix
         self.ci = ci
         self.ones_ci = ci.sum(axis=0)          # 1^T C^-1
         self.ones_ci_ones = float(ci.sum())    # 1^T C^-1 1
+        self.off2_pad, self.on_pad = wall_tables  # wall_tables() of the bundle's mask
 
-    def _fix_scores(self, a: complex, grid: NDArray, centre: complex | None
-                    ) -> tuple[NDArray, NDArray]:
-        """(fixes' log-likelihood, shift) of every shift of the grid around ``centre``
-        (default: the fixes' generalised-least-squares shift for ``a``)."""
-        resid = self.fix_z - a * self.at_fix            # fix minus the turned, scaled shape
-        ones_ci_r = complex(self.ones_ci @ resid)
-        if centre is None:
-            centre = ones_ci_r / self.ones_ci_ones
-        shifts = centre + grid
-        r_ci_r = float(resid.real @ self.ci @ resid.real + resid.imag @ self.ci @ resid.imag)
-        quad = (r_ci_r - 2.0 * (shifts.conj() * ones_ci_r).real
-                + np.abs(shifts) ** 2 * self.ones_ci_ones)
-        return -0.5 * quad, shifts
+    def _fix_fit(self, a: NDArray) -> tuple[NDArray[np.float64], NDArray[np.complex128]]:
+        """For the complex factors ``a`` (T,): the fixes' log-likelihood of a shift ``z`` is
+        ``-0.5 * (q + ones_ci_ones * |z - g|^2)``; returns ``q`` (T,) and the generalised
+        least-squares shift ``g`` (T,)."""
+        resid = self.fix_z[None, :] - a[:, None] * self.at_fix[None, :]  # fix - shape, (T, F)
+        g = (resid @ self.ones_ci) / self.ones_ci_ones
+        r_ci_r = (((resid.real @ self.ci) * resid.real).sum(axis=1)
+                  + ((resid.imag @ self.ci) * resid.imag).sum(axis=1))
+        return r_ci_r - self.ones_ci_ones * np.abs(g) ** 2, g
 
-    def _walls(self, a: complex, shifts: NDArray) -> tuple[NDArray, NDArray]:
-        """(wall penalty, share of the track on the mask) of the track ``shift + a * shape``
-        for each shift."""
-        pts = shifts[:, None] + a * self.shape[None, :]
-        row, col, on_grid = self.grid.cell_of(pts.real, pts.imag)
-        off = np.where(on_grid, self.off_mask_m[row, col], self.p.wall_cap_m)
-        inside = np.mean(off == 0.0, axis=1)
-        return (self.p.wall_weight * np.mean(off ** 2, axis=1)
-                + self.p.wall_share_weight * (1.0 - inside)), inside
+    def _track_cells(self, a: complex, centre: complex, off_m: NDArray, keep: NDArray
+                     ) -> NDArray[np.intp]:
+        """Flat indices into the wall tables of the cells of the tracks ``shift + a * shape``
+        for the shifts ``centre + off_m[i] + 1j * off_m[j]`` numbered ``j * len(off_m) + i``
+        in ``keep``: ``(len(keep), positions)``. A position off the grid falls into the
+        tables' frame."""
+        g = self.grid
+        h, w = self.off2_pad.shape
+        u = (centre + a * self.shape - complex(g.x0_m, g.y0_m)) / g.cell_m  # cell units
+        d = off_m[:, None] / g.cell_m
+        col = np.clip(np.floor(u.real[None, :] + d) + 1, 0, w - 1).astype(np.intp)
+        row_start = np.clip(np.floor(u.imag[None, :] + d) + 1, 0, h - 1).astype(np.intp) * w
+        j, i = np.divmod(keep, len(off_m))
+        return row_start[j] + col[i]
+
+    def _walls(self, cells: NDArray[np.intp]) -> NDArray:
+        """Wall penalty of each track, given as the ``(tracks, positions)`` flat cells of
+        :meth:`_track_cells`."""
+        pen = self.p.wall_weight * self.off2_pad.take(cells).mean(axis=1)
+        if self.p.wall_share_weight:
+            pen += self.p.wall_share_weight * (1.0 - self.on_pad.take(cells).mean(axis=1))
+        return pen
 
     def run(self, around: tuple[float, float, complex] | None = None) -> _Best:
         """The best transform: over the whole coarse grid, or ``around`` a ``(rotation deg,
@@ -499,31 +521,35 @@ class _Search:
         k = int(np.floor(half_width_m / step_m + 1e-9))
         off = np.arange(-k, k + 1) * step_m
         grid = (off[None, :] + 1j * off[:, None]).ravel()   # (S,)
-        rows = []
-        for r in rot_deg:
-            for s in scale:
-                a = s * np.exp(1j * np.radians(r))
-                fix_ll, shifts = self._fix_scores(a, grid, centre)
-                dr = np.mod(r + 90.0, 180.0) - 90.0 if self.both_ways else r
-                prior = -0.5 * (dr / p.heading_sd_deg) ** 2 - 0.5 * (np.log(s) / p.scale_sd) ** 2
-                bound = fix_ll + prior
-                rows.append((float(bound.max()), complex(a), bound, shifts))
-        rows.sort(key=lambda row: -row[0])
+        r, s = (m.ravel() for m in np.meshgrid(rot_deg, scale, indexing="ij"))
+        a = s * np.exp(1j * np.radians(r))
+        q, g = self._fix_fit(a)
+        centres = g if centre is None else np.full(len(a), complex(centre))
+        dr = np.mod(r + 90.0, 180.0) - 90.0 if self.both_ways else r
+        prior = -0.5 * (dr / p.heading_sd_deg) ** 2 - 0.5 * (np.log(s) / p.scale_sd) ** 2
+        # each transform's best shift for the fixes: the grid point nearest its GLS shift
+        to_g = (g - centres) / step_m
+        nearest = centres + step_m * (np.clip(np.rint(to_g.real), -k, k)
+                                      + 1j * np.clip(np.rint(to_g.imag), -k, k))
+        tops = prior - 0.5 * (q + self.ones_ci_ones * np.abs(nearest - g) ** 2)
         best: _Best | None = None
-        for top, a, bound, shifts in rows:
-            if best is not None and top <= best.score:
+        for i in np.argsort(-tops, kind="stable"):
+            if best is not None and tops[i] <= best.score:
                 break           # neither this transform nor any later one can win
+            shifts = centres[i] + grid
+            bound = prior[i] - 0.5 * (q[i] + self.ones_ci_ones * np.abs(shifts - g[i]) ** 2)
             keep = (np.flatnonzero(bound > best.score - SPREAD_MARGIN) if best is not None
                     else np.arange(len(bound)))
-            wall, inside = self._walls(a, shifts[keep])
-            score = bound[keep] - wall
+            ai = complex(a[i])
+            cells = self._track_cells(ai, complex(centres[i]), off, keep)
+            score = bound[keep] - self._walls(cells)
             j = int(np.argmax(score))
             if best is None or score[j] > best.score:
                 w = np.exp(score - score[j])
                 w /= w.sum()
                 d = shifts[keep] - np.sum(w * shifts[keep])
                 spread = float(np.sqrt(np.sum(w * np.abs(d) ** 2)))
-                best = _Best(float(score[j]), a, complex(shifts[keep][j]), spread,
-                             float(inside[j]))
+                best = _Best(float(score[j]), ai, complex(shifts[keep][j]), spread,
+                             float(self.on_pad.take(cells[j]).mean()))
         assert best is not None
         return best

@@ -5,7 +5,7 @@ import pytest
 from localize_fixtures import f1_bundle, sim_walks, truth_bundles  # noqa: F401  (fixtures)
 
 from localize.align import (AlignParams, WalkAligner, _fix_covariance, _Search,
-                            distance_from_mask_m, walk_shape)
+                            distance_from_mask_m, walk_shape, wall_tables)
 from localize.baselines import make_localizer
 from localize.errors import LocalizationError
 from localize.evaluate import step_errors
@@ -137,9 +137,18 @@ def test_distance_from_mask_against_brute_force():
     assert np.all(distance_from_mask_m(np.zeros((3, 4), bool), 0.5, 2.0) == 2.0)
 
 
+def _reference_walls(bundle, off_mask, p, pts):
+    """Wall penalty of tracks ``pts`` (shifts, positions), complex m: each position looked
+    up in its grid cell, the cap off the grid; the definition the search's tables follow."""
+    row, col, on_grid = bundle.grid.cell_of(pts.real, pts.imag)
+    off = np.where(on_grid, off_mask[row, col], p.wall_cap_m)
+    return p.wall_weight * np.mean(off ** 2, axis=1), np.mean(off == 0.0, axis=1)
+
+
 def test_pruned_search_finds_the_exhaustive_best(f1_bundle, sim_walks):  # noqa: F811
     """The branch and bound (tracks placed only for transforms that can still win) returns
-    the transform an exhaustive pass over the same grid finds."""
+    the transform an exhaustive pass over the same grid finds, its wall term looked up cell
+    by cell."""
     w = _f1_with_scans(sim_walks)[0]
     radio = _BiasedRadio(w, 120)
     p = AlignParams()
@@ -150,7 +159,8 @@ def test_pruned_search_finds_the_exhaustive_best(f1_bundle, sim_walks):  # noqa:
     at_fix = np.interp(fix_t, times, shape.real) + 1j * np.interp(fix_t, times, shape.imag)
     ci = np.linalg.inv(_fix_covariance(fix_t / 1000.0, False, p))
     off_mask = distance_from_mask_m(f1_bundle.mask, f1_bundle.grid.cell_m, p.wall_cap_m)
-    search = _Search(f1_bundle, off_mask, p, shape, fix_z, at_fix, ci)
+    search = _Search(f1_bundle, wall_tables(off_mask, p.wall_cap_m), p, shape, fix_z, at_fix,
+                     ci)
     rot = np.arange(-15.0, 15.1, 2.5)
     scale = np.arange(0.75, 1.251, 0.05)
     best = search._grid(rot, scale, 8.0, 0.5)
@@ -160,11 +170,42 @@ def test_pruned_search_finds_the_exhaustive_best(f1_bundle, sim_walks):  # noqa:
     for r in rot:
         for sc in scale:
             a = sc * np.exp(1j * np.radians(r))
-            fix_ll, shifts = search._fix_scores(a, grid, None)
-            wall, _ = search._walls(a, shifts)
+            resid = fix_z - a * at_fix            # the fixes' errors for a zero shift
+            gls = np.sum(ci @ resid) / ci.sum()
+            shifts = gls + grid
+            e = resid[None, :] - shifts[:, None]  # (shifts, fixes)
+            fix_ll = -0.5 * (np.einsum("sf,fg,sg->s", e.real, ci, e.real)
+                             + np.einsum("sf,fg,sg->s", e.imag, ci, e.imag))
+            wall, inside = _reference_walls(f1_bundle, off_mask, p,
+                                            shifts[:, None] + a * shape[None, :])
             score = fix_ll - wall - 0.5 * (r / p.heading_sd_deg) ** 2 \
                 - 0.5 * (np.log(sc) / p.scale_sd) ** 2
             if score.max() > top:
-                top, a_top, shift_top = score.max(), a, shifts[np.argmax(score)]
+                j = np.argmax(score)
+                top, a_top, shift_top, inside_top = score.max(), a, shifts[j], inside[j]
     assert best.score == pytest.approx(top, abs=1e-9)
     assert best.factor == pytest.approx(a_top) and best.shift == pytest.approx(shift_top)
+    assert best.inside_share == inside_top
+
+
+def test_wall_term_off_the_grid_is_the_cap(f1_bundle):  # noqa: F811
+    """Tracks that leave the grid on every side, at sub-cell shifts: the search's table
+    lookups give the cell-by-cell wall term, and positions off the grid count as the cap."""
+    p = AlignParams(wall_share_weight=40.0)
+    g = f1_bundle.grid
+    off_mask = distance_from_mask_m(f1_bundle.mask, g.cell_m, p.wall_cap_m)
+    t = np.linspace(-0.3, 1.3, 400)
+    centre = complex(g.x0_m + 0.5 * g.width * g.cell_m, g.y0_m + 0.5 * g.height * g.cell_m)
+    shape = (t - 0.5) * (g.width * g.cell_m + 1j * g.height * g.cell_m)  # a corner-to-corner line
+    search = _Search(f1_bundle, wall_tables(off_mask, p.wall_cap_m), p, shape,
+                     np.array([centre]), np.array([0j]), np.eye(1))
+    off = np.arange(-6, 7) * 0.37            # not a whole number of cells
+    keep = np.arange(len(off) ** 2)
+    for a in (1.0, 0.8 * np.exp(0.3j), -1.1):
+        cells = search._track_cells(a, centre, off, keep)
+        shifts = centre + (off[None, :] + 1j * off[:, None]).ravel()
+        wall, inside = _reference_walls(f1_bundle, off_mask, p,
+                                        shifts[:, None] + a * shape[None, :])
+        assert np.allclose(search._walls(cells), wall + p.wall_share_weight * (1 - inside))
+        assert (inside < 1).all()
+
