@@ -273,6 +273,11 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
                          build_time=build_time)
     if out.exists() and not out.is_dir():
         raise click.UsageError(f"{out} is a file; -o/--out needs a folder")
+    if registry_dir is not None and registry_dir.exists() and not registry_dir.is_dir():
+        raise click.UsageError(f"{registry_dir} is a file; --registry needs a folder")
+    # `.` or `F1/path_data_files/..` name the folder they lead to (its name is the floor's);
+    # made absolute without following links, as the ingest compares the paths it found
+    source = Path(os.path.abspath(source))
     if plan_file is None:
         if floor_name is not None:
             raise click.UsageError("--floor names the floor of a --plan build; a floor folder "

@@ -227,6 +227,7 @@ def test_build_cli_twice_identical_bytes(tmp_path):
                            "the limit"),
     (["--build-time", "yesterday"], "not an ISO 8601 time"),
     (["-o", "FILE"], "is a file; -o/--out needs a folder"),
+    (["--registry", "FILE"], "is a file; --registry needs a folder"),
 ])
 def test_build_cli_refuses_bad_options_before_any_work(tmp_path, args, message):
     """Bad options are usage errors (exit 2) found before ingesting anything: no traceback
@@ -286,6 +287,20 @@ def test_a_repaired_floor_plan_is_said_before_the_work(tmp_path):
     assert res.exit_code == 2, res.output
     assert (f"warning: {geo}: feature 0 (the outline) is not a valid polygon "
             "(Self-intersection") in res.output
+
+
+def test_a_floor_folder_given_as_dot_or_through_dot_dot(tmp_path, monkeypatch):
+    """`build .` inside a floor folder, or `F2/path_data_files/..`, builds the folder they
+    lead to, named by it (before, the floor name was "" or ".." and the build refused)."""
+    shutil.copytree(SITE / "F2", tmp_path / "F2")
+    monkeypatch.chdir(tmp_path / "F2")
+    res = CliRunner().invoke(main, ["build", ".", "-o", str(tmp_path / "out")])
+    assert res.exit_code == 0, res.output
+    assert load_bundle(tmp_path / "out" / "F2").manifest["floor_name"] == "F2"
+    monkeypatch.chdir(tmp_path)
+    res = CliRunner().invoke(main, ["build", "F2/path_data_files/..", "-o", "out",
+                                    "--cell", "0.001"])
+    assert res.exit_code == 2 and "F2: a 40 x 25 m floor" in res.output
 
 
 def test_a_floor_folder_named_otherwise_than_its_walks(tmp_path):
