@@ -235,32 +235,48 @@ def _missing(column: pa.ChunkedArray) -> np.ndarray:
     return missing
 
 
-def _row_lines(data: bytes, n_rows: int) -> np.ndarray:
-    """1-based line number of every CSV row: pyarrow skips blank lines, so row ``i`` is not
-    always line ``i + 2``. Falls back to ``i + 2`` when the lines cannot be matched (a quoted
-    field spanning lines, old Mac line ends)."""
+def _row_lines(data: bytes, n_rows: int, skipped: list[int]
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """1-based line numbers of the CSV rows read and of the rows pyarrow ``skipped`` (given
+    as pyarrow numbers them: 1-based among the non-blank lines, the header first). pyarrow
+    skips blank lines, so row ``i`` is not always line ``i + 2``. Falls back to ``i + 2`` (and
+    pyarrow's numbers) when the lines cannot be matched (a quoted field spanning lines, old
+    Mac line ends)."""
     lines = data.split(b"\n")
     filled = np.flatnonzero([bool(line.strip(b"\r")) for line in lines]) + 1
-    if len(filled) == n_rows + 1:
-        return filled[1:]
-    return np.arange(n_rows) + 2
+    at = np.asarray(skipped, dtype=np.int64) - 1
+    if len(filled) == n_rows + 1 + len(skipped) and (at >= 1).all():
+        return np.delete(filled, at)[1:], filled[at]
+    return np.arange(n_rows) + 2, at + 1
 
 
 def parse_sensor_csv(data: bytes, *, path: str = "<input>", strict: bool = False) -> Trace:
     """Parse a walk-line sensor CSV into a :class:`Trace` (sensors only)."""
     report = ParseReport(path=path)
+    wrong_width: list[tuple[int | None, int, int]] = []  # (row number, fields, expected)
+
+    def skip_row(row) -> str:  # a row with too few or too many fields is one bad line
+        wrong_width.append((row.number, row.actual_columns, row.expected_columns))
+        return "skip"
+
     try:
-        table = pacsv.read_csv(io.BytesIO(data), convert_options=pacsv.ConvertOptions(
-            column_types={}, strings_can_be_null=False))
+        table = pacsv.read_csv(  # one thread: pyarrow numbers the rows it skips
+            io.BytesIO(data), read_options=pacsv.ReadOptions(use_threads=False),
+            parse_options=pacsv.ParseOptions(invalid_row_handler=skip_row),
+            convert_options=pacsv.ConvertOptions(column_types={}, strings_can_be_null=False))
         names = table.column_names  # decoding a name can fail
     except (pa.ArrowInvalid, UnicodeDecodeError) as err:
         raise SurveyFormatError(f"not a readable CSV ({err})", path=path, reason="csv") from err
+    if wrong_width and not table.num_rows:
+        n, got, want = wrong_width[0]
+        raise SurveyFormatError(f"not a readable CSV: no row has the header's {want} fields "
+                                f"(the first has {got})", path=path, reason="csv")
     if len(set(names)) != len(names):
         raise SurveyFormatError("sensor log has duplicate column names", path=path, reason="csv")
     columns = set(names)
     if "t_ms" not in columns:
         raise SurveyFormatError("sensor log needs a 't_ms' column", path=path, reason="csv")
-    report.lines_total = table.num_rows + 1
+    report.lines_total = table.num_rows + 1 + len(wrong_width)
     report.header_lines = 1
     numeric = {c: _numeric(table.column(c)) for c in names}
     t = numeric["t_ms"]
@@ -299,18 +315,23 @@ def parse_sensor_csv(data: bytes, *, path: str = "<input>", strict: bool = False
                                                "sensor value no phone reports (e.g. beyond "
                                                "2000 m/s^2)")}
     any_bad = row_bad | out_of_range
-    if any_bad.any():
-        line = _row_lines(data, table.num_rows)
-        first = int(np.flatnonzero(any_bad)[0])
-        reason = "non_numeric" if row_bad[first] else "out_of_range"
+    if any_bad.any() or wrong_width:
+        line, skipped_line = _row_lines(data, table.num_rows,
+                                        [n or 0 for n, _, _ in wrong_width])
+        text = np.where(row_bad, problems["non_numeric"][1], problems["out_of_range"][1])
+        bad = sorted([(int(line[i]), str(text[i]), "non_numeric" if row_bad[i]
+                       else "out_of_range") for i in np.flatnonzero(any_bad)]
+                     + [(int(at), f"{got} fields, the header has {want}", "field_count")
+                        for at, (_, got, want) in zip(skipped_line, wrong_width)])
         if strict:
-            raise SurveyFormatError(problems[reason][1], path=path, line=int(line[first]),
-                                    reason=reason)
+            at, message, reason = bad[0]
+            raise SurveyFormatError(message, path=path, line=at, reason=reason)
         for reason, (mask, _) in problems.items():
             if mask.any():
                 report.bad[reason] = int(mask.sum())
-        text = np.where(row_bad, problems["non_numeric"][1], problems["out_of_range"][1])
-        report.messages = [f"{path}:{line[i]}: {text[i]}" for i in np.flatnonzero(any_bad)[:20]]
+        if wrong_width:
+            report.bad["field_count"] = len(wrong_width)
+        report.messages = [f"{path}:{at}: {message}" for at, message, _ in bad[:20]]
     good = ~any_bad
     t_ms = t[good].astype(np.int64)
     accuracy = acc[good] if acc is not None else np.full(good.sum(), 3.0)

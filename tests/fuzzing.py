@@ -482,7 +482,7 @@ def table_problems(trace: Trace, *, walkline: bool = False) -> list[str]:
     n_s, n_w, n_b, n_wp = (len(arrays[k]["t_ms" if k != "wifi" else "scan_t_ms"])
                            for k in ("sensors", "wifi", "ble", "waypoints"))
     if walkline:
-        if set(r.bad) - {"non_numeric", "out_of_range"}:
+        if set(r.bad) - {"non_numeric", "out_of_range", "field_count"}:
             p.append(f"report: unexpected bad reasons {sorted(r.bad)}")
         if n_wp and (np.diff(wp["t_ms"]) <= 0).any():
             p.append("order: walk-line vertex times not strictly increasing")

@@ -191,3 +191,26 @@ def test_a_sensor_value_no_phone_reports_is_out_of_range(tmp_path):
     assert trace.report.bad == {"out_of_range": 2}
     with pytest.raises(SurveyFormatError, match=r"a.csv:3: .*no phone reports"):
         read_walk_plan(tmp_path / "plan.geojson", strict=True)
+
+
+def test_a_row_of_the_wrong_width_is_one_bad_line(tmp_path):
+    """A row with too few or too many fields (a logger killed mid-row leaves a cut last row)
+    is one `field_count` bad line, numbered as the file's lines (blank ones counted), in
+    order with the other bad lines; strict mode names the first. Before, the whole walk was
+    refused as an unreadable CSV."""
+    (tmp_path / "a.csv").write_text("t_ms,acc_x,acc_y,acc_z\n1000,1,2,3\n\n1020,1,2\n"
+                                    "1040,1,x,3\n1060,1,2,3,4\n1080,1,2,3\n1100,1")
+    _plan(tmp_path, [_feature("a", [[0, 0], [1, 0]], start_ms=1000, end_ms=1080)])
+    (trace, _, _), = read_walk_plan(tmp_path / "plan.geojson")
+    report = trace.report
+    assert sorted(set(trace.sensors["t_ms"])) == [1000, 1080]
+    assert report.bad == {"field_count": 3, "non_numeric": 1}
+    assert [m.split(": ", 1)[0].rsplit(":", 1)[1] for m in report.messages] == ["4", "5", "6",
+                                                                                "8"]
+    assert report.messages[0].endswith("a.csv:4: 3 fields, the header has 4")
+    assert report.accounted_lines() == report.lines_total == 7  # the blank line is not one
+    with pytest.raises(SurveyFormatError, match=r"a.csv:4: 3 fields, the header has 4"):
+        read_walk_plan(tmp_path / "plan.geojson", strict=True)
+    (tmp_path / "a.csv").write_text("t_ms,acc_x,acc_y,acc_z\n1000;1;2;3\n1020;1;2;3\n")
+    with pytest.raises(SurveyFormatError, match="no row has the header's 4 fields"):
+        read_walk_plan(tmp_path / "plan.geojson")
