@@ -132,6 +132,11 @@ def checked_size(path: Path, width_m: float, height_m: float) -> tuple[float, fl
     return float(width_m), float(height_m)
 
 
+#: Widest outline (deg of longitude or latitude, about 55 km) a lon/lat plan may have: a
+#: plan in metres beside a ``floor_info.json`` would otherwise be silently rescaled to it.
+MAX_LONLAT_SPAN_DEG = 0.5
+
+
 def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
                     obstacle_filter: Callable[[dict], bool] | None = None) -> FloorPlan:
     """Read a floor plan.
@@ -182,6 +187,13 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
         lon0, lat0, lon1, lat1 = outline.bounds
         if lon1 <= lon0 or lat1 <= lat0:
             raise FloorPlanError(f"{geo}: degenerate outline bounds")
+        if (max(abs(lon0), abs(lon1)) > 180 or max(abs(lat0), abs(lat1)) > 90
+                or lon1 - lon0 > MAX_LONLAT_SPAN_DEG or lat1 - lat0 > MAX_LONLAT_SPAN_DEG):
+            raise FloorPlanError(
+                f"{geo}: read as lon/lat because {info.name} is beside it, but its outline "
+                f"spans {lon1 - lon0:.6g} x {lat1 - lat0:.6g} (from {lon0:.6g}, {lat0:.6g}), "
+                "no building in degrees; a plan in metres must not sit beside "
+                f"{info.name} (move it, or pass it from another folder)")
         sx, sy = width / (lon1 - lon0), height / (lat1 - lat0)
 
         def to_m(coords: np.ndarray) -> np.ndarray:

@@ -25,6 +25,27 @@ def test_lonlat_plan_maps_onto_floor_info_metres():
     assert 0 < plan.reachable.area < plan.outline.area
 
 
+@pytest.mark.parametrize("corner, size", [((0.0, 0.0), (40.0, 25.0)),      # metres, near 0
+                                           ((120.0, 30.0), (0.6, 0.001)),   # 60 km wide
+                                           ((500.0, 10.0), (0.001, 0.001))])  # no longitude
+def test_a_plan_beside_floor_info_that_is_no_lonlat_is_refused(tmp_path, corner, size):
+    """A plan in metres saved into a floor folder was read as lon/lat and rescaled onto
+    floor_info.json's size, silently; now it is refused, naming the file and the reason."""
+    (tmp_path / "floor_info.json").write_text(
+        (SITE / "F1" / "floor_info.json").read_text())
+    (x, y), (w, h) = corner, size
+    ring = [[x, y], [x + w, y], [x + w, y + h], [x, y + h], [x, y]]
+    (tmp_path / "plan.geojson").write_text(json.dumps({"type": "FeatureCollection", "features": [
+        {"type": "Feature", "properties": {}, "geometry": {"type": "Polygon",
+                                                           "coordinates": [ring]}}]}))
+    with pytest.raises(FloorPlanError, match=r"plan.geojson: read as lon/lat because "
+                       r"floor_info.json is beside it, but its outline spans"):
+        read_floor_plan(tmp_path / "plan.geojson")
+    (tmp_path / "floor_info.json").unlink()
+    if w > 1 and h > 1:  # the same file elsewhere is read in metres
+        assert read_floor_plan(tmp_path / "plan.geojson").outline.area > 0
+
+
 def test_metre_geojson_and_mask(tmp_path):
     fc = {"type": "FeatureCollection", "features": [
         {"type": "Feature", "properties": {"role": "outline"},
