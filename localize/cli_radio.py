@@ -262,7 +262,10 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
         trace = read_walk(f)
         scans = _scans(trace, kind, maps.ble_window_ms)
         if not scans:
-            click.echo(f"{trace.trace_id}: no {kind} scans", err=True)
+            other = "ble" if kind == "wifi" else "wifi"
+            hint = (f"; it has {other} scans: --kind {other}"
+                    if _scans(trace, other, maps.ble_window_ms) else "")
+            click.echo(f"{trace.trace_id}: no {kind} scans{hint}", err=True)
             return
         h = trace.header  # the floor from the header, else the Wi-Fi, else the BLE floor model
         bundle = maps.select_for(trace.trace_id, h.site_id or "", h.floor_id or "",

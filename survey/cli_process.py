@@ -50,7 +50,12 @@ def process_command(store_dir: str, site: str | None, floor: str | None,
     store = SurveyStore.open(store_dir)
     reachable = {}
     cat = store.traces(site, floor)
-    _require_walks(cat, store.traces(None, None), site, floor)
+    everything = store.traces(None, None)
+    if not len(everything):
+        raise click.ClickException(f"{store.root}: the store holds no walks; ingest traces "
+                                   f"into it first (indoormap ingest PATH --store "
+                                   f"{store_dir})")
+    _require_walks(cat, everything, site, floor)
     for fp in floor_plans:
         plan = read_floor_plan(fp)
         for repair in plan.repairs:

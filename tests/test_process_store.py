@@ -81,6 +81,18 @@ def test_process_without_processing_says_so(tmp_path):
     assert res.exit_code == 1 and "not processed yet" in res.output
 
 
+def test_processing_a_store_without_walks_says_to_ingest(tmp_path):
+    """A failed ingest leaves a store with no walks; `process` said "processed 0" and then
+    "not processed yet; run `indoormap process`"."""
+    (tmp_path / "notatrace.txt").write_text("hello\n")
+    res = CliRunner().invoke(main, ["ingest", str(tmp_path / "notatrace.txt"), "--store",
+                                    str(tmp_path / "s")])
+    assert res.exit_code == 1
+    res = CliRunner().invoke(main, ["process", "--store", str(tmp_path / "s")])
+    assert res.exit_code == 1 and "the store holds no walks; ingest traces" in res.output
+    assert "not processed yet" not in res.output
+
+
 def test_floor_plan_files_name_their_floor(tmp_path):
     """``--floor-plan plans/F1.dxf`` is F1's plan (legs leaving it are flagged); a plan for a
     floor without walks is said so, not silently ignored."""

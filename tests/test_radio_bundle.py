@@ -350,7 +350,7 @@ def test_walk_without_wifi(built, tmp_path):
     walk = SITE / "F1" / "path_data_files" / "641189778a6ffd7aae963f2c.txt.gz"
     runner = CliRunner()
     res = runner.invoke(main, ["wifi-locate", str(built), str(walk)])
-    assert res.exit_code == 0 and "no wifi scans" in res.stderr
+    assert res.exit_code == 0 and "no wifi scans; it has ble scans: --kind ble" in res.stderr
     res = runner.invoke(main, ["floor", str(built), str(walk)])  # by BLE: said so
     assert res.exit_code == 0 and "(no Wi-Fi scan classified)" in res.stderr
     assert [(r["floor"], r["kind"]) for r in _rows(res.stdout) if r["level"] == "walk"] == \

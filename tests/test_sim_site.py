@@ -199,6 +199,28 @@ def test_different_seed_different_files(tmp_path):
     assert _digests(a) == da
 
 
+def test_one_seed_two_layouts_are_two_sites(tmp_path):
+    """Site and floor ids derive from the seed and the layout: two presets (or any other
+    parameters) with one seed are two sites, so a registry or a localizer cannot take one for
+    the other; the names alone do not make another site."""
+    small = {"n_floors": 1, "walks_per_floor": 1, "walk_duration_s": (20.0, 25.0),
+             "walks_without_wifi": 0}
+    ids = {}
+    for name, params in {
+            "sample": SiteParams.preset_params("sample", **small),
+            "wider": SiteParams.preset_params("sample", width_m=44.0, **small),
+            "renamed": SiteParams.preset_params("sample", site_name="Other name", **small),
+    }.items():
+        truth = simulate_site(params, tmp_path / name)
+        site = json.loads((tmp_path / name / "truth" / "site.json").read_text())
+        ids[name] = (site["site"]["site_id"], site["floors"][0]["floor_id"])
+        assert truth.site_id == ids[name][0]
+    assert ids["sample"][0] != ids["wider"][0] and ids["sample"][1] != ids["wider"][1]
+    assert ids["sample"] == ids["renamed"]
+    default, sample = (SiteParams.preset_params(n) for n in ("default", "sample"))
+    assert default.seed == sample.seed and default.layout_key() != sample.layout_key()
+
+
 def test_sample_is_small(sample):
     _, out, _ = sample
     total = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())

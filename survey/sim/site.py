@@ -18,6 +18,8 @@ Everything follows from ``SiteParams.seed``: the same parameters give byte-ident
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 from dataclasses import dataclass
 from dataclasses import field as dc_field
 from pathlib import Path
@@ -176,6 +178,14 @@ class SiteParams:
         """JSON-able form (tuples become lists)."""
         return dataclasses.asdict(self)
 
+    def layout_key(self) -> str:
+        """Digest of everything that shapes the site (all but the preset's and the site's
+        names): site and floor ids derive from it with the seed, so that two presets with
+        one seed are two sites (before, their registries and localizers took them for one)."""
+        d = self.to_dict()
+        del d["preset"], d["site_name"]
+        return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
+
 
 PRESETS: dict[str, SiteParams] = {
     # the repository's data/sample_site: 2 floors of 40 x 25 m, 6 walks each, two phones with
@@ -323,8 +333,8 @@ def simulate_site(params: SiteParams, out_dir: str | Path, *,
     params.validate()
     seed = int(params.seed)
     out_dir = Path(out_dir)
-    site_rng = child_rng(seed, "site")
-    site_id = hex_id(site_rng)
+    layout = params.layout_key()
+    site_id = hex_id(child_rng(seed, "site", layout))
     origin = GeoOrigin(*params.origin_lonlat)
 
     floors: list[_Floor] = []
@@ -333,7 +343,7 @@ def simulate_site(params: SiteParams, out_dir: str | Path, *,
                               params.ew_corridor_widths_m, params.ns_corridor_widths_m,
                               child_rng(seed, "floor", f, "plan"))
         fld = make_field(plan, params.field, child_rng(seed, "floor", f, "field"))
-        floors.append(_Floor(plan, hex_id(child_rng(seed, "floor", f, "id")), fld,
+        floors.append(_Floor(plan, hex_id(child_rng(seed, "floor", f, "id", layout)), fld,
                              build_graph(plan, params.marker_spacing_m)))
 
     devices: list[Device] = [
