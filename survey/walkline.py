@@ -268,7 +268,7 @@ def parse_sensor_csv(data: bytes, *, path: str = "<input>", strict: bool = False
     except (pa.ArrowInvalid, UnicodeDecodeError) as err:
         raise SurveyFormatError(f"not a readable CSV ({err})", path=path, reason="csv") from err
     if wrong_width and not table.num_rows:
-        n, got, want = wrong_width[0]
+        _, got, want = wrong_width[0]
         raise SurveyFormatError(f"not a readable CSV: no row has the header's {want} fields "
                                 f"(the first has {got})", path=path, reason="csv")
     if len(set(names)) != len(names):
@@ -319,10 +319,11 @@ def parse_sensor_csv(data: bytes, *, path: str = "<input>", strict: bool = False
         line, skipped_line = _row_lines(data, table.num_rows,
                                         [n or 0 for n, _, _ in wrong_width])
         text = np.where(row_bad, problems["non_numeric"][1], problems["out_of_range"][1])
+        # the first 20 bad lines (for the messages) are among the first 20 of either kind
         bad = sorted([(int(line[i]), str(text[i]), "non_numeric" if row_bad[i]
-                       else "out_of_range") for i in np.flatnonzero(any_bad)]
+                       else "out_of_range") for i in np.flatnonzero(any_bad)[:20]]
                      + [(int(at), f"{got} fields, the header has {want}", "field_count")
-                        for at, (_, got, want) in zip(skipped_line, wrong_width)])
+                        for at, (_, got, want) in zip(skipped_line[:20], wrong_width)])
         if strict:
             at, message, reason = bad[0]
             raise SurveyFormatError(message, path=path, line=at, reason=reason)
