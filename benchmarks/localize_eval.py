@@ -152,9 +152,6 @@ def _load_walks(path: Path) -> list[EvalWalk]:
     return out
 
 
-REPO = Path(__file__).resolve().parents[1]
-
-
 @functools.cache
 def source_digest(*packages: str) -> str:
     """Short hash of the ``.py`` sources of ``packages`` (top-level folders of the repository):

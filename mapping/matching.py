@@ -333,11 +333,13 @@ def default_matcher(walk_smoothing: WalkSmoothing | None = None, kind: str = "wi
     :data:`~localize.radio_match.BLE_MIN_STRONGEST_DBM` (-inf by default: no limit) is not
     located, as in the localizer's
     :class:`~localize.fingerprint_positioner.FingerprintPositioner`."""
-    if kind not in ("wifi", "ble"):
-        raise FingerprintError(f"kind must be 'wifi' or 'ble', not {kind!r}")
+    try:
+        weakest = min_strongest_dbm(kind)
+    except ValueError as err:  # the mapping side's error type
+        raise FingerprintError(str(err)) from err
     return WeightedKNN(k=5, weight_power=4.0, age_fresh_ms=AGE_FRESH_MS,
                        age_decay_ms=AGE_DECAY_MS, neighbour_mix=0.5, neighbour_sigma_m=1.0,
-                       min_strongest_dbm=min_strongest_dbm(kind), walk_smoothing=walk_smoothing)
+                       min_strongest_dbm=weakest, walk_smoothing=walk_smoothing)
 
 
 def default_walk_matcher() -> WeightedKNN:
