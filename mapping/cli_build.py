@@ -32,6 +32,7 @@ from .build import BuildError, BuildParams, build_floor
 from .bundle_report import bundle_differences, metric_lines
 from .bundle_writer import write_bundle
 from .floorplan import FloorPlan, read_floor_plan
+from .grid import reachable_mask
 from .radio_build import build_site_radio, format_share
 from .registry import SITE_BUNDLE, Registry, safe_name
 
@@ -60,14 +61,19 @@ def _finite(ctx: click.Context, param: click.Parameter, value: float) -> float:
 
 def check_grids(plans: dict[Path, FloorPlan], params: BuildParams) -> None:
     """Every floor's grid (plans by the path they were read from) at ``--cell`` within
-    :data:`mapping.grid.MAX_GRID_CELLS`; else a usage error naming the plan and ``--cell``
-    (the finer cells of narrow kernels are skipped where they would exceed it)."""
+    :data:`mapping.grid.MAX_GRID_CELLS` and with some reachable cell; else a usage error
+    naming the plan and ``--cell``, before the ingest (the finer cells of narrow kernels are
+    skipped where they would exceed the cap)."""
     for path, plan in plans.items():
         try:
-            plan.grid(params.cell_m)
+            grid = plan.grid(params.cell_m)
         except ValueError as err:
             raise click.UsageError(f"{path}: {err}; raise --cell or check the plan's "
                                    "size") from err
+        if not reachable_mask(grid, plan.reachable).any():
+            raise click.UsageError(
+                f"{path}: no cell centre of a {params.cell_m:g} m grid lies in the plan's "
+                f"reachable area ({plan.reachable.area:.1f} m^2); lower --cell")
 
 
 def _is_floor_dir(p: Path) -> bool:
@@ -340,9 +346,10 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
             say(f"  {bad_lines_summary(summary.bad, summary.messages)}")
             for m in summary.messages[1:5]:
                 say(f"    then: {m}")
-        store = SurveyStore.open(store_path)
-        cat = store.catalog()
-        if cat.empty:
+        # an ingest whose every file failed leaves no store it would have created
+        store = SurveyStore.open(store_path) if store_path.exists() else None
+        cat = store.catalog() if store is not None else pd.DataFrame()
+        if store is None or cat.empty:
             raise BuildError(f"{', '.join(map(str, inputs))}: no readable walk to build from "
                              f"({len(summary.failed)} unreadable)")
         if not plans:  # --plan without --floor: the floor of SOURCE's traces

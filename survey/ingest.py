@@ -119,7 +119,8 @@ def ingest(paths: Iterable[str | os.PathLike], store: str | os.PathLike | Survey
         Stop at the first bad line or file without any trace line (raises
         :class:`SurveyFormatError`); nothing of this run is committed then, the store keeps its
         previous state, and a store this call created is removed. Otherwise such a file is a
-        ``failed`` outcome with its reason.
+        ``failed`` outcome with its reason (and a store this call created is removed when
+        every file failed).
     workers : int
         Worker processes parsing in parallel (1 = in this process).
     progress : callable(done, total), optional
@@ -140,18 +141,25 @@ def ingest(paths: Iterable[str | os.PathLike], store: str | os.PathLike | Survey
         given.is_dir() and not any(given.iterdir())))
     empty_folder = created and given.exists()
     store = store if isinstance(store, SurveyStore) else SurveyStore.create(store)
-    try:
-        return _ingest_files(store, trace_files, plans, strict, workers, batch_bytes, progress)
-    except BaseException:
-        # a store this call made and never committed to: leave nothing behind (one that got a
-        # catalog, from this call or a concurrent one, stays)
+
+    def remove_if_unused() -> None:
+        """A store this call made and never committed to leaves nothing behind (one that got
+        a catalog, from this call or a concurrent one, stays)."""
         if created and not (store.root / "catalog.parquet").exists():
-            for child in (store.root.iterdir() if empty_folder else [store.root]):
+            for child in (list(store.root.iterdir()) if empty_folder else [store.root]):
                 if child.is_dir():
                     shutil.rmtree(child, ignore_errors=True)
                 else:
                     child.unlink(missing_ok=True)
+
+    try:
+        summary = _ingest_files(store, trace_files, plans, strict, workers, batch_bytes,
+                                progress)
+    except BaseException:
+        remove_if_unused()
         raise
+    remove_if_unused()  # every file failed (lenient): no empty store to mistake for one
+    return summary
 
 
 def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path], strict: bool,

@@ -225,6 +225,7 @@ def test_build_cli_twice_identical_bytes(tmp_path):
                           "the limit of 20,000,000; raise --cell"),
     (["--cell", "1e-320"], "F2: a 40 x 25 m floor at 9.99989e-321 m cells is inf cells, over "
                            "the limit"),
+    (["--cell", "100"], "F2: no cell centre of a 100 m grid lies in the plan's reachable area"),
     (["--build-time", "yesterday"], "not an ISO 8601 time"),
     (["-o", "FILE"], "is a file; -o/--out needs a folder"),
     (["--registry", "FILE"], "is a file; --registry needs a folder"),

@@ -87,6 +87,25 @@ def test_empty_or_foreign_files_are_not_walks(tmp_path):
     assert not (tmp_path / "s2").exists()
 
 
+def test_a_lenient_ingest_of_only_failed_files_leaves_no_store(tmp_path):
+    """Every file failing in lenient mode commits nothing: a store folder this run would have
+    made is not left behind (a later `process` would call it a store without walks), an empty
+    folder given as the store stays empty, and an existing store keeps its walks."""
+    (tmp_path / "bad.txt").write_text("garbage\n")
+    args = ["ingest", str(tmp_path / "bad.txt"), "--store"]
+    result = CliRunner().invoke(main, [*args, str(tmp_path / "s")])
+    assert result.exit_code == 1 and "FAILED " + str(tmp_path / "bad.txt") in result.output
+    assert not (tmp_path / "s").exists()
+    (tmp_path / "empty").mkdir()
+    assert CliRunner().invoke(main, [*args, str(tmp_path / "empty")]).exit_code == 1
+    assert (tmp_path / "empty").is_dir() and not any((tmp_path / "empty").iterdir())
+    write_trace(tmp_path / "w.txt", small_trace(trace_id="w"))
+    assert CliRunner().invoke(main, ["ingest", str(tmp_path / "w.txt"), "--store",
+                                     str(tmp_path / "s")]).exit_code == 0
+    assert CliRunner().invoke(main, [*args, str(tmp_path / "s")]).exit_code == 1
+    assert list(SurveyStore.open(tmp_path / "s").catalog()["trace_id"]) == ["w"]
+
+
 def test_usage_errors_exit_2(tmp_path):
     runner = CliRunner()
     assert runner.invoke(main, ["ingest", str(tmp_path)]).exit_code == 2  # no --store
