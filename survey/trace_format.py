@@ -42,6 +42,12 @@ SENSOR_LIMIT_OF_STREAM: dict[str, tuple[float, str]] = {
     "magnetic_field": (10_000.0, "uT"), "rotation_vector": (1.5, "")}
 
 
+#: How far (ms) a Wi-Fi row's last-seen time may lie after its scan's time: a row is heard
+#: before the scan reports it (the ILC traces: never after), and a damaged file gave last-seen
+#: times hours after their scan; such a row is an ``out_of_range`` bad line (its age would
+#: be negative, and the radio maps weigh rows by age).
+MAX_WIFI_SEEN_AFTER_SCAN_MS = 1000
+
 #: Largest |coordinate| (m) of a waypoint or walk-plan vertex: a building is kilometres across
 #: at most, and 1e155 m crashed the processing of every walk of the store.
 WAYPOINT_LIMIT_M = 1e6

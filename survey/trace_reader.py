@@ -45,6 +45,7 @@ from .trace_format import (
     BLE_COLUMNS,
     BLE_DTYPES,
     CALIBRATED_STREAMS,
+    MAX_WIFI_SEEN_AFTER_SCAN_MS,
     RSSI_RANGE_DBM,
     SENSOR_COLUMNS,
     SENSOR_DTYPES,
@@ -573,8 +574,12 @@ class _Tables:
                 f"TYPE_WIFI: rssi outside [{lo}, {hi}] dBm")
         bad.add(cols["gline"][valid & rssi_ok & ~freq_ok], "out_of_range",
                 "TYPE_WIFI: frequency is not in MHz")
+        seen_ok = cols["last_seen_ms"] <= cols["t_ms"] + MAX_WIFI_SEEN_AFTER_SCAN_MS
+        bad.add(cols["gline"][valid & rssi_ok & freq_ok & ~seen_ok], "out_of_range",
+                f"TYPE_WIFI: last-seen time more than {MAX_WIFI_SEEN_AFTER_SCAN_MS} ms after "
+                "the scan")
         cols["bssid"] = bssid
-        keep = valid & rssi_ok & freq_ok
+        keep = valid & rssi_ok & freq_ok & seen_ok
         if not keep.all():
             cols = _take(cols, np.flatnonzero(keep))
         files = self.count(cols)

@@ -104,6 +104,9 @@ BAD_LINES = [
     ("10\tgarbage\t1", "unknown_record", "not a TYPE_ name"),
     ("10\tTYPE_WIFI\tssid\tnot-a-mac\t-50\t2412\t5", "bad_bssid", "not a MAC"),
     ("10\tTYPE_WIFI\tssid\t00:11:22:33:44:55\t-500\t2412\t5", "out_of_range", "rssi"),
+    # heard hours after the scan that reports it: a negative age (a damaged file gave such)
+    ("10\tTYPE_WIFI\tssid\t00:11:22:33:44:55\t-50\t2412\t3600010", "out_of_range",
+     "TYPE_WIFI: last-seen time more than 1000 ms after the scan"),
     ("10\tTYPE_WAYPOINT\t1.0\t\xff\xfe", "invalid_utf8", "UTF-8"),
     ("10\tTYPE_ACCELEROMETER\t1e30\t2\t3\t3", "out_of_range", "beyond +-2000 m/s^2"),
     ("10\tTYPE_MAGNETIC_FIELD_UNCALIBRATED\t1\t2\t3\t4\t5\t-2e4\t3", "out_of_range",
