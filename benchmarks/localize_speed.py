@@ -13,7 +13,11 @@ Prints
    on a floor whose magnetic map does not predict held-out walks, as on the real mall): CPU
    time per step over walks of 1-4 minutes with a radio fix every third step (the search
    aligns the last 120 s again at every step), against the filter's full step at N = 300 in
-   the same run, and users per core if one user's alignment took a core's share.
+   the same run, and users per core if one user's alignment took a core's share;
+4. the multi-user alignment (``localize.align_engine.MultiUserAligner``) in its steady state:
+   users on 2.5-minute loop walks (past the 120 s window, so old steps are being forgotten),
+   CPU per tick of all of them, users per core at a 0.67 s step period, and the Python memory
+   per user (``tracemalloc``).
 
 Everything runs in this process on one core (BLAS threads pinned to 1) on a synthetic floor
 bundle of 80 x 50 m (0.25 m cells, a corridor grid, a smooth random field). Timings are the
@@ -32,9 +36,11 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
 import argparse
+import gc
 import sys
 import tempfile
 import time
+import tracemalloc
 from pathlib import Path
 
 import numpy as np
@@ -42,6 +48,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from localize.align import WalkAligner
+from localize.align_engine import MultiUserAligner
 from localize.bundle import Grid, load_bundle
 from localize.engine import MultiUserEngine
 from localize.filter import Localizer
@@ -241,6 +248,49 @@ def align_step_time(bundle, n_steps: int, repeats: int) -> float:
     return _median_time(walk, repeats) / n_steps
 
 
+def align_engine_users_per_core(bundle, users: int, warm_steps: int, ticks: int
+                                ) -> tuple[float, float, float]:
+    """Seconds of CPU per tick of ``users`` on :func:`loop_walk` walks (one seed each) after
+    ``warm_steps`` ticks, users per core at :data:`STEP_PERIOD_S`, and bytes per user of
+    Python memory after the warm-up (traced on a quarter of the users, at least 10)."""
+    n = warm_steps + ticks
+    walks = [loop_walk(n, seed=u) for u in range(users)]
+    cols = ("compass_deg", "frequency_hz", "turn_deg", "strength_ut", "azimuth_deg",
+            "polar_deg", "attitude", "relative_heading_deg", "delta_acc_ms2")
+    inputs = [StepInputs(*(np.array([getattr(w[0][i], c) for w in walks]) for c in cols))
+              for i in range(n)]
+    fix_xy = np.stack([w[1].fixes for w in walks], axis=1)  # (steps, users, 2)
+    fix_xy[np.arange(n) % 3 != 0] = np.nan
+    t = np.array([w[0][0].t_ms for w in walks])  # the same times for every user
+
+    def run(eng, k, i0, i1):  # ticks i0..i1-1 of the first k users
+        for i in range(i0, i1):
+            eng.tick(ids[:k], t[:k] + 670.0 * i,
+                     StepInputs(*(np.asarray(getattr(inputs[i], c))[:k] for c in cols)),
+                     fix_xy_m=fix_xy[i, :k])
+
+    traced = max(10, users // 4)
+    eng = MultiUserAligner(bundle)  # once untraced: the shared wall tables, one-time caches
+    ids = eng.add_users(fix_xy[0, :traced], t[:traced] - 670.0, sigma_m=3.0)
+    run(eng, traced, 0, 10)
+    gc.collect()
+    tracemalloc.start()
+    before = tracemalloc.get_traced_memory()[0]
+    eng = MultiUserAligner(bundle)
+    ids = eng.add_users(fix_xy[0, :traced], t[:traced] - 670.0, sigma_m=3.0)
+    run(eng, traced, 0, warm_steps)
+    gc.collect()
+    per_user = (tracemalloc.get_traced_memory()[0] - before) / traced
+    tracemalloc.stop()
+    eng = MultiUserAligner(bundle)
+    ids = eng.add_users(fix_xy[0], t - 670.0, sigma_m=3.0)
+    run(eng, users, 0, warm_steps)
+    c0 = time.process_time()
+    run(eng, users, warm_steps, n)
+    tick = (time.process_time() - c0) / ticks
+    return tick, STEP_PERIOD_S / (tick / users), per_user
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="fewer repeats (smoke test)")
@@ -291,6 +341,16 @@ def main(argv=None) -> None:
             t = align_step_time(bundle, n_steps, max(3, repeats // 5))
             print(f"{n_steps:>7} {n_steps * STEP_PERIOD_S / 60:>8.1f} {t * 1e3:>8.2f} "
                   f"{t / filter_step:>8.1f}x {STEP_PERIOD_S / t:>11.0f}")
+        warm = 220  # 2.5 minutes: the 120 s window is full and old steps are forgotten
+        print(f"\nMulti-user alignment (MultiUserAligner), steady state after {warm} steps of "
+              "loop walks, a fix every third step")
+        print(f"{'users':>7} {'tick ms':>9} {'us/user-step':>13} {'users/core':>11} "
+              f"{'KB/user':>8}")
+        for users in ((20,) if args.quick else (50, 200)):
+            t, upc, b = align_engine_users_per_core(bundle, users, warm,
+                                                    5 if args.quick else 20)
+            print(f"{users:>7} {t * 1e3:>9.1f} {t / users * 1e6:>13.1f} {upc:>11.0f} "
+                  f"{b / 1024:>8.1f}")
 
 
 if __name__ == "__main__":

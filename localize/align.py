@@ -237,6 +237,11 @@ def _bundle_wall_tables(bundle: MapBundle, cap_m: float) -> tuple[NDArray, NDArr
     return by_cap[cap_m]
 
 
+#: Steps before the real-time window's origin that :class:`WalkAligner` keeps before it
+#: forgets them (in batches, so the lists are not shifted at every step).
+_FORGET_STEPS = 64
+
+
 class WalkAligner(BaseLocalizer):
     """Localizer by walk alignment: the step track fitted to the radio fixes and the walls.
 
@@ -306,6 +311,27 @@ class WalkAligner(BaseLocalizer):
         return self._advance(s.t_ms, s.compass_deg, s.relative_heading_deg, s.delta_acc_ms2,
                              s.attitude == AttitudeCode.CARRIED, fix)
 
+    @property
+    def last_t_ms(self) -> float:
+        """Time (Unix ms) of the last step, or of the start."""
+        return self._t[-1]
+
+    def step_values(self, t_ms: float, compass_deg: float, relative_heading_deg: float,
+                    delta_acc_ms2: float, carried: bool = False,
+                    fix: tuple[float, float, float] | None = None) -> Estimate:
+        """:meth:`step` from a step's values instead of a :class:`StepSummary`: its time
+        (Unix ms), compass and gyroscope headings (deg; gyroscope NaN: the compass alone),
+        acceleration swing (m/s^2; NaN: the nominal step), whether the phone is carried
+        (:attr:`AttitudeCode.CARRIED`), and a radio fix ``(x_m, y_m, t_ms)`` located by the
+        caller (its scan time). For serving many users
+        (:class:`localize.align_engine.MultiUserAligner`)."""
+        if not self._fix_t:
+            raise LocalizationError("call start() (or run()) before step_values()")
+        check_step_time(t_ms, self._t[-1])
+        located = None if fix is None else (float(fix[2]), (float(fix[0]), float(fix[1])))
+        return self._advance(t_ms, compass_deg, relative_heading_deg, delta_acc_ms2,
+                             bool(carried), located)
+
     def _advance(self, t_ms, compass_deg, gyro_deg, swing, axis, fix) -> Estimate:
         """Take one step (and its fix ``(t_ms, (x, y, sigma))``, if any), then align again:
         over the whole grid when a fix came, else around the last alignment (the new step
@@ -350,6 +376,23 @@ class WalkAligner(BaseLocalizer):
         self._pos, self._spread = pos[-1], best.spread_m
         self._fit = (float(np.angle(best.factor)) + anchor, abs(best.factor), first, pos)
         self._stale = False
+        if first >= _FORGET_STEPS:
+            self._forget(first)
+
+    def _forget(self, first: int) -> None:
+        """Drop the steps before index ``first`` of the step times (the current window's
+        origin; no later window reaches back past it) and the fixes before that origin but
+        the latest, so that memory and the work per step stay bounded however long a user
+        walks. Every later alignment sees what it saw before (a test checks the tracks)."""
+        del self._t[:first], self._compass[:first], self._gyro[:first]
+        del self._swing[:first], self._axis[:first]
+        rot, scale, fit_first, pos = self._fit
+        self._fit = (rot, scale, fit_first - first, pos)
+        old = [i for i, t in enumerate(self._fix_t[:-1]) if t < self._t[0]]
+        if old and old[0] == 0:
+            self._start_given = False  # a given start outside every later window
+        for i in reversed(old):
+            del self._fix_t[i], self._fix_z[i]
 
     def _align(self, shape: NDArray, times: NDArray, fix_t: NDArray, fix_z: NDArray,
                start_given: bool, both_ways: bool = False,

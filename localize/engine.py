@@ -173,8 +173,8 @@ class MultiUserEngine:
             if len(np.unique(ids)) != len(ids):
                 raise LocalizationError("a user id appears twice in one tick")
         users = self.user_ids if ids is None else ids
-        _check_inputs(inputs, users)
-        fixes = None if fix_xy_m is None else _checked_fixes(fix_xy_m, fix_sigma_m, len(users),
+        check_tick_inputs(inputs, users)
+        fixes = None if fix_xy_m is None else checked_tick_fixes(fix_xy_m, fix_sigma_m, len(users),
                                                             self.params.radio_sigma_floor_m)
         rows = slice(None) if ids is None else self.rows_of(ids)
         last = self.last_xy[rows]
@@ -213,7 +213,7 @@ class MultiUserEngine:
                                   (fx[r], fy[r]), sigma[r])
 
 
-def _checked_fixes(fix_xy_m: ArrayLike, fix_sigma_m: ArrayLike | None, k: int,
+def checked_tick_fixes(fix_xy_m: ArrayLike, fix_sigma_m: ArrayLike | None, k: int,
                    floor_m: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Fixes as (k, 2) and their SDs as (k,) (NaN or absent: ``floor_m``; raised to it), or a
     LocalizationError before anyone moves."""
@@ -231,7 +231,7 @@ def _checked_fixes(fix_xy_m: ArrayLike, fix_sigma_m: ArrayLike | None, k: int,
     return xy, np.fmax(sigma, floor_m)  # NaN: the floor
 
 
-def _check_inputs(inputs: StepInputs, ids: NDArray[np.int64]) -> None:
+def check_tick_inputs(inputs: StepInputs, ids: NDArray[np.int64]) -> None:
     """Every array of ``inputs`` one value per user of ``ids``, and a finite compass heading
     for each: checked before any state moves, so that one bad user cannot leave the others
     half advanced."""

@@ -97,6 +97,37 @@ def test_streaming_equals_batch(f1_bundle, sim_walks):  # noqa: F811
     assert np.array_equal([e.y_m for e in est], batch.y_m)
 
 
+def test_real_time_forgets_what_no_window_reaches_and_keeps_the_track(
+        f1_bundle, sim_walks, monkeypatch):  # noqa: F811
+    """The steps and fixes behind the real-time window are dropped (memory and work per step
+    bounded for a user who walks for hours): with a 5 s window and forgetting every 4 steps,
+    the track is the one of an aligner that keeps everything, position by position, with a
+    given start and without one (the start fix forgotten too)."""
+    import localize.align as align
+
+    class FirstFixes(_BiasedRadio):  # then the radio goes quiet: windows with no fix
+        def locate(self, scan):
+            self.n = getattr(self, "n", 0) + 1
+            return super().locate(scan) if self.n <= 3 else None
+
+    p = AlignParams(window_s=5.0)
+    walks = _f1_with_scans(sim_walks)[:2]
+    for w, start_xy, radio in ((walks[0], None, _BiasedRadio),
+                               (walks[1], walks[1].start_xy, _BiasedRadio),
+                               (walks[0], None, FirstFixes)):
+        tracks, kept = [], []
+        for forget in (4, 10 ** 9):
+            monkeypatch.setattr(align, "_FORGET_STEPS", forget)
+            loc = WalkAligner(f1_bundle, p, radio=radio(w, 45))
+            tracks.append(loc.run(w.steps, start_xy=start_xy))
+            kept.append((len(loc._t), len(loc._fix_t)))
+        assert kept[1][0] == len(w.steps) + 1 and kept[0][0] <= 30 < len(w.steps)
+        assert kept[0][1] < kept[1][1] or kept[0][1] == 1
+        assert np.array_equal(tracks[0].x_m, tracks[1].x_m)
+        assert np.array_equal(tracks[0].y_m, tracks[1].y_m)
+        assert np.array_equal(tracks[0].spread_m, tracks[1].spread_m)
+
+
 def test_registered_as_a_method(f1_bundle):  # noqa: F811
     assert isinstance(make_localizer("align", f1_bundle), WalkAligner)
 

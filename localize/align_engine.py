@@ -1,0 +1,155 @@
+"""Many users' real-time walk alignments on one floor, served by one object per process.
+
+The counterpart of :class:`~localize.engine.MultiUserEngine` for floors where ``--method
+auto`` runs the walk alignment (:func:`localize.methods.auto_method`: the floor's magnetic
+map does not predict walks it did not see, as on the real mall traces). Each user keeps one
+:class:`~localize.align.WalkAligner` (its last ``window_s`` of steps and fixes; the older ones
+are forgotten, so a user's memory stays bounded however long they walk) and a tick advances
+the users that stepped, one after the other: the alignment searches transforms per user and
+does not batch across users as the particle filters do. Expect about 1 ms of CPU per user
+step (``benchmarks/localize_speed.py``), i.e. several hundred users per core at a step every
+0.67 s, against thousands for the filter.
+
+Examples
+--------
+>>> eng = MultiUserAligner(bundle)                                            # doctest: +SKIP
+>>> ids = eng.add_users([[10.0, 5.0]], t_ms=[t0], sigma_m=[3.0])              # doctest: +SKIP
+>>> out = eng.tick(ids, [t0 + 600.0], StepInputs(...), fix_xy_m=[[11.0, 6.0]])  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from localize.align import AlignParams, WalkAligner, _bundle_wall_tables
+from localize.bundle import MapBundle
+from localize.engine import check_tick_inputs, checked_tick_fixes
+from localize.errors import LocalizationError
+from localize.filter import check_step_time
+from localize.steps import AttitudeCode
+from localize.stepper import StepInputs, StepOutputs
+
+__all__ = ["MultiUserAligner"]
+
+
+class MultiUserAligner:
+    """Real-time walk alignments of many users on one floor bundle.
+
+    Parameters
+    ----------
+    bundle : MapBundle
+        Floor bundle all users are on (run one per floor).
+    params : AlignParams, optional
+        Shared by all users.
+    """
+
+    def __init__(self, bundle: MapBundle, params: AlignParams | None = None) -> None:
+        self.bundle = bundle
+        self.params = params or AlignParams()
+        _bundle_wall_tables(bundle, self.params.wall_cap_m)  # once, shared by every user
+        self._aligners: dict[int, WalkAligner] = {}
+        self._next_id = 0
+
+    @property
+    def n_users(self) -> int:
+        return len(self._aligners)
+
+    @property
+    def user_ids(self) -> NDArray[np.int64]:
+        """The users' ids, in the order they were added."""
+        return np.fromiter(self._aligners, dtype=np.int64, count=len(self._aligners))
+
+    def add_users(self, start_xy: ArrayLike, t_ms: ArrayLike,
+                  sigma_m: ArrayLike | None = None) -> NDArray[np.int64]:
+        """Start alignments for new users; returns their ids.
+
+        Parameters
+        ----------
+        start_xy : array_like (k, 2)
+            Start positions (m, map frame): radio fixes, or known positions.
+        t_ms : array_like (k,)
+            Their times (Unix ms): a fix's scan time.
+        sigma_m : array_like (k,), optional
+            A fix's accuracy (m): the start is then the first of the user's fixes, with the
+            fixes' error model. NaN or absent: a known position (``AlignParams.start_sd_m``).
+        """
+        xy = np.asarray(start_xy, dtype=np.float64).reshape(-1, 2)
+        k = len(xy)
+        t = np.broadcast_to(np.asarray(t_ms, dtype=np.float64), (k,))
+        sigma = np.full(k, np.nan) if sigma_m is None else \
+            np.broadcast_to(np.asarray(sigma_m, dtype=np.float64), (k,))
+        if not np.isfinite(t).all():
+            raise LocalizationError("add_users: a start time is not finite (t_ms)")
+        new = []
+        for (x, y), t0, s in zip(xy, t, sigma):
+            aligner = WalkAligner(self.bundle, self.params)
+            aligner.begin(*aligner._checked_start((x, y)), float(t0),
+                          float(s) if np.isfinite(s) else None)
+            new.append(aligner)  # every start checked before anyone is added
+        ids = np.arange(self._next_id, self._next_id + k, dtype=np.int64)
+        self._next_id += k
+        self._aligners.update(zip(ids.tolist(), new))
+        return ids
+
+    def remove_users(self, ids: ArrayLike) -> None:
+        """Drop users (their alignments are freed); unknown ids are ignored."""
+        for i in np.asarray(ids, dtype=np.int64).ravel().tolist():
+            self._aligners.pop(i, None)
+
+    def tick(self, ids: ArrayLike | None, t_ms: ArrayLike, inputs: StepInputs,
+             fix_xy_m: ArrayLike | None = None, fix_t_ms: ArrayLike | None = None
+             ) -> StepOutputs:
+        """Advance the users ``ids`` by one step each.
+
+        Parameters
+        ----------
+        ids : array_like of int (k,) or None
+            Users that took a step since the last tick (None: every user, in the order of
+            :attr:`user_ids`).
+        t_ms : array_like (k,)
+            The steps' times (Unix ms), after each user's last step.
+        inputs : StepInputs
+            Their step summaries, arrays of shape (k,) in the order of ``ids``: the compass
+            and gyroscope headings (``relative_heading_deg``; NaN: the compass alone), the
+            acceleration swing (``delta_acc_ms2``; NaN: the nominal step) and the attitude.
+        fix_xy_m : array_like (k, 2), optional
+            Their radio fixes at this step (m, map frame; NaN rows: none).
+        fix_t_ms : array_like (k,), optional
+            The fixes' scan times (Unix ms; NaN or absent: the step's time).
+
+        Returns
+        -------
+        StepOutputs
+            Estimates of those users, shape (k,): the end of each one's aligned track and the
+            spread of its shift (m); ``alive_fraction`` 1 and ``recovered`` False.
+        """
+        ids = self.user_ids if ids is None else np.asarray(ids, dtype=np.int64).ravel()
+        if len(np.unique(ids)) != len(ids):
+            raise LocalizationError("a user id appears twice in one tick")
+        unknown = [i for i in ids.tolist() if i not in self._aligners]
+        if unknown:
+            raise LocalizationError(f"unknown user ids in tick: {unknown[:10]}")
+        k = len(ids)
+        check_tick_inputs(inputs, ids)
+        t = np.broadcast_to(np.asarray(t_ms, dtype=np.float64), (k,))
+        users = [self._aligners[i] for i in ids.tolist()]
+        for aligner, ti in zip(users, t):  # every user checked before anyone moves
+            check_step_time(ti, aligner.last_t_ms)
+        fix_xy = np.full((k, 2), np.nan) if fix_xy_m is None else \
+            checked_tick_fixes(fix_xy_m, None, k, 0.0)[0]
+        fix_t = t if fix_t_ms is None else np.broadcast_to(
+            np.asarray(fix_t_ms, dtype=np.float64), (k,))
+        fix_t = np.where(np.isfinite(fix_t), fix_t, t)
+        has_fix = np.isfinite(fix_xy).all(axis=1)
+        compass, gyro, swing = (np.broadcast_to(np.asarray(v, dtype=np.float64), (k,)) for v in (
+            inputs.compass_deg,
+            np.nan if inputs.relative_heading_deg is None else inputs.relative_heading_deg,
+            np.nan if inputs.delta_acc_ms2 is None else inputs.delta_acc_ms2))
+        carried = np.broadcast_to(np.asarray(inputs.attitude) == AttitudeCode.CARRIED, (k,))
+        out = np.empty((k, 3))
+        for r, aligner in enumerate(users):
+            fix = (fix_xy[r, 0], fix_xy[r, 1], fix_t[r]) if has_fix[r] else None
+            est = aligner.step_values(t[r], compass[r], gyro[r], swing[r], carried[r], fix)
+            out[r] = est.x_m, est.y_m, est.spread_m
+        return StepOutputs(out[:, 0], out[:, 1], out[:, 2], np.ones(k), np.zeros(k, bool))

@@ -1,0 +1,110 @@
+"""Many users' real-time walk alignments (localize.align_engine.MultiUserAligner)."""
+
+import numpy as np
+import pytest
+from localize_fixtures import f1_bundle, sim_walks, truth_bundles  # noqa: F401  (fixtures)
+from test_localize_align import _BiasedRadio, _f1_with_scans
+
+from localize.align import AlignParams, WalkAligner
+from localize.align_engine import MultiUserAligner
+from localize.errors import LocalizationError
+from localize.stepper import StepInputs
+
+COLUMNS = ("compass_deg", "frequency_hz", "turn_deg", "strength_ut", "azimuth_deg",
+           "polar_deg", "attitude", "relative_heading_deg", "delta_acc_ms2")
+
+
+def _inputs(walks, i):
+    """Step ``i`` of each walk as one tick's inputs."""
+    return StepInputs(*(np.array([getattr(w.steps, c)[i] for w in walks]) for c in COLUMNS))
+
+
+class _Fixes:
+    """The fixes a radio model gives a walk, per step index (x, y, scan time), computed once
+    so that the engine and the single-user aligner see the same ones."""
+
+    def __init__(self, walk, angle_deg):
+        radio = _BiasedRadio(walk, angle_deg)
+        self.at = {i: (*radio.locate(s)[:2], float(s.t_ms or walk.steps.t_ms[i]))
+                   for i, s in enumerate(walk.steps.scans) if s is not None}
+        self._of_scan = {id(walk.steps.scans[i]): f for i, f in self.at.items()}
+
+    def locate(self, scan):  # as a radio model for WalkAligner.run
+        x, y, _ = self._of_scan[id(scan)]
+        return x, y, 3.0
+
+
+def test_each_user_gets_the_single_user_track(f1_bundle, sim_walks):  # noqa: F811
+    """Users of different walks started at different times, ticked together and in subsets,
+    some ending earlier: each gets, position by position, what a WalkAligner streaming its
+    walk alone gives with the same fixes (a known start for one, its first fix for another);
+    removed users are gone and the others go on."""
+    walks = _f1_with_scans(sim_walks)[:3]
+    p = AlignParams(window_s=30.0)
+    fixes = [_Fixes(w, 30 * k) for k, w in enumerate(walks)]
+    expected = []
+    for k, (w, f) in enumerate(zip(walks, fixes)):
+        if k != 1:  # a known start: the batch run
+            expected.append(WalkAligner(f1_bundle, p, radio=f).run(
+                w.steps, start_xy=w.start_xy).x_m.tolist())
+            continue
+        # starts at its first fix, at the fix's time (the steps before it are not served)
+        loc = WalkAligner(f1_bundle, p)
+        first = min(f.at)
+        loc.begin(f.at[first][0], f.at[first][1], f.at[first][2], 3.0)
+        expected.append([loc.step_values(w.steps.t_ms[i], w.steps.compass_deg[i],
+                                         w.steps.relative_heading_deg[i],
+                                         w.steps.delta_acc_ms2[i], False,
+                                         f.at.get(i) if i != first else None).x_m
+                         for i in range(len(w.steps))])
+    eng = MultiUserAligner(f1_bundle, p)
+    starts = [w.start_xy for w in walks]
+    t0 = [w.steps.t_ms[0] - 500.0 for w in walks]
+    first = min(fixes[1].at)
+    starts[1], t0[1] = fixes[1].at[first][:2], fixes[1].at[first][2]
+    ids = eng.add_users(starts, t_ms=t0, sigma_m=[np.nan, 3.0, np.nan])
+    got = [[] for _ in walks]
+    n = max(len(w.steps) for w in walks)
+    for i in range(n):
+        live = [k for k, w in enumerate(walks) if i < len(w.steps)]
+        if i == 20:
+            live = live[::-1]  # any order of ids
+        fx = np.array([fixes[k].at.get(i, (np.nan,) * 3) if (k != 1 or i != first)
+                       else (np.nan,) * 3 for k in live])
+        out = eng.tick(ids[live], [walks[k].steps.t_ms[i] for k in live],
+                       _inputs([walks[k] for k in live], i), fix_xy_m=fx[:, :2],
+                       fix_t_ms=fx[:, 2])
+        for r, k in enumerate(live):
+            got[k].append(out.x_m[r])
+        for k, w in enumerate(walks):
+            if i == len(w.steps) - 1:
+                eng.remove_users([ids[k]])
+    for k in range(len(walks)):
+        assert np.array_equal(got[k], expected[k]), k
+    assert eng.n_users == 0
+
+
+def test_bad_ticks_move_nobody(f1_bundle, sim_walks):  # noqa: F811
+    w = _f1_with_scans(sim_walks)[0]
+    eng = MultiUserAligner(f1_bundle)
+    ids = eng.add_users([w.start_xy, w.start_xy], t_ms=w.steps.t_ms[0] - 500.0)
+    t = w.steps.t_ms[0]
+    good = _inputs([w, w], 0)
+    with pytest.raises(LocalizationError, match="appears twice"):
+        eng.tick([ids[0], ids[0]], [t, t], good)
+    with pytest.raises(LocalizationError, match=r"unknown user ids in tick: \[99\]"):
+        eng.tick([ids[0], 99], [t, t], good)
+    with pytest.raises(LocalizationError, match="comes before the last one"):
+        eng.tick(ids, [t, w.steps.t_ms[0] - 1000.0], good)  # the second is back in time
+    with pytest.raises(LocalizationError, match="shape"):
+        eng.tick(ids, [t, t], _inputs([w], 0))
+    with pytest.raises(LocalizationError, match="fix_xy_m has shape"):
+        eng.tick(ids, [t, t], good, fix_xy_m=[[1.0, 2.0]])
+    assert all(a.last_t_ms == w.steps.t_ms[0] - 500.0 for a in eng._aligners.values())
+    out = eng.tick(None, [t, t], good)  # every user
+    assert np.array_equal(out.x_m[:1], out.x_m[1:])  # the same walk, the same estimate
+    with pytest.raises(LocalizationError, match="more than 200 m off the floor's map"):
+        eng.add_users([[1e6, 0.0]], t_ms=t)
+    with pytest.raises(LocalizationError, match="start time"):
+        eng.add_users([w.start_xy], t_ms=np.nan)
+    assert eng.n_users == 2
