@@ -14,10 +14,11 @@ Prints
    time per step over walks of 1-4 minutes with a radio fix every third step (the search
    aligns the last 120 s again at every step), against the filter's full step at N = 300 in
    the same run, and users per core if one user's alignment took a core's share;
-4. the multi-user alignment (``localize.align_engine.MultiUserAligner``) in its steady state:
-   users on 2.5-minute loop walks (past the 120 s window, so old steps are being forgotten),
-   CPU per tick of all of them, users per core at a 0.67 s step period, and the Python memory
-   per user (``tracemalloc``).
+4. the multi-user alignment (``localize.align_engine.MultiUserAligner``), and the filter
+   engine guided by it (``FilterParams(radio_guide="align")``: ``auto`` on a floor with a good
+   magnetic map), in their steady state: users on 2.5-minute loop walks (past the 120 s
+   window, so old steps are being forgotten), CPU per tick of all of them, users per core at
+   a 0.67 s step period, and the Python memory per user (``tracemalloc``).
 
 Everything runs in this process on one core (BLAS threads pinned to 1) on a synthetic floor
 bundle of 80 x 50 m (0.25 m cells, a corridor grid, a smooth random field). Timings are the
@@ -53,7 +54,8 @@ from localize.bundle import Grid, load_bundle
 from localize.engine import MultiUserEngine
 from localize.filter import Localizer
 from localize.params import FilterParams
-from localize.particles import observe
+from localize.maps import FilterMap
+from localize.particles import needed_layers, observe
 from localize.stepper import StepInputs
 from localize.steps import AttitudeCode, RadioScan, StepSummary
 from localize.update import magnetic_update
@@ -248,11 +250,13 @@ def align_step_time(bundle, n_steps: int, repeats: int) -> float:
     return _median_time(walk, repeats) / n_steps
 
 
-def align_engine_users_per_core(bundle, users: int, warm_steps: int, ticks: int
-                                ) -> tuple[float, float, float]:
+def align_engine_users_per_core(bundle, users: int, warm_steps: int, ticks: int,
+                                guided: bool = False) -> tuple[float, float, float]:
     """Seconds of CPU per tick of ``users`` on :func:`loop_walk` walks (one seed each) after
     ``warm_steps`` ticks, users per core at :data:`STEP_PERIOD_S`, and bytes per user of
-    Python memory after the warm-up (traced on a quarter of the users, at least 10)."""
+    Python memory after the warm-up (traced on a quarter of the users, at least 10): of a
+    :class:`MultiUserAligner`, or with ``guided`` of a :class:`MultiUserEngine` whose filters
+    (N = 300, float32) are guided by the users' alignments (``radio_guide="align"``)."""
     n = warm_steps + ticks
     walks = [loop_walk(n, seed=u) for u in range(users)]
     cols = ("compass_deg", "frequency_hz", "turn_deg", "strength_ut", "azimuth_deg",
@@ -263,30 +267,41 @@ def align_engine_users_per_core(bundle, users: int, warm_steps: int, ticks: int
     fix_xy[np.arange(n) % 3 != 0] = np.nan
     t = np.array([w[0][0].t_ms for w in walks])  # the same times for every user
 
-    def run(eng, k, i0, i1):  # ticks i0..i1-1 of the first k users
+    params = FilterParams(n_particles=300, n_particles_start=0, radio_guide="align")
+    fmap = FilterMap(bundle, *needed_layers(params))  # shared by the users of a floor
+
+    def start(k):
+        if not guided:
+            eng = MultiUserAligner(bundle)
+            return eng, eng.add_users(fix_xy[0, :k], t[:k] - 670.0, sigma_m=3.0)
+        eng = MultiUserEngine(bundle, params, rng=0, dtype=np.float32, fmap=fmap)
+        return eng, eng.add_users(fix_xy[0, :k], fix_sigma_m=np.full(k, 3.0),
+                                  t_ms=t[:k] - 670.0)
+
+    def run(eng, ids, i0, i1):  # ticks i0..i1-1 of the users ids (the first ones)
+        k = len(ids)
         for i in range(i0, i1):
-            eng.tick(ids[:k], t[:k] + 670.0 * i,
-                     StepInputs(*(np.asarray(getattr(inputs[i], c))[:k] for c in cols)),
-                     fix_xy_m=fix_xy[i, :k])
+            step = StepInputs(*(np.asarray(getattr(inputs[i], c))[:k] for c in cols))
+            if guided:
+                eng.tick(ids, step, fix_xy[i, :k], t_ms=t[:k] + 670.0 * i)
+            else:
+                eng.tick(ids, t[:k] + 670.0 * i, step, fix_xy_m=fix_xy[i, :k])
 
     traced = max(10, users // 4)
-    eng = MultiUserAligner(bundle)  # once untraced: the shared wall tables, one-time caches
-    ids = eng.add_users(fix_xy[0, :traced], t[:traced] - 670.0, sigma_m=3.0)
-    run(eng, traced, 0, 10)
+    eng, ids = start(traced)  # once untraced: the shared wall tables, one-time caches
+    run(eng, ids, 0, 10)
     gc.collect()
     tracemalloc.start()
     before = tracemalloc.get_traced_memory()[0]
-    eng = MultiUserAligner(bundle)
-    ids = eng.add_users(fix_xy[0, :traced], t[:traced] - 670.0, sigma_m=3.0)
-    run(eng, traced, 0, warm_steps)
+    eng, ids = start(traced)
+    run(eng, ids, 0, warm_steps)
     gc.collect()
     per_user = (tracemalloc.get_traced_memory()[0] - before) / traced
     tracemalloc.stop()
-    eng = MultiUserAligner(bundle)
-    ids = eng.add_users(fix_xy[0], t - 670.0, sigma_m=3.0)
-    run(eng, users, 0, warm_steps)
+    eng, ids = start(users)
+    run(eng, ids, 0, warm_steps)
     c0 = time.process_time()
-    run(eng, users, warm_steps, n)
+    run(eng, ids, warm_steps, n)
     tick = (time.process_time() - c0) / ticks
     return tick, STEP_PERIOD_S / (tick / users), per_user
 
@@ -342,15 +357,17 @@ def main(argv=None) -> None:
             print(f"{n_steps:>7} {n_steps * STEP_PERIOD_S / 60:>8.1f} {t * 1e3:>8.2f} "
                   f"{t / filter_step:>8.1f}x {STEP_PERIOD_S / t:>11.0f}")
         warm = 220  # 2.5 minutes: the 120 s window is full and old steps are forgotten
-        print(f"\nMulti-user alignment (MultiUserAligner), steady state after {warm} steps of "
-              "loop walks, a fix every third step")
-        print(f"{'users':>7} {'tick ms':>9} {'us/user-step':>13} {'users/core':>11} "
-              f"{'KB/user':>8}")
+        print(f"\nMulti-user alignment, steady state after {warm} steps of loop walks, a fix "
+              "every third step: MultiUserAligner ('align'), and the filter engine guided by "
+              "each user's alignment ('guided', N = 300 float32, auto on a good map)")
+        print(f"{'users':>7} {'server':>8} {'tick ms':>9} {'us/user-step':>13} "
+              f"{'users/core':>11} {'KB/user':>8}")
         for users in ((20,) if args.quick else (50, 200)):
-            t, upc, b = align_engine_users_per_core(bundle, users, warm,
-                                                    5 if args.quick else 20)
-            print(f"{users:>7} {t * 1e3:>9.1f} {t / users * 1e6:>13.1f} {upc:>11.0f} "
-                  f"{b / 1024:>8.1f}")
+            for guided in (False, True):
+                t, upc, b = align_engine_users_per_core(bundle, users, warm,
+                                                        5 if args.quick else 20, guided)
+                print(f"{users:>7} {'guided' if guided else 'align':>8} {t * 1e3:>9.1f} "
+                      f"{t / users * 1e6:>13.1f} {upc:>11.0f} {b / 1024:>8.1f}")
 
 
 if __name__ == "__main__":

@@ -8,7 +8,9 @@ are forgotten, so a user's memory stays bounded however long they walk) and a ti
 the users that stepped, one after the other: the alignment searches transforms per user and
 does not batch across users as the particle filters do. Expect about 1 ms of CPU per user
 step (``benchmarks/localize_speed.py``), i.e. several hundred users per core at a step every
-0.67 s, against thousands for the filter.
+0.67 s, against thousands for the filter. On floors where ``auto`` runs the filter guided
+by the alignment, :class:`~localize.engine.MultiUserEngine` with
+``FilterParams(radio_guide="align")`` keeps one of these for its users.
 
 Examples
 --------
@@ -24,11 +26,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from localize.align import AlignParams, WalkAligner, _bundle_wall_tables
 from localize.bundle import MapBundle
-from localize.engine import check_tick_inputs, checked_tick_fixes
 from localize.errors import LocalizationError
 from localize.filter import check_step_time
 from localize.steps import AttitudeCode
 from localize.stepper import StepInputs, StepOutputs
+from localize.ticks import check_tick_inputs, checked_tick_fixes
 
 __all__ = ["MultiUserAligner"]
 

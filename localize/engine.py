@@ -13,7 +13,10 @@ compares per-user raw sequences and stays single-user). Radio fixes (a Wi-Fi or 
 per user, located by the caller, e.g. with the bundle's
 :class:`~localize.fingerprint_positioner.FingerprintPositioner`) update and re-seed the users
 that have one, as the single-user filter does with the default distance rule
-(:meth:`MultiUserEngine.tick`).
+(:meth:`MultiUserEngine.tick`). With ``FilterParams(radio_guide="align")`` (what ``--method
+auto`` runs on a floor whose magnetic map predicts walks it did not see) the users started
+from a radio fix take their radio evidence from a walk alignment instead, one per user
+(:class:`~localize.align_engine.MultiUserAligner`), as the single-user guided filter does.
 
 Examples
 --------
@@ -24,19 +27,19 @@ Examples
 
 from __future__ import annotations
 
-from dataclasses import fields
-
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from localize.align_engine import MultiUserAligner
 from localize.bundle import MapBundle
 from localize.errors import LocalizationError
 from localize.filter import make_rng
 from localize.maps import FilterMap
 from localize.params import FilterParams
-from localize.particles import (ParticleState, estimate, init_state, inject_around_fix,
+from localize.particles import (ParticleState, estimate, init_state, inject, inject_around_fix,
                                 needed_layers)
 from localize.stepper import StepInputs, StepOutputs, advance
+from localize.ticks import check_tick_inputs, checked_tick_fixes, inputs_of_rows
 from localize.update import position_update
 
 __all__ = ["MultiUserEngine"]
@@ -54,6 +57,14 @@ class MultiUserEngine:
     rng : numpy.random.Generator or int, optional
     dtype : numpy dtype
         Particle storage (float32 halves memory per user).
+
+    With ``params.radio_guide == "align"`` (and a radio update or injection on), users added
+    with ``fix_sigma_m`` (started from a radio fix) are guided: a walk alignment of their
+    steps and fixes (:attr:`guide`) gives, at every step, the position their particles are
+    weighted towards (a Gaussian of ``max(its spread, guide_sigma_m)``) and re-drawn around
+    when it is ``guide_inject_distance_m`` or more from their estimate; the single-user
+    :class:`~localize.filter.Localizer`'s guided filter, per user. Their ticks need the
+    steps' times. Users started at a known position use their fixes themselves.
     """
 
     def __init__(self, bundle: MapBundle, params: FilterParams | None = None, *,
@@ -69,8 +80,13 @@ class MultiUserEngine:
             layers, stds = needed_layers(self.params)
             fmap = FilterMap(bundle, layers, stds)
         self.fmap = fmap
+        p = self.params
+        #: The users' walk alignments when the filter is guided (``radio_guide="align"``).
+        self.guide = (MultiUserAligner(bundle) if p.radio_guide == "align" and (
+            p.radio_update or p.radio_inject_fraction > 0) else None)
         self.state: ParticleState | None = None
         self.user_ids = np.empty(0, dtype=np.int64)   # row -> user id
+        self.guide_ids = np.empty(0, dtype=np.int64)  # row -> id in self.guide, -1: none
         self.last_xy = np.empty((0, 2))
         self.consecutive = np.empty(0, dtype=np.int64)
         self.n_recoveries = np.empty(0, dtype=np.int64)
@@ -81,14 +97,44 @@ class MultiUserEngine:
     def n_users(self) -> int:
         return len(self.user_ids)
 
-    def add_users(self, start_xy: ArrayLike, half_width_m: ArrayLike | None = None
+    def add_users(self, start_xy: ArrayLike, half_width_m: ArrayLike | None = None, *,
+                  fix_sigma_m: ArrayLike | None = None, t_ms: ArrayLike | None = None
                   ) -> NDArray[np.int64]:
-        """Start filters for new users around their start positions; returns their ids."""
+        """Start filters for new users around their start positions; returns their ids.
+
+        Parameters
+        ----------
+        start_xy : array_like (k, 2)
+            Start positions (m, map frame).
+        half_width_m : array_like (k,), optional
+            Half-widths of the start squares (m); default ``init_half_width_m``, widened to
+            ``init_from_fix_scale * fix_sigma_m`` for a start from a fix.
+        fix_sigma_m : array_like (k,), optional
+            For starts that are radio fixes: their accuracy (m; NaN: a known position). On a
+            guided engine those users are guided (class docstring).
+        t_ms : array_like (k,), optional
+            The starts' times (Unix ms); needed for guided users.
+        """
+        p = self.params
         xy = np.asarray(start_xy, dtype=np.float64).reshape(-1, 2)
         k = len(xy)
-        hw = np.broadcast_to(self.params.init_half_width_m if half_width_m is None
-                             else np.asarray(half_width_m, dtype=np.float64), (k,))
-        new = init_state(self.fmap, self.params, self.rng, xy, hw, dtype=self.dtype)
+        sigma = np.full(k, np.nan) if fix_sigma_m is None else \
+            np.broadcast_to(np.asarray(fix_sigma_m, dtype=np.float64), (k,))
+        if half_width_m is None:
+            hw = np.where(np.isfinite(sigma), np.fmax(p.init_half_width_m,
+                                                      p.init_from_fix_scale * sigma),
+                          p.init_half_width_m)
+        else:
+            hw = np.broadcast_to(np.asarray(half_width_m, dtype=np.float64), (k,))
+        guided = np.isfinite(sigma) & (self.guide is not None)
+        if guided.any() and t_ms is None:
+            raise LocalizationError("add_users: users started from a fix on a guided engine "
+                                    "need their start times (t_ms)")
+        new = init_state(self.fmap, p, self.rng, xy, hw, dtype=self.dtype)
+        guide_ids = np.full(k, -1, dtype=np.int64)
+        if guided.any():  # it checks the starts and times: before anything is kept
+            t = np.broadcast_to(np.asarray(t_ms, dtype=np.float64), (k,))
+            guide_ids[guided] = self.guide.add_users(xy[guided], t[guided], sigma[guided])
         ids = np.arange(self._next_id, self._next_id + k, dtype=np.int64)
         self._next_id += k
         if self.state is None:
@@ -100,19 +146,23 @@ class MultiUserEngine:
                                                       axis=1)
         mx, my, _ = estimate(new)
         self.user_ids = np.concatenate([self.user_ids, ids])
+        self.guide_ids = np.concatenate([self.guide_ids, guide_ids])
         self.last_xy = np.concatenate([self.last_xy, np.column_stack([mx, my])])
         self.consecutive = np.concatenate([self.consecutive, np.zeros(k, dtype=np.int64)])
         self.n_recoveries = np.concatenate([self.n_recoveries, np.zeros(k, dtype=np.int64)])
         return ids
 
     def remove_users(self, ids: ArrayLike) -> None:
-        """Drop users (their filters are freed)."""
+        """Drop users (their filters, and their alignments when guided, are freed)."""
         keep = ~np.isin(self.user_ids, np.asarray(ids))
         if self.state is not None:
             self.state.data = self.state.data[:, keep]
             for name in self.state.obs:
                 self.state.obs[name] = self.state.obs[name][:, keep]
+        if self.guide is not None:
+            self.guide.remove_users(self.guide_ids[~keep & (self.guide_ids >= 0)])
         self.user_ids = self.user_ids[keep]
+        self.guide_ids = self.guide_ids[keep]
         self.last_xy = self.last_xy[keep]
         self.consecutive = self.consecutive[keep]
         self.n_recoveries = self.n_recoveries[keep]
@@ -137,7 +187,8 @@ class MultiUserEngine:
 
     # -- ticks ----------------------------------------------------------------------------
     def tick(self, ids: ArrayLike | None, inputs: StepInputs,
-             fix_xy_m: ArrayLike | None = None, fix_sigma_m: ArrayLike | None = None
+             fix_xy_m: ArrayLike | None = None, fix_sigma_m: ArrayLike | None = None, *,
+             t_ms: ArrayLike | None = None, fix_t_ms: ArrayLike | None = None
              ) -> StepOutputs:
         """Advance the users ``ids`` (all users when None) by one step each.
 
@@ -156,10 +207,14 @@ class MultiUserEngine:
             ``radio_outlier``) when ``params.radio_update``, and, when the fix is
             ``radio_inject_distance_m`` or more from its last estimate, a share
             ``radio_inject_fraction`` of its particles re-drawn around it: the single-user
-            filter's update with a radio model that only locates (its ``"fit"`` rule and
-            ``radio_guide="align"`` are single-user).
+            filter's update with a radio model that only locates (its ``"fit"`` rule is
+            single-user). Guided users' fixes go to their alignment instead (class docstring).
         fix_sigma_m : array_like (k,), optional
             The fixes' accuracy (m; NaN or absent: ``radio_sigma_floor_m``).
+        t_ms : array_like (k,), optional
+            The steps' times (Unix ms); needed when a guided user steps.
+        fix_t_ms : array_like (k,), optional
+            The fixes' scan times (Unix ms; NaN or absent: the step's), for guided users.
 
         Returns
         -------
@@ -173,19 +228,36 @@ class MultiUserEngine:
             if len(np.unique(ids)) != len(ids):
                 raise LocalizationError("a user id appears twice in one tick")
         users = self.user_ids if ids is None else ids
+        k = len(users)
         check_tick_inputs(inputs, users)
-        fixes = None if fix_xy_m is None else checked_tick_fixes(fix_xy_m, fix_sigma_m, len(users),
-                                                            self.params.radio_sigma_floor_m)
+        p = self.params
+        fix_xy, sigma = (np.full((k, 2), np.nan), np.full(k, p.radio_sigma_floor_m)) \
+            if fix_xy_m is None else checked_tick_fixes(fix_xy_m, fix_sigma_m, k,
+                                                        p.radio_sigma_floor_m)
         rows = slice(None) if ids is None else self.rows_of(ids)
         last = self.last_xy[rows]
-        extra = None if fixes is None else (lambda st: self._fix_update(st, *fixes, last))
+        guided = self.guide_ids[rows] >= 0
+        far_m = np.full(k, p.radio_inject_distance_m)
+        if guided.any():  # the alignments step first (and check their times): their
+            if t_ms is None:  # positions are these users' radio evidence at this step
+                raise LocalizationError("tick: guided users need their step times (t_ms)")
+            t = np.broadcast_to(np.asarray(t_ms, dtype=np.float64), (k,))
+            fix_t = None if fix_t_ms is None else \
+                np.broadcast_to(np.asarray(fix_t_ms, dtype=np.float64), (k,))[guided]
+            g = self.guide.tick(self.guide_ids[rows][guided], t[guided],
+                                inputs_of_rows(inputs, k, guided), fix_xy[guided], fix_t)
+            fix_xy[guided] = np.column_stack([g.x_m, g.y_m])
+            sigma[guided] = np.fmax(g.spread_m, p.guide_sigma_m)
+            far_m[guided] = p.guide_inject_distance_m
+        extra = (None if fix_xy_m is None and not guided.any() else
+                 lambda st: self._fix_update(st, fix_xy, sigma, last, far_m, guided))
         if ids is None:
-            out = advance(self.state, self.fmap, self.params, self.rng, inputs, last,
+            out = advance(self.state, self.fmap, p, self.rng, inputs, last,
                           self.consecutive, extra_update=extra)
         else:
             sub = self.state.subset(rows)
             cons = self.consecutive[rows]
-            out = advance(sub, self.fmap, self.params, self.rng, inputs, last, cons,
+            out = advance(sub, self.fmap, p, self.rng, inputs, last, cons,
                           extra_update=extra)
             self.state.put(rows, sub)
             self.consecutive[rows] = cons
@@ -194,9 +266,11 @@ class MultiUserEngine:
         return out
 
     def _fix_update(self, st: ParticleState, fix_xy: NDArray[np.float64],
-                    sigma: NDArray[np.float64], last_xy: NDArray[np.float64]) -> None:
-        """The radio update of :meth:`tick` on the tick's rows ``st``: fixes (k, 2) (m; NaN:
-        none), their SDs (k,) (m) and the rows' last estimates (k, 2)."""
+                    sigma: NDArray[np.float64], last_xy: NDArray[np.float64],
+                    far_m: NDArray[np.float64], guided: NDArray[np.bool_]) -> None:
+        """The radio update of :meth:`tick` on the tick's rows ``st``: fixes or guide
+        positions (k, 2) (m; NaN: none), their SDs (k,) (m), the rows' last estimates (k, 2),
+        the distances from them (k,) (m) that re-draw particles, and which rows are guided."""
         p = self.params
         rows = np.flatnonzero(np.isfinite(fix_xy).all(axis=1))
         if rows.size == 0:
@@ -207,41 +281,11 @@ class MultiUserEngine:
                             p.radio_outlier)
         if p.radio_inject_fraction > 0:  # rare (far fixes): one user at a time
             far = rows[np.hypot(fx[rows] - last_xy[rows, 0], fy[rows] - last_xy[rows, 1])
-                       >= p.radio_inject_distance_m]
+                       >= far_m[rows]]
             for r in far:
-                inject_around_fix(st, self.fmap, p, self.rng, int(r), p.radio_inject_fraction,
-                                  (fx[r], fy[r]), sigma[r])
-
-
-def checked_tick_fixes(fix_xy_m: ArrayLike, fix_sigma_m: ArrayLike | None, k: int,
-                   floor_m: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Fixes as (k, 2) and their SDs as (k,) (NaN or absent: ``floor_m``; raised to it), or a
-    LocalizationError before anyone moves."""
-    xy = np.asarray(fix_xy_m, dtype=np.float64)
-    if xy.shape == (2,) and k == 1:
-        xy = xy.reshape(1, 2)
-    if xy.shape != (k, 2):
-        raise LocalizationError(f"fix_xy_m has shape {xy.shape}, expected ({k}, 2): one fix "
-                                "(or a NaN row) per user")
-    sigma = np.full(k, np.nan) if fix_sigma_m is None else \
-        np.asarray(fix_sigma_m, dtype=np.float64).reshape(-1)
-    if sigma.shape != (k,):
-        raise LocalizationError(f"fix_sigma_m has {sigma.size} values, expected {k}: one per "
-                                "user")
-    return xy, np.fmax(sigma, floor_m)  # NaN: the floor
-
-
-def check_tick_inputs(inputs: StepInputs, ids: NDArray[np.int64]) -> None:
-    """Every array of ``inputs`` one value per user of ``ids``, and a finite compass heading
-    for each: checked before any state moves, so that one bad user cannot leave the others
-    half advanced."""
-    shapes = [(len(ids),)] + ([()] if len(ids) == 1 else [])  # one user: scalars too
-    for f in fields(inputs):
-        values = getattr(inputs, f.name)
-        if values is not None and np.shape(values) not in shapes:
-            raise LocalizationError(f"tick input {f.name} has shape {np.shape(values)}, "
-                                    f"expected ({len(ids)},): one value per user")
-    bad = ~np.isfinite(np.asarray(inputs.compass_deg, dtype=float).reshape(-1))
-    if bad.any():
-        raise LocalizationError(f"users {ids[bad][:10].tolist()}: no compass heading "
-                                "(NaN or infinite compass_deg); nobody was advanced")
+                if guided[r]:  # as the single-user guided filter re-draws
+                    inject(st, self.fmap, p, self.rng, int(r), p.radio_inject_fraction,
+                           (fx[r], fy[r]), p.init_from_fix_scale * sigma[r])
+                else:
+                    inject_around_fix(st, self.fmap, p, self.rng, int(r),
+                                      p.radio_inject_fraction, (fx[r], fy[r]), sigma[r])

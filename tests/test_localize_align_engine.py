@@ -108,3 +108,62 @@ def test_bad_ticks_move_nobody(f1_bundle, sim_walks):  # noqa: F811
     with pytest.raises(LocalizationError, match="start time"):
         eng.add_users([w.start_xy], t_ms=np.nan)
     assert eng.n_users == 2
+
+
+def test_guided_engine_users_get_the_single_user_guided_filter(f1_bundle, sim_walks):  # noqa: F811
+    """``radio_guide="align"`` (auto's filter on a floor with a good magnetic map): users
+    started from a fix are weighted towards their own alignment's position, and each gets
+    the single-user guided filter's track with the same seed (one user) or close to it (the
+    engine draws for all users at once, so with several users the draws differ; the tracks
+    stay within the filter's own spread of the truth); a user started at a known position
+    takes its fixes as the unguided engine does."""
+    from localize.engine import MultiUserEngine
+    from localize.evaluate import step_errors
+    from localize.filter import Localizer
+    from localize.params import FilterParams
+
+    p = FilterParams(n_particles_start=0, radio_guide="align")
+    walks = _f1_with_scans(sim_walks)[:3]
+    fixes = [_Fixes(w, 30 * k) for k, w in enumerate(walks)]
+    single = [Localizer(f1_bundle, p, radio=f, rng=9) for f in fixes]
+    ref = [loc.run(w.steps) for loc, w in zip(single, walks)]
+    assert all(loc.guided for loc in single)
+
+    def starts(ws, fs):
+        first = [f.at[min(f.at)] for f in fs]
+        return (np.array([f[:2] for f in first]), [w.steps.t_ms[0] - 500.0 for w in ws])
+
+    def run(eng, ws, fs, ids):
+        n = min(len(w.steps) for w in ws)
+        est = []
+        for i in range(n):
+            fx = np.array([f.at.get(i, (np.nan,) * 3) for f in fs])
+            out = eng.tick(ids, _inputs(ws, i), fx[:, :2], t_ms=[w.steps.t_ms[i] for w in ws],
+                           fix_t_ms=fx[:, 2])
+            est.append(np.column_stack([out.x_m, out.y_m]))
+        return np.stack(est, axis=1)  # (users, steps, 2)
+
+    eng = MultiUserEngine(f1_bundle, p, rng=9)
+    xy, t0 = starts(walks[:1], fixes[:1])
+    ids = eng.add_users(xy, fix_sigma_m=[3.0], t_ms=t0)
+    one = run(eng, walks[:1], fixes[:1], ids)
+    assert np.allclose(one[0, :, 0], ref[0].x_m) and np.allclose(one[0, :, 1], ref[0].y_m)
+    # several users, one of them started at its true position (not guided)
+    eng = MultiUserEngine(f1_bundle, p, rng=9)
+    xy, t0 = starts(walks, fixes)
+    xy[2] = walks[2].start_xy
+    ids = eng.add_users(xy, fix_sigma_m=[3.0, 3.0, np.nan], t_ms=t0)
+    assert eng.guide.n_users == 2 and list(eng.guide_ids) == [0, 1, -1]
+    many = run(eng, walks, fixes, ids)
+    for k, w in enumerate(walks[:2]):
+        n = many.shape[1]
+        err, ref_err = (np.median(np.hypot(*(e - w.true_xy[:n]).T)) for e in (
+            many[k], np.column_stack([ref[k].x_m[:n], ref[k].y_m[:n]])))
+        assert err < max(2.0 * ref_err, 2.0), (k, err, ref_err)
+    assert np.median(step_errors(ref[0], walks[0].true_xy)) < 5.0
+    eng.remove_users(ids[:1])
+    assert eng.guide.n_users == 1 and list(eng.guide_ids) == [1, -1]
+    with pytest.raises(LocalizationError, match="need their step times"):
+        eng.tick(ids[1:2], _inputs(walks[1:2], 0))
+    with pytest.raises(LocalizationError, match="need their start times"):
+        eng.add_users(xy[:1], fix_sigma_m=[3.0])

@@ -26,7 +26,7 @@ RUNTIME_MODULES = ["localize", "localize.bundle", "localize.errors", "localize.s
                    "localize.maps", "localize.params", "localize.particles", "localize.weights",
                    "localize.update", "localize.resample", "localize.stepper", "localize.filter",
                    "localize.baselines", "localize.engine", "localize.align_engine",
-                   "localize.align", "localize.radio", "localize.floors",
+                   "localize.ticks", "localize.align", "localize.radio", "localize.floors",
                    "localize.track", "localize.evaluate", "localize.start", "localize.walk_radio",
                    "localize.plots", "localize.cli_common", "localize.cli"]
 

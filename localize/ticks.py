@@ -1,0 +1,55 @@
+"""A tick's inputs for the multi-user servers (:class:`~localize.engine.MultiUserEngine`,
+:class:`~localize.align_engine.MultiUserAligner`): checked before any user moves, so that one
+bad user cannot leave the others half advanced."""
+
+from __future__ import annotations
+
+from dataclasses import fields
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from localize.errors import LocalizationError
+from localize.stepper import StepInputs
+
+__all__ = ["check_tick_inputs", "checked_tick_fixes", "inputs_of_rows"]
+
+
+def checked_tick_fixes(fix_xy_m: ArrayLike, fix_sigma_m: ArrayLike | None, k: int,
+                       floor_m: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Fixes as (k, 2) and their SDs as (k,) (NaN or absent: ``floor_m``; raised to it), or a
+    LocalizationError before anyone moves."""
+    xy = np.asarray(fix_xy_m, dtype=np.float64)
+    if xy.shape == (2,) and k == 1:
+        xy = xy.reshape(1, 2)
+    if xy.shape != (k, 2):
+        raise LocalizationError(f"fix_xy_m has shape {xy.shape}, expected ({k}, 2): one fix "
+                                "(or a NaN row) per user")
+    sigma = np.full(k, np.nan) if fix_sigma_m is None else \
+        np.asarray(fix_sigma_m, dtype=np.float64).reshape(-1)
+    if sigma.shape != (k,):
+        raise LocalizationError(f"fix_sigma_m has {sigma.size} values, expected {k}: one per "
+                                "user")
+    return xy, np.fmax(sigma, floor_m)  # NaN: the floor
+
+
+def check_tick_inputs(inputs: StepInputs, ids: NDArray[np.int64]) -> None:
+    """Every array of ``inputs`` one value per user of ``ids`` (a scalar for one user), and
+    a finite compass heading for each; else a LocalizationError."""
+    shapes = [(len(ids),)] + ([()] if len(ids) == 1 else [])  # one user: scalars too
+    for f in fields(inputs):
+        values = getattr(inputs, f.name)
+        if values is not None and np.shape(values) not in shapes:
+            raise LocalizationError(f"tick input {f.name} has shape {np.shape(values)}, "
+                                    f"expected ({len(ids)},): one value per user")
+    bad = ~np.isfinite(np.asarray(inputs.compass_deg, dtype=float).reshape(-1))
+    if bad.any():
+        raise LocalizationError(f"users {ids[bad][:10].tolist()}: no compass heading "
+                                "(NaN or infinite compass_deg); nobody was advanced")
+
+
+def inputs_of_rows(inputs: StepInputs, k: int, rows: NDArray) -> StepInputs:
+    """The inputs of some of a tick's ``k`` users (``rows``: a boolean mask or indices)."""
+    return StepInputs(**{f.name: None if getattr(inputs, f.name) is None else
+                         np.broadcast_to(np.asarray(getattr(inputs, f.name)), (k,))[rows]
+                         for f in fields(inputs)})
