@@ -82,15 +82,21 @@ def test_process_without_processing_says_so(tmp_path):
 
 
 def test_processing_a_store_without_walks_says_to_ingest(tmp_path):
-    """A failed ingest leaves a store with no walks; `process` said "processed 0" and then
-    "not processed yet; run `indoormap process`"."""
-    (tmp_path / "notatrace.txt").write_text("hello\n")
-    res = CliRunner().invoke(main, ["ingest", str(tmp_path / "notatrace.txt"), "--store",
-                                    str(tmp_path / "s")])
-    assert res.exit_code == 1
+    """A store with no walks (made by the API): `process` said "processed 0" and then "not
+    processed yet; run `indoormap process`". A failed ingest leaves no store at all, which
+    `process` says too."""
+    from survey.store import SurveyStore
+
+    SurveyStore.create(tmp_path / "s")
     res = CliRunner().invoke(main, ["process", "--store", str(tmp_path / "s")])
     assert res.exit_code == 1 and "the store holds no walks; ingest traces" in res.output
     assert "not processed yet" not in res.output
+    (tmp_path / "notatrace.txt").write_text("hello\n")
+    res = CliRunner().invoke(main, ["ingest", str(tmp_path / "notatrace.txt"), "--store",
+                                    str(tmp_path / "s2")])
+    assert res.exit_code == 1
+    res = CliRunner().invoke(main, ["process", "--store", str(tmp_path / "s2")])
+    assert res.exit_code == 2 and "s2' does not exist" in res.output
 
 
 def test_floor_plan_files_name_their_floor(tmp_path):
