@@ -138,6 +138,11 @@ def floor_walks(store: SurveyStore, site: str | None, floor: str,
     pcat = pcat[~pcat["trace_id"].isin(list(exclude_walks))]
     if not len(pcat):
         raise BuildError(f"{store.root}: all {where}'s processed walks are excluded")
+    if site is None and pcat["site"].nunique() > 1:  # one map would merge two buildings
+        counts = pcat["site"].value_counts()
+        raise BuildError(f"{store.root}: {where} has walks of several sites ("
+                         + ", ".join(f"{s}: {n}" for s, n in counts.items())
+                         + "); give the site to build")
     return pcat.reset_index(drop=True)
 
 

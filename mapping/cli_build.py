@@ -172,6 +172,27 @@ def check_exclude_early(names: list[str], inputs: list[Path]) -> None:
                                  param_hint="--exclude")
 
 
+def one_site(catalog: pd.DataFrame, summary: IngestSummary, inputs: list[Path]
+             ) -> str | None:
+    """The one site (the store's ``site`` key) of the walks a build reads from ``inputs``
+    (``catalog`` without the walks it leaves out; None when none is left); a BuildError
+    naming the traces of the other sites when they are of several (a trace copied from
+    another building would be merged into the maps, and the bundles would take whichever
+    site sorted first)."""
+    mine = pd.concat([ingested_from(catalog, summary, folder) for folder in inputs])
+    counts = mine["site"].value_counts()
+    if counts.empty:
+        return None
+    if len(counts) > 1:
+        others = mine[mine["site"] != counts.index[0]]
+        raise BuildError(
+            f"{', '.join(map(str, inputs))}: walks of {len(counts)} sites ("
+            + ", ".join(f"{s}: {n} walk{'s' * (n > 1)}" for s, n in counts.items())
+            + "), e.g. " + ", ".join(others["source_path"].head(3))
+            + "; move the other sites' traces out or --exclude them")
+    return str(counts.index[0])
+
+
 def excluded_walks(catalog: pd.DataFrame, summary: IngestSummary, inputs: list[Path],
                    names: list[str], say: Callable[[str], None]) -> set[str]:
     """Trace ids a build leaves out: the walks of a ``--store`` that are not under its input
@@ -360,6 +381,7 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
                 check_floor_names(cat, summary, name, folder, say,
                                   planned=plan_file is not None)
         left_out = excluded_walks(cat, summary, inputs, excluding, say)
+        site = one_site(cat[~cat["trace_id"].isin(list(left_out))], summary, inputs)
         reachable = {(s, fl): plans[fl].reachable for s, fl in
                      cat[["site", "floor"]].drop_duplicates().itertuples(index=False)
                      if fl in plans}
@@ -379,12 +401,12 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
         for tid, reason in report.skipped.items():
             say(f"  skipped {source_of.get(tid, tid)}: {reason}")
         registry = Registry(registry_dir) if registry_dir else None
-        radio = build_site_radio(store, list(plans), params=params.radio,
+        radio = build_site_radio(store, list(plans), site=site, params=params.radio,
                                  exclude_walks=left_out, progress=say)
         site_id, site_build_time, site_walks, done = "", "", [], []
         for name, plan in plans.items():
-            content = build_floor(store, plan, floor=name, params=params, radio=radio,
-                                  exclude_walks=left_out, progress=say)
+            content = build_floor(store, plan, floor=name, site=site, params=params,
+                                  radio=radio, exclude_walks=left_out, progress=say)
             site_id = content.site_id
             site_build_time = max(site_build_time, content.build["build_time"])
             site_walks += content.build["source_walks"]

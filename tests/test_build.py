@@ -495,3 +495,33 @@ def test_build_from_a_subset_of_walks_builds_that_subset(tmp_path):
     assert "1 more" in res.output  # the walk left out of the folder is none of its walks
     assert "ingest" not in res.output  # refused before the work
     assert not (tmp_path / "other").exists()
+
+
+def test_a_trace_of_another_site_in_a_floor_folder_is_refused(tmp_path):
+    """A trace copied in from another building (another SiteID) was merged into the floor's
+    maps, and the bundle took the site id of whichever walk sorted first (exit 0). The build
+    now refuses, naming the trace; with it excluded the build goes on, with the site's id.
+    The API refuses to merge sites too."""
+    import gzip
+
+    floor = tmp_path / "F2"
+    shutil.copytree(SITE / "F2", floor)
+    src = sorted((floor / "path_data_files").glob("*.txt.gz"))[0]
+    text = gzip.decompress(src.read_bytes()).decode()
+    site_id = text.split("SiteID:")[1].split("\t")[0]
+    foreign = floor / "path_data_files" / "000foreign.txt.gz"
+    foreign.write_bytes(gzip.compress(text.replace(site_id, "0" * len(site_id)).encode(),
+                                      mtime=0))
+    store = tmp_path / "store"
+    res = CliRunner().invoke(main, ["build", str(floor), "-o", str(tmp_path / "out"),
+                                    "--store", str(store)])
+    assert res.exit_code == 1, res.output
+    assert "walks of 2 sites (" in res.output and "000foreign.txt.gz" in res.output
+    assert not (tmp_path / "out" / "F2").exists()
+    process_store(store)
+    with pytest.raises(BuildError, match="has walks of several sites"):
+        build_floor(store, read_floor_plan(floor), floor="F2")
+    res = CliRunner().invoke(main, ["build", str(floor), "-o", str(tmp_path / "out"),
+                                    "--store", str(store), "--exclude", "000foreign"])
+    assert res.exit_code == 0, res.output
+    assert load_bundle(tmp_path / "out" / "F2").site_id == site_id
