@@ -5,16 +5,17 @@ Each cell of a raster has its own normal equations ``(G + diag(ridge)) c = r`` (
 kernel-weighted Gram matrix of the local polynomial's terms, ``r``: the kernel-weighted
 values against them, k = 3 for a plane, 6 for a quadratic) and only the intercept ``c[0]`` is
 wanted. The cross-validation of the smoothing solves them for every candidate shrinkage and
-ridge, tens of thousands of cells each time, so the loop is compiled (numba, ``cache=True``):
+ridge, tens of thousands of cells each time, so the loop is compiled (numba, cached on disk):
 a Cholesky factorisation per cell, about 20x faster than ``numpy.linalg.solve`` on stacked
 6 x 6 systems.
 """
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 from numpy.typing import NDArray
+
+from survey.compiled import njit_cached
 
 __all__ = ["ridge_intercepts"]
 
@@ -23,7 +24,7 @@ __all__ = ["ridge_intercepts"]
 _DEGENERATE = 1e-10
 
 
-@numba.njit(cache=True, nogil=True)
+@njit_cached(nogil=True)
 def _intercepts(gram, rhs, diag_add, rhs0_add, k):  # pragma: no cover - compiled
     n = rhs.shape[0]
     out = np.empty(n)

@@ -1,8 +1,9 @@
 """Compiled loops of the trace reader: lines, their kind and record type, and per-layout blocks;
 MAC canonicalisation; duplicate picking.
 
-The line scan is the hot loop of the trace reader, compiled with numba (``cache=True``: compiled
-once per installation). A first pass finds the line ends (eight bytes per test); a second checks
+The line scan is the hot loop of the trace reader, compiled with numba (cached on disk: compiled
+once per installation, or per process where no cache folder can be written:
+:mod:`survey.compiled`). A first pass finds the line ends (eight bytes per test); a second checks
 each line's timestamp field, matches its record-type token against the documented names, parses
 the all-numeric layouts (plain decimal spellings) in place, and copies every other line into its
 value layout's ("group's") own buffer without the type field, ready for pyarrow's CSV parser.
@@ -10,9 +11,10 @@ value layout's ("group's") own buffer without the type field, ready for pyarrow'
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 from numpy.typing import NDArray
+
+from .compiled import njit_cached
 
 #: Line kinds returned by :func:`scan_lines`.
 BLANK, HEADER, RECORD, NO_TAB, BAD_TIMESTAMP, BAD_TOKEN, OTHER_TOKEN = range(7)
@@ -25,7 +27,7 @@ _LOW7 = np.uint64(0x7F7F7F7F7F7F7F7F)
 _HIGH = np.uint64(0x8080808080808080)
 
 
-@numba.njit(cache=True, nogil=True)
+@njit_cached(nogil=True)
 def _newline_ends(buf, words, n):  # pragma: no cover - compiled
     """Index after each line's last byte (its newline; ``n + 1`` for an unterminated last line).
 
@@ -64,7 +66,7 @@ _POW10 = np.array([10.0 ** k for k in range(23)])
 FLOAT, INT = 0, 1
 
 
-@numba.njit(cache=True, nogil=True)
+@njit_cached(nogil=True)
 def _digits(buf, p, e, m):  # pragma: no cover - compiled
     """Append the decimal digits from ``buf[p:e]`` to ``m``: (m, digits read, next position)."""
     n = 0
@@ -75,7 +77,7 @@ def _digits(buf, p, e, m):  # pragma: no cover - compiled
     return m, n, p
 
 
-@numba.njit(cache=True, nogil=True)
+@njit_cached(nogil=True)
 def _parse_numbers(buf, p, e, kinds, values, r):  # pragma: no cover - compiled
     """Parse ``<TAB>value`` fields from ``buf[p:e]`` into ``values[:, r]`` (float64) by ``kinds``.
 
@@ -110,7 +112,7 @@ def _parse_numbers(buf, p, e, kinds, values, r):  # pragma: no cover - compiled
     return p == e
 
 
-@numba.njit(cache=True, nogil=True)
+@njit_cached(nogil=True)
 def _scan(buf, n, nexts, names, name_lens, group_of_name, n_groups,
           group_kinds):  # pragma: no cover - compiled
     n_lines = len(nexts)
@@ -237,7 +239,7 @@ def _scan(buf, n, nexts, names, name_lens, group_of_name, n_groups,
             lines_of_group, line_off, parsed, t_ms, values)
 
 
-@numba.njit(cache=True, nogil=True)
+@njit_cached(nogil=True)
 def canonical_macs(offsets: NDArray[np.int32],  # pragma: no cover - compiled
                    data: NDArray[np.uint8]) -> tuple[NDArray[np.uint8], NDArray[np.bool_]]:
     """Lower-case 17-byte ``xx:xx:xx:xx:xx:xx`` strings of an Arrow string array.
@@ -265,7 +267,7 @@ def canonical_macs(offsets: NDArray[np.int32],  # pragma: no cover - compiled
     return out, ok
 
 
-@numba.njit(cache=True, nogil=True)
+@njit_cached(nogil=True)
 def best_of_runs(run_key_a: NDArray[np.integer],  # pragma: no cover - compiled
                  run_key_b: NDArray[np.integer], run_key_c: NDArray[np.integer],
                  score_a: NDArray[np.integer], score_b: NDArray[np.integer]
