@@ -95,7 +95,8 @@ def read_walk(path: Path) -> Trace:
     Raises
     ------
     SurveyFormatError
-        The file holds no sensor sample, waypoint or scan (empty, or not a trace file).
+        The file holds no sensor sample, waypoint or scan (empty, or not a trace file), or
+        its scans or waypoints lie outside its samples' time span (clocks that differ).
     """
     from survey.errors import SurveyFormatError
     from survey.trace_format import bad_lines_summary
@@ -104,6 +105,9 @@ def read_walk(path: Path) -> Trace:
     trace = read_trace(path)
     if trace.is_empty:
         raise SurveyFormatError(trace.empty_reason(), path=str(path), reason="empty")
+    mismatch = trace.clock_mismatch()
+    if mismatch:
+        raise SurveyFormatError(mismatch, path=str(path), reason="clock")
     r = trace.report
     if r.bad_total:
         click.echo(f"warning: {path}: {bad_lines_summary(r.bad, r.messages)}", err=True)

@@ -13,6 +13,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
+import numpy as np
 import pandas as pd
 
 #: Sensor record types -> stream name used in the store. Calibrated streams carry x, y, z and an
@@ -47,6 +48,10 @@ SENSOR_LIMIT_OF_STREAM: dict[str, tuple[float, str]] = {
 #: times hours after their scan; such a row is an ``out_of_range`` bad line (its age would
 #: be negative, and the radio maps weigh rows by age).
 MAX_WIFI_SEEN_AFTER_SCAN_MS = 1000
+
+#: How far (ms) outside the sensor samples' time span a walk's scans, beacon rows or
+#: waypoints may all lie before :meth:`Trace.clock_mismatch` calls the clocks different.
+CLOCK_TOLERANCE_MS = 60_000
 
 #: Largest |coordinate| (m) of a waypoint or walk-plan vertex: a building is kilometres across
 #: at most, and 1e155 m crashed the processing of every walk of the store.
@@ -198,6 +203,26 @@ class Trace:
         return (f"no sensor sample, waypoint or scan in {r.lines_total} lines ({r.bad_total} "
                 "bad): empty, or not a trace file"
                 + (f" (first problem: {r.messages[0]})" if r.messages else ""))
+
+    def clock_mismatch(self, tolerance_ms: float = CLOCK_TOLERANCE_MS) -> str | None:
+        """Why the streams cannot share one clock, or None: the Wi-Fi scans, BLE rows or
+        waypoints of a walk with sensor samples all lie more than ``tolerance_ms`` outside the
+        samples' time span (a logger that stamped one stream with another clock, e.g. the
+        time since boot). Such a walk's scans meet none of its steps (it has "no fix") and its
+        waypoints are compared with the track's ends."""
+        if not len(self.sensors):
+            return None
+        t = self.sensors["t_ms"].to_numpy()
+        lo, hi = float(t.min()), float(t.max())
+        for what, times in (("Wi-Fi scans", self.wifi["scan_t_ms"]),
+                            ("BLE rows", self.ble["t_ms"]),
+                            ("waypoints", self.waypoints["t_ms"])):
+            v = times.to_numpy(dtype=np.float64)
+            if len(v) and not ((v >= lo - tolerance_ms) & (v <= hi + tolerance_ms)).any():
+                return (f"its {what} ({v.min():.0f} .. {v.max():.0f} ms) all lie outside the "
+                        f"sensor samples' time span ({lo:.0f} .. {hi:.0f} ms): the streams are "
+                        "stamped with different clocks")
+        return None
 
     def stream(self, name: str) -> pd.DataFrame:
         """Rows of one sensor stream (e.g. ``"magnetic_field"``), time-sorted."""

@@ -223,6 +223,30 @@ def test_a_damaged_walk_is_localized_with_a_warning(truth_bundles, tmp_path):  #
     assert f"; first: {cut}:" in res.output
 
 
+def test_a_walk_whose_sensor_clock_differs_is_refused_by_name(truth_bundles, tmp_path):  # noqa: F811
+    """Sensor samples stamped with the time since boot, scans and waypoints with Unix time:
+    `localize` said "no Wi-Fi or BLE fix" and `evaluate` scored the waypoints against the
+    track's last point (6 m, exit 0). Now the walk fails naming the clocks; the others go on."""
+    import gzip
+
+    walk = min(F1_WALKS.glob("*.txt.gz"))
+    shifted = tmp_path / "boot_clock.txt"
+    out = []
+    for line in gzip.decompress(walk.read_bytes()).decode().splitlines(keepends=True):
+        t, _, rest = line.partition("\t")
+        if not line.startswith("#") and rest.startswith("TYPE_") and not rest.startswith(
+                ("TYPE_WIFI", "TYPE_BEACON", "TYPE_WAYPOINT")):
+            line = f"{int(t) - 1_678_000_000_000}\t{rest}"
+        out.append(line)
+    shifted.write_text("".join(out))
+    res = CliRunner().invoke(main, ["evaluate", str(truth_bundles["F1"]), str(shifted),
+                                    str(walk), "--methods", "pdr"])
+    assert res.exit_code == 1, res.output
+    assert f"{shifted}: its Wi-Fi scans (" in res.output
+    assert "all lie outside the sensor samples' time span" in res.output
+    assert "pdr" in res.output  # the good walk was scored
+
+
 @pytest.mark.parametrize("args, message", [
     (["--plot-file", "{tmp}/cdf.txt"], "the plot is a PNG; name it .png"),
     (["--plot-file", "{tmp}/x.png", "--csv", "{tmp}/x.png"],
