@@ -159,7 +159,10 @@ def _prepare_walk(trace, maps, start_opt: str | tuple[float, float], waypoints_x
     bundle, chosen = maps.choose(steps.trace_id, steps.site_id, steps.floor_id,
                                  steps.floor_name, steps.scans, ble,
                                  device_model=trace.header.model or "")
-    if "floor model" in chosen:
+    if "but the Wi-Fi floor model" in chosen:  # the header decides: said, not overruled
+        click.echo(f"warning: {trace.trace_id}: floor {bundle.manifest.get('floor_name', '')} "
+                   f"by the {chosen}", err=True)
+    elif "floor model" in chosen:
         click.echo(f"{trace.trace_id}: floor {bundle.manifest.get('floor_name', '')} by the "
                    f"{chosen}", err=True)
     _warn_if_source_walk(bundle, trace.trace_id)

@@ -166,6 +166,26 @@ class SiteMaps:
         return self.choose(trace_id, site_id, floor_id, floor_name, wifi_scans, ble_scans,
                            device_model=device_model)[0]
 
+    def _wifi_doubt(self, header_bundle: MapBundle,
+                    wifi_scans: Sequence[RadioScan | None] | None, device_model: str) -> str:
+        """``"; but the Wi-Fi floor model puts V of N Wi-Fi scans on floor F"`` when it puts
+        :data:`DOUBT_SHARE` or more of :data:`DOUBT_MIN_SCANS` or more of the walk's scans on
+        a floor other than the header's (``header_bundle``), else ``""``: the header decides,
+        but a walk recorded under the wrong floor name is said."""
+        model = self.floor_model
+        heard = [s for s in (wifi_scans or ()) if s is not None]
+        if model is None or len(heard) < DOUBT_MIN_SCANS:
+            return ""
+        calibration = self.devices.get(device_model)
+        if calibration is None:
+            calibration = unknown_phone_calibration(model, heard, self.floor_bundle)
+        best, n_on, n_known = _walk_floor(model, heard, summed=False, calibration=calibration)
+        other = self.floor_bundle(best) if best is not None else None
+        if (other is None or other.floor_id == header_bundle.floor_id
+                or n_known < DOUBT_MIN_SCANS or n_on < DOUBT_SHARE * n_known):
+            return ""
+        return f"; but the Wi-Fi floor model puts {n_on} of {n_known} Wi-Fi scans on floor {best}"
+
     def choose(self, trace_id: str, site_id: str, floor_id: str, floor_name: str,
                wifi_scans: Sequence[RadioScan | None] | None,
                ble_scans: Sequence[RadioScan | None] | None = None, *,
@@ -190,7 +210,8 @@ class SiteMaps:
         Returns
         -------
         (MapBundle, str)
-            How: ``"floor id in the trace header"``, ``"floor name in the trace header"``,
+            How: ``"floor id in the trace header"``, ``"floor name in the trace header"``
+            (each with :meth:`_wifi_doubt`'s note when the Wi-Fi floor model disagrees),
             ``"Wi-Fi floor model (V of N Wi-Fi scans on it)"`` (with ``"; RSSI calibrated
             online, k=K, b=B dB"`` for an unknown phone), ``"BLE floor model (V of N BLE
             windows on it; no Wi-Fi scans in the walk)"`` (N: the scans that hear a
@@ -210,12 +231,16 @@ class SiteMaps:
                                     f"are of site {self.site_id}")
         if floor_id:
             if floor_id in self.bundles:
-                return self.bundles[floor_id], "floor id in the trace header"
+                found = self.bundles[floor_id]
+                return found, "floor id in the trace header" + self._wifi_doubt(
+                    found, wifi_scans, device_model)
             raise LocalizationError(f"{where}: unknown floor {floor_id} "
                                     f"({floor_name or '?'}); bundles exist for "
                                     f"{sorted(self._by_name)}")
         if floor_name and floor_name in self._by_name:
-            return self._by_name[floor_name], "floor name in the trace header"
+            found = self._by_name[floor_name]
+            return found, "floor name in the trace header" + self._wifi_doubt(
+                found, wifi_scans, device_model)
         missing = []
         deferred = None  # a Wi-Fi model lacking floors: BLE may name one of those first
         for name, what, model, scans in (
@@ -270,6 +295,12 @@ class SiteMaps:
                                 f"name in its header) and no floor model decided: "
                                 f"{'; '.join(missing)}; floors: {sorted(self._by_name)}")
 
+
+#: A header's floor is doubted (:meth:`SiteMaps.choose`) when the Wi-Fi floor model puts at
+#: least this share of at least :data:`DOUBT_MIN_SCANS` of the walk's scans on another floor
+#: (on the site1 walks it puts 99.96 % of the scans on their own floor, `docs/radio.md`).
+DOUBT_SHARE = 0.8
+DOUBT_MIN_SCANS = 5
 
 #: BLE window (ms) of bundles whose manifest does not record one (they were all built with it)
 DEFAULT_BLE_WINDOW_MS = 2000

@@ -306,3 +306,27 @@ def test_the_floor_command_calibrates_an_unknown_phone_beside_floor_bundles(buil
     assert "Wi-Fi RSSI calibrated online, k=" in said
     scans, _, said = floors(built / "_site")
     assert scans.count("F1") >= 11 and "calibrated" not in said  # as it reads: 14 of 22
+
+
+def test_a_header_floor_the_wifi_floor_model_contradicts_is_said(built, tmp_path):
+    """A walk recorded under the wrong floor name (header F1, every scan of F2) was located
+    on F1 without a word. The header still decides (it is the user's data), but `localize`
+    and `evaluate` warn with the floor model's count; a walk on its own floor gets no
+    warning."""
+    import gzip
+
+    walk = F2_WALKS[0]
+    text = gzip.decompress(walk.read_bytes()).decode()
+    f1 = gzip.decompress(sorted((SITE / "F1" / "path_data_files").glob("*.txt.gz"))[0]
+                         .read_bytes()).decode()
+    f2_id = text.split("FloorId:")[1].split("\t")[0].strip()
+    f1_id = f1.split("FloorId:")[1].split("\t")[0].strip()
+    wrong = tmp_path / "wrong_floor.txt"
+    wrong.write_text(text.replace(f2_id, f1_id).replace("FloorName:F2", "FloorName:F1"))
+    res = CliRunner().invoke(main, ["evaluate", str(built), str(wrong), str(walk),
+                                    "--methods", "pdr"])
+    assert res.exit_code == 0, res.output
+    warned = [line for line in res.output.splitlines() if "but the Wi-Fi floor model" in line]
+    assert len(warned) == 1 and warned[0].startswith("warning: ")
+    assert "floor F1 by the floor id in the trace header; but the Wi-Fi floor model puts" in \
+        warned[0] and "Wi-Fi scans on floor F2" in warned[0]
