@@ -13,7 +13,10 @@ The grid: cell (row i, column j) covers ``x in [x0 + j*cell, x0 + (j+1)*cell)`` 
 :func:`load_bundle` verifies before it returns: format name, schema version, the bundle id (the
 sha256 of the canonical manifest without its id), every member's path, size and sha256, no
 member missing and no file unlisted, ``.npy`` headers (dtype, shape, size) before reading, and
-never unpickles. Any difference raises :class:`BundleIntegrityError`.
+never unpickles; then the numbers, which checksums cannot vouch for (a buggy writer seals what it
+writes): the grid's cell size and cell count, the known layers' units, kinds and value ranges,
+and the tables readers rely on (:data:`TABLE_SCHEMAS`: exact columns and types, unique keys,
+RSSI, rates and positions in range). Any difference raises :class:`BundleIntegrityError`.
 """
 
 from __future__ import annotations
@@ -44,6 +47,72 @@ ALLOWED_DTYPES = frozenset({"<f4", "<f8", "|u1", "<i2", "<i4", "<i8", "|b1"})
 MAX_ARRAY_ELEMENTS = 200_000_000
 MAX_MEMBERS = 10_000
 MAX_MANIFEST_BYTES = 16 * 1024**2
+
+#: Most cells a floor's grid may have: :data:`mapping.grid.MAX_GRID_CELLS`, the builder's cap,
+#: repeated here because the localizer may not import ``mapping`` (a test checks they agree).
+MAX_GRID_CELLS = 20_000_000
+#: Cell sizes a grid may have (m): 1 mm to 100 m.
+CELL_M_LIMITS = (1e-3, 100.0)
+#: Largest coordinate (m) of a grid origin or a reference point (a UTM northing is 1e7 m).
+MAX_COORD_M = 1e8
+#: RSSI a table may hold (dBm): the values a phone reports, as the trace reader and the radio
+#: build accept them (:data:`mapping.radio_scans.RSSI_RANGE_DBM`; a test checks they agree).
+RSSI_RANGE_DBM = (-127.0, 0.0)
+#: The layers of a floor bundle by name: (unit, kinds it may have). The polar angle (0 to
+#: 180 deg, never wrapping) is an angle layer in built bundles and a scalar one in the
+#: simulator's truth bundles; the localizer compares it as a scalar. A layer of another name
+#: may be added (readers ignore it); an angle layer is in degrees whatever its name.
+KNOWN_LAYERS = {"strength": ("uT", ("scalar",)), "horizontal": ("uT", ("scalar",)),
+                "vertical": ("uT", ("scalar",)), "azimuth": ("deg", ("angle",)),
+                "polar": ("deg", ("angle", "scalar")), "heading_offset": ("deg", ("angle",))}
+#: Largest magnitude of a layer value by unit: no phone magnetometer reads beyond about
+#: 4,900 uT per axis; angles lie within one turn either way.
+LAYER_LIMITS = {"uT": 10_000.0, "deg": 360.0}
+#: Largest uncertainty a layer may give (its unit, or m for the linear interpolator).
+MAX_LAYER_STD = 1e6
+
+_INT, _FLOAT, _TEXT = "int64", "double", "text"
+_ANY = (-math.inf, math.inf)
+_COUNT = (0, math.inf)
+#: Tables a reader relies on: column -> (Arrow type, nulls allowed, (low, high)). The types
+#: are those the writer gives (pandas' ``int64``, ``float64`` and ``str`` columns; a text
+#: column is ``string`` or ``large_string``); numbers must be finite. ``<kind>`` is ``wifi``
+#: or ``ble``. Optional columns (``None`` below: older bundles lack them) are in ``_OPTIONAL``.
+TABLE_SCHEMAS: dict[str, dict[str, tuple[str, bool, tuple[float, float]]]] = {
+    "<kind>_rp": {"rp_id": (_INT, False, _ANY), "x_m": (_FLOAT, False, (-MAX_COORD_M,
+                                                                          MAX_COORD_M)),
+                  "y_m": (_FLOAT, False, (-MAX_COORD_M, MAX_COORD_M)),
+                  "n_scans": (_INT, False, (1, math.inf))},
+    "<kind>_fp": {"rp_id": (_INT, False, _ANY), "ap": (_TEXT, False, _ANY),
+                  "mean_dbm": (_FLOAT, False, RSSI_RANGE_DBM),
+                  # unbiased variance of readings within the RSSI range: below 127^2 / 2
+                  "var_db2": (_FLOAT, True, (0.0, 127.0 ** 2)),
+                  "n": (_INT, False, (1, math.inf)),
+                  "detection_rate": (_FLOAT, False, (0.0, 1.0))},
+    "<kind>_meta": {"kind": (_TEXT, False, _ANY), "cell_m": (_FLOAT, False, CELL_M_LIMITS),
+                    "max_age_ms": (_FLOAT, True, _COUNT),
+                    "format_version": (_INT, False, (1, 1))},
+    "devices": {"device_model": (_TEXT, False, _ANY), "k": (_FLOAT, False, (0.01, 100.0)),
+                "b": (_FLOAT, False, (-1000.0, 1000.0)), "n_pairs": (_INT, False, _COUNT),
+                "residual_sd_db": (_FLOAT, True, (0.0, 1000.0)),
+                "method": (_TEXT, False, _ANY)},
+    "source_walks": {"trace_id": (_TEXT, False, _ANY), "session": (_TEXT, True, _ANY),
+                     "sha256": (_TEXT, True, _ANY), "calibration": (_TEXT, True, _ANY),
+                     "heading_offset_median_deg": (_FLOAT, True, (-360.0, 360.0))},
+    "levelling": {"session": (_TEXT, False, _ANY),
+                  **{f"r_{a}_ut": (_FLOAT, False, (-10_000.0, 10_000.0)) for a in "xyz"},
+                  **{f"s_{a}": (_FLOAT, False, (-10.0, 10.0))
+                     for a in ("xx", "yy", "zz", "xy", "xz", "yz")},
+                  "device": (_TEXT, True, _ANY), "n_samples": (_INT, False, _COUNT),
+                  "n_pairs": (_INT, False, _COUNT)},
+}
+#: Columns of :data:`TABLE_SCHEMAS` a table may lack (levelling before the soft-iron fit).
+_OPTIONAL = {"levelling": {"s_xx", "s_yy", "s_zz", "s_xy", "s_xz", "s_yz", "device"}}
+#: Columns whose values are a table's key (no two rows alike).
+_TABLE_KEYS = {"<kind>_rp": ("rp_id",), "<kind>_fp": ("rp_id", "ap"),
+               "devices": ("device_model",), "source_walks": ("trace_id",),
+               "levelling": ("session",)}
+RADIO_KINDS = ("wifi", "ble")
 
 
 def canonical_json(obj: object) -> bytes:
@@ -168,15 +237,19 @@ class MapBundle:
     mask : ndarray of bool (height, width) or None
     layers : dict of name -> ndarray float32 (height, width), read-only
     std : dict of name -> ndarray float32 (height, width): each layer's uncertainty
+    tables : dict of name -> pyarrow Table: the tables read and checked at load
+        (:func:`read_checked_tables`); :meth:`table` reads the others when asked
     """
 
-    def __init__(self, path: Path, manifest: dict, grid: Grid | None, mask, layers, std):
+    def __init__(self, path: Path, manifest: dict, grid: Grid | None, mask, layers, std,
+                 tables: dict[str, pa.Table] | None = None):
         self.path = path
         self.manifest = manifest
         self.grid = grid
         self.mask = mask
         self.layers = layers
         self.std = std
+        self.tables = tables if tables is not None else {}
 
     @property
     def bundle_id(self) -> str:
@@ -198,12 +271,15 @@ class MapBundle:
         verify_bundle_dir(self.path, self.manifest)
 
     def table(self, name: str) -> pa.Table:
-        """A bundle table as a pyarrow Table (verified on load)."""
+        """A bundle table as a pyarrow Table (verified on load; the tables
+        :data:`TABLE_SCHEMAS` describes are the ones checked at load, not read again)."""
         import pyarrow.parquet as pq
 
         tables = self.manifest.get("tables", {})
         if name not in tables:
             raise BundleError(f"{self.path}: no table {name!r}; has {sorted(tables)}")
+        if name in self.tables:
+            return self.tables[name]
         return pq.read_table(self.path / tables[name]["file"], page_checksum_verification=True)
 
     def has_table(self, name: str) -> bool:
@@ -421,17 +497,46 @@ def check_manifest_layout(manifest: dict, mpath: Path) -> None:
         return
     need(isinstance(manifest["grid"], dict), "grid")
     try:
-        Grid.from_dict(manifest["grid"])  # finite, positive, whole numbers of cells
+        grid = Grid.from_dict(manifest["grid"])  # finite, positive, whole numbers of cells
     except BundleError as err:
         raise BundleIntegrityError(f"{mpath}: {err}") from err
+    check_grid_limits(grid, mpath)
     _member_entry(manifest.get("mask"), "mask", mpath, members)
     layers = manifest.get("layers")
     need(isinstance(layers, dict) and all(
         isinstance(m, dict) and isinstance(m.get("unit"), str)
         and m.get("kind") in ("scalar", "angle") for m in layers.values()), "layers")
     for name, meta in layers.items():
+        check_layer_kind(name, meta["unit"], meta["kind"], mpath)
         for key in ("file", "std_file"):
             _member_entry(meta.get(key), f"layer {name!r} {key}", mpath, members)
+
+
+def check_layer_kind(name: str, unit: str, kind: str, where: object) -> None:
+    """A known layer (:data:`KNOWN_LAYERS`) with its unit and kind, any angle layer in
+    degrees; else a :class:`BundleIntegrityError` naming ``where`` and the layer."""
+    want, kinds = KNOWN_LAYERS.get(name, ("deg" if kind == "angle" else unit, (kind,)))
+    if unit != want or kind not in kinds:
+        raise BundleIntegrityError(
+            f"{where}: layer {name!r} must have unit {want!r} and kind "
+            f"{' or '.join(map(repr, kinds))}, not {unit!r} and {kind!r}")
+
+
+def check_grid_limits(grid: Grid, where: object) -> None:
+    """A grid a localizer can use: cells of :data:`CELL_M_LIMITS`, at most
+    :data:`MAX_GRID_CELLS` of them, an origin within :data:`MAX_COORD_M`; else a
+    :class:`BundleIntegrityError` naming ``where`` and the field."""
+    lo, hi = CELL_M_LIMITS
+    if not lo <= grid.cell_m <= hi:
+        raise BundleIntegrityError(f"{where}: grid cell_m {grid.cell_m:g} m is outside "
+                                   f"{lo:g}-{hi:g} m")
+    if grid.width * grid.height > MAX_GRID_CELLS:
+        raise BundleIntegrityError(f"{where}: grid width x height is {grid.width} x "
+                                   f"{grid.height} cells, over the limit of "
+                                   f"{MAX_GRID_CELLS:,}")
+    if max(abs(grid.x0_m), abs(grid.y0_m)) > MAX_COORD_M:
+        raise BundleIntegrityError(f"{where}: grid origin x0_m, y0_m ({grid.x0_m:g}, "
+                                   f"{grid.y0_m:g}) lies beyond {MAX_COORD_M:g} m")
 
 
 def verify_bundle_dir(path: Path, manifest: dict) -> None:
@@ -483,28 +588,73 @@ def read_registry_record(path: Path) -> Any:
         raise RegistryError(f"{path}: damaged registry file ({err})") from err
 
 
-def registry_current(floor_dir: str | os.PathLike) -> tuple[Path, dict] | None:
-    """The current version of a registry's floor folder (``REG/<site>/<floor>``, which holds
-    ``CURRENT``): its bundle folder and the pointer ``{"bundle_id", "seq"}``; None when the
-    folder has no ``CURRENT``.
+def read_registry_history(floor_dir: str | os.PathLike) -> list[dict]:
+    """The published versions of a registry's floor folder (``REG/<site>/<floor>``, from its
+    ``history.json``) in order: ``[{"seq", "bundle_id"}]``, empty before any.
 
     Raises
     ------
     RegistryError
-        A damaged pointer, or one at a version the registry does not hold.
+        A damaged history: not a list of versions with a bundle id and a whole sequence
+        number, or two entries with one sequence number or one bundle id.
+    """
+    path = Path(floor_dir) / "history.json"
+    if not path.exists():
+        return []
+    history = read_registry_record(path)
+    if not isinstance(history, list) or not all(
+            isinstance(h, dict) and isinstance(h.get("bundle_id"), str)
+            and type(h.get("seq")) is int for h in history):
+        raise RegistryError(f"{path}: not a registry history (a list of versions with "
+                            "bundle_id and seq)")
+    if len({h["seq"] for h in history}) != len(history) \
+            or len({h["bundle_id"] for h in history}) != len(history):
+        raise RegistryError(f"{path}: not a registry history (two entries share a seq or a "
+                            "bundle_id)")
+    return history
+
+
+def registry_current(floor_dir: str | os.PathLike) -> tuple[Path, dict] | None:
+    """The current version of a registry's floor folder (``REG/<site>/<floor>``, which holds
+    ``CURRENT``): its bundle folder and the pointer ``{"bundle_id", "seq"}``; None when the
+    folder has no ``CURRENT``. The pointer must be an entry of ``history.json`` (the same
+    sequence number and bundle id), so a pointer edited by hand to an older version (a silent
+    rollback) or to an unknown sequence number is refused.
+
+    Raises
+    ------
+    RegistryError
+        A damaged pointer or history, a pointer that is no entry of the history, or one at a
+        version the registry does not hold.
     """
     path = Path(floor_dir) / "CURRENT"
     if not path.exists():
         return None
     cur = read_registry_record(path)
     if not isinstance(cur, dict) or not isinstance(cur.get("bundle_id"), str) \
-            or not isinstance(cur.get("seq"), int):
+            or type(cur.get("seq")) is not int:
         raise RegistryError(f"{path}: not a registry pointer (an object with bundle_id and "
                             "seq)")
-    version = path.parent / "versions" / safe_name(cur["bundle_id"])
+    bundle_id, seq = cur["bundle_id"], cur["seq"]
+    version = path.parent / "versions" / safe_name(bundle_id)
+    history = read_registry_history(path.parent)
+    by_seq = {h["seq"]: h["bundle_id"] for h in history}
+    by_id = {h["bundle_id"]: h["seq"] for h in history}
+    if by_seq.get(seq) != bundle_id:
+        if bundle_id not in by_id and seq not in by_seq:
+            raise RegistryError(f"{path}: points at version {bundle_id[:16]}, which the "
+                                f"registry does not hold (history.json has neither #{seq} "
+                                "nor that bundle id)")
+        listed = (f"lists #{seq} as {by_seq[seq][:16]}" if seq in by_seq else
+                  f"has no #{seq}")
+        if bundle_id in by_id:
+            listed += f" and {bundle_id[:16]} as #{by_id[bundle_id]}"
+        raise RegistryError(f"{path}: names version {bundle_id[:16]} as #{seq}, but "
+                            f"history.json {listed} (a pointer edited by hand? `indoormap "
+                            "bundle use` sets it)")
     if not version.is_dir():
-        raise RegistryError(f"{path}: points at version {cur['bundle_id'][:16]}, which the "
-                            "registry does not hold")
+        raise RegistryError(f"{path}: points at version {bundle_id[:16]}, which the "
+                            "registry does not hold (its folder is missing)")
     return version, cur
 
 
@@ -552,9 +702,12 @@ def load_bundle(path: str | os.PathLike) -> MapBundle:
     BundleError
         Not a bundle, unknown schema version, malformed grid.
     BundleIntegrityError
-        Any member changed, missing, unlisted, unsafe, or with a disallowed array header.
+        Any member changed, missing, unlisted, unsafe, or with a disallowed array header; a
+        grid, layer or table whose numbers or schema are out of bounds (naming the table and
+        column).
     RegistryError
-        A registry floor folder whose ``CURRENT`` is damaged or points at no version.
+        A registry floor folder whose ``CURRENT`` is damaged, is no entry of its
+        ``history.json`` or points at no version.
     """
     path = Path(path)
     finish_publication(path.parent)
@@ -589,8 +742,173 @@ def load_bundle(path: str | os.PathLike) -> MapBundle:
                     raise BundleIntegrityError(f"{path}: layer {name} {key} has shape "
                                                f"{arr.shape} {arr.dtype}, expected {grid.shape}"
                                                " float32")
-                if np.isinf(arr).any():
-                    raise BundleIntegrityError(f"{path}: layer {name} {key} holds infinite "
-                                               "values (NaN is the only nodata)")
+                check_layer_values(arr, path, name, key, meta)
                 target[name] = arr
-    return MapBundle(path, manifest, grid, mask, layers, std)
+    tables = read_checked_tables(path, manifest)
+    return MapBundle(path, manifest, grid, mask, layers, std, tables)
+
+
+def check_layer_values(arr: np.ndarray, path: object, name: str, key: str, meta: dict) -> None:
+    """No infinite value (NaN is the only nodata), values within :data:`LAYER_LIMITS` of
+    their unit, uncertainties within [0, :data:`MAX_LAYER_STD`]: two NaN-skipping reductions,
+    no temporary array."""
+    low, high = float(np.fmin.reduce(arr, axis=None)), float(np.fmax.reduce(arr, axis=None))
+    if math.isinf(low) or math.isinf(high):
+        raise BundleIntegrityError(f"{path}: layer {name} {key} holds infinite values (NaN is "
+                                   "the only nodata)")
+    if key == "std_file":
+        limits = (0.0, MAX_LAYER_STD)
+    else:
+        limit = LAYER_LIMITS.get(meta["unit"], math.inf)
+        limits = (-limit, limit)
+    if low < limits[0] or high > limits[1]:  # False for NaN: a layer without data
+        raise BundleIntegrityError(f"{path}: layer {name} {key} holds values from {low:g} to "
+                                   f"{high:g}, outside {limits[0]:g} to {limits[1]:g}"
+                                   + ("" if key == "std_file" else f" {meta['unit']}"))
+
+
+def _schema_of(name: str) -> tuple[str, str | None]:
+    """``(TABLE_SCHEMAS key, radio kind or None)`` of a table name; key "" when unchecked."""
+    kind, _, rest = name.partition("_")
+    if kind in RADIO_KINDS and f"<kind>_{rest}" in TABLE_SCHEMAS:
+        return f"<kind>_{rest}", kind
+    return (name if name in TABLE_SCHEMAS else ""), None
+
+
+def read_checked_tables(path: Path, manifest: dict) -> dict[str, pa.Table]:
+    """The bundle's tables that :data:`TABLE_SCHEMAS` describes, read and checked: exact
+    columns and types, no null where none may be, numbers finite and within their range, keys
+    unique, fingerprint rows of known reference points, a radio kind's three tables together
+    and not empty; every table's row count the manifest's. Other tables (a reader ignores a
+    table it does not use) are checked for their row count only.
+
+    Raises
+    ------
+    BundleIntegrityError
+        Naming the bundle, the table and the column.
+    """
+    tables = manifest.get("tables", {})
+    if not tables:
+        return {}
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    out: dict[str, pa.Table] = {}
+    for name, meta in tables.items():
+        file = _safe_member(meta["file"], path)
+        key, kind = _schema_of(name)
+        try:  # ParquetFile.read: half the time of read_table (no dataset layer)
+            with pq.ParquetFile(file, page_checksum_verification=True) as pf:
+                table = pf.read(use_threads=False) if key else None
+                rows = pf.metadata.num_rows
+        except (OSError, pa.ArrowException) as err:
+            raise BundleIntegrityError(f"{path}: table {name!r} is not a readable Parquet file "
+                                       f"({err})") from err
+        if rows != meta["rows"]:
+            raise BundleIntegrityError(f"{path}: table {name!r} has {rows} rows, the manifest "
+                                       f"says {meta['rows']}")
+        if key:
+            out[name] = table
+    check_tables(out, path)
+    return out
+
+
+def check_tables(tables: dict[str, pa.Table], where: object) -> None:
+    """The tables :data:`TABLE_SCHEMAS` describes (others are ignored) as
+    :func:`read_checked_tables` checks them, in memory (the bundle writer refuses to write
+    what a reader would refuse); a :class:`BundleIntegrityError` naming ``where``, the table
+    and the column."""
+    for name, table in tables.items():
+        key, _ = _schema_of(name)
+        if key:
+            _check_table(table, where, name, key)
+    for kind in RADIO_KINDS:
+        _check_radio_tables({n: t for n, t in tables.items() if _schema_of(n)[0]}, where,
+                            kind)
+
+
+def _check_table(table: pa.Table, path: object, name: str, key: str) -> None:
+    """One table against its :data:`TABLE_SCHEMAS` entry (see :func:`read_checked_tables`)."""
+    import pyarrow as pa
+
+    schema = TABLE_SCHEMAS[key]
+    where = f"{path}: table {name!r}"
+    have = table.column_names
+    optional = _OPTIONAL.get(key, set())
+    missing = [c for c in schema if c not in have and c not in optional]
+    extra = [c for c in have if c not in schema]
+    if missing or extra or len(set(have)) != len(have):
+        raise BundleIntegrityError(f"{where}: columns {have} are not the schema's "
+                                   f"{list(schema)} (missing {missing}, unexpected {extra})")
+    if table.num_rows == 0:
+        return  # an empty pandas column has no type to keep (written as double or null)
+    for col in have:
+        want, nullable, (low, high) = schema[col]
+        column = table.column(col)
+        typ = column.type
+        ok_type = (pa.types.is_string(typ) or pa.types.is_large_string(typ)) \
+            if want == _TEXT else str(typ) == want
+        if not ok_type:
+            raise BundleIntegrityError(f"{where} column {col!r}: type {typ}, expected "
+                                       f"{'string' if want == _TEXT else want}")
+        if not nullable and column.null_count:
+            raise BundleIntegrityError(f"{where} column {col!r}: {column.null_count} null "
+                                       "values")
+        if want == _TEXT:
+            continue
+        values = np.asarray(column.to_numpy(), dtype=np.float64)  # nulls as NaN
+        good = np.isfinite(values) & (values >= low) & (values <= high)
+        if nullable:
+            good |= np.isnan(values)
+        if not good.all():
+            bad = values[~good][0]
+            raise BundleIntegrityError(
+                f"{where} column {col!r}: {int((~good).sum())} values are not finite numbers "
+                f"within {low:g} to {high:g} (e.g. {bad:g})")
+    keys = _TABLE_KEYS.get(key)
+    if keys and _has_duplicates(table, keys):
+        raise BundleIntegrityError(f"{where}: duplicate rows for the key {list(keys)}")
+
+
+def _has_duplicates(table: pa.Table, keys: tuple[str, ...]) -> bool:
+    """Whether two rows share their ``keys`` values (integer or text columns), vectorized."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    code = np.zeros(table.num_rows, dtype=np.int64)
+    for col in keys:
+        column = table.column(col)
+        if pa.types.is_integer(column.type):
+            values = np.asarray(column.to_numpy())
+        else:  # text: the index of each row's value among the distinct ones
+            values = np.asarray(pc.dictionary_encode(column.combine_chunks()).indices,
+                                dtype=np.int64)
+        _, values = np.unique(values, return_inverse=True)
+        code = code * (int(values.max(initial=0)) + 1) + values.ravel()
+    return len(np.unique(code)) != len(code)
+
+
+def _check_radio_tables(tables: dict[str, pa.Table], path: object, kind: str) -> None:
+    """A radio kind's ``<kind>_rp``, ``<kind>_fp`` and ``<kind>_meta`` together, not empty (a
+    floor without rows of the kind has none of its tables), fingerprints of known reference
+    points, the meta table one row of its kind."""
+    names = [f"{kind}_{t}" for t in ("rp", "fp", "meta")]
+    present = [n for n in names if n in tables]
+    if not present:
+        return
+    if len(present) != len(names):
+        raise BundleIntegrityError(f"{path}: tables {present} without "
+                                   f"{[n for n in names if n not in present]}")
+    rp, fp, meta = (tables[n] for n in names)
+    for name, table in zip(names, (rp, fp)):
+        if table.num_rows == 0:
+            raise BundleIntegrityError(
+                f"{path}: table {name!r} has no rows (a floor without {kind} fingerprints has "
+                f"no {kind} tables)")
+    known = np.asarray(rp.column("rp_id").to_numpy())
+    if not np.isin(np.asarray(fp.column("rp_id").to_numpy()), known).all():
+        raise BundleIntegrityError(f"{path}: table {names[1]!r} column 'rp_id' names reference "
+                                   f"points that {names[0]!r} lacks")
+    if meta.num_rows != 1 or meta.column("kind")[0].as_py() != kind:
+        raise BundleIntegrityError(f"{path}: table {names[2]!r} column 'kind' must be one row "
+                                   f"{kind!r}")

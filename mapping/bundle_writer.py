@@ -17,10 +17,20 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from localize.bundle import BUNDLE_FORMAT, SCHEMA_VERSION, Grid, bundle_id_of, canonical_json, \
-    manifest_bytes
+from localize.bundle import (
+    BUNDLE_FORMAT,
+    SCHEMA_VERSION,
+    Grid,
+    bundle_id_of,
+    canonical_json,
+    check_grid_limits,
+    check_layer_kind,
+    check_layer_values,
+    check_tables,
+    manifest_bytes,
+)
 from survey import __version__
-from survey.errors import BundleError
+from survey.errors import BundleError, BundleIntegrityError
 from survey.publish import atomic_directory, crash_point, file_sha256
 
 
@@ -72,6 +82,13 @@ def _check(content: BundleContent) -> None:
         if not isinstance(getattr(content, key), str):
             raise BundleError(f"bundle {key} must be a string, got "
                               f"{getattr(content, key)!r}")
+    where = f"{content.kind} bundle {content.floor_name!r}"
+    try:  # the tables and numbers a reader checks (localize.bundle)
+        check_tables(content.tables, where)
+        if content.grid is not None:
+            check_grid_limits(content.grid, where)
+    except BundleIntegrityError as err:
+        raise BundleError(f"refused before writing: {err}") from err
     if content.grid is None:
         if content.layers:
             raise BundleError("layers need a grid")
@@ -80,13 +97,15 @@ def _check(content: BundleContent) -> None:
     if content.mask is None or content.mask.shape != shape:
         raise BundleError(f"mask must have the grid's shape {shape}")
     for name, layer in content.layers.items():
-        for what, arr in (("values", layer.values), ("std", layer.std)):
-            if arr.shape != shape:
-                raise BundleError(f"layer {name} {what}: shape {arr.shape} != grid {shape}")
-            a = np.asarray(arr, dtype=np.float32)
-            if np.isinf(a).any():
-                raise BundleError(f"layer {name} {what}: infinite values (NaN is the only "
-                                  "nodata)")
+        try:
+            check_layer_kind(name, layer.unit, layer.kind, where)
+            for key, arr in (("file", layer.values), ("std_file", layer.std)):
+                if arr.shape != shape:
+                    raise BundleError(f"layer {name} {key}: shape {arr.shape} != grid {shape}")
+                check_layer_values(np.asarray(arr, dtype=np.float32), where, name, key,
+                                   {"unit": layer.unit})
+        except BundleIntegrityError as err:
+            raise BundleError(f"refused before writing: {err}") from err
         if np.isfinite(layer.values[~np.asarray(content.mask, dtype=bool)]).any():
             raise BundleError(f"layer {name}: values outside the reachable mask")
 

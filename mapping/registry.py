@@ -9,7 +9,10 @@ Layout::
 A version is copied in with an atomic folder rename, then ``history.json`` and ``CURRENT`` are
 replaced atomically, so a reader that follows ``CURRENT`` always finds a complete, verified
 bundle; a crash leaves the previous current version in place. Versions only move forward:
-pointing ``CURRENT`` at an older version needs ``allow_rollback=True``.
+pointing ``CURRENT`` at an older version needs ``allow_rollback=True``. Readers check that
+``CURRENT`` is an entry of ``history.json`` (its seq and bundle id) whose folder exists, so a
+pointer edited by hand is refused, not followed (:func:`localize.bundle.registry_current`);
+``set_current`` repairs it (anything but the newest version then counts as a rollback).
 
 Writers of one floor take turns: ``publish`` and ``set_current`` hold an exclusive lock on
 ``REG/<site>/<floor>/.lock`` (``flock``, released by the system if the process dies) while
@@ -31,7 +34,7 @@ from pathlib import Path
 from localize.bundle import (
     MapBundle,
     load_bundle,
-    read_registry_record,
+    read_registry_history,
     registry_current,
     safe_name,
 )
@@ -69,19 +72,14 @@ class Registry:
             yield base
 
     def history(self, site: str, floor: str) -> list[dict]:
-        path = self._floor(site, floor) / "history.json"
-        if not path.exists():
-            return []
-        history = read_registry_record(path)
-        if not isinstance(history, list) or not all(
-                isinstance(h, dict) and isinstance(h.get("bundle_id"), str)
-                and isinstance(h.get("seq"), int) for h in history):
-            raise RegistryError(f"{path}: not a registry history (a list of versions with "
-                                "bundle_id and seq)")
-        return history
+        """The published versions in order, ``[{"seq", "bundle_id"}]`` (see
+        :func:`localize.bundle.read_registry_history`)."""
+        return read_registry_history(self._floor(site, floor))
 
     def current(self, site: str, floor: str) -> dict | None:
-        """The current version's pointer ``{"bundle_id", "seq"}``, None before any."""
+        """The current version's pointer ``{"bundle_id", "seq"}``, None before any; a
+        RegistryError when it is no entry of the history or its version folder is missing
+        (:func:`localize.bundle.registry_current`)."""
         found = registry_current(self._floor(site, floor))
         return None if found is None else found[1]
 

@@ -377,8 +377,9 @@ def test_bundle_diff_names_every_kind_of_change(tmp_path):
     b.build = {**b.build, "seed": 2, "params": {"cell_m": 0.5, "seed": 2},
                "source_walks": [walks[0], {"trace_id": "w2", "sha256": "c" * 64},
                                 {"trace_id": "w3", "sha256": "d" * 64}]}
-    b.layers["azimuth"] = Layer(a.layers["azimuth"].values, a.layers["azimuth"].std, "rad",
-                                "angle")
+    # a layer of a name indoormap does not know may change unit (a known one may not)
+    a.layers["extra"] = Layer(a.layers["strength"].values, a.layers["strength"].std, "m")
+    b.layers["extra"] = Layer(a.layers["strength"].values, a.layers["strength"].std, "cm")
     c = _content()
     c.grid = Grid(11.0, 20.0, 0.5, 24, 16)  # same size, moved 1 m east
     for name, content in (("a", a), ("b", b), ("c", c)):
@@ -388,7 +389,7 @@ def test_bundle_diff_names_every_kind_of_change(tmp_path):
     assert "walks: 1 shared, 1 changed content, 1 added, 0 removed" in lines
     assert "walk w2: content changed (sha256 aaaaaaaaaaaa -> cccccccccccc)" not in lines
     assert "walk w2: content changed (sha256 bbbbbbbbbbbb -> cccccccccccc)" in lines
-    assert "layer azimuth unit: deg -> rad" in lines
+    assert "layer extra unit: m -> cm" in lines
     assert any(line.startswith("layer strength: mean abs change 0.500 uT") for line in lines)
     assert not any(line.startswith("warning") or line.startswith("grid") for line in lines)
     moved = bundle_differences(load_bundle(tmp_path / "a"), load_bundle(tmp_path / "c"))
@@ -397,7 +398,7 @@ def test_bundle_diff_names_every_kind_of_change(tmp_path):
     assert not any("mean abs change" in line for line in moved)
     assert bundle_differences(load_bundle(tmp_path / "a"), load_bundle(tmp_path / "a")) == []
     res = CliRunner().invoke(main, ["bundle", "diff", str(tmp_path / "a"), str(tmp_path / "b")])
-    assert res.exit_code == 0 and "layer azimuth unit: deg -> rad" in res.output
+    assert res.exit_code == 0 and "layer extra unit: m -> cm" in res.output
 
 
 def _publish_after(barrier, registry: str, bundle: str) -> None:
