@@ -30,7 +30,7 @@ from localize.errors import LocalizationError
 from localize.filter import check_step_time
 from localize.steps import AttitudeCode
 from localize.stepper import StepInputs, StepOutputs
-from localize.ticks import check_tick_inputs, checked_tick_fixes
+from localize.ticks import check_tick_inputs, checked_tick_fixes, per_user
 
 __all__ = ["MultiUserAligner"]
 
@@ -78,9 +78,8 @@ class MultiUserAligner:
         """
         xy = np.asarray(start_xy, dtype=np.float64).reshape(-1, 2)
         k = len(xy)
-        t = np.broadcast_to(np.asarray(t_ms, dtype=np.float64), (k,))
-        sigma = np.full(k, np.nan) if sigma_m is None else \
-            np.broadcast_to(np.asarray(sigma_m, dtype=np.float64), (k,))
+        t = per_user(t_ms, k, "t_ms")
+        sigma = np.full(k, np.nan) if sigma_m is None else per_user(sigma_m, k, "sigma_m")
         if not np.isfinite(t).all():
             raise LocalizationError("add_users: a start time is not finite (t_ms)")
         new = []
@@ -134,14 +133,16 @@ class MultiUserAligner:
             raise LocalizationError(f"unknown user ids in tick: {unknown[:10]}")
         k = len(ids)
         check_tick_inputs(inputs, ids)
-        t = np.broadcast_to(np.asarray(t_ms, dtype=np.float64), (k,))
+        t = per_user(t_ms, k, "t_ms")
         users = [self._aligners[i] for i in ids.tolist()]
-        for aligner, ti in zip(users, t):  # every user checked before anyone moves
-            check_step_time(ti, aligner.last_t_ms)
+        for i, aligner, ti in zip(ids.tolist(), users, t):  # all checked before anyone moves
+            try:
+                check_step_time(ti, aligner.last_t_ms)
+            except LocalizationError as err:
+                raise LocalizationError(f"user {i}: {err}; nobody was advanced") from err
         fix_xy = np.full((k, 2), np.nan) if fix_xy_m is None else \
             checked_tick_fixes(fix_xy_m, None, k, 0.0)[0]
-        fix_t = t if fix_t_ms is None else np.broadcast_to(
-            np.asarray(fix_t_ms, dtype=np.float64), (k,))
+        fix_t = t if fix_t_ms is None else per_user(fix_t_ms, k, "fix_t_ms")
         fix_t = np.where(np.isfinite(fix_t), fix_t, t)
         has_fix = np.isfinite(fix_xy).all(axis=1)
         compass, gyro, swing = (np.broadcast_to(np.asarray(v, dtype=np.float64), (k,)) for v in (

@@ -27,7 +27,8 @@ from pathlib import Path
 import click
 import numpy as np
 
-from localize.cli_common import AliasedOption, TraceIds, WalkFailures, read_walk, trace_files
+from localize.cli_common import (AliasedOption, TraceIds, WalkFailures, read_walk,
+                                  say_floor_choice, trace_files)
 from localize.methods import METHODS, SMOOTHABLE, auto_method, method_label
 from survey.publish import refuse_to_replace
 
@@ -159,12 +160,7 @@ def _prepare_walk(trace, maps, start_opt: str | tuple[float, float], waypoints_x
     bundle, chosen = maps.choose(steps.trace_id, steps.site_id, steps.floor_id,
                                  steps.floor_name, steps.scans, ble,
                                  device_model=trace.header.model or "")
-    if "but the Wi-Fi floor model" in chosen:  # the header decides: said, not overruled
-        click.echo(f"warning: {trace.trace_id}: floor {bundle.manifest.get('floor_name', '')} "
-                   f"by the {chosen}", err=True)
-    elif "floor model" in chosen:
-        click.echo(f"{trace.trace_id}: floor {bundle.manifest.get('floor_name', '')} by the "
-                   f"{chosen}", err=True)
+    say_floor_choice(trace.trace_id, bundle, chosen)
     _warn_if_source_walk(bundle, trace.trace_id)
     wr = walk_radio(bundle, trace.header.model, steps, ble)
     start_xy, how = _start_of(start_opt, wr, waypoints_xy)

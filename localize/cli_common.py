@@ -163,3 +163,14 @@ class WalkFailures:
         if self.count:
             click.echo(f"{self.count} failure(s) in {total + self.n_missing} walk(s)", err=True)
             sys.exit(1)
+
+
+def say_floor_choice(trace_id: str, bundle, how: str) -> None:
+    """Standard error: the floor a floor model chose for a walk, or a warning when the
+    header's floor is one the Wi-Fi floor model contradicts
+    (:meth:`localize.floors.SiteMaps.choose`'s ``how``); nothing for a header's floor."""
+    floor = bundle.manifest.get("floor_name", "")
+    if "but the Wi-Fi floor model" in how:  # the header decides: said, not overruled
+        click.echo(f"warning: {trace_id}: floor {floor} by the {how}", err=True)
+    elif "floor model" in how:
+        click.echo(f"{trace_id}: floor {floor} by the {how}", err=True)

@@ -24,7 +24,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from localize.cli_common import WalkFailures, read_walk, trace_files
+from localize.cli_common import WalkFailures, read_walk, say_floor_choice, trace_files
 from localize.errors import LocalizationError
 from localize.floors import ble_window_ms, device_table
 from localize.rssi_calibration import checked_rssi_calibration
@@ -268,11 +268,12 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
             click.echo(f"{trace.trace_id}: no {kind} scans{hint}", err=True)
             return
         h = trace.header  # the floor from the header, else the Wi-Fi, else the BLE floor model
-        bundle = maps.select_for(trace.trace_id, h.site_id or "", h.floor_id or "",
-                                 h.floor_name or "", scans if kind == "wifi" else scans_of(trace),
-                                 scans if kind == "ble" else ble_scans_of(trace,
-                                                                          maps.ble_window_ms),
-                                 device_model=h.model or "")
+        bundle, how = maps.choose(trace.trace_id, h.site_id or "", h.floor_id or "",
+                                  h.floor_name or "", scans if kind == "wifi" else scans_of(trace),
+                                  scans if kind == "ble" else ble_scans_of(trace,
+                                                                           maps.ble_window_ms),
+                                  device_model=h.model or "")
+        say_floor_choice(trace.trace_id, bundle, how)
         pos = bundle_positioner(bundle, kind)
         if pos is None:
             raise LocalizationError(f"{bundle.path}: no {kind} fingerprints in this bundle")

@@ -39,7 +39,7 @@ from localize.params import FilterParams
 from localize.particles import (ParticleState, estimate, init_state, inject, inject_around_fix,
                                 needed_layers)
 from localize.stepper import StepInputs, StepOutputs, advance
-from localize.ticks import check_tick_inputs, checked_tick_fixes, inputs_of_rows
+from localize.ticks import check_tick_inputs, checked_tick_fixes, inputs_of_rows, per_user
 from localize.update import position_update
 
 __all__ = ["MultiUserEngine"]
@@ -119,22 +119,27 @@ class MultiUserEngine:
         xy = np.asarray(start_xy, dtype=np.float64).reshape(-1, 2)
         k = len(xy)
         sigma = np.full(k, np.nan) if fix_sigma_m is None else \
-            np.broadcast_to(np.asarray(fix_sigma_m, dtype=np.float64), (k,))
+            per_user(fix_sigma_m, k, "fix_sigma_m")
         if half_width_m is None:
             hw = np.where(np.isfinite(sigma), np.fmax(p.init_half_width_m,
                                                       p.init_from_fix_scale * sigma),
                           p.init_half_width_m)
         else:
-            hw = np.broadcast_to(np.asarray(half_width_m, dtype=np.float64), (k,))
+            hw = per_user(half_width_m, k, "half_width_m")
         guided = np.isfinite(sigma) & (self.guide is not None)
-        if guided.any() and t_ms is None:
-            raise LocalizationError("add_users: users started from a fix on a guided engine "
-                                    "need their start times (t_ms)")
-        new = init_state(self.fmap, p, self.rng, xy, hw, dtype=self.dtype)
         guide_ids = np.full(k, -1, dtype=np.int64)
-        if guided.any():  # it checks the starts and times: before anything is kept
-            t = np.broadcast_to(np.asarray(t_ms, dtype=np.float64), (k,))
+        if guided.any():  # first: it checks the starts and times, and draws nothing
+            if t_ms is None:
+                raise LocalizationError("add_users: users started from a fix on a guided "
+                                        "engine need their start times (t_ms)")
+            t = per_user(t_ms, k, "t_ms")
             guide_ids[guided] = self.guide.add_users(xy[guided], t[guided], sigma[guided])
+        try:
+            new = init_state(self.fmap, p, self.rng, xy, hw, dtype=self.dtype)
+        except BaseException:
+            if guided.any():  # no user half added
+                self.guide.remove_users(guide_ids[guided])
+            raise
         ids = np.arange(self._next_id, self._next_id + k, dtype=np.int64)
         self._next_id += k
         if self.state is None:
@@ -241,9 +246,8 @@ class MultiUserEngine:
         if guided.any():  # the alignments step first (and check their times): their
             if t_ms is None:  # positions are these users' radio evidence at this step
                 raise LocalizationError("tick: guided users need their step times (t_ms)")
-            t = np.broadcast_to(np.asarray(t_ms, dtype=np.float64), (k,))
-            fix_t = None if fix_t_ms is None else \
-                np.broadcast_to(np.asarray(fix_t_ms, dtype=np.float64), (k,))[guided]
+            t = per_user(t_ms, k, "t_ms")
+            fix_t = None if fix_t_ms is None else per_user(fix_t_ms, k, "fix_t_ms")[guided]
             g = self.guide.tick(self.guide_ids[rows][guided], t[guided],
                                 inputs_of_rows(inputs, k, guided), fix_xy[guided], fix_t)
             fix_xy[guided] = np.column_stack([g.x_m, g.y_m])

@@ -12,14 +12,14 @@ from numpy.typing import ArrayLike, NDArray
 from localize.errors import LocalizationError
 from localize.stepper import StepInputs
 
-__all__ = ["check_tick_inputs", "checked_tick_fixes", "inputs_of_rows"]
+__all__ = ["check_tick_inputs", "checked_tick_fixes", "inputs_of_rows", "per_user"]
 
 
 def checked_tick_fixes(fix_xy_m: ArrayLike, fix_sigma_m: ArrayLike | None, k: int,
                        floor_m: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Fixes as (k, 2) and their SDs as (k,) (NaN or absent: ``floor_m``; raised to it), or a
-    LocalizationError before anyone moves."""
-    xy = np.asarray(fix_xy_m, dtype=np.float64)
+    LocalizationError before anyone moves; copies (the engines write into them)."""
+    xy = np.array(fix_xy_m, dtype=np.float64)
     if xy.shape == (2,) and k == 1:
         xy = xy.reshape(1, 2)
     if xy.shape != (k, 2):
@@ -53,3 +53,13 @@ def inputs_of_rows(inputs: StepInputs, k: int, rows: NDArray) -> StepInputs:
     return StepInputs(**{f.name: None if getattr(inputs, f.name) is None else
                          np.broadcast_to(np.asarray(getattr(inputs, f.name)), (k,))[rows]
                          for f in fields(inputs)})
+
+
+def per_user(values: ArrayLike, k: int, name: str) -> NDArray[np.float64]:
+    """``values`` as one float per user, shape (k,) (a scalar is every user's); else a
+    LocalizationError naming the argument ``name``."""
+    arr = np.asarray(values, dtype=np.float64)
+    if arr.shape not in ((), (k,)):
+        raise LocalizationError(f"{name} has shape {arr.shape}, expected ({k},): one value "
+                                "per user")
+    return np.broadcast_to(arr, (k,))

@@ -56,7 +56,7 @@ from .errors import FingerprintError
 from .fingerprints import DEFAULT_CELL_M, FingerprintDB, FingerprintSums
 from .floor_model import FloorModel, fit_floor_model
 from .radio_reduce import TextCodes, capped_walk_sample, walk_rows
-from .radio_scans import OBS_COLUMNS, ble_observations, wifi_observations
+from .radio_scans import OBS_COLUMNS, RSSI_RANGE_DBM, ble_observations, wifi_observations
 
 __all__ = ["KINDS", "RadioParams", "SiteRadio", "WalkSource", "build_site_radio", "calibrated",
            "format_share", "reduce_site_radio", "site_observations", "site_radio", "store_walks",
@@ -354,13 +354,16 @@ def calibrated(obs: pd.DataFrame, device_of: pd.Series, devices: pd.DataFrame) -
 def _with_calibration(obs: pd.DataFrame, kb_of: Mapping[str, tuple[float, float]]
                       ) -> pd.DataFrame:
     """``obs`` with the RSSI of each walk in ``kb_of`` (trace id -> ``(k, b)``) mapped to
-    ``k * rssi + b`` (dBm); other columns shared."""
+    ``k * rssi + b`` (dBm), kept within :data:`~mapping.radio_scans.RSSI_RANGE_DBM` (what a
+    phone reports, and what a bundle's fingerprints may hold: a 0 dBm reading of a phone with
+    ``b > 0`` is 0 dBm on the reference phone's scale, not above); other columns shared."""
     traces = pd.Index(np.asarray(pd.unique(obs["trace_id"]), dtype=object).astype(str))
     if not any(t in kb_of for t in traces):
         return obs
     kb = np.array([kb_of.get(t, (1.0, 0.0)) for t in traces], dtype=np.float64)
     idx = traces.get_indexer(np.asarray(obs["trace_id"], dtype=object).astype(str))
-    return obs.assign(rssi_dbm=kb[idx, 0] * obs["rssi_dbm"].to_numpy() + kb[idx, 1])
+    return obs.assign(rssi_dbm=np.clip(kb[idx, 0] * obs["rssi_dbm"].to_numpy() + kb[idx, 1],
+                                       *RSSI_RANGE_DBM))
 
 
 def format_share(v: float | None) -> str:

@@ -110,3 +110,14 @@ def test_unknown_device_model_is_named(wifi_obs, device_of):
     assert lookup_calibration(table, "Pixel 9", unknown="identity").method == "identity"
     with pytest.raises(FingerprintError, match="no device model for traces"):
         calibrate_devices(wifi_obs["F1"], {})
+
+
+def test_calibrated_rssi_stays_within_what_a_phone_reports():
+    """A phone mapped by b > 0 (or k > 1) put readings near 0 dBm above it, and the bundle's
+    fingerprint check (RSSI within [-127, 0] dBm) then refused the whole build."""
+    from mapping.radio_build import _with_calibration
+
+    obs = pd.DataFrame({"trace_id": ["w", "w", "w", "v"],
+                        "rssi_dbm": [-1.0, -60.0, -126.0, -1.0]})
+    out = _with_calibration(obs, {"w": (1.2, 5.0)})
+    assert out["rssi_dbm"].tolist() == [0.0, -67.0, -127.0, -1.0]

@@ -330,3 +330,6 @@ def test_a_header_floor_the_wifi_floor_model_contradicts_is_said(built, tmp_path
     assert len(warned) == 1 and warned[0].startswith("warning: ")
     assert "floor F1 by the floor id in the trace header; but the Wi-Fi floor model puts" in \
         warned[0] and "Wi-Fi scans on floor F2" in warned[0]
+    res = CliRunner().invoke(main, ["wifi-locate", str(built), str(wrong), str(walk)])
+    assert res.exit_code == 0, res.output
+    assert sum("but the Wi-Fi floor model" in line for line in res.output.splitlines()) == 1

@@ -94,8 +94,11 @@ def test_bad_ticks_move_nobody(f1_bundle, sim_walks):  # noqa: F811
         eng.tick([ids[0], ids[0]], [t, t], good)
     with pytest.raises(LocalizationError, match=r"unknown user ids in tick: \[99\]"):
         eng.tick([ids[0], 99], [t, t], good)
-    with pytest.raises(LocalizationError, match="comes before the last one"):
+    with pytest.raises(LocalizationError, match=f"user {ids[1]}: step at .* comes before the "
+                       "last one .*; nobody was advanced"):
         eng.tick(ids, [t, w.steps.t_ms[0] - 1000.0], good)  # the second is back in time
+    with pytest.raises(LocalizationError, match="fix_t_ms has shape"):
+        eng.tick(ids, [t, t], good, fix_xy_m=[[1.0, 2.0], [1.0, 2.0]], fix_t_ms=[1.0, 2.0, 3.0])
     with pytest.raises(LocalizationError, match="shape"):
         eng.tick(ids, [t, t], _inputs([w], 0))
     with pytest.raises(LocalizationError, match="fix_xy_m has shape"):
@@ -138,8 +141,10 @@ def test_guided_engine_users_get_the_single_user_guided_filter(f1_bundle, sim_wa
         est = []
         for i in range(n):
             fx = np.array([f.at.get(i, (np.nan,) * 3) for f in fs])
+            given = fx.copy()
             out = eng.tick(ids, _inputs(ws, i), fx[:, :2], t_ms=[w.steps.t_ms[i] for w in ws],
                            fix_t_ms=fx[:, 2])
+            assert np.array_equal(fx, given, equal_nan=True)  # the caller's fixes untouched
             est.append(np.column_stack([out.x_m, out.y_m]))
         return np.stack(est, axis=1)  # (users, steps, 2)
 
@@ -165,5 +170,13 @@ def test_guided_engine_users_get_the_single_user_guided_filter(f1_bundle, sim_wa
     assert eng.guide.n_users == 1 and list(eng.guide_ids) == [1, -1]
     with pytest.raises(LocalizationError, match="need their step times"):
         eng.tick(ids[1:2], _inputs(walks[1:2], 0))
+    drawn = eng.rng.bit_generator.state
     with pytest.raises(LocalizationError, match="need their start times"):
         eng.add_users(xy[:1], fix_sigma_m=[3.0])
+    with pytest.raises(LocalizationError, match=r"t_ms has shape \(3,\), expected \(1,\)"):
+        eng.add_users(xy[:1], fix_sigma_m=[3.0], t_ms=[1.0, 2.0, 3.0])
+    with pytest.raises(LocalizationError, match="more than 200 m off"):
+        eng.add_users([[1e6, 0.0]], fix_sigma_m=[3.0], t_ms=[t0[0]])
+    # refused calls drew nothing (later users get what they would have) and added nobody
+    assert eng.rng.bit_generator.state == drawn
+    assert eng.guide.n_users == 1 and eng.n_users == 2
