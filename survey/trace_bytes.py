@@ -6,11 +6,24 @@ byte: invalid deflate data, or a checksum or length that does not match the text
 in both modes, as ``gzip -d`` refuses it: inflating goes on past a flipped byte with garbage
 (or with one wrong value, caught by the checksum only) before it fails, and where the text
 stops being what was written cannot be told, so none of it can be trusted.
+
+Resource limits, checked before the memory is taken: only a regular file is read (a FIFO, a
+socket, a device such as ``/dev/zero``, or a link to one, would block or never end), and it is
+looked at (``stat``) before it is opened, so opening a FIFO cannot block; a file over
+``max_bytes`` on disk is refused before it is read, and no read goes past ``max_bytes`` (a
+file growing while read is refused too); gzip is inflated in steps of at most
+``_OUT_STEP`` bytes of text, from at most ``_IN_STEP`` compressed bytes at a time, and
+refused as soon as the running total passes ``max_bytes``. A stream that inflates to more than
+``_SUSPECT_BYTES`` at over ``_SUSPECT_RATIO`` times its compressed size (a gzip bomb: real
+traces inflate about 6 times) is first only measured, its text thrown away step by step, and
+inflated again to be kept only if it is within the limit: a bomb costs about
+``_SUSPECT_BYTES`` of memory, not ``max_bytes``, before it is refused.
 """
 
 from __future__ import annotations
 
 import os
+import stat
 import zlib
 from pathlib import Path
 
@@ -24,6 +37,20 @@ except ImportError:  # pragma: no cover - isal is a declared dependency
 #: Refuse traces whose decompressed text would exceed this many bytes (resource limit).
 MAX_TRACE_BYTES = 2 * 1024**3
 
+#: Text bytes inflated per step at most (a whole ILC trace is one step: no copy to join).
+_OUT_STEP = 16 * 1024**2
+#: Compressed bytes handed to the decompressor at a time (bounds the copies it makes of the
+#: input it has not used: a file of many small gzip members is not copied once per member).
+_IN_STEP = 1024**2
+#: Inflated text past which a stream inflating over ``_SUSPECT_RATIO`` times its compressed
+#: size is measured before it is kept (module docstring).
+_SUSPECT_BYTES = 64 * 1024**2
+_SUSPECT_RATIO = 50
+#: Bytes read at a time from a file that has grown since it was looked at.
+_READ_STEP = 1024**2
+
+_OPEN_FLAGS = os.O_RDONLY | getattr(os, "O_BINARY", 0) | getattr(os, "O_NONBLOCK", 0)
+
 
 def read_trace_bytes(path: str | os.PathLike, *, strict: bool = False,
                      max_bytes: int = MAX_TRACE_BYTES) -> tuple[bytes, str | None]:
@@ -31,47 +58,114 @@ def read_trace_bytes(path: str | os.PathLike, *, strict: bool = False,
 
     A truncated gzip stream raises in strict mode; in lenient mode the readable prefix is
     returned with a note (its last, partial line is then reported as bad). A damaged stream
-    raises in both modes (module docstring).
+    raises in both modes, and so do a file that is not a regular file and one whose size on
+    disk or text is over ``max_bytes`` (module docstring).
     """
     path = Path(path)
+    raw = _read_capped(path, max_bytes)
+    if raw[:2] != b"\x1f\x8b":
+        return raw, None
+    chunks, note = _inflate(raw, path, max_bytes)
+    if note and strict:
+        raise SurveyFormatError(note, path=str(path), reason="gzip")
+    return b"".join(chunks), note  # one chunk (the usual case) is returned without a copy
+
+
+def _check_regular(path: Path, st: os.stat_result, max_bytes: int) -> None:
+    if not stat.S_ISREG(st.st_mode):
+        raise SurveyFormatError(
+            "not a regular file (a FIFO, socket or device, or a link to one, could block or "
+            "never end), not read", path=str(path), reason="not_regular")
+    if st.st_size > max_bytes:
+        raise SurveyFormatError(f"file is {st.st_size} bytes, over the {max_bytes}-byte limit",
+                                path=str(path), reason="too_large")
+
+
+def _read_capped(path: Path, max_bytes: int) -> bytes:
+    """The bytes of a regular file of at most ``max_bytes``, looked at before it is opened
+    (so a FIFO is not opened: that would wait for a writer) and again once open."""
     try:
-        raw = path.read_bytes()
+        _check_regular(path, os.stat(path), max_bytes)
+        fd = os.open(path, _OPEN_FLAGS)
     except OSError as err:
         raise SurveyFormatError(f"cannot read: {err.strerror or err}", path=str(path),
                                 reason="io") from err
-    if raw[:2] != b"\x1f\x8b":
-        if len(raw) > max_bytes:
-            raise SurveyFormatError(f"file is {len(raw)} bytes, over the {max_bytes}-byte limit",
-                                    path=str(path), reason="too_large")
-        return raw, None
+    try:
+        with open(fd, "rb", closefd=False) as fh:
+            st = os.fstat(fd)
+            _check_regular(path, st, max_bytes)  # replaced since os.stat
+            if hasattr(os, "set_blocking"):
+                os.set_blocking(fd, True)
+            data = fh.read(st.st_size + 1)  # one read of the expected size (+1: grown?)
+            if len(data) <= st.st_size:
+                return data
+            parts, total = [data], len(data)
+            while total <= max_bytes:  # grown since fstat: read on, never past the limit
+                more = fh.read(min(_READ_STEP, max_bytes + 1 - total))
+                if not more:
+                    break
+                parts.append(more)
+                total += len(more)
+            if total > max_bytes:
+                raise SurveyFormatError(f"file grew past the {max_bytes}-byte limit while read",
+                                        path=str(path), reason="too_large")
+            return b"".join(parts)
+    except OSError as err:
+        raise SurveyFormatError(f"cannot read: {err.strerror or err}", path=str(path),
+                                reason="io") from err
+    finally:
+        os.close(fd)
+
+
+def _inflate(raw: bytes, path: Path, max_bytes: int, *, keep: bool = True,
+             screen: bool = True) -> tuple[list[bytes], str | None]:
+    """The text of the gzip members in ``raw``, as chunks, and a note (truncated stream,
+    trailing garbage) or ``None``; raises for a damaged stream or a text over ``max_bytes``.
+
+    ``keep=False`` only measures (no chunks kept); ``screen`` measures first a stream that
+    looks like a bomb (module docstring)."""
+    view = memoryview(raw)
+    n = len(raw)
+    pos = 0  # compressed bytes handed to a decompressor (minus what it gave back)
     chunks: list[bytes] = []
     total = 0
-    note = None
-    data = raw
-    while data:
+    while True:  # one gzip member per round
         dec = _zlib.decompressobj(wbits=31)
-        try:
-            out = dec.decompress(data, max_bytes + 1 - total)
-        except (zlib.error, _zlib.error) as err:
-            raise SurveyFormatError(
-                f"damaged gzip stream ({err}): the text it inflates to is not what was "
-                "written, and where it stops being so cannot be told, so none of it is kept "
-                "(a file that is only cut short keeps its readable part)",
-                path=str(path), reason="gzip") from err
-        total += len(out)
-        chunks.append(out)
-        if total > max_bytes:
-            raise SurveyFormatError(f"decompresses to over {max_bytes} bytes, refused",
-                                    path=str(path), reason="too_large")
+        feed: bytes | memoryview = b""
+        while True:
+            if not feed and pos < n:
+                feed = view[pos:pos + _IN_STEP]
+                pos += len(feed)
+            try:
+                out = dec.decompress(feed, min(_OUT_STEP, max_bytes + 1 - total))
+            except (zlib.error, _zlib.error) as err:
+                raise SurveyFormatError(
+                    f"damaged gzip stream ({err}): the text it inflates to is not what was "
+                    "written, and where it stops being so cannot be told, so none of it is "
+                    "kept (a file that is only cut short keeps its readable part)",
+                    path=str(path), reason="gzip") from err
+            if out:
+                total += len(out)
+                if total > max_bytes:
+                    raise SurveyFormatError(f"decompresses to over {max_bytes} bytes, refused",
+                                            path=str(path), reason="too_large")
+                if keep:
+                    chunks.append(out)
+                    if screen and total > _SUSPECT_BYTES and total > _SUSPECT_RATIO * pos:
+                        chunks.clear()
+                        del out  # nothing of it held while measuring
+                        _inflate(raw, path, max_bytes, keep=False)  # raises if over the limit
+                        return _inflate(raw, path, max_bytes, screen=False)
+            if dec.eof:
+                pos -= len(dec.unused_data)  # the next member starts there
+                break
+            tail = dec.unconsumed_tail
+            if not out and len(tail) == len(feed) and (feed or pos >= n):
+                break  # no output, no input used: the input ends before the stream does
+            feed = tail
         if not dec.eof:
-            note = "truncated gzip stream"
-            break
-        data = dec.unused_data
-        if not data.strip(b"\0"):  # zero padding after the last stream (block devices, tar)
-            break
-        if data[:2] != b"\x1f\x8b":
-            note = "trailing garbage after gzip stream"
-            break
-    if note and strict:
-        raise SurveyFormatError(note, path=str(path), reason="gzip")
-    return b"".join(chunks), note
+            return chunks, "truncated gzip stream"
+        if raw.count(b"\0", pos) == n - pos:
+            return chunks, None  # zero padding after the last stream (block devices, tar)
+        if raw[pos:pos + 2] != b"\x1f\x8b":
+            return chunks, "trailing garbage after gzip stream"

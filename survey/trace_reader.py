@@ -61,6 +61,7 @@ from .trace_format import (
     WIFI_DTYPES,
     ParseReport,
     Trace,
+    TraceHeader,
     empty_table,
     stream_category,
 )
@@ -133,14 +134,22 @@ def trace_id_from_path(path: str | os.PathLike) -> str:
 
 
 def find_trace_files(paths: Iterable[str | os.PathLike]) -> list[Path]:
-    """Expand files and folders (recursively) into the sorted list of ``*.txt``/``*.txt.gz``."""
+    """Expand files and folders (recursively) into the sorted list of ``*.txt``/``*.txt.gz``.
+
+    Folders yield regular files only; a path named that is neither a folder nor a regular
+    file (a FIFO, socket or device, or a link to one: reading it, or hashing it, would block
+    or never end) raises, as a missing one does."""
     found: list[Path] = []
     for p in map(Path, paths):
         if p.is_dir():
             found.extend(q for q in p.rglob("*") if q.is_file()
                          and (q.name.endswith(".txt") or q.name.endswith(".txt.gz")))
-        elif p.exists():
+        elif p.is_file():
             found.append(p)
+        elif p.exists():
+            raise SurveyFormatError("not a regular file (a FIFO, socket or device, or a link to "
+                                    "one, could block or never end), not read", path=str(p),
+                                    reason="not_regular")
         else:
             raise SurveyFormatError("no such file or folder", path=str(p), reason="missing")
     return sorted(set(found))
@@ -668,6 +677,8 @@ def parse_traces(texts: Sequence[bytes], paths: Sequence[str], *, strict: bool =
         The file each text came from (for trace ids and messages).
     strict : bool
         Raise :class:`SurveyFormatError` at the first bad line (of the first trace with one).
+        In both modes a text whose header gives a key twice with different values (two
+        traces joined into one file) raises (reason ``header_conflict``).
     notes : sequence of str or None, optional
         Per text, a description of a damaged compressed stream whose readable prefix the text
         is; its last line, if it lacks a newline, is then reported as a bad ``truncated`` line.
@@ -678,7 +689,11 @@ def parse_traces(texts: Sequence[bytes], paths: Sequence[str], *, strict: bool =
         One per text, in order.
     """
     notes = list(notes) if notes is not None else [None] * len(texts)
-    return _assemble(_prepare(texts, paths, notes), strict)
+    traces = _assemble(_prepare(texts, paths, notes), strict)
+    for t in traces:
+        if isinstance(t, ReadFailure):
+            raise t.error
+    return traces
 
 
 def _prepare(texts: Sequence[bytes], paths: Sequence[str], notes: Sequence[str | None]
@@ -693,8 +708,9 @@ def _prepare(texts: Sequence[bytes], paths: Sequence[str], notes: Sequence[str |
 
 
 def _assemble(prepared: tuple[_Batch, list[str | None], dict[int, dict | None]],
-              strict: bool) -> list[Trace]:
-    """Second stage of :func:`parse_traces`: checks, tables and reports per trace."""
+              strict: bool) -> list[Trace | ReadFailure]:
+    """Second stage of :func:`parse_traces`: checks, tables and reports per trace; a
+    :class:`ReadFailure` for a text refused whole (lenient mode; strict raises)."""
     b, notes, fast = prepared
     n_files = len(b.paths)
     bad = _Collector()
@@ -723,13 +739,28 @@ def _assemble(prepared: tuple[_Batch, list[str | None], dict[int, dict | None]],
     ble = tables.ble(blocks[3], bad)
     waypoints = tables.waypoints(blocks[4], bad)
 
+    heads: list[TraceHeader | SurveyFormatError] = []
+    for f in range(n_files):
+        hdr = np.flatnonzero(header[b.first_line[f]:b.first_line[f + 1]])  # 0-based lines
+        at = hdr + b.first_line[f]
+        lines = [b.buf[s:e].tobytes() for s, e in zip(b.starts[at], b.ends[at])]
+        try:  # a key repeated with another value: two traces joined, refused in both modes
+            heads.append(parse_header(lines, path=b.paths[f], line_numbers=hdr + 1))
+        except SurveyFormatError as err:
+            heads.append(err)
+
     glines, reasons, details = bad.arrays()
     bad_file = b.file_of_line[glines]
-    if strict and len(glines):
-        i = int(np.argmin(bad_file * (len(b.starts) + 1) + glines))
-        f = bad_file[i]
-        raise SurveyFormatError(str(details[i]), path=b.paths[f],
-                                line=int(glines[i] - b.first_line[f] + 1), reason=str(reasons[i]))
+    if strict:  # the first problem in file order: a bad line or a conflicting header line
+        first = [(f, h.line, h) for f, h in enumerate(heads) if isinstance(h, SurveyFormatError)]
+        if len(glines):
+            i = int(np.argmin(bad_file * (len(b.starts) + 1) + glines))
+            f = int(bad_file[i])
+            line = int(glines[i] - b.first_line[f] + 1)
+            first.append((f, line, SurveyFormatError(str(details[i]), path=b.paths[f],
+                                                     line=line, reason=str(reasons[i]))))
+        if first:
+            raise min(first, key=lambda x: x[:2])[2]
 
     per_file = lambda mask: np.bincount(b.file_of_line[mask], minlength=n_files)  # noqa: E731
     lines_total = np.diff(b.first_line)
@@ -738,8 +769,12 @@ def _assemble(prepared: tuple[_Batch, list[str | None], dict[int, dict | None]],
                         for k, v in sorted(skipped.items())}
     bad_bounds = _file_ranges(bad_file, n_files)  # glines sorted => files sorted
 
-    traces = []
+    traces: list[Trace | ReadFailure] = []
     for f in range(n_files):
+        head = heads[f]
+        if isinstance(head, SurveyFormatError):
+            traces.append(ReadFailure(b.paths[f], head))
+            continue
         report = ParseReport(path=b.paths[f], lines_total=int(lines_total[f]),
                              header_lines=int(n_header[f]), blank_lines=int(n_blank[f]))
         report.records = {_TYPE_LIST[t]: int(c) for t, c in enumerate(tables.records[f]) if c}
@@ -753,8 +788,6 @@ def _assemble(prepared: tuple[_Batch, list[str | None], dict[int, dict | None]],
                            for g, d in zip(glines[a:m], details[a:m])]
         if notes[f]:
             report.messages.insert(0, f"{b.paths[f]}: {notes[f]}; kept the readable part")
-        hdr = np.flatnonzero(header[b.first_line[f]:b.first_line[f + 1]]) + b.first_line[f]
-        head = parse_header(b.buf[s:e].tobytes() for s, e in zip(b.starts[hdr], b.ends[hdr]))
         traces.append(Trace(trace_id=trace_id_from_path(b.paths[f]), header=head,
                             sensors=sensors[f], wifi=wifi[f], ble=ble[f],
                             waypoints=waypoints[f], report=report))
@@ -783,7 +816,8 @@ def read_trace(path: str | os.PathLike, *, strict: bool = False,
         Raise :class:`SurveyFormatError` for the first bad line (or a damaged gzip stream)
         instead of skipping and counting it.
     max_bytes : int
-        Refuse a file whose text is larger than this (bytes, after decompression).
+        Refuse a file larger than this on disk, or whose text is (bytes, after
+        decompression).
 
     Returns
     -------
@@ -794,8 +828,9 @@ def read_trace(path: str | os.PathLike, *, strict: bool = False,
     Raises
     ------
     SurveyFormatError
-        Unreadable file, over-size input, or (strict) the first malformed line, naming
-        ``file:line`` and the reason.
+        Unreadable file (or not a regular file), over-size input, a damaged gzip stream, a
+        header giving one key two different values (two traces joined into one file), or
+        (strict) the first malformed line, naming ``file:line`` and the reason.
     """
     data, note = read_trace_bytes(path, strict=strict, max_bytes=max_bytes)
     return parse_trace_bytes(data, path=str(path), strict=strict, note=note)
@@ -814,7 +849,8 @@ def iter_traces(paths: Iterable[str | os.PathLike], *, strict: bool = False,
                 max_bytes: int = MAX_TRACE_BYTES) -> Iterator[Trace | ReadFailure]:
     """Read traces in batches of about ``batch_bytes`` of text, yielding them in path order.
 
-    In lenient mode a file that cannot be read at all (I/O error, over-size) is yielded as a
+    In lenient mode a file that cannot be read at all (I/O error, not a regular file,
+    over-size, damaged gzip stream, conflicting header: two traces joined) is yielded as a
     :class:`ReadFailure` and reading goes on; in strict mode its error is raised.
     """
     batches = _batches(paths, strict=strict, batch_bytes=batch_bytes, max_bytes=max_bytes)

@@ -16,8 +16,9 @@ What is checked (see ``docs/trace_format.md`` and ``../shared/RELIABILITY.md`` i
 - strict mode raises nothing but :class:`SurveyFormatError`, and raises exactly when lenient
   mode finds a bad line or a damaged gzip stream, with the same ``file:line: reason`` text as
   lenient's first message;
-- lenient mode always returns (but refuses a gzip stream damaged inside, as strict mode
-  does, with the same text: ``survey/trace_bytes.py``); every line is counted once (``accounted_lines() ==
+- lenient mode always returns (but refuses a gzip stream damaged inside, or a text whose
+  header names two walks, ``header_conflict``, as strict mode does, with the same text:
+  ``survey/trace_bytes.py``, ``survey/trace_header.py``); every line is counted once (``accounted_lines() ==
   lines_total``, and ``lines_total`` is the number of lines of the text); the tables have the
   documented columns and dtypes, finite sensor values, valid ranges, and are sorted by time
   within each stream; row counts agree with the per-type record counts;
@@ -543,16 +544,18 @@ def check_text_batch(texts: Sequence[bytes], *, alone: Sequence[bool] | None = N
     problems: list[list[str]] = [[] for _ in texts]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
+        joined = False  # a text naming two walks refuses the batch (each alone: checked)
         try:
             batch = parse_traces(list(texts), paths)
         except Exception as err:  # noqa: BLE001 - the point is to catch anything
             batch = None
             batch_error = f"lenient_raised: batch: {type(err).__name__}: {err}"
+            joined = isinstance(err, SurveyFormatError) and err.reason == "header_conflict"
     warned = _runtime_warnings(caught)
     if batch is None or warned:  # find which text is to blame
         for i, text in enumerate(texts):
             problems[i] = check_text(text, paths[i])
-        if not any(problems):
+        if not any(problems) and not (joined and not warned):
             problems = [[batch_error if batch is None else warned[0]] for _ in texts]
         return problems
     for i, text in enumerate(texts):
@@ -566,6 +569,12 @@ def check_text(text: bytes, path: str = "fuzz.txt") -> list[str]:
         warnings.simplefilter("always")
         try:
             lenient = parse_trace_bytes(text, path=path)
+        except SurveyFormatError as err:
+            if err.reason != "header_conflict":
+                return [f"lenient_raised: {err.reason}: {err}"]
+            # two walks' headers in one text: refused whole, in both modes alike
+            return _refused_in_both_modes(
+                lambda: parse_trace_bytes(text, path=path, strict=True), str(err))
         except Exception as err:  # noqa: BLE001
             return [f"lenient_raised: {type(err).__name__}: {err}"]
     return _runtime_warnings(caught) + _check_parsed(text, path, lenient, compare_alone=False)
@@ -624,9 +633,11 @@ def check_trace_files(paths: Sequence[Path], store: Path | None = None) -> list[
             try:
                 single = read_trace(path)
             except SurveyFormatError as err:
-                if err.reason == "gzip" and "damaged gzip stream" in str(err):
-                    p += _refused_in_both_modes(path, str(err))
-                else:  # only unreadable files, and streams damaged inside, may
+                if (err.reason == "gzip" and "damaged gzip stream" in str(err)
+                        or err.reason == "header_conflict"):
+                    p += _refused_in_both_modes(
+                        lambda path=path: read_trace(path, strict=True), str(err))
+                else:  # only unreadable files, streams damaged inside and joined walks may
                     p.append(f"lenient_raised: {err.reason}: {err}")
             except Exception as err:  # noqa: BLE001
                 p.append(f"lenient_raised: {type(err).__name__}: {err}")
@@ -664,10 +675,11 @@ def check_trace_files(paths: Sequence[Path], store: Path | None = None) -> list[
     return problems
 
 
-def _refused_in_both_modes(path: Path, lenient: str) -> list[str]:
-    """A gzip stream damaged inside is refused by strict mode too, with the same text."""
+def _refused_in_both_modes(strict_read: Callable[[], object], lenient: str) -> list[str]:
+    """A gzip stream damaged inside, or two walks' headers in one file, is refused by strict
+    mode (``strict_read``) too, with the same text."""
     try:
-        read_trace(path, strict=True)
+        strict_read()
     except SurveyFormatError as err:
         return [] if str(err) == lenient else [f"strict_mismatch: {err} vs lenient {lenient}"]
     except Exception as err:  # noqa: BLE001
