@@ -300,16 +300,12 @@ class WalkAligner(BaseLocalizer):
                         self.bundle.floor_id)
 
     def step(self, s: StepSummary) -> Estimate:
-        if not self._fix_t:
-            raise LocalizationError("call start() (or run()) before step()")
-        check_step_time(s.t_ms, self._t[-1])
-        fix = None
-        if s.scan is not None and self.radio is not None:
-            located = self.radio.locate(s.scan)
-            if located is not None:
-                fix = (_scan_time(s.scan, s.t_ms), located)
-        return self._advance(s.t_ms, s.compass_deg, s.relative_heading_deg, s.delta_acc_ms2,
-                             s.attitude == AttitudeCode.CARRIED, fix)
+        located = (self.radio.locate(s.scan)
+                   if s.scan is not None and self.radio is not None else None)
+        fix = None if located is None else (located[0], located[1],
+                                            _scan_time(s.scan, s.t_ms))
+        return self.step_values(s.t_ms, s.compass_deg, s.relative_heading_deg,
+                                s.delta_acc_ms2, s.attitude == AttitudeCode.CARRIED, fix)
 
     @property
     def last_t_ms(self) -> float:
@@ -326,7 +322,7 @@ class WalkAligner(BaseLocalizer):
         caller (its scan time). For serving many users
         (:class:`localize.align_engine.MultiUserAligner`)."""
         if not self._fix_t:
-            raise LocalizationError("call start() (or run()) before step_values()")
+            raise LocalizationError("call start() (or run()) before step()")
         check_step_time(t_ms, self._t[-1])
         located = None if fix is None else (float(fix[2]), (float(fix[0]), float(fix[1])))
         return self._advance(t_ms, compass_deg, relative_heading_deg, delta_acc_ms2,

@@ -166,6 +166,17 @@ class SiteMaps:
         return self.choose(trace_id, site_id, floor_id, floor_name, wifi_scans, ble_scans,
                            device_model=device_model)[0]
 
+    def _wifi_calibration(self, heard: Sequence[RadioScan], device_model: str
+                          ) -> tuple[tuple[float, float] | None, bool]:
+        """The ``(k, b)`` mapping a phone's Wi-Fi RSSI onto the floor model's scale: the
+        device table's entry, else one calibrated online from the walk's scans ``heard``
+        (:func:`unknown_phone_calibration`; None when it cannot be), and whether it was."""
+        known = self.devices.get(device_model)
+        if known is not None:
+            return known, False
+        online = unknown_phone_calibration(self.floor_model, heard, self.floor_bundle)
+        return online, online is not None
+
     def _wifi_doubt(self, header_bundle: MapBundle,
                     wifi_scans: Sequence[RadioScan | None] | None, device_model: str) -> str:
         """``"; but the Wi-Fi floor model puts V of N Wi-Fi scans on floor F"`` when it puts
@@ -176,9 +187,7 @@ class SiteMaps:
         heard = [s for s in (wifi_scans or ()) if s is not None]
         if model is None or len(heard) < DOUBT_MIN_SCANS:
             return ""
-        calibration = self.devices.get(device_model)
-        if calibration is None:
-            calibration = unknown_phone_calibration(model, heard, self.floor_bundle)
+        calibration, _ = self._wifi_calibration(heard, device_model)
         best, n_on, n_known = _walk_floor(model, heard, summed=False, calibration=calibration)
         other = self.floor_bundle(best) if best is not None else None
         if (other is None or other.floor_id == header_bundle.floor_id
@@ -257,13 +266,10 @@ class SiteMaps:
             if not heard:
                 missing.append(f"no {what} in the walk")
                 continue
-            calibration = self.devices.get(device_model) if name == "Wi-Fi" else None
-            calibrated = ""
-            if name == "Wi-Fi" and calibration is None:  # a phone the table does not know
-                calibration = unknown_phone_calibration(model, heard, self.floor_bundle)
-                if calibration is not None:
-                    calibrated = (f"; RSSI calibrated online, k={calibration[0]:.3f}, "
-                                  f"b={calibration[1]:+.1f} dB")
+            calibration, online = (self._wifi_calibration(heard, device_model)
+                                   if name == "Wi-Fi" else (None, False))
+            calibrated = (f"; RSSI calibrated online, k={calibration[0]:.3f}, "
+                          f"b={calibration[1]:+.1f} dB") if online else ""
             best, n_on, n_known = _walk_floor(model, heard, summed=name == "BLE",
                                               calibration=calibration)
             if best is None:

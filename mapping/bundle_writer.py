@@ -82,30 +82,31 @@ def _check(content: BundleContent) -> None:
         if not isinstance(getattr(content, key), str):
             raise BundleError(f"bundle {key} must be a string, got "
                               f"{getattr(content, key)!r}")
-    where = f"{content.kind} bundle {content.floor_name!r}"
-    try:  # the tables and numbers a reader checks (localize.bundle)
-        check_tables(content.tables, where)
-        if content.grid is not None:
-            check_grid_limits(content.grid, where)
+    try:  # the tables and numbers a reader checks, with its functions (localize.bundle)
+        _check_numbers(content)
     except BundleIntegrityError as err:
         raise BundleError(f"refused before writing: {err}") from err
+
+
+def _check_numbers(content: BundleContent) -> None:
+    """The grid, layers and tables of :func:`_check`."""
+    where = f"{content.kind} bundle {content.floor_name!r}"
+    check_tables(content.tables, where)
     if content.grid is None:
         if content.layers:
             raise BundleError("layers need a grid")
         return
+    check_grid_limits(content.grid, where)
     shape = content.grid.shape
     if content.mask is None or content.mask.shape != shape:
         raise BundleError(f"mask must have the grid's shape {shape}")
     for name, layer in content.layers.items():
-        try:
-            check_layer_kind(name, layer.unit, layer.kind, where)
-            for key, arr in (("file", layer.values), ("std_file", layer.std)):
-                if arr.shape != shape:
-                    raise BundleError(f"layer {name} {key}: shape {arr.shape} != grid {shape}")
-                check_layer_values(np.asarray(arr, dtype=np.float32), where, name, key,
-                                   {"unit": layer.unit})
-        except BundleIntegrityError as err:
-            raise BundleError(f"refused before writing: {err}") from err
+        check_layer_kind(name, layer.unit, layer.kind, where)
+        for key, arr in (("file", layer.values), ("std_file", layer.std)):
+            if arr.shape != shape:
+                raise BundleError(f"layer {name} {key}: shape {arr.shape} != grid {shape}")
+            check_layer_values(np.asarray(arr, dtype=np.float32), where, name, key,
+                               {"unit": layer.unit})
         if np.isfinite(layer.values[~np.asarray(content.mask, dtype=bool)]).any():
             raise BundleError(f"layer {name}: values outside the reachable mask")
 

@@ -71,11 +71,16 @@ def read_trace_bytes(path: str | os.PathLike, *, strict: bool = False,
     return b"".join(chunks), note  # one chunk (the usual case) is returned without a copy
 
 
+def not_regular(path: str | os.PathLike) -> SurveyFormatError:
+    """The error for a path that is not a regular file (nor a folder)."""
+    return SurveyFormatError("not a regular file (a FIFO, socket or device, or a link to one, "
+                             "could block or never end), not read", path=str(path),
+                             reason="not_regular")
+
+
 def _check_regular(path: Path, st: os.stat_result, max_bytes: int) -> None:
     if not stat.S_ISREG(st.st_mode):
-        raise SurveyFormatError(
-            "not a regular file (a FIFO, socket or device, or a link to one, could block or "
-            "never end), not read", path=str(path), reason="not_regular")
+        raise not_regular(path)
     if st.st_size > max_bytes:
         raise SurveyFormatError(f"file is {st.st_size} bytes, over the {max_bytes}-byte limit",
                                 path=str(path), reason="too_large")

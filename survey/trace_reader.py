@@ -40,7 +40,7 @@ import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 
 from .errors import SurveyFormatError
-from .trace_bytes import MAX_TRACE_BYTES, read_trace_bytes
+from .trace_bytes import MAX_TRACE_BYTES, not_regular, read_trace_bytes
 from .trace_format import (
     BLE_COLUMNS,
     BLE_DTYPES,
@@ -147,9 +147,7 @@ def find_trace_files(paths: Iterable[str | os.PathLike]) -> list[Path]:
         elif p.is_file():
             found.append(p)
         elif p.exists():
-            raise SurveyFormatError("not a regular file (a FIFO, socket or device, or a link to "
-                                    "one, could block or never end), not read", path=str(p),
-                                    reason="not_regular")
+            raise not_regular(p)
         else:
             raise SurveyFormatError("no such file or folder", path=str(p), reason="missing")
     return sorted(set(found))
