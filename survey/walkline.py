@@ -259,13 +259,19 @@ def parse_sensor_csv(data: bytes, *, path: str = "<input>", strict: bool = False
         wrong_width.append((row.number, row.actual_columns, row.expected_columns))
         return "skip"
 
+    # Bytes that are not UTF-8 become U+FFFD: pyarrow cannot report a wrong-width row holding
+    # them, and a value holding one is then non-numeric, a bad line like any other.
+    try:
+        data.decode("utf-8")
+    except UnicodeDecodeError:
+        data = data.decode("utf-8", errors="replace").encode("utf-8")
     try:
         table = pacsv.read_csv(  # one thread: pyarrow numbers the rows it skips
             io.BytesIO(data), read_options=pacsv.ReadOptions(use_threads=False),
             parse_options=pacsv.ParseOptions(invalid_row_handler=skip_row),
             convert_options=pacsv.ConvertOptions(column_types={}, strings_can_be_null=False))
         names = table.column_names  # decoding a name can fail
-    except (pa.ArrowInvalid, UnicodeDecodeError) as err:
+    except pa.ArrowInvalid as err:
         raise SurveyFormatError(f"not a readable CSV ({err})", path=path, reason="csv") from err
     if wrong_width and not table.num_rows:
         _, got, want = wrong_width[0]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 
 import numpy as np
 import pytest
@@ -214,3 +215,22 @@ def test_a_row_of_the_wrong_width_is_one_bad_line(tmp_path):
     (tmp_path / "a.csv").write_text("t_ms,acc_x,acc_y,acc_z\n1000;1;2;3\n1020;1;2;3\n")
     with pytest.raises(SurveyFormatError, match="no row has the header's 4 fields"):
         read_walk_plan(tmp_path / "plan.geojson")
+
+
+def test_bytes_that_are_not_utf8_make_their_row_a_bad_line(tmp_path, monkeypatch):
+    """A row holding bytes that are not UTF-8 is one bad line, named by its line, whether it
+    also has the wrong width or only a value no number can be read from. Before, pyarrow could
+    not report a wrong-width row holding them ("Exception ignored") and the whole file was
+    refused as unreadable."""
+    (tmp_path / "a.csv").write_bytes(b"t_ms,acc_x,acc_y,acc_z\n1000,1,2,3\n1020,1,2,3,\xff\xfe\n"
+                                     b"1040,1,\xff,3\n1060,1,2,3\n")
+    _plan(tmp_path, [_feature("a", [[0, 0], [1, 0]], start_ms=1000, end_ms=1060)])
+    ignored = []  # exceptions raised in pyarrow's callback go to sys.unraisablehook
+    monkeypatch.setattr(sys, "unraisablehook", ignored.append)
+    (trace, _, _), = read_walk_plan(tmp_path / "plan.geojson")
+    assert not ignored
+    assert sorted(set(trace.sensors["t_ms"])) == [1000, 1060]
+    assert trace.report.bad == {"field_count": 1, "non_numeric": 1}
+    assert trace.report.accounted_lines() == trace.report.lines_total == 5
+    with pytest.raises(SurveyFormatError, match=r"a.csv:3: 5 fields, the header has 4"):
+        read_walk_plan(tmp_path / "plan.geojson", strict=True)
