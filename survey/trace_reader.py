@@ -21,6 +21,8 @@ Rules applied after parsing (counted in ``report.dropped``):
   in the same trace; the first row in file order is kept.
 - ``duplicate_bssid_in_scan``: a scan that lists a BSSID more than once keeps the freshest row
   (latest last-seen time), then the strongest RSSI, then the first in file order.
+- ``duplicate_beacon``, ``duplicate_waypoint``: a beacon or waypoint row that repeats an earlier
+  row of the same trace in every value (a file joined to a copy of itself) is dropped.
 """
 
 from __future__ import annotations
@@ -642,6 +644,7 @@ class _Tables:
             "rssi_dbm": cols["rssi_dbm"][order].astype(np.int16),
             "distance_m": cols["distance_m"][order], "mac": _str_array(mac),
             "last_seen_ms": cols["last_seen_ms"][order]})
+        frame, files = self._drop_repeats("duplicate_beacon", frame, files)
         return _split(frame, _file_ranges(files, self.n_files))
 
     def waypoints(self, cols: dict | None, bad: _Collector) -> list[pd.DataFrame]:
@@ -656,7 +659,18 @@ class _Tables:
         order = _lex_order(files, cols["t_ms"])  # rows are in line order; the sort is stable
         frame = pd.DataFrame({"t_ms": cols["t_ms"][order], "x_m": cols["x_m"][order],
                               "y_m": cols["y_m"][order]})
-        return _split(frame, _file_ranges(files[order], self.n_files))
+        frame, files = self._drop_repeats("duplicate_waypoint", frame, files[order])
+        return _split(frame, _file_ranges(files, self.n_files))
+
+    def _drop_repeats(self, name: str, frame: pd.DataFrame, files: np.ndarray
+                      ) -> tuple[pd.DataFrame, np.ndarray]:
+        """``frame`` (rows sorted by file, then in file order) without the rows that repeat an
+        earlier row of the same file in every column, counted as dropped ``name``."""
+        dup = frame.assign(_file=files).duplicated().to_numpy()
+        if not dup.any():
+            return frame, files
+        self.drop(name, files[dup])
+        return frame[~dup], files[~dup]
 
 
 # --------------------------------------------------------------------------------------------

@@ -501,7 +501,9 @@ def table_problems(trace: Trace, *, walkline: bool = False) -> list[str]:
         p.append("counts: sensor rows + dropped != sensor records")
     if n_w + r.dropped.get("duplicate_bssid_in_scan", 0) != r.records.get("TYPE_WIFI", 0):
         p.append("counts: wifi rows + dropped != wifi records")
-    if n_b != r.records.get("TYPE_BEACON", 0) or n_wp != r.records.get("TYPE_WAYPOINT", 0):
+    if (n_b + r.dropped.get("duplicate_beacon", 0) != r.records.get("TYPE_BEACON", 0)
+            or n_wp + r.dropped.get("duplicate_waypoint", 0)
+            != r.records.get("TYPE_WAYPOINT", 0)):
         p.append("counts: ble/waypoint rows != records")
     return p
 

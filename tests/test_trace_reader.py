@@ -94,6 +94,18 @@ def test_duplicate_sensor_timestamps_keep_first():
     assert t.report.dropped == {"duplicate_timestamp": 1}
 
 
+def test_a_repeated_waypoint_or_beacon_row_is_dropped_a_different_one_kept():
+    beacon = "5\tTYPE_BEACON\tAB\t10\t7\t-59\t-70\t1.5\tE0:78:A3:3D:B5:D6\t5"
+    text = "\n".join(["20\tTYPE_WAYPOINT\t1.5\t2", "20\tTYPE_WAYPOINT\t1.5\t3",
+                      beacon, beacon.replace("-70", "-71"), "20\tTYPE_WAYPOINT\t1.5\t2",
+                      beacon]).encode()
+    t = parse_trace_bytes(text)
+    assert t.waypoints[["x_m", "y_m"]].values.tolist() == [[1.5, 2], [1.5, 3]]
+    assert list(t.ble["rssi_dbm"]) == [-70, -71]
+    assert t.report.dropped == {"duplicate_waypoint": 1, "duplicate_beacon": 1}
+    assert t.report.records == {"TYPE_WAYPOINT": 3, "TYPE_BEACON": 3}
+
+
 BAD_LINES = [
     ("10\tTYPE_WIFI\tssid\t00:11:22:33:44:55\t-50", "field_count", "TYPE_WIFI needs 5 values, got 3"),
     ("10\tTYPE_ACCELEROMETER\t1\tabc\t3\t3", "non_numeric", "expected a number"),

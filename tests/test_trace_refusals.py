@@ -15,6 +15,7 @@ import time
 import tracemalloc
 import zlib
 
+import pandas as pd
 import pytest
 from click.testing import CliRunner
 
@@ -104,11 +105,18 @@ def test_a_header_repeated_with_the_same_value_is_read(tmp_path):
             "site_a", "F1", a.header.start_ms)
         assert [s.name for s in t.header.sensors] == ["Acc", "Acc2"]
         assert t.report.header_lines == len(head) + len(extra) + 1
-    # one file twice (same header): read, its rows' duplicates dropped by the usual rules
+    # one file twice (same header): read as the file once, its repeated rows dropped
     pg = write_trace(tmp_path / "a.txt.gz", a)
     twice = tmp_path / "twice.txt.gz"
     twice.write_bytes(pg.read_bytes() * 2)
-    assert len(read_trace(twice, strict=True).sensors) == len(a.sensors)
+    once, doubled = read_trace(pg, strict=True), read_trace(twice, strict=True)
+    assert len(once.ble) and len(once.waypoints) and len(once.wifi)
+    for table in ("sensors", "wifi", "ble", "waypoints"):
+        pd.testing.assert_frame_equal(getattr(doubled, table), getattr(once, table))
+    assert doubled.report.dropped == {"duplicate_timestamp": len(once.sensors),
+                                      "duplicate_bssid_in_scan": len(once.wifi),
+                                      "duplicate_beacon": len(once.ble),
+                                      "duplicate_waypoint": len(once.waypoints)}
 
 
 def test_a_key_given_twice_on_one_line_with_two_values_is_refused():
