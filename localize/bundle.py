@@ -35,6 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from survey.errors import BundleError, BundleIntegrityError, RegistryError
 from survey.publish import file_sha256, finish_interrupted_publication
+from survey.regular_files import NotRegularFile
 
 if TYPE_CHECKING:  # an annotation: pyarrow is imported when a table is read
     import pyarrow as pa
@@ -548,12 +549,19 @@ def verify_bundle_dir(path: Path, manifest: dict) -> None:
     for name, meta in members.items():
         p = _safe_member(name, path)
         try:
-            size = p.stat().st_size
+            st = p.stat()
         except FileNotFoundError as err:
             raise BundleIntegrityError(f"{path}: member {name} is missing") from err
-        if not p.is_file():
-            raise BundleIntegrityError(f"{path}: member {name} is not a regular file")
-        if size != meta.get("size") or file_sha256(p) != meta.get("sha256"):
+        try:
+            if not stat.S_ISREG(st.st_mode):
+                raise NotRegularFile(p)
+            same = st.st_size == meta.get("size") and file_sha256(p) == meta.get("sha256")
+        except NotRegularFile as err:
+            raise BundleIntegrityError(f"{path}: member {name} is not a regular file") from err
+        except OSError as err:
+            raise BundleIntegrityError(f"{path}: member {name} cannot be read "
+                                       f"({err.strerror or err})") from err
+        if not same:
             raise BundleIntegrityError(f"{path}: member {name} does not match its checksum "
                                        "(changed or corrupted)")
         listed.add(os.path.normpath(p))

@@ -18,8 +18,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .errors import StoreError, SurveyFormatError
-from .publish import crash_point, file_sha256
+from .publish import crash_point
 from .store import IngestOutcome, SurveyStore, catalog_row, write_parts
+from .trace_bytes import trace_file_sha256
 from .trace_reader import BATCH_BYTES, ReadFailure, find_trace_files, iter_traces, \
     trace_id_from_path
 from .walkline import identity_sha256, is_walk_plan, read_walk_plan
@@ -202,7 +203,14 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
             if second_input(str(p), tid):
                 tick()
                 continue
-            sha = file_sha256(p)
+            try:
+                sha, size = trace_file_sha256(p)
+            except SurveyFormatError as err:  # replaced or removed since it was listed
+                if strict:
+                    raise
+                summary.outcomes.append(IngestOutcome(str(p), tid, "failed", str(err)))
+                tick()
+                continue
             known = w.known(tid, sha)
             if not known and sha in todo_sha:   # the same content twice in this run
                 known = IngestOutcome("", tid, "duplicate", f"same content as {todo_sha[sha]}")
@@ -210,12 +218,12 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
                 known.path = str(p)
                 if known.status == "duplicate":
                     deferred.append((len(summary.outcomes), tid, sha,
-                                     ("trace", str(p), p.stat().st_size)))
+                                     ("trace", str(p), size)))
                 summary.outcomes.append(known)
                 tick()
             else:
                 todo_sha[sha] = tid
-                todo.append((str(p), sha, p.stat().st_size))
+                todo.append((str(p), sha, size))
         chunks = _chunks(todo, batch_bytes, max(1, workers))
         results = []
         if workers > 1 and len(chunks) > 1:

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 from .errors import PublishError
+from .regular_files import open_regular
 
 TMP_PREFIX = ".tmp-"
 
@@ -43,9 +44,12 @@ DIR_MODE = 0o777 & ~_umask()
 
 
 def file_sha256(path: str | os.PathLike) -> str:
-    """Hex sha256 of a file's bytes, read in 1 MiB chunks."""
+    """Hex sha256 of a regular file's bytes, read in 1 MiB chunks. Raises
+    :class:`~survey.regular_files.NotRegularFile` (an ``OSError``) for a FIFO, device or
+    socket, before reading: hashing one would block or never end."""
     h = hashlib.sha256()
-    with open(path, "rb") as fh:
+    fd, _ = open_regular(path)
+    with open(fd, "rb") as fh:
         for chunk in iter(lambda: fh.read(1 << 20), b""):
             h.update(chunk)
     return h.hexdigest()

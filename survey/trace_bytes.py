@@ -22,12 +22,16 @@ inflated again to be kept only if it is within the limit: a bomb costs about
 
 from __future__ import annotations
 
+import contextlib
 import os
 import stat
 import zlib
+from collections.abc import Iterator
 from pathlib import Path
 
 from .errors import SurveyFormatError
+from .publish import file_sha256
+from .regular_files import NotRegularFile, open_regular
 
 try:  # Intel ISA-L inflates about twice as fast as zlib: same streams, same results
     from isal import isal_zlib as _zlib
@@ -48,8 +52,6 @@ _SUSPECT_BYTES = 64 * 1024**2
 _SUSPECT_RATIO = 50
 #: Bytes read at a time from a file that has grown since it was looked at.
 _READ_STEP = 1024**2
-
-_OPEN_FLAGS = os.O_RDONLY | getattr(os, "O_BINARY", 0) | getattr(os, "O_NONBLOCK", 0)
 
 
 def read_trace_bytes(path: str | os.PathLike, *, strict: bool = False,
@@ -86,21 +88,34 @@ def _check_regular(path: Path, st: os.stat_result, max_bytes: int) -> None:
                                 path=str(path), reason="too_large")
 
 
-def _read_capped(path: Path, max_bytes: int) -> bytes:
-    """The bytes of a regular file of at most ``max_bytes``, looked at before it is opened
-    (so a FIFO is not opened: that would wait for a writer) and again once open."""
+@contextlib.contextmanager
+def _read_errors(path: str | os.PathLike) -> Iterator[None]:
+    """Raise what opening or reading ``path`` fails with as a :class:`SurveyFormatError`."""
     try:
-        _check_regular(path, os.stat(path), max_bytes)
-        fd = os.open(path, _OPEN_FLAGS)
+        yield
+    except NotRegularFile as err:
+        raise not_regular(path) from err
     except OSError as err:
         raise SurveyFormatError(f"cannot read: {err.strerror or err}", path=str(path),
                                 reason="io") from err
-    try:
-        with open(fd, "rb", closefd=False) as fh:
-            st = os.fstat(fd)
+
+
+def trace_file_sha256(path: str | os.PathLike) -> tuple[str, int]:
+    """Hex sha256 and size (bytes) of a trace file as stored (compressed or not); raises
+    :class:`SurveyFormatError` naming the file for one that cannot be read or is not a
+    regular file (hashing a FIFO would block, a device never end)."""
+    with _read_errors(path):
+        return file_sha256(path), os.stat(path).st_size
+
+
+def _read_capped(path: Path, max_bytes: int) -> bytes:
+    """The bytes of a regular file of at most ``max_bytes``, looked at before it is opened
+    (so a FIFO is not opened: that would wait for a writer) and again once open."""
+    with _read_errors(path):
+        _check_regular(path, os.stat(path), max_bytes)  # over the limit: not even opened
+        fd, st = open_regular(path)
+        with open(fd, "rb") as fh:
             _check_regular(path, st, max_bytes)  # replaced since os.stat
-            if hasattr(os, "set_blocking"):
-                os.set_blocking(fd, True)
             data = fh.read(st.st_size + 1)  # one read of the expected size (+1: grown?)
             if len(data) <= st.st_size:
                 return data
@@ -115,11 +130,6 @@ def _read_capped(path: Path, max_bytes: int) -> bytes:
                 raise SurveyFormatError(f"file grew past the {max_bytes}-byte limit while read",
                                         path=str(path), reason="too_large")
             return b"".join(parts)
-    except OSError as err:
-        raise SurveyFormatError(f"cannot read: {err.strerror or err}", path=str(path),
-                                reason="io") from err
-    finally:
-        os.close(fd)
 
 
 def _inflate(raw: bytes, path: Path, max_bytes: int, *, keep: bool = True,

@@ -609,6 +609,26 @@ def test_manifests_that_are_not_plain_json_files_are_refused(tmp_path, bundle_di
         load_bundle(bundle_dir)
 
 
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs")
+def test_a_member_swapped_for_a_fifo_is_refused_without_blocking(tmp_path, bundle_dir):
+    """A FIFO in a member's place is refused at once, not read forever (the checksum pass
+    also opens a member without blocking and looks at it again, in case it was swapped after
+    the check). In a child process with a timeout, so that a regression fails instead of
+    hanging."""
+    member = next(p for p in sorted(bundle_dir.rglob("*.npy")))
+    member.unlink()
+    os.mkfifo(member)
+    child = ("import sys\nfrom localize.bundle import verify_bundle_dir, json\n"
+             "from pathlib import Path\np = Path(sys.argv[1])\n"
+             "try:\n    verify_bundle_dir(p, json.loads((p / 'manifest.json').read_text()))\n"
+             "except Exception as err:\n    print(type(err).__name__, err)\n")
+    res = subprocess.run([sys.executable, "-c", child, str(bundle_dir)], capture_output=True,
+                         text=True, timeout=120)
+    assert res.stdout.startswith("BundleIntegrityError"), res.stdout + res.stderr
+    assert f"member {member.relative_to(bundle_dir)} is not a regular file" in res.stdout
+
+
 @pytest.mark.parametrize("version", [True, 1.0, "1"])
 def test_a_schema_version_of_another_type_is_refused(bundle_dir, version):
     m_path = bundle_dir / "manifest.json"

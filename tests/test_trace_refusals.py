@@ -369,3 +369,49 @@ def test_lenient_iter_traces_reports_a_fifo_and_goes_on(tmp_path):
         unblock.cancel()
     assert isinstance(items[0], ReadFailure) and items[0].error.reason == "not_regular"
     assert items[1].trace_id == "walk"
+
+
+
+_SWAP_CHILD = textwrap.dedent("""
+    import os, sys
+    import survey.ingest as ingest_module
+    from survey.errors import SurveyFormatError
+    from survey.publish import file_sha256
+    from survey.regular_files import NotRegularFile
+    good, swapped, fifo, store = sys.argv[1:]
+    try:
+        file_sha256(fifo)
+    except NotRegularFile as err:
+        print("hash refused:", err)
+    listed = ingest_module.find_inputs([good, swapped])
+    os.replace(fifo, swapped)  # a FIFO in its place after the listing, before the hash
+    ingest_module.find_inputs = lambda paths: listed
+    summary = ingest_module.ingest([good, swapped], store)
+    print(sorted((os.path.basename(o.path), o.status) for o in summary.outcomes))
+    print([o.detail for o in summary.outcomes if o.status == "failed"][0])
+    try:
+        ingest_module.ingest([good, swapped], store + "2", strict=True)
+    except SurveyFormatError as err:
+        print("strict:", err.reason)
+""")
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs")
+def test_a_file_swapped_for_a_fifo_after_listing_fails_instead_of_blocking(tmp_path):
+    """The ingest hashes each listed file before parsing it; a file replaced by a FIFO in
+    between made the hash wait forever for a writer. Now the hash refuses it at once (a failed
+    outcome, or the strict run's error) and the other files are stored. In a child process
+    with a timeout, so that a regression fails instead of hanging the test run."""
+    good = write_trace(tmp_path / "walk.txt", small_trace(n=20))
+    swapped = write_trace(tmp_path / "other.txt", small_trace(n=20, seed=3, trace_id="other"))
+    fifo = tmp_path / "fifo.txt"
+    os.mkfifo(fifo)
+    res = subprocess.run([sys.executable, "-c", _SWAP_CHILD, str(good), str(swapped),
+                          str(fifo), str(tmp_path / "store")], capture_output=True, text=True,
+                         timeout=120)
+    lines = res.stdout.splitlines()
+    assert res.returncode == 0 and len(lines) == 4, res.stdout + res.stderr
+    assert lines[0] == f"hash refused: not a regular file: {fifo}"
+    assert lines[1] == "[('other.txt', 'failed'), ('walk.txt', 'new')]"
+    assert lines[2].startswith(f"{swapped}: not a regular file")
+    assert lines[3] == "strict: not_regular"
