@@ -549,15 +549,25 @@ def bundle_diff(a: Path, b: Path) -> None:
 @bundle_group.command("list")
 @click.argument("registry", type=click.Path(exists=True, file_okay=False, path_type=Path))
 def bundle_list(registry: Path) -> None:
-    """Versions in a registry; * marks the current one."""
+    """Versions in a registry; * marks the current one. A floor whose history or pointer is
+    damaged is named with the reason (its versions still listed when known) and the exit code
+    is 1; the other floors list as usual."""
     entries = Registry(registry).list()
     if not entries:
         raise click.UsageError(f"{registry}: not a registry, or nothing published in it (a "
                                "registry holds <site>/<floor>/history.json; build with "
                                "--registry or use `indoormap bundle publish`)")
+    problems = {}
     for e in entries:
-        click.echo(f"{'*' if e['current'] else ' '} {e['site']}/{e['floor']} #{e['seq']} "
-                   f"{e['bundle_id']}")
+        if e["problem"]:
+            problems.setdefault(f"{e['site']}/{e['floor']}", e["problem"])
+        if e["bundle_id"] is not None:
+            click.echo(f"{'*' if e['current'] else ' '} {e['site']}/{e['floor']} #{e['seq']} "
+                       f"{e['bundle_id']}")
+    for floor, problem in problems.items():
+        click.echo(f"error: {floor}: {problem}", err=True)
+    if problems:
+        sys.exit(1)
 
 
 @bundle_group.command("publish")

@@ -96,15 +96,28 @@ class Registry:
         return load_bundle(path)
 
     def list(self) -> list[dict]:
-        """Every (site, floor, version) with its sequence number and whether it is current."""
+        """Every (site, floor, version): ``{"site", "floor", "seq", "bundle_id", "current",
+        "problem"}``. A floor whose pointer cannot be trusted lists its versions with none
+        current and the reason in ``problem``; one whose ``history.json`` cannot be read is
+        one row with ``seq`` and ``bundle_id`` None and the reason. The other floors list as
+        usual (``problem`` None)."""
         out = []
         for site_dir in sorted(p for p in self.root.iterdir() if p.is_dir()) \
                 if self.root.exists() else []:
             for floor_dir in sorted(p for p in site_dir.iterdir() if p.is_dir()):
-                cur = self.current(site_dir.name, floor_dir.name) or {}
-                for h in self.history(site_dir.name, floor_dir.name):
-                    out.append({"site": site_dir.name, "floor": floor_dir.name, **h,
-                                "current": h["bundle_id"] == cur.get("bundle_id")})
+                where = {"site": site_dir.name, "floor": floor_dir.name}
+                try:
+                    history = self.history(site_dir.name, floor_dir.name)
+                except RegistryError as err:
+                    out.append({**where, "seq": None, "bundle_id": None, "current": False,
+                                "problem": str(err)})
+                    continue
+                try:
+                    cur, problem = self.current(site_dir.name, floor_dir.name) or {}, None
+                except RegistryError as err:
+                    cur, problem = {}, str(err)
+                out += [{**where, **h, "current": h["bundle_id"] == cur.get("bundle_id"),
+                         "problem": problem} for h in history]
         return out
 
     def publish(self, bundle_dir: str | os.PathLike, *, make_current: bool = True) -> dict:

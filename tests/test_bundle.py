@@ -443,12 +443,21 @@ def test_a_damaged_registry_is_named(tmp_path, name, text, message):
     --rollback: which one was current is unknown)."""
     write_bundle(tmp_path / "v1", _content(0.0))
     write_bundle(tmp_path / "v2", _content(1.0))
+    write_bundle(tmp_path / "f2", _content(0.0, floor="F2"))
     reg = tmp_path / "reg"
-    Registry(reg).publish(tmp_path / "v1")
-    Registry(reg).publish(tmp_path / "v2")
+    for v in ("v1", "v2", "f2"):
+        Registry(reg).publish(tmp_path / v)
     (reg / "site" / "F1" / name).write_text(text)
     res = CliRunner().invoke(main, ["bundle", "list", str(reg)])
     assert res.exit_code == 1 and message in res.output and "Traceback" not in res.output
+    # the damaged floor is named once; the healthy one lists as before, and the damaged one's
+    # versions too when its history is readable (none current: the pointer is not trusted)
+    lines = res.output.splitlines()
+    assert [ln for ln in lines if ln.startswith("error:")] == [
+        next(ln for ln in lines if message in ln)]
+    assert [ln.split()[:3] for ln in lines if "site/F2" in ln] == [["*", "site/F2", "#1"]]
+    assert [ln.split()[:2] for ln in lines if "site/F1" in ln and "error" not in ln] == (
+        [] if name == "history.json" else [["site/F1", "#1"], ["site/F1", "#2"]])
     use_old = CliRunner().invoke(main, ["bundle", "use", str(reg), "site/F1", "#1"])
     use_new = CliRunner().invoke(main, ["bundle", "use", str(reg), "site/F1", "#2"])
     if name == "history.json":  # no way to know the versions: every command refuses
