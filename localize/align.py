@@ -40,7 +40,7 @@ from weakref import WeakKeyDictionary
 import numpy as np
 from numpy.typing import NDArray
 
-from localize.bundle import MapBundle
+from localize.bundle import Grid, MapBundle
 from localize.errors import LocalizationError
 from localize.filter import BaseLocalizer, check_step_time
 from localize.params import MAX_STEP_M
@@ -210,30 +210,71 @@ def distance_from_mask_m(mask: NDArray[np.bool_], cell_m: float, cap_m: float
     return d * cell_m
 
 
-def wall_tables(off_mask_m: NDArray, cap_m: float
-                ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """The squared distance (m^2) from the mask and 1.0 on the mask (else 0.0) of every cell
-    of ``off_mask_m`` (:func:`distance_from_mask_m`), in a frame of one cell of ``cap_m`` (off
-    the grid; a position off it is clipped into the frame), for flat lookups: two
-    ``(height + 2, width + 2)`` arrays."""
-    off2 = np.pad(off_mask_m, 1, constant_values=cap_m) ** 2
-    on = (off2 == 0.0).astype(np.float64)
-    off2.flags.writeable = on.flags.writeable = False
-    return off2, on
+class WallLookup:
+    """The squared distance (m^2) of every cell of a grid from the reachable mask
+    (:func:`distance_from_mask_m`), read for many shifts of a track at once.
+
+    The table has a frame of one cell of the cap around the grid: a position off the grid
+    is clipped into the frame. :meth:`at_shifts` reads every position at every shift of a
+    square grid of shifts. When the shift step is a whole number of cells, each position's
+    values at all the shifts are one strided block of the table (edge-padded by twice the
+    largest shift, kept per step and reach: 1.8 MB for an ILC floor's coarse grid), read in
+    one gather; otherwise the cells are computed shift by shift. Both read the same cells.
+    """
+
+    def __init__(self, off_mask_m: NDArray, cell_m: float, cap_m: float) -> None:
+        self.off2_pad = np.pad(off_mask_m, 1, constant_values=cap_m) ** 2
+        self.off2_pad.flags.writeable = False
+        self.cell_m = float(cell_m)
+        self._blocks: dict[tuple[int, int], NDArray] = {}  # (m, reach) -> _strided_blocks
+
+    def at_shifts(self, u: NDArray[np.complex128], k: int, step_m: float
+                  ) -> NDArray[np.float64]:
+        """The table at the positions ``u`` (complex, in cells from the grid's origin,
+        ``(P,)``) shifted by ``(i + 1j * j) * step_m`` for ``i, j`` in ``-k..k``: ``(P,
+        (2k + 1)^2)``, shift ``(i, j)`` in column ``(j + k) * (2k + 1) + i + k``."""
+        h, w = self.off2_pad.shape
+        ratio = step_m / self.cell_m
+        m = int(round(ratio))
+        if m >= 1 and abs(ratio - m) < 1e-9:
+            # shift (i, j) reads cell (floor(u) + 1 + m * (i, j)), clipped into the table:
+            # clip each position's central cell to within the largest shift of the table
+            # and read its block of a table edge-padded by twice that shift
+            reach = k * m
+            blocks = self._blocks.get((m, reach))
+            if blocks is None:
+                blocks = self._blocks[(m, reach)] = self._strided_blocks(m, reach)
+            col = np.clip(np.floor(u.real) + 1, -reach, w - 1 + reach).astype(np.intp) + reach
+            row = np.clip(np.floor(u.imag) + 1, -reach, h - 1 + reach).astype(np.intp) + reach
+            return blocks[row, col].reshape(len(u), -1)
+        d = np.arange(-k, k + 1) * step_m / self.cell_m
+        col = np.clip(np.floor(u.real[None, :] + d[:, None]) + 1, 0, w - 1).astype(np.intp)
+        row = np.clip(np.floor(u.imag[None, :] + d[:, None]) + 1, 0, h - 1).astype(np.intp)
+        row *= w
+        return self.off2_pad.take(row[:, None, :] + col[None, :, :]).reshape(-1, len(u)).T
+
+    def _strided_blocks(self, m: int, reach: int) -> NDArray[np.float64]:
+        """A view ``(h + 2 reach, w + 2 reach, 2k + 1, 2k + 1)`` whose ``[r, c]`` is the
+        block of cells ``(r - reach + m j, c - reach + m i)`` of the table, edge-padded by
+        ``2 reach``, for :meth:`at_shifts`."""
+        padded = np.pad(self.off2_pad, 2 * reach, mode="edge")
+        padded.flags.writeable = False
+        size = 2 * reach + 1
+        return np.lib.stride_tricks.sliding_window_view(padded, (size, size))[:, :, ::m, ::m]
 
 
-#: Per bundle and cap: :func:`wall_tables` of its mask, computed once (the CLI and the
+#: Per bundle and cap: the :class:`WallLookup` of its mask, computed once (the CLI and the
 #: benchmarks make one aligner per walk on the same bundle).
-_WALL_CACHE: WeakKeyDictionary[MapBundle, dict[float, tuple[NDArray, NDArray]]] = (
-    WeakKeyDictionary())
+_WALL_CACHE: WeakKeyDictionary[MapBundle, dict[float, WallLookup]] = WeakKeyDictionary()
 
 
-def _bundle_wall_tables(bundle: MapBundle, cap_m: float) -> tuple[NDArray, NDArray]:
-    """:func:`wall_tables` of the bundle's reachable mask, capped at ``cap_m``."""
+def _bundle_walls(bundle: MapBundle, cap_m: float) -> WallLookup:
+    """The :class:`WallLookup` of the bundle's reachable mask, capped at ``cap_m``."""
     by_cap = _WALL_CACHE.setdefault(bundle, {})
     if cap_m not in by_cap:
-        by_cap[cap_m] = wall_tables(
-            distance_from_mask_m(bundle.mask, bundle.grid.cell_m, cap_m), cap_m)
+        by_cap[cap_m] = WallLookup(
+            distance_from_mask_m(bundle.mask, bundle.grid.cell_m, cap_m), bundle.grid.cell_m,
+            cap_m)
     return by_cap[cap_m]
 
 
@@ -270,7 +311,7 @@ class WalkAligner(BaseLocalizer):
                  radio: RadioModel | None = None) -> None:
         super().__init__(bundle, radio=radio)
         self.params = params or AlignParams()
-        self._wall_tables = _bundle_wall_tables(bundle, self.params.wall_cap_m)
+        self._walls = _bundle_walls(bundle, self.params.wall_cap_m)
         self._reset(0.0)
 
     # -- streaming -------------------------------------------------------------------------
@@ -395,8 +436,8 @@ class WalkAligner(BaseLocalizer):
                around: tuple[float, float, complex] | None = None) -> _Best:
         at_fix = np.interp(fix_t, times, shape.real) + 1j * np.interp(fix_t, times, shape.imag)
         ci = np.linalg.inv(_fix_covariance(fix_t / 1000.0, start_given, self.params))
-        return _Search(self.bundle, self._wall_tables, self.params, shape, fix_z, at_fix,
-                       ci, both_ways).run(around)
+        return _Search(self.bundle.grid, self._walls, self.params, shape, fix_z, at_fix, ci,
+                       both_ways).run(around)
 
     # -- batch -----------------------------------------------------------------------------
     def run(self, steps: StepSummaries, start_xy: tuple[float, float] | None = None, *,
@@ -476,16 +517,14 @@ SPREAD_MARGIN = 5.0
 class _Search:
     """Grid search of ``(rotation, scale, shift)``; see :class:`WalkAligner`."""
 
-    def __init__(self, bundle: MapBundle, wall_tables: tuple[NDArray, NDArray], p: AlignParams,
-                 shape: NDArray, fix_z: NDArray, at_fix: NDArray, ci: NDArray,
-                 both_ways: bool = False) -> None:
-        self.grid = bundle.grid
+    def __init__(self, grid: Grid, walls: WallLookup, p: AlignParams, shape: NDArray,
+                 fix_z: NDArray, at_fix: NDArray, ci: NDArray, both_ways: bool = False) -> None:
+        self.grid, self.walls = grid, walls  # the bundle's grid, the WallLookup of its mask
         self.both_ways = both_ways  # rotations near 180 deg are as likely as near 0
         self.p, self.shape, self.fix_z, self.at_fix = p, shape, fix_z, at_fix
         self.ci = ci
         self.ones_ci = ci.sum(axis=0)          # 1^T C^-1
         self.ones_ci_ones = float(ci.sum())    # 1^T C^-1 1
-        self.off2_pad, self.on_pad = wall_tables  # wall_tables() of the bundle's mask
 
     def _fix_fit(self, a: NDArray) -> tuple[NDArray[np.float64], NDArray[np.complex128]]:
         """For the complex factors ``a`` (T,): the fixes' log-likelihood of a shift ``z`` is
@@ -497,27 +536,20 @@ class _Search:
                   + ((resid.imag @ self.ci) * resid.imag).sum(axis=1))
         return r_ci_r - self.ones_ci_ones * np.abs(g) ** 2, g
 
-    def _track_cells(self, a: complex, centre: complex, off_m: NDArray, keep: NDArray
-                     ) -> NDArray[np.intp]:
-        """Flat indices into the wall tables of the cells of the tracks ``shift + a * shape``
-        for the shifts ``centre + off_m[i] + 1j * off_m[j]`` numbered ``j * len(off_m) + i``
-        in ``keep``: ``(len(keep), positions)``. A position off the grid falls into the
-        tables' frame."""
+    def _wall_values(self, a: complex, centre: complex, k: int, step_m: float
+                     ) -> NDArray[np.float64]:
+        """Squared distances (m^2) from the mask of the positions of the tracks ``centre +
+        shift + a * shape`` for the shifts of :meth:`WallLookup.at_shifts`: ``(positions,
+        shifts)``."""
         g = self.grid
-        h, w = self.off2_pad.shape
         u = (centre + a * self.shape - complex(g.x0_m, g.y0_m)) / g.cell_m  # cell units
-        d = off_m[:, None] / g.cell_m
-        col = np.clip(np.floor(u.real[None, :] + d) + 1, 0, w - 1).astype(np.intp)
-        row_start = np.clip(np.floor(u.imag[None, :] + d) + 1, 0, h - 1).astype(np.intp) * w
-        j, i = np.divmod(keep, len(off_m))
-        return row_start[j] + col[i]
+        return self.walls.at_shifts(u, k, step_m)
 
-    def _walls(self, cells: NDArray[np.intp]) -> NDArray:
-        """Wall penalty of each track, given as the ``(tracks, positions)`` flat cells of
-        :meth:`_track_cells`."""
-        pen = self.p.wall_weight * self.off2_pad.take(cells).mean(axis=1)
+    def _walls_of(self, off2: NDArray) -> NDArray:
+        """Wall penalty of each track from its :meth:`_wall_values` ``(positions, tracks)``."""
+        pen = self.p.wall_weight * off2.mean(axis=0)
         if self.p.wall_share_weight:
-            pen += self.p.wall_share_weight * (1.0 - self.on_pad.take(cells).mean(axis=1))
+            pen += self.p.wall_share_weight * (1.0 - (off2 == 0.0).mean(axis=0))
         return pen
 
     def run(self, around: tuple[float, float, complex] | None = None) -> _Best:
@@ -560,7 +592,7 @@ class _Search:
         k = int(np.floor(half_width_m / step_m + 1e-9))
         off = np.arange(-k, k + 1) * step_m
         grid = (off[None, :] + 1j * off[:, None]).ravel()   # (S,)
-        r, s = (m.ravel() for m in np.meshgrid(rot_deg, scale, indexing="ij"))
+        r, s = np.repeat(rot_deg, len(scale)), np.tile(scale, len(rot_deg))  # every pair
         a = s * np.exp(1j * np.radians(r))
         q, g = self._fix_fit(a)
         centres = g if centre is None else np.full(len(a), complex(centre))
@@ -580,8 +612,8 @@ class _Search:
             keep = (np.flatnonzero(bound > best.score - SPREAD_MARGIN) if best is not None
                     else np.arange(len(bound)))
             ai = complex(a[i])
-            cells = self._track_cells(ai, complex(centres[i]), off, keep)
-            score = bound[keep] - self._walls(cells)
+            off2 = self._wall_values(ai, complex(centres[i]), k, step_m)
+            score = bound[keep] - self._walls_of(off2)[keep]
             j = int(np.argmax(score))
             if best is None or score[j] > best.score:
                 w = np.exp(score - score[j])
@@ -589,6 +621,6 @@ class _Search:
                 d = shifts[keep] - np.sum(w * shifts[keep])
                 spread = float(np.sqrt(np.sum(w * np.abs(d) ** 2)))
                 best = _Best(float(score[j]), ai, complex(shifts[keep][j]), spread,
-                             float(self.on_pad.take(cells[j]).mean()))
+                             float((off2[:, keep[j]] == 0.0).mean()))
         assert best is not None
         return best

@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from localize.align import AlignParams, WalkAligner, _bundle_wall_tables
+from localize.align import AlignParams, WalkAligner, _bundle_walls
 from localize.bundle import MapBundle
 from localize.errors import LocalizationError
 from localize.filter import check_step_time
@@ -49,7 +49,7 @@ class MultiUserAligner:
     def __init__(self, bundle: MapBundle, params: AlignParams | None = None) -> None:
         self.bundle = bundle
         self.params = params or AlignParams()
-        _bundle_wall_tables(bundle, self.params.wall_cap_m)  # once, shared by every user
+        _bundle_walls(bundle, self.params.wall_cap_m)  # once, shared by every user
         self._aligners: dict[int, WalkAligner] = {}
         self._next_id = 0
 

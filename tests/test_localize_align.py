@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from localize_fixtures import f1_bundle, sim_walks, truth_bundles  # noqa: F401  (fixtures)
 
-from localize.align import (AlignParams, WalkAligner, _fix_covariance, _Search,
-                            distance_from_mask_m, walk_shape, wall_tables)
+from localize.align import (AlignParams, WalkAligner, WallLookup, _fix_covariance, _Search,
+                            distance_from_mask_m, walk_shape)
 from localize.baselines import make_localizer
 from localize.errors import LocalizationError
 from localize.evaluate import step_errors
@@ -171,9 +171,17 @@ def test_distance_from_mask_against_brute_force():
 def _reference_walls(bundle, off_mask, p, pts):
     """Wall penalty of tracks ``pts`` (shifts, positions), complex m: each position looked
     up in its grid cell, the cap off the grid; the definition the search's tables follow."""
+    return _reference_wall_terms(p, _reference_off2(bundle, off_mask, p, pts))
+
+
+def _reference_off2(bundle, off_mask, p, pts):
+    """The squared distance from the mask (m^2) of each position of ``pts``, cell by cell."""
     row, col, on_grid = bundle.grid.cell_of(pts.real, pts.imag)
-    off = np.where(on_grid, off_mask[row, col], p.wall_cap_m)
-    return p.wall_weight * np.mean(off ** 2, axis=1), np.mean(off == 0.0, axis=1)
+    return np.where(on_grid, off_mask[row, col], p.wall_cap_m) ** 2
+
+
+def _reference_wall_terms(p, off2):
+    return p.wall_weight * np.mean(off2, axis=1), np.mean(off2 == 0.0, axis=1)
 
 
 def test_pruned_search_finds_the_exhaustive_best(f1_bundle, sim_walks):  # noqa: F811
@@ -190,8 +198,8 @@ def test_pruned_search_finds_the_exhaustive_best(f1_bundle, sim_walks):  # noqa:
     at_fix = np.interp(fix_t, times, shape.real) + 1j * np.interp(fix_t, times, shape.imag)
     ci = np.linalg.inv(_fix_covariance(fix_t / 1000.0, False, p))
     off_mask = distance_from_mask_m(f1_bundle.mask, f1_bundle.grid.cell_m, p.wall_cap_m)
-    search = _Search(f1_bundle, wall_tables(off_mask, p.wall_cap_m), p, shape, fix_z, at_fix,
-                     ci)
+    search = _Search(f1_bundle.grid, WallLookup(off_mask, f1_bundle.grid.cell_m, p.wall_cap_m),
+                     p, shape, fix_z, at_fix, ci)
     rot = np.arange(-15.0, 15.1, 2.5)
     scale = np.arange(0.75, 1.251, 0.05)
     best = search._grid(rot, scale, 8.0, 0.5)
@@ -219,24 +227,27 @@ def test_pruned_search_finds_the_exhaustive_best(f1_bundle, sim_walks):  # noqa:
     assert best.inside_share == inside_top
 
 
-def test_wall_term_off_the_grid_is_the_cap(f1_bundle):  # noqa: F811
-    """Tracks that leave the grid on every side, at sub-cell shifts: the search's table
-    lookups give the cell-by-cell wall term, and positions off the grid count as the cap."""
+@pytest.mark.parametrize("step_cells", [0.74, 0.25, 0.5, 1.0, 2.0])
+def test_wall_term_off_the_grid_is_the_cap(f1_bundle, step_cells):  # noqa: F811
+    """Tracks that leave the grid on every side, at shifts of whole cells (read as blocks of
+    a padded table) and of fractions of a cell (cell by cell): the search's table lookups give
+    the cell-by-cell wall term, and positions off the grid count as the cap."""
     p = AlignParams(wall_share_weight=40.0)
     g = f1_bundle.grid
     off_mask = distance_from_mask_m(f1_bundle.mask, g.cell_m, p.wall_cap_m)
     t = np.linspace(-0.3, 1.3, 400)
     centre = complex(g.x0_m + 0.5 * g.width * g.cell_m, g.y0_m + 0.5 * g.height * g.cell_m)
     shape = (t - 0.5) * (g.width * g.cell_m + 1j * g.height * g.cell_m)  # a corner-to-corner line
-    search = _Search(f1_bundle, wall_tables(off_mask, p.wall_cap_m), p, shape,
-                     np.array([centre]), np.array([0j]), np.eye(1))
-    off = np.arange(-6, 7) * 0.37            # not a whole number of cells
-    keep = np.arange(len(off) ** 2)
+    walls = WallLookup(off_mask, g.cell_m, p.wall_cap_m)
+    search = _Search(g, walls, p, shape, np.array([centre]), np.array([0j]), np.eye(1))
+    k, step_m = 6, step_cells * g.cell_m
+    off = np.arange(-k, k + 1) * step_m
+    shifts = centre + (off[None, :] + 1j * off[:, None]).ravel()
     for a in (1.0, 0.8 * np.exp(0.3j), -1.1):
-        cells = search._track_cells(a, centre, off, keep)
-        shifts = centre + (off[None, :] + 1j * off[:, None]).ravel()
-        wall, inside = _reference_walls(f1_bundle, off_mask, p,
-                                        shifts[:, None] + a * shape[None, :])
-        assert np.allclose(search._walls(cells), wall + p.wall_share_weight * (1 - inside))
+        off2 = search._wall_values(a, centre, k, step_m)
+        reference = _reference_off2(f1_bundle, off_mask, p, shifts[:, None] + a * shape[None, :])
+        assert np.array_equal(off2.T, reference)
+        wall, inside = _reference_wall_terms(p, reference)
+        assert np.allclose(search._walls_of(off2), wall + p.wall_share_weight * (1 - inside))
         assert (inside < 1).all()
 
