@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import stat
 import zlib
 from collections.abc import Iterator
 from pathlib import Path
@@ -80,9 +79,7 @@ def not_regular(path: str | os.PathLike) -> SurveyFormatError:
                              reason="not_regular")
 
 
-def _check_regular(path: Path, st: os.stat_result, max_bytes: int) -> None:
-    if not stat.S_ISREG(st.st_mode):
-        raise not_regular(path)
+def _check_size(path: Path, st: os.stat_result, max_bytes: int) -> None:
     if st.st_size > max_bytes:
         raise SurveyFormatError(f"file is {st.st_size} bytes, over the {max_bytes}-byte limit",
                                 path=str(path), reason="too_large")
@@ -109,13 +106,12 @@ def trace_file_sha256(path: str | os.PathLike) -> tuple[str, int]:
 
 
 def _read_capped(path: Path, max_bytes: int) -> bytes:
-    """The bytes of a regular file of at most ``max_bytes``, looked at before it is opened
-    (so a FIFO is not opened: that would wait for a writer) and again once open."""
+    """The bytes of a regular file of at most ``max_bytes``, refused from its size before
+    any is read (:func:`~survey.regular_files.open_regular`: a FIFO is not waited on)."""
     with _read_errors(path):
-        _check_regular(path, os.stat(path), max_bytes)  # over the limit: not even opened
         fd, st = open_regular(path)
         with open(fd, "rb") as fh:
-            _check_regular(path, st, max_bytes)  # replaced since os.stat
+            _check_size(path, st, max_bytes)
             data = fh.read(st.st_size + 1)  # one read of the expected size (+1: grown?)
             if len(data) <= st.st_size:
                 return data
