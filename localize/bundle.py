@@ -49,15 +49,16 @@ MAX_ARRAY_ELEMENTS = 200_000_000
 MAX_MEMBERS = 10_000
 MAX_MANIFEST_BYTES = 16 * 1024**2
 
-#: Most cells a floor's grid may have: :data:`mapping.grid.MAX_GRID_CELLS`, the builder's cap,
-#: repeated here because the localizer may not import ``mapping`` (a test checks they agree).
+#: Most cells a floor's grid may have, the builder's cap as well (:mod:`mapping.grid`): a
+#: float32 layer of them is 80 MB; the build keeps a dozen layers and cross-validates on
+#: full grids.
 MAX_GRID_CELLS = 20_000_000
 #: Cell sizes a grid may have (m): 1 mm to 100 m.
 CELL_M_LIMITS = (1e-3, 100.0)
 #: Largest coordinate (m) of a grid origin or a reference point (a UTM northing is 1e7 m).
 MAX_COORD_M = 1e8
 #: RSSI a table may hold (dBm): the values a phone reports, as the trace reader and the radio
-#: build accept them (:data:`mapping.radio_scans.RSSI_RANGE_DBM`; a test checks they agree).
+#: build (:mod:`mapping.radio_scans`) accept them.
 RSSI_RANGE_DBM = (-127.0, 0.0)
 #: The layers of a floor bundle by name: (unit, kinds it may have). The polar angle (0 to
 #: 180 deg, never wrapping) is an angle layer in built bundles and a scalar one in the
@@ -622,12 +623,14 @@ def read_registry_history(floor_dir: str | os.PathLike) -> list[dict]:
     return history
 
 
-def registry_current(floor_dir: str | os.PathLike) -> tuple[Path, dict] | None:
+def registry_current(floor_dir: str | os.PathLike, history: list[dict] | None = None
+                     ) -> tuple[Path, dict] | None:
     """The current version of a registry's floor folder (``REG/<site>/<floor>``, which holds
     ``CURRENT``): its bundle folder and the pointer ``{"bundle_id", "seq"}``; None when the
     folder has no ``CURRENT``. The pointer must be an entry of ``history.json`` (the same
-    sequence number and bundle id), so a pointer edited by hand to an older version (a silent
-    rollback) or to an unknown sequence number is refused.
+    sequence number and bundle id; ``history``: as :func:`read_registry_history` read it
+    already), so a pointer edited by hand to an older version (a silent rollback) or to an
+    unknown sequence number is refused.
 
     Raises
     ------
@@ -645,7 +648,8 @@ def registry_current(floor_dir: str | os.PathLike) -> tuple[Path, dict] | None:
                             "seq)")
     bundle_id, seq = cur["bundle_id"], cur["seq"]
     version = path.parent / "versions" / safe_name(bundle_id)
-    history = read_registry_history(path.parent)
+    if history is None:
+        history = read_registry_history(path.parent)
     by_seq = {h["seq"]: h["bundle_id"] for h in history}
     by_id = {h["bundle_id"]: h["seq"] for h in history}
     if by_seq.get(seq) != bundle_id:

@@ -172,19 +172,17 @@ def check_exclude_early(names: list[str], inputs: list[Path]) -> None:
                                  param_hint="--exclude")
 
 
-def one_site(catalog: pd.DataFrame, summary: IngestSummary, inputs: list[Path]
-             ) -> str | None:
+def one_site(catalog: pd.DataFrame, inputs: list[Path]) -> str | None:
     """The one site (the store's ``site`` key) of the walks a build reads from ``inputs``
-    (``catalog`` without the walks it leaves out; None when none is left); a BuildError
-    naming the traces of the other sites when they are of several (a trace copied from
-    another building would be merged into the maps, and the bundles would take whichever
-    site sorted first)."""
-    mine = pd.concat([ingested_from(catalog, summary, folder) for folder in inputs])
-    counts = mine["site"].value_counts()
+    (``catalog`` without the walks :func:`excluded_walks` leaves out, so only walks under
+    ``inputs``; None when none is left); a BuildError naming the traces of the other sites
+    when they are of several (a trace copied from another building would be merged into the
+    maps, and the bundles would take whichever site sorted first)."""
+    counts = catalog["site"].value_counts()
     if counts.empty:
         return None
     if len(counts) > 1:
-        others = mine[mine["site"] != counts.index[0]]
+        others = catalog[catalog["site"] != counts.index[0]]
         raise BuildError(
             f"{', '.join(map(str, inputs))}: walks of {len(counts)} sites ("
             + ", ".join(f"{s}: {n} walk{'s' * (n > 1)}" for s, n in counts.items())
@@ -370,7 +368,7 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
         # an ingest whose every file failed leaves no store it would have created
         store = SurveyStore.open(store_path) if store_path.exists() else None
         cat = store.catalog() if store is not None else pd.DataFrame()
-        if store is None or cat.empty:
+        if cat.empty:
             raise BuildError(f"{', '.join(map(str, inputs))}: no readable walk to build from "
                              f"({len(summary.failed)} unreadable)")
         if not plans:  # --plan without --floor: the floor of SOURCE's traces
@@ -381,7 +379,7 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
                 check_floor_names(cat, summary, name, folder, say,
                                   planned=plan_file is not None)
         left_out = excluded_walks(cat, summary, inputs, excluding, say)
-        site = one_site(cat[~cat["trace_id"].isin(list(left_out))], summary, inputs)
+        site = one_site(cat[~cat["trace_id"].isin(list(left_out))], inputs)
         reachable = {(s, fl): plans[fl].reachable for s, fl in
                      cat[["site", "floor"]].drop_duplicates().itertuples(index=False)
                      if fl in plans}

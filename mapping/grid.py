@@ -6,12 +6,7 @@ import numpy as np
 import shapely
 from numpy.typing import NDArray
 
-from localize.bundle import Grid
-
-
-#: Most cells a floor's grid may have (a float32 layer of them is 80 MB; the build keeps a
-#: dozen layers and cross-validates on full grids).
-MAX_GRID_CELLS = 20_000_000
+from localize.bundle import MAX_GRID_CELLS, Grid
 
 
 def grid_for_extent(width_m: float, height_m: float, cell_m: float = 0.5, *,

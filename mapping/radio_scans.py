@@ -31,6 +31,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
+from localize.bundle import RSSI_RANGE_DBM
 from localize.steps import ble_transmitter_ids
 
 from .errors import FingerprintError
@@ -39,7 +40,6 @@ __all__ = ["OBS_COLUMNS", "ScanSet", "ble_observations", "distinct_text", "scan_
            "text_codes", "wifi_observations"]
 
 OBS_COLUMNS = ("trace_id", "scan_id", "t_ms", "x_m", "y_m", "ap", "rssi_dbm", "age_ms")
-RSSI_RANGE_DBM = (-127.0, 0.0)
 
 
 def _need(rows: pd.DataFrame, cols: tuple[str, ...], what: str) -> None:

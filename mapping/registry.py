@@ -76,11 +76,13 @@ class Registry:
         :func:`localize.bundle.read_registry_history`)."""
         return read_registry_history(self._floor(site, floor))
 
-    def current(self, site: str, floor: str) -> dict | None:
+    def current(self, site: str, floor: str, history: list[dict] | None = None
+                ) -> dict | None:
         """The current version's pointer ``{"bundle_id", "seq"}``, None before any; a
-        RegistryError when it is no entry of the history or its version folder is missing
+        RegistryError when it is no entry of the history (``history``: as :meth:`history`
+        read it already) or its version folder is missing
         (:func:`localize.bundle.registry_current`)."""
-        found = registry_current(self._floor(site, floor))
+        found = registry_current(self._floor(site, floor), history)
         return None if found is None else found[1]
 
     def open(self, site: str, floor: str, bundle_id: str | None = None) -> MapBundle:
@@ -113,7 +115,8 @@ class Registry:
                                 "problem": str(err)})
                     continue
                 try:
-                    cur, problem = self.current(site_dir.name, floor_dir.name) or {}, None
+                    cur, problem = self.current(site_dir.name, floor_dir.name,
+                                                history) or {}, None
                 except RegistryError as err:
                     cur, problem = {}, str(err)
                 out += [{**where, **h, "current": h["bundle_id"] == cur.get("bundle_id"),
@@ -171,7 +174,7 @@ class Registry:
         if entry is None:
             raise RegistryError(f"{site}/{floor}: version {bundle_id} is not published")
         try:
-            cur = self.current(site, floor)
+            cur = self.current(site, floor, history)
         except RegistryError:
             # a damaged or dangling pointer is repaired by pointing it at a version; which one
             # was current is unknown, so anything but the newest counts as a rollback
