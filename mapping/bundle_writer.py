@@ -100,14 +100,14 @@ def _check_numbers(content: BundleContent) -> None:
     shape = content.grid.shape
     if content.mask is None or content.mask.shape != shape:
         raise BundleError(f"mask must have the grid's shape {shape}")
+    outside = ~np.asarray(content.mask, dtype=bool)
     for name, layer in content.layers.items():
         check_layer_kind(name, layer.unit, layer.kind, where)
         for key, arr in (("file", layer.values), ("std_file", layer.std)):
             if arr.shape != shape:
                 raise BundleError(f"layer {name} {key}: shape {arr.shape} != grid {shape}")
-            check_layer_values(np.asarray(arr, dtype=np.float32), where, name, key,
-                               {"unit": layer.unit})
-        if np.isfinite(layer.values[~np.asarray(content.mask, dtype=bool)]).any():
+            check_layer_values(np.asarray(arr, dtype=np.float32), where, name, key, layer.unit)
+        if np.isfinite(layer.values[outside]).any():
             raise BundleError(f"layer {name}: values outside the reachable mask")
 
 
