@@ -134,25 +134,51 @@ class MultiUserAligner:
         k = len(ids)
         check_tick_inputs(inputs, ids)
         t = per_user(t_ms, k, "t_ms")
-        users = [self._aligners[i] for i in ids.tolist()]
-        for i, aligner, ti in zip(ids.tolist(), users, t):  # all checked before anyone moves
-            try:
-                check_step_time(ti, aligner.last_t_ms)
-            except LocalizationError as err:
-                raise LocalizationError(f"user {i}: {err}; nobody was advanced") from err
-        fix_xy = np.full((k, 2), np.nan) if fix_xy_m is None else \
-            checked_tick_fixes(fix_xy_m, None, k, 0.0)[0]
-        fix_t = t if fix_t_ms is None else per_user(fix_t_ms, k, "fix_t_ms")
-        fix_t = np.where(np.isfinite(fix_t), fix_t, t)
-        has_fix = np.isfinite(fix_xy).all(axis=1)
-        compass, gyro, swing = (np.broadcast_to(np.asarray(v, dtype=np.float64), (k,)) for v in (
-            inputs.compass_deg,
-            np.nan if inputs.relative_heading_deg is None else inputs.relative_heading_deg,
-            np.nan if inputs.delta_acc_ms2 is None else inputs.delta_acc_ms2))
-        carried = np.broadcast_to(np.asarray(inputs.attitude) == AttitudeCode.CARRIED, (k,))
-        out = np.empty((k, 3))
-        for r, aligner in enumerate(users):
-            fix = (fix_xy[r, 0], fix_xy[r, 1], fix_t[r]) if has_fix[r] else None
-            est = aligner.step_values(t[r], compass[r], gyro[r], swing[r], carried[r], fix)
-            out[r] = est.x_m, est.y_m, est.spread_m
-        return StepOutputs(out[:, 0], out[:, 1], out[:, 2], np.ones(k), np.zeros(k, bool))
+        users = self.aligners_of(ids)
+        check_step_times(users, t, ids)
+        fix_xy = None if fix_xy_m is None else checked_tick_fixes(fix_xy_m, None, k, 0.0)[0]
+        fix_t = None if fix_t_ms is None else per_user(fix_t_ms, k, "fix_t_ms")
+        return advance_aligners(users, t, step_columns(inputs, k), fix_xy, fix_t)
+
+    def aligners_of(self, ids: NDArray[np.int64]) -> list[WalkAligner]:
+        """The users' aligners, in the order of ``ids`` (known ids)."""
+        return [self._aligners[i] for i in ids.tolist()]
+
+
+def step_columns(inputs: StepInputs, k: int) -> tuple[NDArray, ...]:
+    """What a step gives an alignment, per user (k,): compass and gyroscope headings (deg;
+    gyroscope NaN: the compass alone), acceleration swing (m/s^2; NaN: the nominal step) and
+    whether the phone is carried."""
+    compass, gyro, swing = (np.broadcast_to(np.asarray(v, dtype=np.float64), (k,)) for v in (
+        inputs.compass_deg,
+        np.nan if inputs.relative_heading_deg is None else inputs.relative_heading_deg,
+        np.nan if inputs.delta_acc_ms2 is None else inputs.delta_acc_ms2))
+    carried = np.broadcast_to(np.asarray(inputs.attitude) == AttitudeCode.CARRIED, (k,))
+    return compass, gyro, swing, carried
+
+
+def check_step_times(aligners: list[WalkAligner], t_ms: NDArray, names: NDArray) -> None:
+    """Every step time after its aligner's last one, checked before anyone moves; the error
+    names the user (``names``: the ids the caller knows the users by)."""
+    for name, aligner, t in zip(names.tolist(), aligners, t_ms):
+        try:
+            check_step_time(t, aligner.last_t_ms)
+        except LocalizationError as err:
+            raise LocalizationError(f"user {name}: {err}; nobody was advanced") from err
+
+
+def advance_aligners(aligners: list[WalkAligner], t_ms: NDArray, columns: tuple[NDArray, ...],
+                     fix_xy: NDArray | None, fix_t_ms: NDArray | None) -> StepOutputs:
+    """One step of each aligner (inputs checked): its time (Unix ms), its
+    :func:`step_columns`, its fix (k, 2) (m; NaN rows or None: none) and the fix's scan time
+    (NaN or None: the step's)."""
+    k = len(aligners)
+    fix_t = t_ms if fix_t_ms is None else np.where(np.isfinite(fix_t_ms), fix_t_ms, t_ms)
+    has_fix = np.zeros(k, bool) if fix_xy is None else np.isfinite(fix_xy).all(axis=1)
+    compass, gyro, swing, carried = columns
+    out = np.empty((k, 3))
+    for r, aligner in enumerate(aligners):
+        fix = (fix_xy[r, 0], fix_xy[r, 1], fix_t[r]) if has_fix[r] else None
+        est = aligner.step_values(t_ms[r], compass[r], gyro[r], swing[r], carried[r], fix)
+        out[r] = est.x_m, est.y_m, est.spread_m
+    return StepOutputs(out[:, 0], out[:, 1], out[:, 2], np.ones(k), np.zeros(k, bool))

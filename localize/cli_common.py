@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, TypeVar
 import click
 
 from localize.errors import LocalizationError
+from localize.floors import HEADER_DOUBT
 
 if TYPE_CHECKING:
     from survey.trace_format import Trace
@@ -170,7 +171,7 @@ def say_floor_choice(trace_id: str, bundle, how: str) -> None:
     header's floor is one the Wi-Fi floor model contradicts
     (:meth:`localize.floors.SiteMaps.choose`'s ``how``); nothing for a header's floor."""
     floor = bundle.manifest.get("floor_name", "")
-    if "but the Wi-Fi floor model" in how:  # the header decides: said, not overruled
+    if HEADER_DOUBT in how:  # the header decides: said, not overruled
         click.echo(f"warning: {trace_id}: floor {floor} by the {how}", err=True)
     elif "floor model" in how:
         click.echo(f"{trace_id}: floor {floor} by the {how}", err=True)

@@ -30,16 +30,17 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from localize.align_engine import MultiUserAligner
+from localize.align_engine import (MultiUserAligner, advance_aligners, check_step_times,
+                                   step_columns)
 from localize.bundle import MapBundle
 from localize.errors import LocalizationError
 from localize.filter import make_rng
 from localize.maps import FilterMap
 from localize.params import FilterParams
-from localize.particles import (ParticleState, estimate, init_state, inject, inject_around_fix,
-                                needed_layers)
+from localize.particles import (ParticleState, estimate, init_state, inject_around_fix,
+                                inject_around_guide, needed_layers)
 from localize.stepper import StepInputs, StepOutputs, advance
-from localize.ticks import check_tick_inputs, checked_tick_fixes, inputs_of_rows, per_user
+from localize.ticks import check_tick_inputs, checked_tick_fixes, per_user
 from localize.update import position_update
 
 __all__ = ["MultiUserEngine"]
@@ -246,10 +247,12 @@ class MultiUserEngine:
         if guided.any():  # the alignments step first (and check their times): their
             if t_ms is None:  # positions are these users' radio evidence at this step
                 raise LocalizationError("tick: guided users need their step times (t_ms)")
-            t = per_user(t_ms, k, "t_ms")
+            t = per_user(t_ms, k, "t_ms")[guided]
+            aligners = self.guide.aligners_of(self.guide_ids[rows][guided])
+            check_step_times(aligners, t, users[guided])  # named by the engine's user ids
             fix_t = None if fix_t_ms is None else per_user(fix_t_ms, k, "fix_t_ms")[guided]
-            g = self.guide.tick(self.guide_ids[rows][guided], t[guided],
-                                inputs_of_rows(inputs, k, guided), fix_xy[guided], fix_t)
+            g = advance_aligners(aligners, t, tuple(c[guided] for c in step_columns(inputs, k)),
+                                 fix_xy[guided], fix_t)
             fix_xy[guided] = np.column_stack([g.x_m, g.y_m])
             sigma[guided] = np.fmax(g.spread_m, p.guide_sigma_m)
             far_m[guided] = p.guide_inject_distance_m
@@ -288,8 +291,8 @@ class MultiUserEngine:
                        >= far_m[rows]]
             for r in far:
                 if guided[r]:  # as the single-user guided filter re-draws
-                    inject(st, self.fmap, p, self.rng, int(r), p.radio_inject_fraction,
-                           (fx[r], fy[r]), p.init_from_fix_scale * sigma[r])
+                    inject_around_guide(st, self.fmap, p, self.rng, int(r), (fx[r], fy[r]),
+                                        sigma[r])
                 else:
                     inject_around_fix(st, self.fmap, p, self.rng, int(r),
                                       p.radio_inject_fraction, (fx[r], fy[r]), sigma[r])

@@ -26,8 +26,8 @@ from localize.particles import (
     ParticleState,
     estimate,
     init_state,
-    inject,
     inject_around_fix,
+    inject_around_guide,
     needed_layers,
     resample,
 )
@@ -382,8 +382,7 @@ class Localizer(BaseLocalizer):
         if p.radio_inject_fraction > 0 and np.hypot(
                 guide.x_m - self._last.x_m,
                 guide.y_m - self._last.y_m) >= p.guide_inject_distance_m:
-            inject(st, self.fmap, p, self.rng, 0, p.radio_inject_fraction,
-                   (guide.x_m, guide.y_m), p.init_from_fix_scale * sigma)
+            inject_around_guide(st, self.fmap, p, self.rng, 0, (guide.x_m, guide.y_m), sigma)
 
     def _fit_share(self, st: ParticleState, lk: NDArray) -> float:
         """Augmented MCL: share of particles to inject from how well the cloud fits the

@@ -193,7 +193,7 @@ class SiteMaps:
         if (other is None or other.floor_id == header_bundle.floor_id
                 or n_known < DOUBT_MIN_SCANS or n_on < DOUBT_SHARE * n_known):
             return ""
-        return f"; but the Wi-Fi floor model puts {n_on} of {n_known} Wi-Fi scans on floor {best}"
+        return f"{HEADER_DOUBT} {n_on} of {n_known} Wi-Fi scans on floor {best}"
 
     def choose(self, trace_id: str, site_id: str, floor_id: str, floor_name: str,
                wifi_scans: Sequence[RadioScan | None] | None,
@@ -307,6 +307,9 @@ class SiteMaps:
 #: (on the site1 walks it puts 99.96 % of the scans on their own floor, `docs/radio.md`).
 DOUBT_SHARE = 0.8
 DOUBT_MIN_SCANS = 5
+#: How :meth:`SiteMaps.choose`'s phrase for a header's floor goes on when the Wi-Fi floor
+#: model doubts it (what a caller looks for to warn).
+HEADER_DOUBT = "; but the Wi-Fi floor model puts"
 
 #: BLE window (ms) of bundles whose manifest does not record one (they were all built with it)
 DEFAULT_BLE_WINDOW_MS = 2000

@@ -618,6 +618,16 @@ def inject_around_fix(st: ParticleState, fmap: FilterMap, params: FilterParams,
                   max(params.radio_sigma_floor_m, params.init_from_fix_scale * float(sigma_m)))
 
 
+def inject_around_guide(st: ParticleState, fmap: FilterMap, params: FilterParams,
+                        rng: np.random.Generator, row: int, guide_xy: Sequence[float],
+                        sigma_m: float) -> int:
+    """:func:`inject` of ``radio_inject_fraction`` of the particles around the walk
+    alignment's position (``radio_guide="align"``) of SD ``sigma_m`` (m): the square's
+    half-width is ``init_from_fix_scale * sigma_m``."""
+    return inject(st, fmap, params, rng, row, params.radio_inject_fraction, guide_xy,
+                  params.init_from_fix_scale * float(sigma_m))
+
+
 def estimate_mode(st: ParticleState, cell_m: float = 1.0, size: int = 64
                   ) -> tuple[NDArray, NDArray]:
     """Position of the densest part of each user's particle cloud.

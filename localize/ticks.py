@@ -12,7 +12,7 @@ from numpy.typing import ArrayLike, NDArray
 from localize.errors import LocalizationError
 from localize.stepper import StepInputs
 
-__all__ = ["check_tick_inputs", "checked_tick_fixes", "inputs_of_rows", "per_user"]
+__all__ = ["check_tick_inputs", "checked_tick_fixes", "per_user"]
 
 
 def checked_tick_fixes(fix_xy_m: ArrayLike, fix_sigma_m: ArrayLike | None, k: int,
@@ -46,13 +46,6 @@ def check_tick_inputs(inputs: StepInputs, ids: NDArray[np.int64]) -> None:
     if bad.any():
         raise LocalizationError(f"users {ids[bad][:10].tolist()}: no compass heading "
                                 "(NaN or infinite compass_deg); nobody was advanced")
-
-
-def inputs_of_rows(inputs: StepInputs, k: int, rows: NDArray) -> StepInputs:
-    """The inputs of some of a tick's ``k`` users (``rows``: a boolean mask or indices)."""
-    return StepInputs(**{f.name: None if getattr(inputs, f.name) is None else
-                         np.broadcast_to(np.asarray(getattr(inputs, f.name)), (k,))[rows]
-                         for f in fields(inputs)})
 
 
 def per_user(values: ArrayLike, k: int, name: str) -> NDArray[np.float64]:
