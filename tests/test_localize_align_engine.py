@@ -180,3 +180,8 @@ def test_guided_engine_users_get_the_single_user_guided_filter(f1_bundle, sim_wa
     # refused calls drew nothing (later users get what they would have) and added nobody
     assert eng.rng.bit_generator.state == drawn
     assert eng.guide.n_users == 1 and eng.n_users == 2
+    # a guided user's bad step time is named by its engine id (its alignment's id differs)
+    late, = eng.add_users(xy[:1], fix_sigma_m=[3.0], t_ms=[t0[0]])
+    assert eng.guide_ids[-1] != late
+    with pytest.raises(LocalizationError, match=f"^user {late}: .*nobody was advanced"):
+        eng.tick([late], _inputs(walks[:1], 0), t_ms=[t0[0] - 1000.0])
