@@ -227,11 +227,12 @@ def test_pruned_search_finds_the_exhaustive_best(f1_bundle, sim_walks):  # noqa:
     assert best.inside_share == inside_top
 
 
-@pytest.mark.parametrize("step_cells", [0.74, 0.25, 0.5, 1.0, 2.0])
+@pytest.mark.parametrize("step_cells", [0.74, 0.25, 0.5, 1.0, 1.5, 2.0])
 def test_wall_term_off_the_grid_is_the_cap(f1_bundle, step_cells):  # noqa: F811
-    """Tracks that leave the grid on every side, at shifts of whole cells (read as blocks of
-    a padded table) and of fractions of a cell (cell by cell): the search's table lookups give
-    the cell-by-cell wall term, and positions off the grid count as the cap."""
+    """Tracks that leave the grid on every side, at shifts of whole and half cells (read as
+    blocks of a padded table, split into half cells for the latter) and of other fractions of
+    a cell (cell by cell): the search's table lookups give the cell-by-cell wall term, and
+    positions off the grid count as the cap."""
     p = AlignParams(wall_share_weight=40.0)
     g = f1_bundle.grid
     off_mask = distance_from_mask_m(f1_bundle.mask, g.cell_m, p.wall_cap_m)
