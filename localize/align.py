@@ -219,14 +219,14 @@ class WallLookup:
     square grid of shifts. When the shift step is a whole number of cells or of half cells,
     each position's values at all the shifts are one strided block of the table (split into
     half cells for the latter, and edge-padded by twice the largest shift; kept per split,
-    step and reach: for an ILC floor 1.8 MB for the full search's 0.5 m shifts and 4.4 MB
+    step and reach: for an ILC floor 1.8 MB for the full search's 0.5 m shifts and 5.7 MB
     for the local search's 0.25 m), read in one gather; otherwise the cells are computed
     shift by shift. Both read the same cells.
     """
 
     #: Splits of a cell into sub-cells tried for a block read: powers of two, so that a
     #: position in sub-cells (``u * split``) is exact. Finer splits were measured: on an ILC
-    #: floor a quarter-cell split (18 MB) read the fine search's 0.125 m shifts only 10 %
+    #: floor a quarter-cell split (22 MB) read the fine search's 0.125 m shifts only 10 %
     #: faster than cell by cell, its small blocks being far apart in the large table.
     SPLITS = (1, 2)
 
