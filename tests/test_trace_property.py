@@ -98,5 +98,11 @@ def test_render_parse_round_trip(trace):
     assert got.report.accounted_lines() == got.report.lines_total
     pd.testing.assert_frame_equal(got.sensors, trace.sensors)
     pd.testing.assert_frame_equal(got.wifi, trace.wifi)
-    pd.testing.assert_frame_equal(got.ble, trace.ble)
-    pd.testing.assert_frame_equal(got.waypoints, trace.waypoints, check_exact=False, rtol=1e-8)
+    # a beacon or waypoint row that repeats an earlier one in every value is dropped, counted
+    ble = trace.ble.drop_duplicates(ignore_index=True)
+    waypoints = trace.waypoints.drop_duplicates(ignore_index=True)
+    repeats = {"duplicate_beacon": len(trace.ble) - len(ble),
+               "duplicate_waypoint": len(trace.waypoints) - len(waypoints)}
+    assert {k: got.report.dropped.get(k, 0) for k in repeats} == repeats
+    pd.testing.assert_frame_equal(got.ble, ble)
+    pd.testing.assert_frame_equal(got.waypoints, waypoints, check_exact=False, rtol=1e-8)
