@@ -24,13 +24,13 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from localize.align import AlignParams, WalkAligner, _bundle_walls
+from localize.align import AlignParams, WalkAligner
 from localize.bundle import MapBundle
 from localize.errors import LocalizationError
 from localize.filter import check_step_time
 from localize.steps import AttitudeCode
 from localize.stepper import StepInputs, StepOutputs
-from localize.ticks import check_tick_inputs, checked_tick_fixes, per_user
+from localize.ticks import check_tick_inputs, checked_tick_fixes, per_user, tick_ids
 
 __all__ = ["MultiUserAligner"]
 
@@ -49,7 +49,6 @@ class MultiUserAligner:
     def __init__(self, bundle: MapBundle, params: AlignParams | None = None) -> None:
         self.bundle = bundle
         self.params = params or AlignParams()
-        _bundle_walls(bundle, self.params.wall_cap_m)  # once, shared by every user
         self._aligners: dict[int, WalkAligner] = {}
         self._next_id = 0
 
@@ -125,9 +124,7 @@ class MultiUserAligner:
             Estimates of those users, shape (k,): the end of each one's aligned track and the
             spread of its shift (m); ``alive_fraction`` 1 and ``recovered`` False.
         """
-        ids = self.user_ids if ids is None else np.asarray(ids, dtype=np.int64).ravel()
-        if len(np.unique(ids)) != len(ids):
-            raise LocalizationError("a user id appears twice in one tick")
+        ids = self.user_ids if ids is None else tick_ids(ids)
         unknown = [i for i in ids.tolist() if i not in self._aligners]
         if unknown:
             raise LocalizationError(f"unknown user ids in tick: {unknown[:10]}")

@@ -40,7 +40,7 @@ from localize.params import FilterParams
 from localize.particles import (ParticleState, estimate, init_state, inject_around_fix,
                                 inject_around_guide, needed_layers)
 from localize.stepper import StepInputs, StepOutputs, advance
-from localize.ticks import check_tick_inputs, checked_tick_fixes, per_user
+from localize.ticks import check_tick_inputs, checked_tick_fixes, per_user, tick_ids
 from localize.update import position_update
 
 __all__ = ["MultiUserEngine"]
@@ -230,20 +230,16 @@ class MultiUserEngine:
         if self.state is None:
             raise LocalizationError("no users")
         if ids is not None:
-            ids = np.asarray(ids, dtype=np.int64).ravel()
-            if len(np.unique(ids)) != len(ids):
-                raise LocalizationError("a user id appears twice in one tick")
+            ids = tick_ids(ids)
         users = self.user_ids if ids is None else ids
         k = len(users)
         check_tick_inputs(inputs, users)
         p = self.params
-        fix_xy, sigma = (np.full((k, 2), np.nan), np.full(k, p.radio_sigma_floor_m)) \
-            if fix_xy_m is None else checked_tick_fixes(fix_xy_m, fix_sigma_m, k,
-                                                        p.radio_sigma_floor_m)
+        if fix_xy_m is not None:
+            fix_xy, sigma = checked_tick_fixes(fix_xy_m, fix_sigma_m, k, p.radio_sigma_floor_m)
         rows = slice(None) if ids is None else self.rows_of(ids)
         last = self.last_xy[rows]
         guided = self.guide_ids[rows] >= 0
-        far_m = np.full(k, p.radio_inject_distance_m)
         if guided.any():  # the alignments step first (and check their times): their
             if t_ms is None:  # positions are these users' radio evidence at this step
                 raise LocalizationError("tick: guided users need their step times (t_ms)")
@@ -251,13 +247,14 @@ class MultiUserEngine:
             aligners = self.guide.aligners_of(self.guide_ids[rows][guided])
             check_step_times(aligners, t, users[guided])  # named by the engine's user ids
             fix_t = None if fix_t_ms is None else per_user(fix_t_ms, k, "fix_t_ms")[guided]
+            if fix_xy_m is None:  # the guides' positions go in here
+                fix_xy, sigma = np.full((k, 2), np.nan), np.full(k, p.radio_sigma_floor_m)
             g = advance_aligners(aligners, t, tuple(c[guided] for c in step_columns(inputs, k)),
                                  fix_xy[guided], fix_t)
             fix_xy[guided] = np.column_stack([g.x_m, g.y_m])
             sigma[guided] = np.fmax(g.spread_m, p.guide_sigma_m)
-            far_m[guided] = p.guide_inject_distance_m
         extra = (None if fix_xy_m is None and not guided.any() else
-                 lambda st: self._fix_update(st, fix_xy, sigma, last, far_m, guided))
+                 lambda st: self._fix_update(st, fix_xy, sigma, last, guided))
         if ids is None:
             out = advance(self.state, self.fmap, p, self.rng, inputs, last,
                           self.consecutive, extra_update=extra)
@@ -274,10 +271,11 @@ class MultiUserEngine:
 
     def _fix_update(self, st: ParticleState, fix_xy: NDArray[np.float64],
                     sigma: NDArray[np.float64], last_xy: NDArray[np.float64],
-                    far_m: NDArray[np.float64], guided: NDArray[np.bool_]) -> None:
+                    guided: NDArray[np.bool_]) -> None:
         """The radio update of :meth:`tick` on the tick's rows ``st``: fixes or guide
         positions (k, 2) (m; NaN: none), their SDs (k,) (m), the rows' last estimates (k, 2),
-        the distances from them (k,) (m) that re-draw particles, and which rows are guided."""
+        and which rows are guided (they re-draw particles from ``guide_inject_distance_m``
+        away, the others from ``radio_inject_distance_m``)."""
         p = self.params
         rows = np.flatnonzero(np.isfinite(fix_xy).all(axis=1))
         if rows.size == 0:
@@ -287,8 +285,9 @@ class MultiUserEngine:
             position_update(st, rows, fx[rows, None], fy[rows, None], sigma[rows, None],
                             p.radio_outlier)
         if p.radio_inject_fraction > 0:  # rare (far fixes): one user at a time
+            far_m = np.where(guided[rows], p.guide_inject_distance_m, p.radio_inject_distance_m)
             far = rows[np.hypot(fx[rows] - last_xy[rows, 0], fy[rows] - last_xy[rows, 1])
-                       >= far_m[rows]]
+                       >= far_m]
             for r in far:
                 if guided[r]:  # as the single-user guided filter re-draws
                     inject_around_guide(st, self.fmap, p, self.rng, int(r), (fx[r], fy[r]),

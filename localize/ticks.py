@@ -12,7 +12,15 @@ from numpy.typing import ArrayLike, NDArray
 from localize.errors import LocalizationError
 from localize.stepper import StepInputs
 
-__all__ = ["check_tick_inputs", "checked_tick_fixes", "per_user"]
+__all__ = ["check_tick_inputs", "checked_tick_fixes", "per_user", "tick_ids"]
+
+
+def tick_ids(ids: ArrayLike) -> NDArray[np.int64]:
+    """The users of a tick as int64 ids (k,); a LocalizationError when one appears twice."""
+    ids = np.asarray(ids, dtype=np.int64).ravel()
+    if len(np.unique(ids)) != len(ids):
+        raise LocalizationError("a user id appears twice in one tick")
+    return ids
 
 
 def checked_tick_fixes(fix_xy_m: ArrayLike, fix_sigma_m: ArrayLike | None, k: int,

@@ -44,6 +44,7 @@ import pandas as pd
 import pyarrow as pa
 from numpy.typing import NDArray
 
+from localize.bundle import RSSI_RANGE_DBM
 from survey.errors import ProcessingError
 from survey.memory import release_free_memory
 from survey.process_store import processed_part, processed_walks
@@ -56,7 +57,7 @@ from .errors import FingerprintError
 from .fingerprints import DEFAULT_CELL_M, FingerprintDB, FingerprintSums
 from .floor_model import FloorModel, fit_floor_model
 from .radio_reduce import TextCodes, capped_walk_sample, walk_rows
-from .radio_scans import OBS_COLUMNS, RSSI_RANGE_DBM, ble_observations, wifi_observations
+from .radio_scans import OBS_COLUMNS, ble_observations, wifi_observations
 
 __all__ = ["KINDS", "RadioParams", "SiteRadio", "WalkSource", "build_site_radio", "calibrated",
            "format_share", "reduce_site_radio", "site_observations", "site_radio", "store_walks",
@@ -354,7 +355,7 @@ def calibrated(obs: pd.DataFrame, device_of: pd.Series, devices: pd.DataFrame) -
 def _with_calibration(obs: pd.DataFrame, kb_of: Mapping[str, tuple[float, float]]
                       ) -> pd.DataFrame:
     """``obs`` with the RSSI of each walk in ``kb_of`` (trace id -> ``(k, b)``) mapped to
-    ``k * rssi + b`` (dBm), kept within :data:`~mapping.radio_scans.RSSI_RANGE_DBM` (what a
+    ``k * rssi + b`` (dBm), kept within :data:`~localize.bundle.RSSI_RANGE_DBM` (what a
     phone reports, and what a bundle's fingerprints may hold: a 0 dBm reading of a phone with
     ``b > 0`` is 0 dBm on the reference phone's scale, not above); other columns shared."""
     traces = pd.Index(np.asarray(pd.unique(obs["trace_id"]), dtype=object).astype(str))

@@ -153,7 +153,8 @@ class Registry:
                                    overwrite=True)
             crash_point("registry:after-history")
             if make_current:
-                self._point(site, floor, bundle.bundle_id, allow_rollback=False, verify=False)
+                self._point(site, floor, bundle.bundle_id, allow_rollback=False, verify=False,
+                            history=history)
         return entry
 
     def set_current(self, site: str, floor: str, bundle_id: str, *,
@@ -166,10 +167,11 @@ class Registry:
             self._point(site, floor, bundle_id, allow_rollback=allow_rollback, verify=True)
 
     def _point(self, site: str, floor: str, bundle_id: str, *, allow_rollback: bool,
-               verify: bool) -> None:
+               verify: bool, history: list[dict] | None = None) -> None:
         """``set_current`` under the writer lock; ``verify=False`` for the version ``publish``
-        has just verified."""
-        history = self.history(site, floor)
+        has just verified, and its ``history`` as it has just written it (None: read it)."""
+        if history is None:
+            history = self.history(site, floor)
         entry = next((h for h in history if h["bundle_id"] == bundle_id), None)
         if entry is None:
             raise RegistryError(f"{site}/{floor}: version {bundle_id} is not published")

@@ -44,15 +44,22 @@ DIR_MODE = 0o777 & ~_umask()
 
 
 def file_sha256(path: str | os.PathLike) -> str:
-    """Hex sha256 of a regular file's bytes, read in 1 MiB chunks. Raises
-    :class:`~survey.regular_files.NotRegularFile` (an ``OSError``) for a FIFO, device or
-    socket, before reading: hashing one would block or never end."""
+    """Hex sha256 of a regular file's bytes (:func:`file_sha256_and_size`)."""
+    return file_sha256_and_size(path)[0]
+
+
+def file_sha256_and_size(path: str | os.PathLike) -> tuple[str, int]:
+    """Hex sha256 of a regular file's bytes, read in 1 MiB chunks, and how many bytes were
+    hashed. Raises :class:`~survey.regular_files.NotRegularFile` (an ``OSError``) for a
+    FIFO, device or socket, before reading: hashing one would block or never end."""
     h = hashlib.sha256()
+    size = 0
     fd, _ = open_regular(path)
     with open(fd, "rb") as fh:
         for chunk in iter(lambda: fh.read(1 << 20), b""):
             h.update(chunk)
-    return h.hexdigest()
+            size += len(chunk)
+    return h.hexdigest(), size
 
 
 def crash_point(name: str) -> None:

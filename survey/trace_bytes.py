@@ -29,7 +29,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from .errors import SurveyFormatError
-from .publish import file_sha256
+from .publish import file_sha256_and_size
 from .regular_files import NotRegularFile, open_regular
 
 try:  # Intel ISA-L inflates about twice as fast as zlib: same streams, same results
@@ -100,9 +100,10 @@ def _read_errors(path: str | os.PathLike) -> Iterator[None]:
 def trace_file_sha256(path: str | os.PathLike) -> tuple[str, int]:
     """Hex sha256 and size (bytes) of a trace file as stored (compressed or not); raises
     :class:`SurveyFormatError` naming the file for one that cannot be read or is not a
-    regular file (hashing a FIFO would block, a device never end)."""
+    regular file (hashing a FIFO would block, a device never end). The size is that of the
+    bytes hashed, not of a second look at the path."""
     with _read_errors(path):
-        return file_sha256(path), os.stat(path).st_size
+        return file_sha256_and_size(path)
 
 
 def _read_capped(path: Path, max_bytes: int) -> bytes:

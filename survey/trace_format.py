@@ -87,9 +87,6 @@ BLE_DTYPES = {"t_ms": "int64", "major": "int32", "minor": "int32", "tx_power_dbm
               "rssi_dbm": "int16", "distance_m": "float64", "last_seen_ms": "int64"}
 WAYPOINT_DTYPES = {"t_ms": "int64", "x_m": "float64", "y_m": "float64"}
 
-#: RSSI values outside this range (dBm) are malformed.
-RSSI_RANGE_DBM = (-127, 0)
-
 
 @dataclass(frozen=True)
 class SensorInfo:

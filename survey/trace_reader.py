@@ -41,6 +41,9 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 
+# one RSSI range (dBm) for the reader, the radio build and a bundle's radio tables
+from localize.bundle import RSSI_RANGE_DBM
+
 from .errors import SurveyFormatError
 from .trace_bytes import MAX_TRACE_BYTES, not_regular, read_trace_bytes
 from .trace_format import (
@@ -48,7 +51,6 @@ from .trace_format import (
     BLE_DTYPES,
     CALIBRATED_STREAMS,
     MAX_WIFI_SEEN_AFTER_SCAN_MS,
-    RSSI_RANGE_DBM,
     SENSOR_COLUMNS,
     SENSOR_DTYPES,
     SENSOR_STREAMS,
@@ -580,7 +582,7 @@ class _Tables:
         freq_ok = (cols["freq_mhz"] >= 1) & (cols["freq_mhz"] <= 100_000)
         bad.add(cols["gline"][~valid], "bad_bssid", "TYPE_WIFI: bssid is not a MAC address")
         bad.add(cols["gline"][valid & ~rssi_ok], "out_of_range",
-                f"TYPE_WIFI: rssi outside [{lo}, {hi}] dBm")
+                f"TYPE_WIFI: rssi outside [{lo:g}, {hi:g}] dBm")
         bad.add(cols["gline"][valid & rssi_ok & ~freq_ok], "out_of_range",
                 "TYPE_WIFI: frequency is not in MHz")
         seen_ok = cols["last_seen_ms"] <= cols["t_ms"] + MAX_WIFI_SEEN_AFTER_SCAN_MS
@@ -622,7 +624,7 @@ class _Tables:
         ok = (cols["rssi_dbm"] >= lo) & (cols["rssi_dbm"] <= hi)
         ok_id = ((cols["major"] >= 0) & (cols["major"] < 2**16) & (cols["minor"] >= 0)
                  & (cols["minor"] < 2**16) & (np.abs(cols["tx_power_dbm"]) < 2**15))
-        bad.add(cols["gline"][~ok], "out_of_range", f"TYPE_BEACON: rssi outside [{lo}, {hi}] dBm")
+        bad.add(cols["gline"][~ok], "out_of_range", f"TYPE_BEACON: rssi outside [{lo:g}, {hi:g}] dBm")
         bad.add(cols["gline"][ok & ~ok_id], "out_of_range",
                 "TYPE_BEACON: major/minor outside [0, 65535] or absurd tx power")
         keep = ok & ok_id
@@ -664,9 +666,19 @@ class _Tables:
 
     def _drop_repeats(self, name: str, frame: pd.DataFrame, files: np.ndarray
                       ) -> tuple[pd.DataFrame, np.ndarray]:
-        """``frame`` (rows sorted by file, then in file order) without the rows that repeat an
-        earlier row of the same file in every column, counted as dropped ``name``."""
-        dup = frame.assign(_file=files).duplicated().to_numpy()
+        """``frame`` (rows sorted by file, then by ``t_ms``, stable) without the rows that
+        repeat an earlier row of the same file in every column, counted as dropped ``name``.
+
+        Only rows that share their file and time with a neighbour can repeat one (equal rows
+        are next to each other in that order), so the full comparison runs on those alone:
+        none in the ILC traces."""
+        t = frame["t_ms"].to_numpy()
+        same = (files[1:] == files[:-1]) & (t[1:] == t[:-1])
+        if not same.any():
+            return frame, files
+        maybe = np.flatnonzero(np.append(same, False) | np.insert(same, 0, False))
+        dup = np.zeros(len(frame), bool)
+        dup[maybe] = frame.iloc[maybe].assign(_file=files[maybe]).duplicated().to_numpy()
         if not dup.any():
             return frame, files
         self.drop(name, files[dup])

@@ -49,13 +49,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from localize.bundle import RSSI_RANGE_DBM
 from survey.errors import SurveyFormatError
 from survey.sim.site import ensure_sample_site
 from survey.trace_format import (
     BLE_COLUMNS,
     BLE_DTYPES,
     DOCUMENTED_TYPES,
-    RSSI_RANGE_DBM,
     SENSOR_COLUMNS,
     SENSOR_DTYPES,
     SENSOR_STREAMS,
