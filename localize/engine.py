@@ -38,7 +38,7 @@ from localize.filter import make_rng
 from localize.maps import FilterMap
 from localize.params import FilterParams
 from localize.particles import (ParticleState, estimate, init_state, inject_around_fix,
-                                inject_around_guide, needed_layers)
+                                inject_around_guide, needed_layers, start_half_width_m)
 from localize.stepper import StepInputs, StepOutputs, advance
 from localize.ticks import check_tick_inputs, checked_tick_fixes, per_user, tick_ids
 from localize.update import position_update
@@ -121,12 +121,8 @@ class MultiUserEngine:
         k = len(xy)
         sigma = np.full(k, np.nan) if fix_sigma_m is None else \
             per_user(fix_sigma_m, k, "fix_sigma_m")
-        if half_width_m is None:
-            hw = np.where(np.isfinite(sigma), np.fmax(p.init_half_width_m,
-                                                      p.init_from_fix_scale * sigma),
-                          p.init_half_width_m)
-        else:
-            hw = per_user(half_width_m, k, "half_width_m")
+        hw = start_half_width_m(p, sigma) if half_width_m is None else \
+            per_user(half_width_m, k, "half_width_m")
         guided = np.isfinite(sigma) & (self.guide is not None)
         guide_ids = np.full(k, -1, dtype=np.int64)
         if guided.any():  # first: it checks the starts and times, and draws nothing

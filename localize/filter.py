@@ -30,6 +30,7 @@ from localize.particles import (
     inject_around_guide,
     needed_layers,
     resample,
+    start_half_width_m,
 )
 from localize.radio import RadioModel
 from localize.smoothing import Genealogy
@@ -280,9 +281,8 @@ class Localizer(BaseLocalizer):
     def _start_at(self, x: float, y: float, t_ms: float, sigma: float | None,
                   half_width_m: float | None) -> Estimate:
         p = self.params
-        hw = p.init_half_width_m if half_width_m is None else float(half_width_m)
-        if sigma is not None and half_width_m is None:
-            hw = max(hw, p.init_from_fix_scale * float(sigma))
+        hw = float(start_half_width_m(p, np.nan if sigma is None else sigma)) \
+            if half_width_m is None else float(half_width_m)
         n0 = max(p.n_particles_start, p.n_particles)
         self.state = init_state(self.fmap, p, self.rng, np.array([[x, y]]), np.array([hw]),
                                 n=n0, with_lineage=self._keep_genealogy)

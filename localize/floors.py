@@ -177,15 +177,26 @@ class SiteMaps:
         online = unknown_phone_calibration(self.floor_model, heard, self.floor_bundle)
         return online, online is not None
 
+    def _knows(self, model, bundle: MapBundle) -> bool:
+        """Whether a floor model has ``bundle``'s floor among its classes (a model that does
+        not list its floors is taken to know them all)."""
+        known = getattr(model, "floors", None)
+        return known is None or any(
+            (b := self.floor_bundle(str(f))) is not None and b.floor_id == bundle.floor_id
+            for f in known)
+
     def _wifi_doubt(self, header_bundle: MapBundle,
                     wifi_scans: Sequence[RadioScan | None] | None, device_model: str) -> str:
         """``"; but the Wi-Fi floor model puts V of N Wi-Fi scans on floor F"`` when it puts
         :data:`DOUBT_SHARE` or more of :data:`DOUBT_MIN_SCANS` or more of the walk's scans on
         a floor other than the header's (``header_bundle``), else ``""``: the header decides,
-        but a walk recorded under the wrong floor name is said."""
+        but a walk recorded under the wrong floor name is said. A model that lacks the
+        header's floor (Wi-Fi surveyed on other floors only) puts every walk on a floor it
+        knows and so has no say."""
         model = self.floor_model
         heard = [s for s in (wifi_scans or ()) if s is not None]
-        if model is None or len(heard) < DOUBT_MIN_SCANS:
+        if model is None or len(heard) < DOUBT_MIN_SCANS or not self._knows(
+                model, header_bundle):
             return ""
         calibration, _ = self._wifi_calibration(heard, device_model)
         best, n_on, n_known = _walk_floor(model, heard, summed=False, calibration=calibration)

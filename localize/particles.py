@@ -609,6 +609,16 @@ def inject(st: ParticleState, fmap: FilterMap, params: FilterParams, rng: np.ran
     return k
 
 
+def start_half_width_m(params: FilterParams, fix_sigma_m: ArrayLike) -> NDArray:
+    """Half-widths (m) of the start squares of filters started at positions whose radio fix
+    accuracy is ``fix_sigma_m`` (m, any shape; NaN: a known position, not a fix):
+    ``init_half_width_m``, widened to ``init_from_fix_scale * fix_sigma_m`` for a fix."""
+    sigma = np.asarray(fix_sigma_m, dtype=np.float64)
+    return np.where(np.isfinite(sigma),
+                    np.fmax(params.init_half_width_m, params.init_from_fix_scale * sigma),
+                    params.init_half_width_m)
+
+
 def inject_around_fix(st: ParticleState, fmap: FilterMap, params: FilterParams,
                       rng: np.random.Generator, row: int, fraction: float,
                       fix_xy: Sequence[float], sigma_m: float) -> int:

@@ -27,7 +27,7 @@ from localize.bundle import Grid
 from survey.errors import IndoormapError
 from survey.field_features import circular_median_deg, wrap_deg
 from survey.memory import release_free_memory
-from survey.process_store import processed_catalog, processed_table
+from survey.process_store import processed_catalog, processed_table, walks_per_site
 from survey.store import SurveyStore
 
 from .bundle_writer import BundleContent, Layer
@@ -139,10 +139,8 @@ def floor_walks(store: SurveyStore, site: str | None, floor: str,
     if not len(pcat):
         raise BuildError(f"{store.root}: all {where}'s processed walks are excluded")
     if site is None and pcat["site"].nunique() > 1:  # one map would merge two buildings
-        counts = pcat["site"].value_counts()
         raise BuildError(f"{store.root}: {where} has walks of several sites ("
-                         + ", ".join(f"{s}: {n}" for s, n in counts.items())
-                         + "); give the site to build")
+                         f"{walks_per_site(pcat)}); give the site to build")
     return pcat.reset_index(drop=True)
 
 

@@ -26,6 +26,7 @@ from survey.publish import (
     replace_together,
     tmp_prefix,
 )
+from survey.process_store import walks_per_site
 from survey.trace_format import bad_lines_summary
 
 from .build import BuildError, BuildParams, build_floor
@@ -185,8 +186,7 @@ def one_site(catalog: pd.DataFrame, inputs: list[Path]) -> str | None:
         others = catalog[catalog["site"] != counts.index[0]]
         raise BuildError(
             f"{', '.join(map(str, inputs))}: walks of {len(counts)} sites ("
-            + ", ".join(f"{s}: {n} walk{'s' * (n > 1)}" for s, n in counts.items())
-            + "), e.g. " + ", ".join(others["source_path"].head(3))
+            f"{walks_per_site(catalog)}), e.g. " + ", ".join(others["source_path"].head(3))
             + "; move the other sites' traces out or --exclude them")
     return str(counts.index[0])
 

@@ -47,7 +47,7 @@ from numpy.typing import NDArray
 from localize.bundle import RSSI_RANGE_DBM
 from survey.errors import ProcessingError
 from survey.memory import release_free_memory
-from survey.process_store import processed_part, processed_walks
+from survey.process_store import processed_part, processed_walks, walks_per_site
 from survey.store import SurveyStore
 
 from .ap_selection import APEvidence, APSelection, APSelectionParams
@@ -122,10 +122,13 @@ def store_walks(store: SurveyStore, site: str | None, floors: Sequence[str], *,
     try:
         walks = processed_walks(store, site=site)
     except ProcessingError:  # never processed: no rows
-        walks = pd.DataFrame(columns=["floor", "trace_id"])
+        walks = pd.DataFrame(columns=["floor", "trace_id", "site"])
     walks = walks[~walks["trace_id"].isin(list(exclude_walks))]
     walks = pd.concat([walks.iloc[:0]] + [walks[walks["floor"] == f] for f in floors],
                       ignore_index=True)
+    if site is None and walks["site"].nunique() > 1:  # one radio map of two buildings
+        raise FingerprintError(f"{store.root}: floors {', '.join(floors)} have walks of "
+                               f"several sites ({walks_per_site(walks)}); give the site")
     cat = store.traces(site).set_index("trace_id")
     counts = {"device_model": "device_model", "rows_wifi": "n_wifi_rows",
               "rows_ble": "n_ble_rows", "scans_wifi": "n_scans"}

@@ -593,6 +593,13 @@ def processed_walks(store: SurveyStore | str, *, site: str | None = None,
     return cat.reset_index(drop=True)
 
 
+def walks_per_site(walks: pd.DataFrame) -> str:
+    """``"A: 3 walks, B: 1 walk"``: how many of ``walks`` (rows with a ``site`` column) each
+    site has, most first; what a refusal to merge several sites' walks names."""
+    counts = walks["site"].value_counts()
+    return ", ".join(f"{s}: {n} walk{'s' * (n > 1)}" for s, n in counts.items())
+
+
 def processed_part(store: SurveyStore | str, name: str, walk: pd.Series, *,
                    text_as_category: bool = False,
                    columns: Sequence[str] | None = None) -> pd.DataFrame:

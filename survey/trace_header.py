@@ -4,7 +4,7 @@ Header lines hold tab-separated ``key:value`` pairs. A line whose first key is `
 sensor. Unknown keys are kept in ``TraceHeader.extra``; malformed values never fail a read.
 
 A key that says which walk a trace is (site, floor, start and end time, phone, app: the
-``_WALK_KEYS``) given again with a different value fails the read in every mode: it is what two
+``_HEADER_KEYS`` and ``_TIME_KEYS``) given again with a different value fails the read in every mode: it is what two
 traces joined into one file look like (``cat a.txt.gz b.txt.gz``), whose rows cannot be told
 apart, so the second walk's header would silently relabel the first walk's data. The same value
 again is fine. Other keys are not compared: sensor lines (a phone may list two sensors of one
@@ -24,8 +24,7 @@ _HEADER_KEYS = {
     "FloorName": "floor_name", "Brand": "brand", "Model": "model",
     "AndroidName": "android_version", "APILevel": "api_level", "VersionName": "app_version",
 }
-#: Keys compared when given again (module docstring).
-_WALK_KEYS = frozenset(_HEADER_KEYS) | {"startTime", "endTime"}
+_TIME_KEYS = {"startTime": "start_ms", "endTime": "end_ms"}
 
 
 def parse_header(lines: Iterable[bytes], *, path: str | None = None,
@@ -46,26 +45,17 @@ def parse_header(lines: Iterable[bytes], *, path: str | None = None,
         if keys[0] == "type":
             header.sensors.append(_sensor_info(dict((k.strip(), v.strip()) for k, v in pairs)))
             continue
-        values: dict[str, str] = {}
         for key, value in zip(keys, (v.strip() for _, v in pairs)):
-            if key in _HEADER_KEYS or (key in _WALK_KEYS and _is_time(value)):
-                compared = value if key in _HEADER_KEYS else int(value)
+            # Unix ms, 1-16 ASCII digits like record timestamps (int() would also take huge,
+            # signed, '_'-grouped or non-ASCII digits that do not fit the store)
+            ms = int(value) if key in _TIME_KEYS and _is_time(value) else None
+            if key in _HEADER_KEYS or ms is not None:
+                compared = value if ms is None else ms
                 first = seen.setdefault(key, (compared, value, i))
                 if first[0] != compared:
                     _conflict(key, value, first[1:], i, path, line_numbers)
-            values[key] = value
-        for key, value in values.items():
-            if key in ("startTime", "endTime"):
-                # Unix ms, 1-16 ASCII digits like record timestamps (int() would also take
-                # huge, signed, '_'-grouped or non-ASCII digits that do not fit the store)
-                if not _is_time(value):
-                    header.extra[key] = value
-                    continue
-                ms = int(value)
-                if key == "startTime":
-                    header.start_ms = ms
-                else:
-                    header.end_ms = ms
+            if ms is not None:
+                setattr(header, _TIME_KEYS[key], ms)
             elif key in _HEADER_KEYS:
                 setattr(header, _HEADER_KEYS[key], value)
             else:

@@ -15,7 +15,9 @@ from click.testing import CliRunner
 from localize.bundle import load_bundle
 from mapping.build import BuildError, BuildParams, build_floor
 from mapping.bundle_writer import write_bundle
+from mapping.errors import FingerprintError
 from mapping.floorplan import FloorPlan, read_floor_plan
+from mapping.radio_build import build_site_radio
 from mapping.truth_errors import truth_errors
 from survey.cli import main
 from survey.ingest import ingest
@@ -519,8 +521,12 @@ def test_a_trace_of_another_site_in_a_floor_folder_is_refused(tmp_path):
     assert "walks of 2 sites (" in res.output and "000foreign.txt.gz" in res.output
     assert not (tmp_path / "out" / "F2").exists()
     process_store(store)
-    with pytest.raises(BuildError, match="has walks of several sites"):
+    with pytest.raises(BuildError, match=r"has walks of several sites \(\w+: \d+ walks"):
         build_floor(store, read_floor_plan(floor), floor="F2")
+    with pytest.raises(FingerprintError, match=r"floors F2 have walks of several sites .*"
+                                               r"00+: 1 walk\)"):
+        build_site_radio(store, ["F2"])
+    assert build_site_radio(store, ["F2"], site=site_id).floors == ["F2"]  # the site's alone
     res = CliRunner().invoke(main, ["build", str(floor), "-o", str(tmp_path / "out"),
                                     "--store", str(store), "--exclude", "000foreign"])
     assert res.exit_code == 0, res.output

@@ -93,6 +93,20 @@ def test_a_wifi_floor_model_lacking_a_floor_does_not_outvote_the_ble_model(wifi_
     assert bundle.manifest["floor_name"] == "F1" and how.startswith("Wi-Fi floor model (")
 
 
+def test_a_wifi_floor_model_lacking_the_header_floor_does_not_doubt_it(wifi_on_f1_only):
+    """The header names F2, which the Wi-Fi model (F1 only) cannot put a scan on: it puts
+    them all on F1, and that is no reason to doubt the header. On F1 it still may."""
+    maps = SiteMaps.open(wifi_on_f1_only)
+    t = read_trace(F2_WALKS[0])
+    assert len(scans_of(t)) >= 5
+    bundle, how = maps.choose(t.trace_id, "", "", "F2", scans_of(t), ble_scans_of(t))
+    assert bundle.manifest["floor_name"] == "F2"
+    assert how == "floor name in the trace header", how
+    # the same F2 scans under an F1 header: the model knows F1, agrees, and says nothing
+    bundle, how = maps.choose(t.trace_id, "", "", "F1", scans_of(t), ble_scans_of(t))
+    assert bundle.manifest["floor_name"] == "F1" and how == "floor name in the trace header"
+
+
 def test_floor_auto_does_not_let_a_wifi_model_lacking_a_floor_decide(wifi_on_f1_only):
     res = CliRunner().invoke(main, ["floor", str(wifi_on_f1_only), str(F2_WALKS[0])])
     assert res.exit_code == 0, res.output
