@@ -4,12 +4,12 @@ Header lines hold tab-separated ``key:value`` pairs. A line whose first key is `
 sensor. Unknown keys are kept in ``TraceHeader.extra``; malformed values never fail a read.
 
 A key that says which walk a trace is (site, floor, start and end time, phone, app: the
-``_HEADER_KEYS`` and ``_TIME_KEYS``) given again with a different value fails the read in every mode: it is what two
-traces joined into one file look like (``cat a.txt.gz b.txt.gz``), whose rows cannot be told
-apart, so the second walk's header would silently relabel the first walk's data. The same value
-again is fine. Other keys are not compared: sensor lines (a phone may list two sensors of one
-type), unknown keys, and a ``startTime``/``endTime`` that is not a time (it is kept as text in
-``TraceHeader.extra``, never as the walk's time, so it relabels nothing).
+``_HEADER_KEYS`` and ``_TIME_KEYS``) given again with a different value fails the read in every
+mode: it is what two traces joined into one file look like (``cat a.txt.gz b.txt.gz``), whose
+rows cannot be told apart, so the second walk's header would silently relabel the first walk's
+data. The same value again is fine. Other keys are not compared: sensor lines (a phone may list
+two sensors of one type), unknown keys, and a ``startTime``/``endTime`` that is not a time (it is
+kept as text in ``TraceHeader.extra``, never as the walk's time, so it relabels nothing).
 """
 
 from __future__ import annotations
