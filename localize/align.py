@@ -226,8 +226,8 @@ class WallLookup:
 
     #: Splits of a cell into sub-cells tried for a block read: powers of two, so that a
     #: position in sub-cells (``u * split``) is exact. Finer splits were measured: on an ILC
-    #: floor a quarter-cell split (22 MB) read the fine search's 0.125 m shifts only 10 %
-    #: faster than cell by cell, its small blocks being far apart in the large table.
+    #: floor a quarter-cell split (22 MB) read 0.125 m shifts only 10 % faster than cell by
+    #: cell, its small blocks being far apart in the large table.
     SPLITS = (1, 2)
 
     def __init__(self, off_mask_m: NDArray, cell_m: float, cap_m: float) -> None:
@@ -587,12 +587,14 @@ class _Search:
                 rot = np.concatenate([rot, rot + 180.0])
             scale = s0 + np.arange(-1, 2) * p.scale_step
             best = self._grid(rot, scale[scale > 0], 1.0, p.shift_step_m / 2, centre=shift0)
-        # finer around the best: a fifth of each step
+        # finer around the best: a fifth of the rotation and scale steps, half-step shifts
+        # (read as blocks from the half-cell table; quarter steps cost 60 % of the time for
+        # the same accuracy, docs/localize.md "Session 37")
         r0, s0 = np.degrees(np.angle(best.factor)), abs(best.factor)
         fine_rot = r0 + np.arange(-2, 3) * p.rotation_step_deg / 5
         fine_scale = s0 + np.arange(-2, 3) * p.scale_step / 5
         fine = self._grid(fine_rot, fine_scale[fine_scale > 0], p.shift_step_m,
-                          p.shift_step_m / 4, centre=best.shift)
+                          p.shift_step_m / 2, centre=best.shift)
         return fine if fine.score >= best.score else best
 
     def _grid(self, rot_deg: NDArray, scale: NDArray, half_width_m: float, step_m: float,
