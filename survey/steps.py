@@ -38,6 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import optimize, signal
 
 from survey.errors import ProcessingError
+from survey.trace_format import MAX_FROM_MEDIAN_TIME_MS
 
 __all__ = [
     "STANDARD_GRAVITY",
@@ -203,6 +204,10 @@ def detect_steps(t: ArrayLike, acc: ArrayLike, *, time_unit: Literal["ms", "s"] 
     tm, mag = tm[keep], mag[keep]
     if len(tm) < 4:
         raise ProcessingError(f"accelerometer stream too short ({len(tm)} samples)")
+    if tm[-1] - tm[0] > 2 * MAX_FROM_MEDIAN_TIME_MS:  # the time grid would not fit in memory
+        raise ProcessingError(f"accelerometer times span {(tm[-1] - tm[0]) / 3.6e6:.3g} h "
+                              f"(from {tm[0]:.0f} to {tm[-1]:.0f} ms): a walk's rows lie within "
+                              f"{2 * MAX_FROM_MEDIAN_TIME_MS // 3_600_000} h (a wrong clock?)")
     if fs_hz is None:
         fs = 1000.0 / float(np.median(np.diff(tm)))
     else:

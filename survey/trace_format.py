@@ -53,6 +53,39 @@ MAX_WIFI_SEEN_AFTER_SCAN_MS = 1000
 #: waypoints may all lie before :meth:`Trace.clock_mismatch` calls the clocks different.
 CLOCK_TOLERANCE_MS = 60_000
 
+#: A record more than this far (ms) from the median time of its walk's records of its type is
+#: a ``time_outlier`` bad line: a wrong clock or a stray row. Steps are detected on a uniform
+#: time grid over the accelerometer's span, and one accelerometer row at time 0 among a walk's
+#: of 2019 asked for 625 GiB; with this rule a stream spans at most twice the bound (a whole
+#: stream stamped with another clock is still read, see :meth:`Trace.clock_mismatch`).
+MAX_FROM_MEDIAN_TIME_MS = 12 * 3_600_000
+
+
+def far_from_median_time(t_ms: np.ndarray, group: np.ndarray, n_groups: int, *,
+                         sample: int = 200_000) -> np.ndarray:
+    """Which rows lie more than :data:`MAX_FROM_MEDIAN_TIME_MS` from the median time of their
+    group (a walk's records of one type). ``t_ms``: times (ms, ``(n,)``); ``group``: group of
+    each row in ``0..n_groups - 1``. The medians are taken over an even subsample of about
+    ``sample`` rows (every row of a group of fewer than 64), so the cost stays that of a scan.
+    Returns a boolean ``(n,)``."""
+    t = np.asarray(t_ms, dtype=np.float64)
+    group = np.asarray(group, dtype=np.int64)
+    if not len(t):
+        return np.zeros(0, dtype=bool)
+    counts = np.bincount(group, minlength=n_groups)
+    step = max(1, len(t) // sample)
+    chosen = np.flatnonzero((np.arange(len(t)) % step == 0) | (counts[group] < 64))
+    g, ts = group[chosen], t[chosen]
+    order = np.lexsort((ts, g))
+    g, ts = g[order], ts[order]
+    n = np.bincount(g, minlength=n_groups)
+    first = np.concatenate([[0], np.cumsum(n)[:-1]])
+    median = np.full(n_groups, np.nan)
+    has = n > 0
+    median[has] = ts[first[has] + (n[has] - 1) // 2]
+    return np.abs(t - median[group]) > MAX_FROM_MEDIAN_TIME_MS
+
+
 #: Largest |coordinate| (m) of a waypoint or walk-plan vertex: a building is kilometres across
 #: at most, and 1e155 m crashed the processing of every walk of the store.
 WAYPOINT_LIMIT_M = 1e6

@@ -50,6 +50,7 @@ from .trace_format import (
     BLE_COLUMNS,
     BLE_DTYPES,
     CALIBRATED_STREAMS,
+    MAX_FROM_MEDIAN_TIME_MS,
     MAX_WIFI_SEEN_AFTER_SCAN_MS,
     SENSOR_COLUMNS,
     SENSOR_DTYPES,
@@ -67,6 +68,7 @@ from .trace_format import (
     Trace,
     TraceHeader,
     empty_table,
+    far_from_median_time,
     stream_category,
 )
 from .line_scan import TOKEN_WIDTH as _TOKEN_WIDTH
@@ -360,6 +362,33 @@ def _parse_block(sc: ScanResult, g: int, cols: dict | None, bad: _Collector,
     bad.add(glines[finite != keep], "non_finite", f"{what}: a value is NaN, infinite or too large")
     cols["gline"] = glines
     return _take(cols, np.flatnonzero(finite)) if not finite.all() else cols
+
+
+def _drop_time_outliers(blocks: list[dict | None], b: _Batch, bad: _Collector) -> None:
+    """Rows far from the median time of their file's records of their type
+    (:func:`~survey.trace_format.far_from_median_time`) become ``time_outlier`` bad lines and
+    leave ``blocks``."""
+    present = [i for i, c in enumerate(blocks) if c is not None and len(c["gline"])]
+    if not present:
+        return
+    n_types = len(_TYPE_LIST)
+    far = far_from_median_time(
+        np.concatenate([blocks[i]["t_ms"] for i in present]),
+        np.concatenate([b.file_of_line[blocks[i]["gline"]] * n_types + blocks[i]["type"]
+                        for i in present]),
+        len(b.paths) * n_types)
+    at = 0
+    for i in present:
+        cols = blocks[i]
+        n = len(cols["gline"])
+        mine, at = far[at:at + n], at + n
+        if mine.any():
+            bad.add(cols["gline"][mine], "time_outlier", np.array(
+                [f"{_TYPE_LIST[k]}: time {int(t)} ms is over "
+                 f"{MAX_FROM_MEDIAN_TIME_MS // 3_600_000} h from the median time of the "
+                 "walk's rows of this type (a wrong clock or a stray row)"
+                 for k, t in zip(cols["type"][mine], cols["t_ms"][mine])], dtype=object))
+            blocks[i] = _take(cols, np.flatnonzero(~mine))
 
 
 def _take(cols: dict, index: np.ndarray) -> dict:
@@ -757,6 +786,7 @@ def _assemble(prepared: tuple[_Batch, list[str | None], dict[int, dict | None]],
         cols["type"] = sc.type_idx[cols["gline"]].astype(np.int32)
         blocks[g] = cols
 
+    _drop_time_outliers(blocks, b, bad)
     tables = _Tables(b)
     sensors = tables.sensors(blocks[:2], bad)
     wifi = tables.wifi(blocks[2], bad)

@@ -16,17 +16,29 @@ from survey.trace_format import (
     BLE_COLUMNS,
     BLE_DTYPES,
 )
-from survey.trace_format import SENSOR_LIMIT_OF_STREAM
+from survey.trace_format import MAX_FROM_MEDIAN_TIME_MS, SENSOR_LIMIT_OF_STREAM
 from survey.trace_reader import parse_trace_bytes
 from survey.trace_writer import render_trace
 
-t_ms = st.integers(min_value=0, max_value=10**15)
+T_MAX_MS = 10**15
+
+
+@st.composite
+def walk_times(draw) -> st.SearchStrategy[int]:
+    """Times (ms) of one walk: within 12 h of a base anywhere in the format's range (a record
+    farther from the walk's others of its type is a time_outlier bad line,
+    tests/test_trace_time_outliers.py)."""
+    base = draw(st.integers(0, T_MAX_MS - MAX_FROM_MEDIAN_TIME_MS))
+    return st.integers(base, base + MAX_FROM_MEDIAN_TIME_MS)
+
+
 text = st.text(st.characters(blacklist_categories=("Cs", "Cc")), max_size=12)
 mac = st.binary(min_size=6, max_size=6).map(lambda b: ":".join(f"{x:02x}" for x in b))
 
 
 @st.composite
 def traces(draw):
+    t_ms = draw(walk_times())
     frames = []
     for stream in draw(st.lists(st.sampled_from(STREAM_NAMES), unique=True, max_size=7)):
         ts = sorted(draw(st.lists(t_ms, min_size=1, max_size=8, unique=True)))
