@@ -322,9 +322,9 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
             plot_path.resolve() == csv_path.resolve():
         raise click.BadParameter("--plot-file and --csv name the same file",
                                  param_hint="--plot-file")
-    for target in (plot_path, csv_path):
+    for target, suffix in ((plot_path, ".png"), (csv_path, ".csv")):
         if target is not None:
-            refuse_to_replace(target, overwrite)  # before the work
+            refuse_to_replace(target, overwrite, suffixes=(suffix,))  # before the work
             if target.parent.exists() and not target.parent.is_dir():
                 raise click.BadParameter(f"{target.parent} is a file, not a folder")
     start_opt = _parse_start(start)

@@ -27,6 +27,7 @@ from survey.publish import (
     tmp_prefix,
 )
 from survey.process_store import walks_per_site
+from survey.regular_files import read_regular
 from survey.trace_format import bad_lines_summary
 
 from .build import BuildError, BuildParams, build_floor
@@ -136,6 +137,10 @@ def check_floor_names(catalog: pd.DataFrame, summary: IngestSummary, floor: str,
             f"{', '.join(sorted(other['floor'].astype(str).unique()))}")
 
 
+#: Largest ``--exclude @FILE`` read (bytes): a list of trace names.
+MAX_NAME_LIST_BYTES = 64 * 2**20
+
+
 def exclude_names(exclude: tuple[str, ...]) -> list[str]:
     """The walk names ``--exclude`` gives: each value, or with ``@FILE`` the file's lines
     (blank lines and ``#`` comments left out)."""
@@ -143,7 +148,7 @@ def exclude_names(exclude: tuple[str, ...]) -> list[str]:
     for item in exclude:
         if item.startswith("@"):
             try:
-                text = Path(item[1:]).read_text(encoding="utf-8")
+                text = read_regular(item[1:], MAX_NAME_LIST_BYTES).decode("utf-8")
             except (OSError, UnicodeDecodeError) as err:
                 raise click.BadParameter(f"cannot read {item[1:]} ({err})",
                                          param_hint="--exclude") from err

@@ -29,12 +29,16 @@ from shapely.geometry import shape
 from localize.bundle import Grid
 from mapping.grid import grid_for_extent
 from survey.errors import IndoormapError
+from survey.regular_files import read_regular
 
 
 class FloorPlanError(IndoormapError, ValueError):
     """A floor plan cannot be read or makes no sense."""
 
 
+#: Largest floor-plan file (GeoJSON, floor_info.json or DXF) read, bytes: a floor's drawing is
+#: a few MB; a FIFO or a link to /dev/zero is refused before anything is read.
+MAX_PLAN_FILE_BYTES = 512 * 2**20
 #: Largest floor side (m) a plan may have.
 MAX_FLOOR_SIDE_M = 20_000.0
 
@@ -94,7 +98,7 @@ def _read_json(path: Path, what: str) -> object:
     """The content of a JSON file; a :class:`FloorPlanError` naming the file (and the line of
     a syntax error) when it cannot be read or parsed."""
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_regular(path, MAX_PLAN_FILE_BYTES).decode("utf-8")  # not a FIFO/device
     except (OSError, UnicodeDecodeError) as err:
         raise FloorPlanError(f"{path}: cannot read {what} ({err})") from err
     try:

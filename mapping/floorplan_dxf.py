@@ -12,6 +12,7 @@ are negative, so walks recorded in the drawing's coordinates fit it.
 
 from __future__ import annotations
 
+import io
 import os
 from collections.abc import Callable
 from pathlib import Path
@@ -20,8 +21,10 @@ import numpy as np
 import shapely
 import shapely.errors
 
-from .floorplan import (MAX_FLOOR_SIDE_M, FloorPlan, FloorPlanError, checked_plan, made_valid,
-                        metre_frame)
+from survey.regular_files import read_regular
+
+from .floorplan import (MAX_FLOOR_SIDE_M, MAX_PLAN_FILE_BYTES, FloorPlan, FloorPlanError,
+                        checked_plan, made_valid, metre_frame)
 
 _UNIT_TO_M = {0: 1.0, 1: 0.0254, 2: 0.3048, 3: 1609.344, 4: 0.001, 5: 0.01, 6: 1.0,
               7: 1000.0, 10: 0.9144, 13: 1e-6, 14: 0.1, 15: 10.0, 16: 100.0,
@@ -47,7 +50,7 @@ def read_dxf_floor_plan(path: str | os.PathLike, *,
 
     path = Path(path)
     try:
-        doc, _auditor = recover.readfile(str(path))
+        doc, _auditor = recover.read(io.BytesIO(read_regular(path, MAX_PLAN_FILE_BYTES)))
     except (OSError, ezdxf.DXFStructureError) as err:
         raise FloorPlanError(f"{path}: not a readable DXF file ({err})") from err
     units = doc.header.get("$INSUNITS", 0)

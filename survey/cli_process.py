@@ -126,7 +126,7 @@ def survey_report_command(store_dir: str, site: str | None, floor: str | None,
     heading_offset_deg (median compass minus walking direction, deg); ufh_share (share of
     steps with the phone held flat and forward); session (calibration session)."""
     if csv_path:
-        refuse_to_replace(csv_path, overwrite)
+        refuse_to_replace(csv_path, overwrite, suffixes=(".csv",))
     everything = cat = processed_catalog(store_dir)
     if site is not None:
         cat = cat[cat["site"] == site]

@@ -163,11 +163,21 @@ def remove_stale_temporaries(parent: str | os.PathLike, prefix: str = TMP_PREFIX
     return n
 
 
-def refuse_to_replace(path: str | os.PathLike, overwrite: bool) -> None:
+def refuse_to_replace(path: str | os.PathLike, overwrite: bool, *,
+                      suffixes: tuple[str, ...] = ()) -> None:
     """A :class:`PublishError` when a command's output ``path`` exists and ``--overwrite``
-    was not given; commands call it before any work."""
-    if not overwrite and Path(path).exists():
+    was not given, or (``suffixes``, lower case) when it was but the existing file's name
+    does not end with one of them: ``--csv st/catalog.parquet --overwrite`` would have
+    replaced the command's own input. Commands call it before any work."""
+    path = Path(path)
+    if not path.exists():
+        return
+    if not overwrite:
         raise PublishError(f"{path} exists; pass --overwrite to replace it")
+    if suffixes and path.suffix.lower() not in suffixes:
+        raise PublishError(f"{path} exists and is not a {' or '.join(suffixes)} file; "
+                           "--overwrite replaces only those (is it one of the command's "
+                           "inputs?), move it away first")
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes, *, overwrite: bool = False,

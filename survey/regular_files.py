@@ -36,3 +36,22 @@ def open_regular(path: str | os.PathLike) -> tuple[int, os.stat_result]:
         os.close(fd)
         raise
     return fd, st
+
+
+class FileTooLarge(OSError):
+    """A file over the size a reader takes (refused from its size before it is read)."""
+
+
+def read_regular(path: str | os.PathLike, max_bytes: int) -> bytes:
+    """The bytes of the regular file at ``path``, of at most ``max_bytes``: for the small
+    files the commands read whole (floor plans, walk plans, name lists). Raises
+    :class:`NotRegularFile` (a FIFO, device or a link to one: nothing is read),
+    :class:`FileTooLarge` or the ``OSError`` of opening it; all are ``OSError``."""
+    fd, st = open_regular(path)
+    with open(fd, "rb") as fh:
+        if st.st_size > max_bytes:
+            raise FileTooLarge(f"{path}: {st.st_size} bytes, over the {max_bytes}-byte limit")
+        data = fh.read(max_bytes + 1)
+    if len(data) > max_bytes:  # grown since fstat
+        raise FileTooLarge(f"{path}: over the {max_bytes}-byte limit")
+    return data

@@ -32,6 +32,8 @@ import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 
 from .errors import SurveyFormatError
+from .regular_files import read_regular
+from .trace_bytes import MAX_TRACE_BYTES
 from .trace_format import (
     BLE_COLUMNS,
     BLE_DTYPES,
@@ -57,6 +59,8 @@ STREAM_COLUMNS: dict[str, tuple[str, str | None]] = {
     "magnetic_field_uncalibrated": ("mag_uncal", "mag_bias"),
 }
 _AXES = ("x", "y", "z")
+#: Largest walk-plan GeoJSON read (bytes): a plan of thousands of walks is a few MB.
+MAX_PLAN_BYTES = 256 * 2**20
 #: Times (Unix ms) must be below this; larger values are not times of this format.
 MAX_TIME_MS = 2**53
 # Finite float64 values at or beyond this become infinite as float32 (round to nearest even).
@@ -72,7 +76,7 @@ def is_walk_plan(path: str | os.PathLike) -> bool:
     if not path.name.endswith(".geojson"):
         return False
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = json.loads(read_regular(path, MAX_PLAN_BYTES).decode("utf-8"))
     except (OSError, UnicodeDecodeError, ValueError, RecursionError):  # deep nesting
         return False
     feats = data.get("features") if isinstance(data, dict) else None
@@ -99,7 +103,7 @@ def read_walk_plan(path: str | os.PathLike, *, strict: bool = False
     """
     path = Path(path)
     try:
-        plan = json.loads(path.read_text(encoding="utf-8"))
+        plan = json.loads(read_regular(path, MAX_PLAN_BYTES).decode("utf-8"))
     except (OSError, UnicodeDecodeError, ValueError, RecursionError) as err:  # deep nesting
         raise SurveyFormatError(f"not a readable GeoJSON walk plan ({err})", path=str(path),
                                 reason="plan") from err
@@ -148,9 +152,7 @@ def read_walk_plan(path: str | os.PathLike, *, strict: bool = False
         times = _vertex_times(xy[:, :2], props, where)
         try:
             csv_path = (path.parent / log).resolve()
-            if csv_path.exists() and not csv_path.is_file():  # a device or fifo could hang
-                raise OSError(0, "not a regular file")
-            csv_bytes = csv_path.read_bytes()
+            csv_bytes = read_regular(csv_path, MAX_TRACE_BYTES)  # not a FIFO or device
         except (OSError, ValueError) as err:  # ValueError: a NUL byte in the path
             raise SurveyFormatError(f"sensor log {log!r} not readable "
                                     f"({getattr(err, 'strerror', None) or err})",
