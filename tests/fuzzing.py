@@ -78,7 +78,8 @@ SAMPLE_TRACES = sorted(ensure_sample_site(REPO / "data" / "sample_site")
 CORRUPT_DIR = REPO / "tests" / "data" / "corrupt"
 
 BAD_REASONS = {"no_type", "bad_timestamp", "unknown_record", "field_count", "non_numeric",
-               "non_finite", "invalid_utf8", "bad_bssid", "out_of_range", "truncated"}
+               "non_finite", "invalid_utf8", "bad_bssid", "out_of_range", "truncated",
+               "time_outlier"}
 _TYPE_NAME = re.compile(r"TYPE_[A-Z0-9_]+")
 _MAC = re.compile(r"[0-9a-f]{2}(:[0-9a-f]{2}){5}")
 _UNCAL = [STREAM_NAMES.index(v) for k, v in SENSOR_STREAMS.items()
