@@ -632,7 +632,7 @@ class _Search:
                     else np.arange(len(bound)))
             ai = complex(a[i])
             off2 = self._wall_values(ai, complex(centres[i]), k, step_m)
-            score = bound[keep] - self._walls_of(off2)[keep]
+            score = bound[keep] - self._walls_of(off2[:, keep])
             j = int(np.argmax(score))
             if best is None or score[j] > best.score:
                 w = np.exp(score - score[j])

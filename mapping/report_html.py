@@ -33,7 +33,9 @@ from numpy.typing import ArrayLike
 
 from localize.bundle import Grid
 from survey.publish import atomic_write_bytes
+from survey.regular_files import read_regular
 
+from .floorplan import MAX_PLAN_FILE_BYTES
 from .validate import THRESHOLD_DOCS, ValidationResult, write_metrics
 
 DPI = 110
@@ -74,7 +76,8 @@ def floor_image(floor_dir: str | Path | None
     if path is None or not path.exists():
         return None, None, None
     try:
-        info = json.loads((path.parent / "floor_info.json").read_text())["map_info"]
+        info = json.loads(read_regular(path.parent / "floor_info.json",
+                                       MAX_PLAN_FILE_BYTES))["map_info"]
         width_m, height_m = float(info["width"]), float(info["height"])
         if not (math.isfinite(width_m) and math.isfinite(height_m)
                 and width_m > 0 and height_m > 0):

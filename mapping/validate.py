@@ -52,6 +52,8 @@ from typing import TYPE_CHECKING, TypeVar
 import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
+
+from survey.regular_files import read_regular
 from scipy import ndimage, sparse
 from scipy.sparse import csgraph
 
@@ -149,6 +151,10 @@ THRESHOLD_DOCS: dict[str, str] = {
 }
 
 
+#: Largest thresholds file read (bytes): a JSON object of a dozen numbers.
+MAX_THRESHOLDS_BYTES = 2**20
+
+
 def load_thresholds(path: str | Path | None = None, overrides: dict | None = None) -> dict:
     """Default thresholds updated from a JSON object file (and/or a dict); unknown keys are an
     error (a typo must not silently disable a check)."""
@@ -156,7 +162,7 @@ def load_thresholds(path: str | Path | None = None, overrides: dict | None = Non
     extra: dict = {}
     if path is not None:
         try:
-            extra = json.loads(Path(path).read_text(encoding="utf-8"))
+            extra = json.loads(read_regular(path, MAX_THRESHOLDS_BYTES).decode("utf-8"))
         except (OSError, ValueError) as err:
             raise ValidationError(f"{path}: not a readable JSON file ({err})") from err
         if not isinstance(extra, dict):

@@ -39,19 +39,35 @@ def open_regular(path: str | os.PathLike) -> tuple[int, os.stat_result]:
 
 
 class FileTooLarge(OSError):
-    """A file over the size a reader takes (refused from its size before it is read)."""
+    """A file over the size a reader takes (refused from its size before it is read, or as
+    soon as it grows past it while read)."""
+
+
+#: Bytes read at a time from a file that has grown since it was looked at.
+_READ_STEP = 1024**2
 
 
 def read_regular(path: str | os.PathLike, max_bytes: int) -> bytes:
-    """The bytes of the regular file at ``path``, of at most ``max_bytes``: for the small
-    files the commands read whole (floor plans, walk plans, name lists). Raises
-    :class:`NotRegularFile` (a FIFO, device or a link to one: nothing is read),
-    :class:`FileTooLarge` or the ``OSError`` of opening it; all are ``OSError``."""
+    """The bytes of the regular file at ``path``, of at most ``max_bytes``: the files read
+    whole (traces, floor plans, walk plans, name lists). One read of the size ``fstat`` gives
+    (no buffer of ``max_bytes`` is taken); a file grown since is read on in steps, never past
+    the limit. Raises :class:`NotRegularFile` (a FIFO, device or a link to one: nothing is
+    read), :class:`FileTooLarge` or the ``OSError`` of opening or reading it; all are
+    ``OSError``."""
     fd, st = open_regular(path)
     with open(fd, "rb") as fh:
         if st.st_size > max_bytes:
-            raise FileTooLarge(f"{path}: {st.st_size} bytes, over the {max_bytes}-byte limit")
-        data = fh.read(max_bytes + 1)
-    if len(data) > max_bytes:  # grown since fstat
-        raise FileTooLarge(f"{path}: over the {max_bytes}-byte limit")
-    return data
+            raise FileTooLarge(f"file is {st.st_size} bytes, over the {max_bytes}-byte limit")
+        data = fh.read(st.st_size + 1)  # one read of the expected size (+1: grown?)
+        if len(data) <= st.st_size:
+            return data
+        parts, total = [data], len(data)
+        while total <= max_bytes:
+            more = fh.read(min(_READ_STEP, max_bytes + 1 - total))
+            if not more:
+                break
+            parts.append(more)
+            total += len(more)
+        if total > max_bytes:
+            raise FileTooLarge(f"file grew past the {max_bytes}-byte limit while read")
+        return b"".join(parts)

@@ -30,7 +30,7 @@ from pathlib import Path
 
 from .errors import SurveyFormatError
 from .publish import file_sha256_and_size
-from .regular_files import NotRegularFile, open_regular
+from .regular_files import FileTooLarge, NotRegularFile, read_regular
 
 try:  # Intel ISA-L inflates about twice as fast as zlib: same streams, same results
     from isal import isal_zlib as _zlib
@@ -49,8 +49,6 @@ _IN_STEP = 1024**2
 #: size is measured before it is kept (module docstring).
 _SUSPECT_BYTES = 64 * 1024**2
 _SUSPECT_RATIO = 50
-#: Bytes read at a time from a file that has grown since it was looked at.
-_READ_STEP = 1024**2
 
 
 def read_trace_bytes(path: str | os.PathLike, *, strict: bool = False,
@@ -79,12 +77,6 @@ def not_regular(path: str | os.PathLike) -> SurveyFormatError:
                              reason="not_regular")
 
 
-def _check_size(path: Path, st: os.stat_result, max_bytes: int) -> None:
-    if st.st_size > max_bytes:
-        raise SurveyFormatError(f"file is {st.st_size} bytes, over the {max_bytes}-byte limit",
-                                path=str(path), reason="too_large")
-
-
 @contextlib.contextmanager
 def _read_errors(path: str | os.PathLike) -> Iterator[None]:
     """Raise what opening or reading ``path`` fails with as a :class:`SurveyFormatError`."""
@@ -92,6 +84,8 @@ def _read_errors(path: str | os.PathLike) -> Iterator[None]:
         yield
     except NotRegularFile as err:
         raise not_regular(path) from err
+    except FileTooLarge as err:
+        raise SurveyFormatError(str(err), path=str(path), reason="too_large") from err
     except OSError as err:
         raise SurveyFormatError(f"cannot read: {err.strerror or err}", path=str(path),
                                 reason="io") from err
@@ -108,25 +102,9 @@ def trace_file_sha256(path: str | os.PathLike) -> tuple[str, int]:
 
 def _read_capped(path: Path, max_bytes: int) -> bytes:
     """The bytes of a regular file of at most ``max_bytes``, refused from its size before
-    any is read (:func:`~survey.regular_files.open_regular`: a FIFO is not waited on)."""
+    any is read (:func:`~survey.regular_files.read_regular`: a FIFO is not waited on)."""
     with _read_errors(path):
-        fd, st = open_regular(path)
-        with open(fd, "rb") as fh:
-            _check_size(path, st, max_bytes)
-            data = fh.read(st.st_size + 1)  # one read of the expected size (+1: grown?)
-            if len(data) <= st.st_size:
-                return data
-            parts, total = [data], len(data)
-            while total <= max_bytes:  # grown since fstat: read on, never past the limit
-                more = fh.read(min(_READ_STEP, max_bytes + 1 - total))
-                if not more:
-                    break
-                parts.append(more)
-                total += len(more)
-            if total > max_bytes:
-                raise SurveyFormatError(f"file grew past the {max_bytes}-byte limit while read",
-                                        path=str(path), reason="too_large")
-            return b"".join(parts)
+        return read_regular(path, max_bytes)
 
 
 def _inflate(raw: bytes, path: Path, max_bytes: int, *, keep: bool = True,

@@ -75,8 +75,12 @@ def test_far_from_median_time_subsampled_medians_flag_the_same_rows():
     t = 1.6e12 + rng.uniform(0, 3.6e6, n) + group * 1e9
     t[[7, 150_000, n - 1]] = [0.0, 1.6e12 + 5e13, 0.0]
     tiny = np.array([1.6e12, 1.6e12 + 1000, 0.0])  # a group of three (a walk's waypoints)
-    far = far_from_median_time(np.r_[t, tiny], np.r_[group, [5, 5, 5]], 6, sample=1000)
-    assert np.flatnonzero(far).tolist() == [7, 150_000, n - 1, n + 2]
+    # a group of 100 rows with one stray, the first of it: sampled once in a batch-wide
+    # stride, the stray was the group's "median" and its 99 good rows were flagged
+    small = np.r_[0.0, 1.6e12 + 20.0 * np.arange(99)]
+    far = far_from_median_time(np.r_[t, tiny, small],
+                               np.r_[group, [5, 5, 5], np.full(100, 6)], 7, per_group=200)
+    assert np.flatnonzero(far).tolist() == [7, 150_000, n - 1, n + 2, n + 3]
 
 
 def test_step_detection_refuses_a_span_no_walk_has():
