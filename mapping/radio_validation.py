@@ -21,7 +21,7 @@ Cramer-Rao style bound over the bundle's fingerprint map.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -223,12 +223,14 @@ def _site_floor_model(bundle: MapBundle, key: str = "floor_model") -> dict | Non
 def radio_summary(bundle: MapBundle, store: SurveyStore | str | Path | None, floor: str,
                   site: str | None, *,
                   params: RadioValidationParams = RadioValidationParams(),
+                  leave_out: Collection[str] = (),
                   progress: Callable[[str], None] | None = None) -> dict:
     """The radio section's figures (JSON-able) plus ``arrays`` for the report's plots.
 
     ``store``: the survey store the bundle was built from, or None (then only the bound and
-    the site's floor accuracy are reported). ``progress`` receives a message per held-out
-    fold (the maps are rebuilt for each).
+    the site's floor accuracy are reported). ``leave_out``: trace ids of store walks the
+    bundle was not built from (not used). ``progress`` receives a message per held-out fold
+    (the maps are rebuilt for each).
     """
     from .radio_build import site_observations
 
@@ -239,6 +241,7 @@ def radio_summary(bundle: MapBundle, store: SurveyStore | str | Path | None, flo
 
         st = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
         obs = {k: site_observations(st, site, [floor], k) for k in ("wifi", "ble")}
+        obs = {k: o[~o["trace_id"].isin(list(leave_out))] for k, o in obs.items()}
         walks = np.unique(np.concatenate([o["trace_id"].to_numpy().astype(str)
                                           for o in obs.values() if len(o)] or [np.empty(0)]))
         if len(walks) >= 2:

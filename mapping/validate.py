@@ -420,13 +420,19 @@ class FloorData:
     pcat: pd.DataFrame  # processed catalog rows of the floor (ok and skipped)
     catalog: pd.DataFrame  # store catalog rows of the floor
     waypoints: pd.DataFrame
+    #: walks processed in the store but not among the bundle's source walks (``build
+    #: --exclude``, or ingested after the build): left out of every table above
+    not_in_bundle: tuple[str, ...] = ()
 
 
 def load_floor_data(store: SurveyStore | str | Path, bundle: MapBundle) -> FloorData:
     """Processed tables of the bundle's floor from a survey store (samples with time-linear
     positions too, as :func:`mapping.holdout.floor_samples_with_baseline_positions` gives):
     the walks of the bundle's site (that of its source walks found in the store, else its
-    ``site_id``) on its floor.
+    ``site_id``) on its floor. When some of the bundle's source walks are in the store, the
+    store's other processed walks (left out by ``build --exclude``, or ingested later) are left
+    out too, so the report scores the map on the walks it was built from; walks the store
+    skipped or never processed stay listed.
 
     Raises
     ------
@@ -455,12 +461,22 @@ def load_floor_data(store: SurveyStore | str | Path, bundle: MapBundle) -> Floor
             "it was built from")
     pcat = processed_catalog(store)
     pcat = pcat[(pcat["floor"] == floor) & (pcat["site"] == site)]
+    not_in_bundle = sorted(set(pcat.loc[pcat["status"] == "ok", "trace_id"]) - walks) \
+        if len(mine) else []
+
+    def of_bundle(table: pd.DataFrame) -> pd.DataFrame:
+        if not not_in_bundle:
+            return table
+        return table[~table["trace_id"].isin(not_in_bundle)].reset_index(drop=True)
+
     samples = holdout.floor_samples_with_baseline_positions(store, floor, site)
     steps = processed_table(store, "steps", site=site, floor=floor)
     legs = processed_table(store, "legs", site=site, floor=floor)
     waypoints = store.table("waypoints", site=site, floor=floor)
-    return FloorData(floor, site, samples, steps, legs, pcat.reset_index(drop=True),
-                     fcat.reset_index(drop=True), waypoints)
+    return FloorData(floor, site, of_bundle(samples), of_bundle(steps), of_bundle(legs),
+                     of_bundle(pcat.reset_index(drop=True)),
+                     of_bundle(fcat.reset_index(drop=True)), of_bundle(waypoints),
+                     tuple(not_in_bundle))
 
 
 def floor_dir_of(fd: FloorData | None) -> Path | None:
@@ -1123,6 +1139,14 @@ def data_quality_section(bundle: MapBundle, fd: FloorData, th: dict, params: Val
     out["walks_skipped"] = skipped
     out["walks_ok"] = len(ok_walks)
     out["walks_in_bundle"] = len(in_bundle)
+    out["walks_not_in_bundle"] = list(fd.not_in_bundle)
+    if fd.not_in_bundle:
+        findings.append(Finding(
+            "walks_not_in_bundle", "info", f"{len(fd.not_in_bundle)} processed walk(s) of the "
+            f"floor in the store are not among the bundle's source walks (build --exclude, or "
+            f"ingested later) and are left out of this report: "
+            + ", ".join(fd.not_in_bundle[:params.max_listed])
+            + (" ..." if len(fd.not_in_bundle) > params.max_listed else ""), "data_quality"))
     mismatch = sorted(set(in_bundle.items()) ^ set(ok_walks.items()))
     out["store_matches_bundle"] = not mismatch
     if mismatch:
@@ -1240,6 +1264,7 @@ def radio_section(bundle: MapBundle, store: SurveyStore | str | Path | None,
                                               "fingerprints (a survey without radio rows)"}
     floor = fd.floor if fd is not None else (bundle.manifest.get("floor_name") or "")
     res = radio_summary(bundle, store, floor, fd.site if fd is not None else None,
+                        leave_out=fd.not_in_bundle if fd is not None else (),
                         progress=progress)
     out = {"available": True, **{k: v for k, v in res.items() if k != "arrays"}}
     ra = res.get("arrays", {})
@@ -1320,9 +1345,12 @@ def validate_bundle(bundle: MapBundle | str | Path,
 
     fd = None
     if store is not None:
+        from survey.store import SurveyStore
+
+        store = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
         say("load the store's data of the floor")
         fd = timed("load", lambda: load_floor_data(store, b))
-        metrics["store"] = {"path": str(getattr(store, "root", store)), "floor": fd.floor,
+        metrics["store"] = {"path": str(store.root), "floor": fd.floor,
                             "site": fd.site, "walks": int(fd.samples["trace_id"].nunique()),
                             "samples": len(fd.samples)}
     else:

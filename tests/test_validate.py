@@ -245,6 +245,36 @@ def test_without_store_checks_the_bundle_alone(sites, tmp_path):
     assert (tmp_path / "r" / "report.html").exists() or not HAS_MPL
 
 
+def test_a_bundle_built_without_a_walk_is_scored_without_it(sites, tmp_path):
+    """``build --exclude``: the store still holds the walk, but coverage, the held-out folds and
+    the radio section use the bundle's source walks only (they used all the store's walks)."""
+    from mapping.build import build_floor
+    from mapping.bundle_writer import write_bundle
+    from mapping.floorplan import read_floor_plan
+
+    site, _, store = sites["clean"]
+    walks = sorted(SurveyStore.open(store).catalog()["trace_id"])
+    left_out = walks[3]
+    bundle = tmp_path / "bundle"
+    write_bundle(bundle, build_floor(store, read_floor_plan(site / "F1"), floor="F1",
+                                     exclude_walks=[left_out]))
+    res, metrics = _validate(bundle, store, tmp_path / "r")
+    assert res.exit_code in (0, 1), res.output
+    manifest = json.loads((bundle / "manifest.json").read_text())
+    assert metrics["store"]["walks"] == len(walks) - 1
+    assert set(metrics["heldout"]["per_walk"]) == set(walks) - {left_out}
+    assert metrics["coverage"]["euclidean"] == pytest.approx(manifest["metrics"]["coverage"])
+    assert metrics["data_quality"]["walks_not_in_bundle"] == [left_out]
+    assert metrics["data_quality"]["store_matches_bundle"]
+    checks = {f["check"]: f for f in metrics["findings"]}
+    assert left_out in checks["walks_not_in_bundle"]["message"]
+    assert "store_mismatch" not in checks
+    radio = metrics["radio"]["kinds"]["wifi"]
+    assert radio["split"] == "leave-one-walk-out"
+    assert radio["scans"] <= manifest["metrics"]["radio"]["wifi"]["scans"]  # its walks' scans
+    assert str(metrics["store"]["path"]) == str(store)
+
+
 def test_a_report_is_replaced_whole_and_only_when_asked(sites, tmp_path):
     """An existing report is kept without --overwrite (said before any work); with it, the
     new report replaces the old folder in one move. A folder that is no report is kept."""
