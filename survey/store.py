@@ -124,10 +124,15 @@ def read_parquet_checked(path: Path, columns: list[str] | None = None, *,
     try:
         if expect is None:
             return pq.read_table(path, columns=columns, page_checksum_verification=True)
-        data = Path(path).read_bytes()
-        sha = hashlib.sha256(data).hexdigest()
-        if len(data) != expect["size"] or sha != expect["sha256"]:
-            raise StoreError(f"{path}: {what} changed since it was written ({len(data)} bytes, "
+        # Read into Arrow's own memory, not a Python ``bytes``: the reader's worker threads
+        # may drop the last reference to its buffer after the call returns, and releasing a
+        # Python object there needs the GIL, which at interpreter exit aborted the process
+        # ("terminate called without an active exception", ``store verify`` under load).
+        with pa.OSFile(str(path)) as f:
+            data = f.read_buffer()
+        sha = hashlib.sha256(memoryview(data)).hexdigest()
+        if data.size != expect["size"] or sha != expect["sha256"]:
+            raise StoreError(f"{path}: {what} changed since it was written ({data.size} bytes, "
                              f"sha256 {sha[:12]}; the catalog has {expect['size']} bytes, "
                              f"{expect['sha256'][:12]})")
         table = pq.read_table(pa.BufferReader(data), columns=columns,
