@@ -1,8 +1,9 @@
 """``indoormap floor`` and ``indoormap wifi-locate``: the radio maps of bundles applied to walks.
 
 Both print CSV on standard output, each walk's rows as soon as the walk is through (progress
-and notes on standard error); a walk that fails is reported with its file and reason, the others
-go on, and the exit code is then 1:
+and notes on standard error); a walk that fails (unreadable, of another site, or without a
+result: no scan of the kind, or none that hears a transmitter the maps know) prints no rows and
+is reported with its file and reason, the others go on, and the exit code is then 1:
 
 - ``floor SITE_BUNDLE WALK...``: per scan ``level=scan`` rows (floor of the scan alone and of the
   last ``--window`` scans) and one ``level=walk`` row per walk (all its scans), with the floor
@@ -169,6 +170,9 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
             model, scans, rssi, lp, ok = classify(k)
             if ok.any():
                 break
+        if not ok.any():
+            raise LocalizationError(f"{trace.trace_id}: no {' or '.join(tried)} scan hears a "
+                                    "transmitter the floor model knows; floor unknown")
         n_known = np.isfinite(rssi).sum(axis=1)
         mine = []  # the walk's rows, written once it is through
         for i, scan in enumerate(scans):
@@ -180,16 +184,13 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
                          "p_floor": float(np.exp(lp[i].max())) if ok[i] else "",
                          "window_floor": str(model.floors[np.argmax(seq.sum(axis=0))])
                          if len(seq) else "", "recorded_floor": recorded, "kind": k})
-        walk_floor = str(model.floors[np.argmax(lp[ok].sum(axis=0))]) if ok.any() else ""
+        walk_floor = str(model.floors[np.argmax(lp[ok].sum(axis=0))])
         mine.append({"level": "walk", "trace_id": trace.trace_id, "t_ms": "",
                      "n_known": int(ok.sum()), "floor": walk_floor, "p_floor": "",
                      "window_floor": "", "recorded_floor": recorded, "kind": k})
         out.write(mine)
         scan_rows.extend(r for r in mine if r["level"] == "scan")
-        if not ok.any():
-            click.echo(f"{trace.trace_id}: no {' or '.join(tried)} scan hears a transmitter "
-                       "the floor model knows; floor unknown", err=True)
-        elif k == "ble" and kind == "auto":
+        if k == "ble" and kind == "auto":
             why = (f"the Wi-Fi floor model lacks floor {', '.join(lacking)}"
                    if tried == ["ble"] else "no Wi-Fi scan classified")
             click.echo(f"{trace.trace_id}: floor {walk_floor} from {int(ok.sum())} BLE windows "
@@ -265,8 +266,7 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
             other = "ble" if kind == "wifi" else "wifi"
             hint = (f"; it has {other} scans: --kind {other}"
                     if _scans(trace, other, maps.ble_window_ms) else "")
-            click.echo(f"{trace.trace_id}: no {kind} scans{hint}", err=True)
-            return
+            raise LocalizationError(f"{trace.trace_id}: no {kind} scans{hint}")
         h = trace.header  # the floor from the header, else the Wi-Fi, else the BLE floor model
         bundle, how = maps.choose(trace.trace_id, h.site_id or "", h.floor_id or "",
                                   h.floor_name or "", scans if kind == "wifi" else scans_of(trace),
@@ -285,6 +285,12 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
             pos, how = pos.with_calibration(*given), f"given k={given[0]:g}, b={given[1]:+g} dB"
         fixes = (pos.locate_scans(scans) if smoothing == "none" else pos.locate_walk(
             scans, WalkSmoothing(direction="both" if smoothing == "walk" else "forward")))
+        located = np.isfinite(fixes.xy_m[:, 0])
+        floor = bundle.manifest.get("floor_name", "")
+        if not located.any():
+            raise LocalizationError(f"{trace.trace_id}: none of its {len(scans)} {kind} scans "
+                                    f"hears a transmitter the {floor} bundle knows "
+                                    f"(calibration {how}); no position")
         t = np.array([s.t_ms for s in scans], dtype=np.float64)
         t_wp, xy_wp = waypoints_of(trace)
         truth = np.full((len(scans), 2), np.nan)
@@ -295,8 +301,7 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
         err = np.hypot(*(fixes.xy_m - truth).T)
         rows = []
         for i, scan in enumerate(scans):
-            rows.append({"trace_id": trace.trace_id, "floor": bundle.manifest.get("floor_name",
-                                                                                 ""),
+            rows.append({"trace_id": trace.trace_id, "floor": floor,
                          "t_ms": scan.t_ms, "n_known": int(fixes.n_known[i]),
                          "x_m": float(fixes.xy_m[i, 0]) if np.isfinite(fixes.xy_m[i, 0]) else "",
                          "y_m": float(fixes.xy_m[i, 1]) if np.isfinite(fixes.xy_m[i, 1]) else "",
@@ -304,9 +309,9 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
                          else "", "error_m": float(err[i]) if np.isfinite(err[i]) else ""})
         out.write(rows)
         e = err[np.isfinite(err)]
-        click.echo(f"{trace.trace_id}: {len(scans)} {kind} scans on "
-                   f"{bundle.manifest.get('floor_name', '')}, {int(np.isfinite(fixes.xy_m[:, 0]).sum())} "
-                   f"located; calibration {how}"
+        click.echo(f"{trace.trace_id}: {len(scans)} {kind} scans on {floor}, "
+                   f"{int(located.sum())} located; "
+                   f"calibration {how}"
                    + (f"; error vs waypoint track median {np.median(e):.2f} m" if len(e) else ""),
                    err=True)
 

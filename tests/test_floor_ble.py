@@ -242,8 +242,8 @@ def test_an_old_site_bundle_without_the_ble_model_works_as_before(old_style, bar
         maps.select_for(t.trace_id, "", "", "", scans_of(t), ble_scans_of(t))
     runner = CliRunner()
     res = runner.invoke(main, ["floor", str(old_style), str(bare)])
-    assert res.exit_code == 0 and "floor unknown" in res.stderr
-    assert [r["floor"] for r in _rows(res.stdout) if r["level"] == "walk"] == [""]
+    assert res.exit_code == 1 and "floor unknown" in res.stderr
+    assert not _rows(res.stdout)
     res = runner.invoke(main, ["floor", "--kind", "ble", str(old_style), str(bare)])
     assert res.exit_code == 1 and "has no ble floor model" in res.output
     res = runner.invoke(main, ["localize", str(old_style), str(WALK), "-o", str(tmp_path / "o"),

@@ -291,14 +291,14 @@ def test_floor_command_per_scan_and_per_walk(built):
         assert [r["kind"] for r in walks].count("ble") == (1 if floor == "F1" else 0)
         assert np.mean([r["floor"] == floor for r in scans if r["kind"] == "wifi"]) >= 0.95
         assert all(r["recorded_floor"] == floor for r in rows)
-        # the Wi-Fi model alone: that walk's floor is unknown, said so
+        # the Wi-Fi model alone: that walk's floor is unknown, a failure (no rows, exit 1)
         wifi = runner.invoke(main, ["floor", "--kind", "wifi", str(built),
                                     str(SITE / floor / "path_data_files")])
-        assert wifi.exit_code == 0, wifi.output
+        assert wifi.exit_code == (1 if floor == "F1" else 0), wifi.output
         walks = [r for r in _rows(wifi.stdout) if r["level"] == "walk"]
-        assert all(r["floor"] == (floor if int(r["n_known"]) else "") for r in walks)
-        assert sum(r["floor"] == floor for r in walks) == (5 if floor == "F1" else 6)
+        assert [r["floor"] for r in walks] == [floor] * (5 if floor == "F1" else 6)
         assert ("floor unknown" in wifi.stderr) == (floor == "F1")
+        assert ("1 failure(s) in 6 walk(s)" in wifi.stderr) == (floor == "F1")
     bad = runner.invoke(main, ["floor", str(built / "F1"), str(SITE / "F1" / "path_data_files")])
     assert bad.exit_code != 0 and "not a site bundle" in bad.output
 
@@ -345,19 +345,40 @@ def test_wifi_locate_command(built, tmp_path):
         assert given.exit_code == 2 and why in given.output, given.output
 
 
+def test_wifi_locate_fails_a_walk_whose_scans_hear_no_known_transmitter(built, tmp_path):
+    """Scans, but none hears an access point of the bundle: a failure (no rows, exit 1), not
+    rows of empty positions and exit 0; the other walks still get theirs."""
+    import gzip
+    import re
+
+    walks = sorted((SITE / "F2" / "path_data_files").glob("*.txt.gz"))
+    text = gzip.decompress(walks[0].read_bytes()).decode()
+    unknown = re.sub(r"(TYPE_WIFI\t[^\t]*\t)([0-9a-f:]{17})",
+                     lambda m: m.group(1) + "02:" + m.group(2)[3:], text)
+    assert unknown != text
+    (tmp_path / walks[0].name).write_bytes(gzip.compress(unknown.encode()))
+    res = CliRunner().invoke(main, ["wifi-locate", "--calibration", "none", str(built / "F2"),
+                                    str(tmp_path / walks[0].name), str(walks[1])])
+    assert res.exit_code == 1, res.output
+    assert "wifi scans hears a transmitter the F2 bundle knows" in res.stderr
+    assert "1 failure(s) in 2 walk(s)" in res.stderr
+    assert {r["trace_id"] for r in _rows(res.stdout)} == {walks[1].name.split(".")[0]}
+
+
 def test_walk_without_wifi(built, tmp_path):
     """The sample's walk with no Wi-Fi rows (one real walk has none): clear message."""
     walk = SITE / "F1" / "path_data_files" / "641189778a6ffd7aae963f2c.txt.gz"
     runner = CliRunner()
     res = runner.invoke(main, ["wifi-locate", str(built), str(walk)])
-    assert res.exit_code == 0 and "no wifi scans; it has ble scans: --kind ble" in res.stderr
+    assert res.exit_code == 1 and "no wifi scans; it has ble scans: --kind ble" in res.stderr
+    assert res.stdout.strip() == "trace_id,floor,t_ms,n_known,x_m,y_m,sigma_m,error_m"
     res = runner.invoke(main, ["floor", str(built), str(walk)])  # by BLE: said so
     assert res.exit_code == 0 and "(no Wi-Fi scan classified)" in res.stderr
     assert [(r["floor"], r["kind"]) for r in _rows(res.stdout) if r["level"] == "walk"] == \
         [("F1", "ble")]
     res = runner.invoke(main, ["floor", "--kind", "wifi", str(built), str(walk)])
-    assert res.exit_code == 0 and "floor unknown" in res.stderr
-    assert [r["floor"] for r in _rows(res.stdout) if r["level"] == "walk"] == [""]
+    assert res.exit_code == 1 and "floor unknown" in res.stderr
+    assert not _rows(res.stdout)  # the header only
     # the radio-only method goes by the walk's BLE windows
     res = runner.invoke(main, ["localize", str(built), str(walk), "-o", str(tmp_path / "ble"),
                                "--method", "radio", "--start", "waypoint", "--no-plot"])
