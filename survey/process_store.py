@@ -41,8 +41,8 @@ import pyarrow.compute as pc
 from . import __version__
 from .errors import ProcessingError, StoreError
 from .magcal import MagCalResult, fit_ellipsoid
-from .process import ProcessedWalk, ProcessParams, calibration_sessions, process_walk, \
-    reported_bias
+from .process import MAX_WAYPOINT_OUTSIDE_SENSORS_S, ProcessedWalk, ProcessParams, \
+    calibration_sessions, process_walk, reported_bias
 from .publish import TMP_PREFIX, atomic_write_bytes, crash_point, fsync_dir, \
     remove_stale_temporaries
 from .store import (SurveyStore, _arrow_column, _parquet_bytes, check_columns, files_match,
@@ -472,6 +472,13 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
                 new_rows.append({**base, "status": "skipped", "reason": str(err),
                                  "summary_json": "{}"})
                 continue
+            stray = walk.summary["waypoints_outside_sensors_t_ms"]
+            if stray:
+                report.warnings.append(
+                    f"{row.trace_id}: {len(stray)} waypoint(s) more than "
+                    f"{MAX_WAYPOINT_OUTSIDE_SENSORS_S:g} s outside the walk's sensor rows "
+                    f"dropped (t_ms {', '.join(map(str, stray[:5]))}"
+                    + (" ..." if len(stray) > 5 else "") + ")")
             outputs = {"samples": walk.samples, "steps": walk.steps, "legs": walk.legs,
                       "wifi": _position_rows(tables["wifi"], "scan_t_ms", walk),
                       "ble": _position_rows(tables["ble"], "t_ms", walk)}

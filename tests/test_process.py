@@ -169,6 +169,49 @@ def test_waypoints_out_of_order_give_the_same_result(walks):
     pd.testing.assert_frame_equal(a.samples, b.samples)
 
 
+def test_a_waypoint_outside_the_sensor_rows_is_dropped_and_said(walks):
+    """A click an hour after the walk (or before it) has no steps on its leg; kept, the joint
+    step-track fit bent the other legs towards it. Dropped, the samples are those of the
+    clean walk; one within 5 s of the rows stays (real first clicks precede the rows)."""
+    tr = _walk(walks)
+    clean = process_walk("w", tr.sensors, tr.waypoints)
+    t0, t1 = tr.sensors["t_ms"].min(), tr.sensors["t_ms"].max()
+    for t_stray in (t1 + 3_600_000, t0 - 60_000):
+        wp = pd.concat([tr.waypoints, pd.DataFrame({"t_ms": [t_stray], "x_m": [0.0],
+                                                    "y_m": [0.0]})], ignore_index=True)
+        walk = process_walk("w", tr.sensors, wp)
+        assert walk.summary["waypoints_outside_sensors_t_ms"] == [t_stray]
+        pd.testing.assert_frame_equal(walk.samples, clean.samples)
+    assert clean.summary["waypoints_outside_sensors_t_ms"] == []
+    near = pd.concat([tr.waypoints, pd.DataFrame({"t_ms": [t1 + 4_000], "x_m": [0.0],
+                                                  "y_m": [0.0]})], ignore_index=True)
+    assert process_walk("w", tr.sensors, near).summary["waypoints_outside_sensors_t_ms"] == []
+    far = tr.waypoints.copy()
+    far.loc[1:, "t_ms"] += 10 * 3_600_000  # all but the first a day off
+    with pytest.raises(ProcessingError, match="1 waypoint\\(s\\) within the walk's sensor rows"):
+        process_walk("w", tr.sensors, far)
+
+
+def test_process_store_warns_of_a_dropped_waypoint(tmp_path):
+    import gzip
+
+    from survey.ingest import ingest
+    from survey.process_store import process_store
+
+    src = min((SITE / "F1" / "path_data_files").glob("*.txt.gz"))
+    lines = gzip.decompress(src.read_bytes()).decode().split("\n")
+    end = next(i for i, ln in enumerate(lines) if ln.startswith("#\tendTime"))
+    t_end = int(lines[end - 1].split("\t")[0])
+    lines.insert(end, f"{t_end + 3_600_000}\tTYPE_WAYPOINT\t5.0\t20.0")
+    (tmp_path / "in").mkdir()
+    (tmp_path / "in" / src.name).write_bytes(gzip.compress("\n".join(lines).encode()))
+    ingest([tmp_path / "in"], tmp_path / "store")
+    report = process_store(tmp_path / "store")
+    assert report.processed and [w for w in report.warnings if
+                                 f"1 waypoint(s) more than 5 s outside the walk's sensor rows "
+                                 f"dropped (t_ms {t_end + 3_600_000})" in w]
+
+
 def test_coincident_waypoints_are_flagged(walks):
     tr = _walk(walks)
     wp = tr.waypoints.copy()
