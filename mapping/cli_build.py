@@ -35,7 +35,7 @@ from .bundle_report import bundle_differences, metric_lines
 from .bundle_writer import write_bundle
 from .floorplan import FloorPlan, read_floor_plan
 from .grid import reachable_mask
-from .radio_build import build_site_radio, format_share
+from .radio_build import build_site_radio, format_share, n_floors_text
 from .registry import SITE_BUNDLE, Registry, safe_name
 
 if TYPE_CHECKING:  # an annotation: ingest is imported when a build runs
@@ -425,7 +425,7 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
         fm = site_content.metrics["floor_model"]
         ble_fm = site_content.metrics["ble_floor_model"]
         acc = ("no floor model (no radio rows)" if fm is None else
-               f"floor model: {len(fm['floors'])} floors, cross-validated per scan "
+               f"floor model: {n_floors_text(len(fm['floors']))}, cross-validated per scan "
                + format_share(fm["cv_scan_accuracy"])
                + ("" if ble_fm is None else "; BLE floor model per BLE window "
                   + format_share(ble_fm["cv_scan_accuracy"])))
@@ -527,7 +527,8 @@ def bundle_verify(paths: tuple[Path, ...]) -> None:
             click.echo(f"ok      {p} ({b.bundle_id[:16]})")
         except IndoormapError as err:
             bad += 1
-            click.echo(f"FAILED  {p}: {err}")
+            text = str(err)  # a load error names its bundle already
+            click.echo(f"FAILED  {text}" if text.startswith(str(p)) else f"FAILED  {p}: {text}")
     if bad:
         sys.exit(1)
 

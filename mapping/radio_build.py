@@ -375,6 +375,11 @@ def format_share(v: float | None) -> str:
     return "n/a" if v is None or not np.isfinite(v) else f"{100 * v:.2f} %"
 
 
+def n_floors_text(n: int) -> str:
+    """``"1 floor"``, ``"3 floors"``."""
+    return f"{n} floor" + ("" if n == 1 else "s")
+
+
 def build_site_radio(store: SurveyStore | str, floors: Sequence[str], *,
                      site: str | None = None, params: RadioParams = RadioParams(),
                      exclude_walks: Collection[str] = (),
@@ -588,7 +593,7 @@ def _fit_and_say(by_floor: dict[str, pd.DataFrame], kind: str, what: str, params
     model = fit_floor_model(by_floor, cv_folds=params.floor_cv_folds, seed=params.seed,
                             feature=getattr(params, f"{kind}_floor_feature"))
     m = model.meta
-    say(f"floor model ({kind}{what}, {model.feature}): {len(model.floors)} floors, "
+    say(f"floor model ({kind}{what}, {model.feature}): {n_floors_text(len(model.floors))}, "
         f"{len(model.aps)} transmitters; cross-validated per scan "
         f"{format_share(m['cv_scan_accuracy'])}, per "
         f"walk {format_share(m['cv_walk_accuracy'])}")

@@ -36,6 +36,7 @@ from survey.publish import atomic_write_bytes
 from survey.regular_files import read_regular
 
 from .floorplan import MAX_PLAN_FILE_BYTES
+from .radio_build import n_floors_text
 from .validate import THRESHOLD_DOCS, ValidationResult, write_metrics
 
 DPI = 110
@@ -965,14 +966,14 @@ def _section_radio(result) -> str:
             return "n/a" if v is None else f"{100 * v:.2f} %"
 
         out.append(f"<p>Floor model ({_e(fm.get('kind', ''))}, site bundle): "
-                   f"{len(fm.get('floors', []))} floors, cross-validated accuracy per scan "
-                   f"{pct(fm.get('cv_scan_accuracy'))}, per walk "
+                   f"{n_floors_text(len(fm.get('floors', [])))}, cross-validated accuracy "
+                   f"per scan {pct(fm.get('cv_scan_accuracy'))}, per walk "
                    f"{pct(fm.get('cv_walk_accuracy'))}</p>")
         ble = radio.get("ble_floor_model")
         if ble:
             out.append(f"<p>BLE floor model (site bundle; for walks without Wi-Fi that name no "
-                       f"floor): {len(ble.get('floors', []))} floors, cross-validated accuracy "
-                       f"per BLE window {pct(ble.get('cv_scan_accuracy'))}, per walk "
+                       f"floor): {n_floors_text(len(ble.get('floors', [])))}, cross-validated "
+                       f"accuracy per BLE window {pct(ble.get('cv_scan_accuracy'))}, per walk "
                        f"{pct(ble.get('cv_walk_accuracy'))}</p>")
     else:
         out.append(f"<p class='note'>{_e(radio.get('floor_note', 'no floor model'))}</p>")

@@ -44,7 +44,9 @@ def format_summary(s: IngestSummary) -> str:
         lines.append(f"{title}: {total}")
         lines.extend(f"  {k:<44} {v:>10}" for k, v in sorted(counts.items()))
     for o in s.failed:
-        lines.append(f"FAILED {o.path}: {o.detail}")
+        # reader errors name their file already
+        lines.append(f"FAILED {o.detail}" if str(o.detail).startswith(str(o.path))
+                     else f"FAILED {o.path}: {o.detail}")
     if s.messages:
         lines.append("first problems:")
         lines.extend(f"  {m}" for m in s.messages[:10])

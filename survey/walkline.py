@@ -144,8 +144,11 @@ def read_walk_plan(path: str | os.PathLike, *, strict: bool = False
         walk_id = str(props.get("walk_id") or "").strip()
         log = props.get("sensor_log")
         if not walk_id or not log:
-            raise SurveyFormatError("feature needs properties 'walk_id' and 'sensor_log'",
-                                    path=where, reason="plan")
+            hint = ("; this looks like the simulator's planned_routes.geojson (the routes its "
+                    "walks follow, not a walk plan): ingest the traces in path_data_files/"
+                    if walk_id and "start_ms" in props else "")
+            raise SurveyFormatError("feature needs properties 'walk_id' and 'sensor_log'"
+                                    + hint, path=where, reason="plan")
         if not isinstance(log, str):
             raise SurveyFormatError("'sensor_log' must be a path (a string)", path=where,
                                     reason="plan")

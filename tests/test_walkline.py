@@ -234,3 +234,21 @@ def test_bytes_that_are_not_utf8_make_their_row_a_bad_line(tmp_path, monkeypatch
     assert trace.report.accounted_lines() == trace.report.lines_total == 5
     with pytest.raises(SurveyFormatError, match=r"a.csv:3: 5 fields, the header has 4"):
         read_walk_plan(tmp_path / "plan.geojson", strict=True)
+
+
+def test_the_simulators_route_file_is_named_as_such_and_its_path_said_once(tmp_path):
+    """`ingest planned_routes.geojson` (a new user's guess): the failure says what the file is
+    and what to ingest instead, naming the file once."""
+    from click.testing import CliRunner
+
+    from survey.cli import main
+
+    routes = {"type": "FeatureCollection", "features": [{
+        "type": "Feature", "geometry": {"type": "LineString", "coordinates": [[0, 0], [5, 0]]},
+        "properties": {"walk_id": "w1", "start_ms": 1, "end_ms": 2, "floor": "F1"}}]}
+    path = tmp_path / "planned_routes.geojson"
+    path.write_text(json.dumps(routes))
+    res = CliRunner().invoke(main, ["ingest", str(path), "--store", str(tmp_path / "store")])
+    line = next(ln for ln in res.output.splitlines() if ln.startswith("FAILED"))
+    assert line.count(str(path)) == 1
+    assert "simulator's planned_routes.geojson" in line and "path_data_files/" in line
