@@ -32,12 +32,13 @@ def _save_png(fig, path: str | Path) -> None:
 def plot_track(path: str | Path, bundle: MapBundle, tracks: Mapping[str, Track],
                waypoints_xy: ArrayLike | None = None, title: str = "", *,
                margin_m: float = 8.0) -> bool:
-    """Trajectories over the bundle's reachable mask as a PNG, zoomed to the tracks and
+    """Trajectories over the bundle's reachable mask (cells off it grey) as a PNG, zoomed to the tracks and
     waypoints (``margin_m`` around them, within the floor): start (circle) and end (square)
     of each track, recoveries (x), waypoints with their order; False without matplotlib.
 
     ``tracks``: label -> track; ``waypoints_xy``: shape (k, 2), m, in time order."""
     try:  # the object API: no pyplot state, the caller's backend (a notebook's) untouched
+        from matplotlib.colors import ListedColormap
         from matplotlib.figure import Figure
     except ImportError:
         return False
@@ -59,7 +60,9 @@ def plot_track(path: str | Path, bundle: MapBundle, tracks: Mapping[str, Track],
     span = np.maximum(hi - lo, 1.0)
     fig = Figure(figsize=(8, min(8 * span[1] / span[0], 14) + 0.8))
     ax = fig.subplots()
-    ax.imshow(np.asarray(bundle.mask), origin="lower", cmap="Greys", alpha=0.35,
+    # cells off the reachable area shaded grey, as in the validation report's figures
+    ax.imshow(np.where(np.asarray(bundle.mask, dtype=bool), np.nan, 1.0), origin="lower",
+              cmap=ListedColormap(["#9e9e9e"]), alpha=0.8, interpolation="nearest",
               extent=(g.x0_m, x1, g.y0_m, y1))
     for name, tr in tracks.items():
         xs, ys = lines[name]
@@ -93,6 +96,7 @@ def plot_cdfs(path: str | Path, errors: Mapping[str, NDArray[np.float64]], title
     """Error CDFs per method as a PNG (``errors``: label -> errors in m, NaN ignored); False
     without matplotlib."""
     try:  # the object API: no pyplot state, the caller's backend (a notebook's) untouched
+        from matplotlib.colors import ListedColormap
         from matplotlib.figure import Figure
     except ImportError:
         return False
