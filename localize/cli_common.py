@@ -147,15 +147,13 @@ class WalkFailures:
     def run(self, where: str | Path, fn: Callable[[], T]) -> T | None:
         """``fn()``, or None after reporting an indoormap error (bad trace, no start, ...)
         under ``where`` (the file, and the method when one method failed)."""
-        from survey.errors import IndoormapError
+        from survey.errors import IndoormapError, at_path
 
         try:
             return fn()
         except IndoormapError as err:
             self.count += 1
-            text = str(err)  # reader errors already start with the file
-            click.echo(f"error: {text}" if text.startswith(str(where)) else
-                       f"error: {where}: {text}", err=True)
+            click.echo(f"error: {at_path(where, str(err))}", err=True)
             return None
 
     def exit_if_any(self, total: int) -> None:

@@ -288,9 +288,11 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
         located = np.isfinite(fixes.xy_m[:, 0])
         floor = bundle.manifest.get("floor_name", "")
         if not located.any():
+            why = ("hears a transmitter the {} bundle knows" if not fixes.n_known.any() else
+                   "got a position from the {} bundle (the known transmitters' rows too old "
+                   "or too weak)").format(floor)
             raise LocalizationError(f"{trace.trace_id}: none of its {len(scans)} {kind} scans "
-                                    f"hears a transmitter the {floor} bundle knows "
-                                    f"(calibration {how}); no position")
+                                    f"{why}; calibration {how}")
         t = np.array([s.t_ms for s in scans], dtype=np.float64)
         t_wp, xy_wp = waypoints_of(trace)
         truth = np.full((len(scans), 2), np.nan)

@@ -32,9 +32,10 @@ def _save_png(fig, path: str | Path) -> None:
 def plot_track(path: str | Path, bundle: MapBundle, tracks: Mapping[str, Track],
                waypoints_xy: ArrayLike | None = None, title: str = "", *,
                margin_m: float = 8.0) -> bool:
-    """Trajectories over the bundle's reachable mask (cells off it grey) as a PNG, zoomed to the tracks and
-    waypoints (``margin_m`` around them, within the floor): start (circle) and end (square)
-    of each track, recoveries (x), waypoints with their order; False without matplotlib.
+    """Trajectories over the bundle's reachable mask (cells off it grey) as a PNG, zoomed to
+    the tracks and waypoints (``margin_m`` around them, within the floor): start (circle) and
+    end (square) of each track, recoveries (x), waypoints with their order; False without
+    matplotlib.
 
     ``tracks``: label -> track; ``waypoints_xy``: shape (k, 2), m, in time order."""
     try:  # the object API: no pyplot state, the caller's backend (a notebook's) untouched
@@ -96,7 +97,6 @@ def plot_cdfs(path: str | Path, errors: Mapping[str, NDArray[np.float64]], title
     """Error CDFs per method as a PNG (``errors``: label -> errors in m, NaN ignored); False
     without matplotlib."""
     try:  # the object API: no pyplot state, the caller's backend (a notebook's) untouched
-        from matplotlib.colors import ListedColormap
         from matplotlib.figure import Figure
     except ImportError:
         return False

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from localize.bundle import bundle_dirs, load_bundle
-from survey.errors import IndoormapError, PublishError, RegistryError
+from survey.errors import IndoormapError, PublishError, RegistryError, at_path
 from survey.publish import (
     JOURNAL_NAME,
     refuse_to_replace,
@@ -527,8 +527,7 @@ def bundle_verify(paths: tuple[Path, ...]) -> None:
             click.echo(f"ok      {p} ({b.bundle_id[:16]})")
         except IndoormapError as err:
             bad += 1
-            text = str(err)  # a load error names its bundle already
-            click.echo(f"FAILED  {text}" if text.startswith(str(p)) else f"FAILED  {p}: {text}")
+            click.echo(f"FAILED  {at_path(p, str(err))}")
     if bad:
         sys.exit(1)
 

@@ -228,9 +228,9 @@ def radio_summary(bundle: MapBundle, store: SurveyStore | str | Path | None, flo
     """The radio section's figures (JSON-able) plus ``arrays`` for the report's plots.
 
     ``store``: the survey store the bundle was built from, or None (then only the bound and
-    the site's floor accuracy are reported). ``leave_out``: trace ids of store walks the
-    bundle was not built from (not used). ``progress`` receives a message per held-out fold
-    (the maps are rebuilt for each).
+    the site's floor accuracy are reported). ``leave_out``: trace ids of the store's walks that
+    the bundle was not built from; the held-out folds do not read them. ``progress`` receives
+    a message per held-out fold (the maps are rebuilt for each).
     """
     from .radio_build import site_observations
 
@@ -240,8 +240,8 @@ def radio_summary(bundle: MapBundle, store: SurveyStore | str | Path | None, flo
         from survey.store import SurveyStore
 
         st = store if isinstance(store, SurveyStore) else SurveyStore.open(store)
-        obs = {k: site_observations(st, site, [floor], k) for k in ("wifi", "ble")}
-        obs = {k: o[~o["trace_id"].isin(list(leave_out))] for k, o in obs.items()}
+        obs = {k: site_observations(st, site, [floor], k, exclude_walks=leave_out)
+               for k in ("wifi", "ble")}
         walks = np.unique(np.concatenate([o["trace_id"].to_numpy().astype(str)
                                           for o in obs.values() if len(o)] or [np.empty(0)]))
         if len(walks) >= 2:

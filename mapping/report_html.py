@@ -895,8 +895,8 @@ def _section_data_quality(result) -> str:
                f"{dq['walks_in_bundle']} walks"
                + ("" if dq["store_matches_bundle"] else
                   " (<b>the store's walks differ from the bundle's</b>)")
-               + (f"; {len(dq['walks_not_in_bundle'])} other walks of the store are not in the "
-                  "bundle and are left out of this report"
+               + (f"; {len(dq['walks_not_in_bundle'])} other walk(s) of the store, not in the "
+                  "bundle, are left out of this report"
                   if dq.get("walks_not_in_bundle") else "") + ".</p>")
     bad = [d for d in dq["lines"] if d["n_bad_lines"]]
     if bad:

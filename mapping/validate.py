@@ -430,9 +430,9 @@ def load_floor_data(store: SurveyStore | str | Path, bundle: MapBundle) -> Floor
     positions too, as :func:`mapping.holdout.floor_samples_with_baseline_positions` gives):
     the walks of the bundle's site (that of its source walks found in the store, else its
     ``site_id``) on its floor. When some of the bundle's source walks are in the store, the
-    store's other processed walks (left out by ``build --exclude``, or ingested later) are left
-    out too, so the report scores the map on the walks it was built from; walks the store
-    skipped or never processed stay listed.
+    store's other walks processed ok or not processed (left out by ``build --exclude``, or
+    ingested later) are left out too, so the report scores the map on the walks it was built
+    from; walks that processing skipped or failed stay listed.
 
     Raises
     ------
@@ -461,8 +461,11 @@ def load_floor_data(store: SurveyStore | str | Path, bundle: MapBundle) -> Floor
             "it was built from")
     pcat = processed_catalog(store)
     pcat = pcat[(pcat["floor"] == floor) & (pcat["site"] == site)]
-    not_in_bundle = sorted(set(pcat.loc[pcat["status"] == "ok", "trace_id"]) - walks) \
-        if len(mine) else []
+    # a build processes every walk it reads: a walk of the floor processed ok, or never
+    # processed, that is not among the source walks was not an input (excluded, or ingested
+    # later); walks processing skipped or failed stay, as the build met them too
+    not_done = set(pcat.loc[pcat["status"] != "ok", "trace_id"])
+    not_in_bundle = sorted(set(fcat["trace_id"]) - walks - not_done) if len(mine) else []
 
     def of_bundle(table: pd.DataFrame) -> pd.DataFrame:
         if not not_in_bundle:
@@ -1558,6 +1561,9 @@ def summary_lines(result: ValidationResult) -> list[str]:
         if hd.get("rmse") is not None:
             lines.append(f"held-out heading offset: RMSE {hd['rmse']:.1f} deg, shape RMSE "
                          f"{hd['shape_rmse']:.1f} deg")
+    left_out = m.get("data_quality", {}).get("walks_not_in_bundle", [])
+    if left_out:
+        lines.append(f"{len(left_out)} walk(s) of the store not in the bundle left out")
     warns = [f for f in result.findings if f.severity == "warn"]
     lines += [f"warning: {f.message}" for f in warns if f.check == "no_store"]
     others = sum(f.check != "no_store" for f in warns)

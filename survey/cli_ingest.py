@@ -6,6 +6,7 @@ import sys
 
 import click
 
+from .errors import at_path
 from .ingest import IngestSummary, ingest
 from .progress import progress
 
@@ -44,9 +45,7 @@ def format_summary(s: IngestSummary) -> str:
         lines.append(f"{title}: {total}")
         lines.extend(f"  {k:<44} {v:>10}" for k, v in sorted(counts.items()))
     for o in s.failed:
-        # reader errors name their file already
-        lines.append(f"FAILED {o.detail}" if str(o.detail).startswith(str(o.path))
-                     else f"FAILED {o.path}: {o.detail}")
+        lines.append(f"FAILED {at_path(o.path, str(o.detail))}")
     if s.messages:
         lines.append("first problems:")
         lines.extend(f"  {m}" for m in s.messages[:10])

@@ -11,6 +11,17 @@ class IndoormapError(Exception):
     """Root of every error indoormap raises on purpose."""
 
 
+def at_path(path: object, text: str) -> str:
+    """``"PATH: text"``, or ``text`` alone when it starts by naming ``path`` already
+    (``"PATH: ..."``, ``"PATH:12: ..."``, ``"PATH (feature 0): ..."``), so a message names
+    its file once. A longer path that starts with the same characters (``out/F10`` for
+    ``out/F1``) is not ``path``."""
+    p = str(path)
+    if text.startswith(p) and text[len(p):len(p) + 1] == ":" or text.startswith(p + " ("):
+        return text
+    return f"{p}: {text}"
+
+
 class SurveyFormatError(IndoormapError, ValueError):
     """A survey file (trace, walk-line CSV, walk plan) does not follow its format.
 

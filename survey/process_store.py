@@ -74,8 +74,16 @@ class ProcessReport:
     warnings: list[str] = field(default_factory=list)
 
 
+#: Version of what processing computes from the same inputs and parameters; part of every
+#: walk's inputs hash, so a store processed by an older version is processed again. 2: a
+#: waypoint far outside the walk's sensor rows is dropped
+#: (:data:`survey.process.MAX_WAYPOINT_OUTSIDE_SENSORS_S`).
+PROCESS_VERSION = 2
+
+
 def params_sha256(params: ProcessParams) -> str:
-    return hashlib.sha256(params.to_json().encode()).hexdigest()
+    """Hash of the processing parameters and :data:`PROCESS_VERSION`."""
+    return hashlib.sha256(f"process v{PROCESS_VERSION}|{params.to_json()}".encode()).hexdigest()
 
 
 #: Calibration decisions made without the session's pooled fit (a walk with one of them does

@@ -309,6 +309,19 @@ def test_not_a_bundle(tmp_path):
     assert f"FAILED  {tmp_path}: not a map bundle" in res.output
 
 
+@pytest.mark.parametrize("path, text, said", [
+    ("out/F1", "out/F1: no manifest.json", "out/F1: no manifest.json"),
+    ("a.txt", "a.txt:12: bad field", "a.txt:12: bad field"),
+    ("p.geojson", "p.geojson (feature 0): no walk_id", "p.geojson (feature 0): no walk_id"),
+    ("out/F1", "out/F10: no manifest.json", "out/F1: out/F10: no manifest.json"),
+    ("b", "b/manifest.json: unreadable", "b: b/manifest.json: unreadable"),
+])
+def test_a_failure_names_its_path_once(path, text, said):
+    from survey.errors import at_path
+
+    assert at_path(path, text) == said
+
+
 def test_writer_refuses_bad_numbers(tmp_path):
     c = _content()
     c.layers["strength"].values[5, 5] = np.inf

@@ -192,9 +192,12 @@ def test_a_waypoint_outside_the_sensor_rows_is_dropped_and_said(walks):
         process_walk("w", tr.sensors, far)
 
 
-def test_process_store_warns_of_a_dropped_waypoint(tmp_path):
+def test_process_store_warns_of_a_dropped_waypoint(tmp_path, monkeypatch):
+    """Said by `process`; and a store processed by the version before the rule (whose walk
+    kept the stray click) is processed again, not left as it was."""
     import gzip
 
+    import survey.process_store as ps
     from survey.ingest import ingest
     from survey.process_store import process_store
 
@@ -206,6 +209,10 @@ def test_process_store_warns_of_a_dropped_waypoint(tmp_path):
     (tmp_path / "in").mkdir()
     (tmp_path / "in" / src.name).write_bytes(gzip.compress("\n".join(lines).encode()))
     ingest([tmp_path / "in"], tmp_path / "store")
+    with monkeypatch.context() as m:
+        m.setattr(ps, "PROCESS_VERSION", ps.PROCESS_VERSION - 1)
+        assert process_store(tmp_path / "store").processed
+        assert not process_store(tmp_path / "store").processed  # unchanged
     report = process_store(tmp_path / "store")
     assert report.processed and [w for w in report.warnings if
                                  f"1 waypoint(s) more than 5 s outside the walk's sensor rows "

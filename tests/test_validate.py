@@ -245,33 +245,55 @@ def test_without_store_checks_the_bundle_alone(sites, tmp_path):
     assert (tmp_path / "r" / "report.html").exists() or not HAS_MPL
 
 
-def test_a_bundle_built_without_a_walk_is_scored_without_it(sites, tmp_path):
-    """``build --exclude``: the store still holds the walk, but coverage, the held-out folds and
-    the radio section use the bundle's source walks only (they used all the store's walks)."""
+def test_a_bundle_built_without_a_walk_is_scored_without_it(sites, tmp_path, monkeypatch):
+    """``build --exclude``, and a walk ingested after the build and not processed: the store
+    holds both, but coverage, the held-out folds and the radio folds use the bundle's source
+    walks only (they used all the store's processed walks, and an unprocessed one failed the
+    report as 'not processed')."""
+    import gzip
+
+    import mapping.radio_validation as rv
     from mapping.build import build_floor
     from mapping.bundle_writer import write_bundle
     from mapping.floorplan import read_floor_plan
+    from survey.ingest import ingest
 
-    site, _, store = sites["clean"]
+    site, _, clean_store = sites["clean"]
+    store = tmp_path / "store"
+    shutil.copytree(clean_store, store)
     walks = sorted(SurveyStore.open(store).catalog()["trace_id"])
     left_out = walks[3]
     bundle = tmp_path / "bundle"
     write_bundle(bundle, build_floor(store, read_floor_plan(site / "F1"), floor="F1",
                                      exclude_walks=[left_out]))
+    src = min((site / "F1" / "path_data_files").glob("*.txt.gz"))
+    later = "a" * 22 + "01"
+    (tmp_path / "later").mkdir()
+    (tmp_path / "later" / f"{later}.txt.gz").write_bytes(gzip.compress(
+        gzip.decompress(src.read_bytes()) + b"\n"))
+    ingest([tmp_path / "later"], store)
+    radio_walks: list[set] = []
+    real = rv.heldout_radio
+
+    def spy(obs, *args, **kwargs):
+        radio_walks.append(set().union(*(set(o["trace_id"].astype(str)) for o in obs.values())))
+        return real(obs, *args, **kwargs)
+
+    monkeypatch.setattr(rv, "heldout_radio", spy)
     res, metrics = _validate(bundle, store, tmp_path / "r")
     assert res.exit_code in (0, 1), res.output
     manifest = json.loads((bundle / "manifest.json").read_text())
     assert metrics["store"]["walks"] == len(walks) - 1
     assert set(metrics["heldout"]["per_walk"]) == set(walks) - {left_out}
     assert metrics["coverage"]["euclidean"] == pytest.approx(manifest["metrics"]["coverage"])
-    assert metrics["data_quality"]["walks_not_in_bundle"] == [left_out]
+    assert metrics["data_quality"]["walks_not_in_bundle"] == sorted([left_out, later])
     assert metrics["data_quality"]["store_matches_bundle"]
+    assert not metrics["data_quality"]["walks_skipped"]
     checks = {f["check"]: f for f in metrics["findings"]}
     assert left_out in checks["walks_not_in_bundle"]["message"]
-    assert "store_mismatch" not in checks
-    radio = metrics["radio"]["kinds"]["wifi"]
-    assert radio["split"] == "leave-one-walk-out"
-    assert radio["scans"] <= manifest["metrics"]["radio"]["wifi"]["scans"]  # its walks' scans
+    assert "store_mismatch" not in checks and "walk_skipped" not in checks
+    assert "2 walk(s) of the store not in the bundle left out" in res.output
+    assert radio_walks == [set(walks) - {left_out}]
     assert str(metrics["store"]["path"]) == str(store)
 
 
