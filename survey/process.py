@@ -267,12 +267,21 @@ def _way_along_legs(axis_deg: NDArray, step_t_ms: NDArray, wt: NDArray, wxy: NDA
     return np.mod(axis_deg + 180.0, 360.0) if against.mean() > 0.5 else axis_deg
 
 
+def waypoints_off_sensors(waypoint_t_ms: ArrayLike, acc_t_ms: ArrayLike) -> NDArray[np.bool_]:
+    """Which waypoints (times, ms) lie more than :data:`MAX_WAYPOINT_OUTSIDE_SENSORS_S` before
+    the first or after the last accelerometer row (times ``acc_t_ms``, ms, at least one):
+    clicks that processing drops and evaluation does not score."""
+    t = np.asarray(waypoint_t_ms, dtype=np.float64)
+    acc = np.asarray(acc_t_ms, dtype=np.float64)
+    tol_ms = 1000.0 * MAX_WAYPOINT_OUTSIDE_SENSORS_S
+    return (t < acc.min() - tol_ms) | (t > acc.max() + tol_ms)
+
+
 def _within_sensor_span(trace_id: str, wt: NDArray, wxy: NDArray, acc_t: NDArray
                         ) -> tuple[NDArray, NDArray, list[int]]:
-    """The waypoints (times ms, positions m) within :data:`MAX_WAYPOINT_OUTSIDE_SENSORS_S` of
-    the accelerometer rows' span (``acc_t`` sorted, ms), and the times of those dropped."""
-    tol_ms = 1000.0 * MAX_WAYPOINT_OUTSIDE_SENSORS_S
-    stray = (wt < acc_t[0] - tol_ms) | (wt > acc_t[-1] + tol_ms)
+    """The waypoints (times ms, positions m) not :func:`waypoints_off_sensors`, and the times
+    of those dropped."""
+    stray = waypoints_off_sensors(wt, acc_t)
     if not stray.any():
         return wt, wxy, []
     if (~stray).sum() < 2:

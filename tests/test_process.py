@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -186,6 +187,14 @@ def test_a_waypoint_outside_the_sensor_rows_is_dropped_and_said(walks):
     near = pd.concat([tr.waypoints, pd.DataFrame({"t_ms": [t1 + 4_000], "x_m": [0.0],
                                                   "y_m": [0.0]})], ignore_index=True)
     assert process_walk("w", tr.sensors, near).summary["waypoints_outside_sensors_t_ms"] == []
+    # evaluation does not score the track there either (the track stays at its last step)
+    from survey.step_summaries import waypoints_of
+
+    stray = pd.concat([tr.waypoints, pd.DataFrame({"t_ms": [t1 + 3_600_000], "x_m": [0.0],
+                                                   "y_m": [0.0]})], ignore_index=True)
+    t_wp, xy_wp = waypoints_of(dataclasses.replace(tr, waypoints=stray))
+    np.testing.assert_array_equal(t_wp, np.sort(tr.waypoints["t_ms"].to_numpy(np.float64)))
+    assert len(xy_wp) == len(tr.waypoints)
     far = tr.waypoints.copy()
     far.loc[1:, "t_ms"] += 10 * 3_600_000  # all but the first a day off
     with pytest.raises(ProcessingError, match="1 waypoint\\(s\\) within the walk's sensor rows"):
