@@ -185,6 +185,31 @@ def test_overwrite_replaces_only_a_simulated_site(tmp_path):
     assert (tmp_path / "thesis" / "chapter1.tex").read_text() == "keep me"
 
 
+def test_overwrite_keeps_what_a_user_added_to_a_simulated_site(tmp_path):
+    """A build's bundles and store kept in the site folder (or a note beside a floor's files)
+    made --overwrite delete them without a word; now it refuses, naming them, and a clean
+    simulated site is still replaced."""
+    from survey.cli import main
+
+    small = {"n_floors": 1, "walks_per_floor": 2, "walk_duration_s": (20.0, 25.0),
+             "walks_without_wifi": 0}
+    site = tmp_path / "site"
+    simulate_site(SiteParams.preset_params("sample", seed=1, **small), site)
+    (site / "bundles").mkdir()
+    (site / "F1" / "notes.txt").write_text("keep me")
+    extra = site / "F1" / "path_data_files" / "mine.txt"
+    extra.write_text("a real trace")
+    res = CliRunner().invoke(main, ["simulate", str(site), "--overwrite"])
+    assert res.exit_code == 1, res.output
+    assert "holds files the simulator did not write (F1/notes.txt, " in res.output
+    assert "F1/path_data_files/mine.txt" in res.output and "bundles" in res.output
+    assert (site / "F1" / "notes.txt").read_text() == "keep me" and extra.exists()
+    for p in (site / "bundles", site / "F1" / "notes.txt", extra):
+        p.rmdir() if p.is_dir() else p.unlink()
+    res = CliRunner().invoke(main, ["simulate", str(site), "--overwrite"])
+    assert res.exit_code == 0, res.output
+
+
 def test_different_seed_different_files(tmp_path):
     small = {"n_floors": 1, "walks_per_floor": 2, "walk_duration_s": (20.0, 25.0),
              "walks_without_wifi": 0}

@@ -10,6 +10,41 @@ import click
 from ..trace_format import STREAM_NAMES
 
 
+#: What the simulator writes in a floor folder (besides the traces it lists).
+FLOOR_FILES = ("floor_info.json", "geojson_map.json", "planned_routes.geojson",
+               "path_data_files")
+
+
+def not_simulated(site_dir: Path) -> list[Path]:
+    """Entries of a simulated site folder that its last simulation did not write (by its
+    ``truth/site.json``): anything beside ``truth/`` and its floors, or in a floor folder
+    beside :data:`FLOOR_FILES` and the walks' traces. An unreadable ``site.json`` leaves
+    every entry but ``truth/`` foreign."""
+    import json
+
+    try:
+        truth = json.loads((site_dir / "truth" / "site.json").read_text())
+        floors = {str(f["name"]) for f in truth["floors"]}
+        traces = {str(w["trace_path"]) for w in truth["walks"]}
+    except (OSError, ValueError, KeyError, TypeError):
+        floors, traces = set(), set()
+    foreign = []
+    for entry in sorted(site_dir.iterdir()):
+        if entry.name == "truth" and entry.is_dir() and not entry.is_symlink():
+            continue
+        if entry.name not in floors or not entry.is_dir() or entry.is_symlink():
+            foreign.append(entry)
+            continue
+        for f in sorted(entry.iterdir()):
+            if f.name not in FLOOR_FILES:
+                foreign.append(f)
+        walks = entry / "path_data_files"
+        if walks.is_dir():
+            foreign += [t for t in sorted(walks.iterdir())
+                        if str(t.relative_to(site_dir)) not in traces]
+    return foreign
+
+
 @click.command("simulate")
 @click.argument("out_dir", type=click.Path(file_okay=False, dir_okay=True, path_type=Path))
 @click.option("--preset", type=click.Choice(["sample", "default"]), default="sample",
@@ -33,10 +68,17 @@ def simulate(out_dir: Path, preset: str, seed: int | None, overwrite: bool) -> N
     # indoormap's errors (PublishError, SimulationError) propagate to the main group, which
     # prints them on one line and exits with code 1
     refuse_to_replace(out_dir, overwrite)
-    if out_dir.exists() and any(out_dir.iterdir()) \
-            and not (out_dir / "truth" / "site.json").is_file():
-        raise PublishError(f"{out_dir} exists and is not a simulated site; --overwrite "
-                           "replaces simulated sites only, move it away first")
+    if out_dir.exists() and any(out_dir.iterdir()):
+        if not (out_dir / "truth" / "site.json").is_file():
+            raise PublishError(f"{out_dir} exists and is not a simulated site; --overwrite "
+                               "replaces simulated sites only, move it away first")
+        foreign = not_simulated(out_dir)
+        if foreign:  # e.g. a build's bundles or store kept in the site folder
+            raise PublishError(
+                f"{out_dir} holds files the simulator did not write ("
+                + ", ".join(str(p.relative_to(out_dir)) for p in foreign[:5])
+                + (" ..." if len(foreign) > 5 else "") + "); --overwrite would delete them: "
+                "move them out of the site folder first")
     params = SiteParams.preset_params(preset, seed=seed)
     site = simulate_site(params, out_dir, overwrite=overwrite)
     elapsed = time.perf_counter() - t0
