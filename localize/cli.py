@@ -28,7 +28,7 @@ import click
 import numpy as np
 
 from localize.cli_common import (AliasedOption, TraceIds, WalkFailures, read_walk,
-                                  say_floor_choice, trace_files)
+                                  refuse_output_inside_data, say_floor_choice, trace_files)
 from localize.methods import METHODS, SMOOTHABLE, auto_method, method_label
 from survey.publish import refuse_to_replace
 
@@ -223,6 +223,7 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
     from survey.step_summaries import waypoints_of
 
     start_opt = _parse_start(start)
+    refuse_output_inside_data(out)
     maps = SiteMaps.open(bundle_path)
     failures = WalkFailures()
     files = trace_files(walks, failures)

@@ -89,6 +89,23 @@ def trace_files(paths: tuple[str, ...], failures: WalkFailures) -> list[Path]:
     return list(unique.values())
 
 
+def refuse_output_inside_data(out: Path, option: str = "-o") -> None:
+    """A usage error when the output folder ``out`` is, or lies inside, a map bundle, a
+    registry floor folder or a survey store: files written there made the bundle fail its
+    checks ("not listed in the manifest"), and ``--overwrite`` replaced a store's
+    ``catalog.parquet`` with a track."""
+    from localize.bundle import is_bundle_dir
+
+    p = out.resolve()
+    for folder in (p, *p.parents):
+        what = ("map bundle" if is_bundle_dir(folder) else
+                "survey store" if (folder / "store.json").is_file() else None)
+        if what:
+            raise click.BadParameter(f"{out} is {'' if folder == p else 'inside '}the {what} "
+                                     f"{folder}: write the results elsewhere",
+                                     param_hint=option)
+
+
 def read_walk(path: Path) -> Trace:
     """The trace at ``path``; a warning names the file when lines had to be skipped (bad
     lines, a damaged compressed stream), as ``indoormap ingest`` reports them.

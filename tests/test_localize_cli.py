@@ -327,3 +327,25 @@ def test_evaluate_takes_the_new_option_spellings_and_still_the_old_ones(truth_bu
     assert squeezed("wifi-locate's --smoothing walk|forward") in help_of("localize")
     assert squeezed("(earlier and later scans: offline, as localize --smooth)") in \
         help_of("wifi-locate")
+
+
+def test_localize_refuses_to_write_into_a_bundle_or_a_store(truth_bundles, tmp_path):  # noqa: F811
+    """`-o BUNDLE` left an unlisted file that made the bundle fail its checks, and `-o STORE
+    --overwrite` replaced the store's catalog.parquet with a track (a walk named catalog)."""
+    import shutil
+
+    from localize.bundle import load_bundle
+
+    walk = min(F1_WALKS.glob("*.txt.gz"))
+    bundle = tmp_path / "F1"
+    shutil.copytree(truth_bundles["F1"], bundle)
+    store = tmp_path / "store"
+    store.mkdir()
+    (store / "store.json").write_text('{"schema_version": 1}')
+    for out in (bundle, bundle / "tracks", store, store / "sub"):
+        res = CliRunner().invoke(main, ["localize", str(truth_bundles["F1"]), str(walk), "-o",
+                                        str(out), "--overwrite", "--no-plot"])
+        assert res.exit_code == 2 and "write the results elsewhere" in res.output, res.output
+    assert sorted(p.name for p in store.iterdir()) == ["store.json"]
+    load_bundle(bundle)  # still whole
+    assert not (bundle / "tracks").exists()
