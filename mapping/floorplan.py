@@ -178,6 +178,8 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
     outline = geoms[outline_idx]
     if outline is None or outline.geom_type not in ("Polygon", "MultiPolygon"):
         raise FloorPlanError(f"{geo}: feature {outline_idx} (the outline) is not a polygon")
+    if outline.is_empty:
+        raise FloorPlanError(f"{geo}: feature {outline_idx} (the outline) is an empty polygon")
     if info.exists():
         meta = _read_json(info, "a floor_info file")
         try:

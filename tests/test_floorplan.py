@@ -148,6 +148,8 @@ def _square(x0: float, y0: float, side: float) -> dict:
     ([_square(121.3, 31.2, 1e-3)], "needs its floor_info.json"),  # lon/lat, no floor_info
     ([_square(-1000, -1000, 30000)], "floor size 30000 x 30000 m is over 20000 m"),
     ([_square(0, 0, 10), _square(-1, -1, 12)], "the obstacles cover the whole outline"),
+    ([{"type": "MultiPolygon", "coordinates": []}], "feature 0 .the outline. is an empty"),
+    ([{"type": "Polygon", "coordinates": [[]]}], "feature 0 .the outline. is an empty"),
 ])
 def test_plans_that_cannot_hold_a_walk_are_refused_when_read(tmp_path, geometries, match):
     """Each used to pass (and fail late in the build, or be cut silently) or to escape as a
@@ -237,3 +239,17 @@ def test_plans_in_metres_keep_their_coordinates(tmp_path):
         inside = mask[np.searchsorted(yc, -15.0), np.searchsorted(xc, -55.0)]
         assert inside and mask.sum() * 0.25 == pytest.approx(plan.reachable.area, rel=0.05)
     assert (plans[0].width_m, plans[0].height_m) == (40.0, 25.0)  # -60 .. -20, -20 .. 5
+
+
+def test_an_empty_outline_in_lonlat_is_refused_by_name(tmp_path):
+    """Beside a floor_info.json an empty outline escaped as a GEOSException traceback."""
+    import json
+    import shutil
+
+    floor = Path(__file__).resolve().parents[1] / "data" / "sample_site" / "F1"  # conftest
+    shutil.copy(floor / "floor_info.json", tmp_path / "floor_info.json")
+    plan = json.loads((floor / "geojson_map.json").read_text())
+    plan["features"][0]["geometry"] = {"type": "MultiPolygon", "coordinates": []}
+    (tmp_path / "geojson_map.json").write_text(json.dumps(plan))
+    with pytest.raises(FloorPlanError, match="the outline. is an empty polygon"):
+        read_floor_plan(tmp_path)
