@@ -156,6 +156,14 @@ def find_trace_files(paths: Iterable[str | os.PathLike]) -> list[Path]:
             raise not_regular(p)
         else:
             raise SurveyFormatError("no such file or folder", path=str(p), reason="missing")
+    for f in found:  # the name is the trace id, kept in the store's tables and printed
+        try:
+            f.name.encode("utf-8")
+        except UnicodeEncodeError:
+            raise SurveyFormatError(
+                "the file name is not valid UTF-8 (it becomes the trace id): rename it",
+                path=os.fsencode(f).decode("utf-8", "backslashreplace"),
+                reason="file_name") from None
     return sorted(set(found))
 
 

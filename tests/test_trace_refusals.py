@@ -14,6 +14,7 @@ import threading
 import time
 import tracemalloc
 import zlib
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -415,3 +416,20 @@ def test_a_file_swapped_for_a_fifo_after_listing_fails_instead_of_blocking(tmp_p
     assert lines[1] == "[('other.txt', 'failed'), ('walk.txt', 'new')]"
     assert lines[2].startswith(f"{swapped}: not a regular file")
     assert lines[3] == "strict: not_regular"
+
+
+def test_a_file_name_that_is_not_utf8_is_refused_by_name(tmp_path):
+    """The name becomes the trace id: ingest and build crashed writing it to the store
+    (UnicodeEncodeError), localize after all its work. Now a clear error, the name escaped."""
+    sample = Path(__file__).resolve().parents[1] / "data" / "sample_site"  # conftest makes it
+    src = min((sample / "F1" / "path_data_files").glob("*.txt.gz"))
+    (tmp_path / "in").mkdir()
+    bad = tmp_path / "in" / os.fsdecode(b"walk\xff\xfe.txt.gz")
+    bad.write_bytes(src.read_bytes())
+    with pytest.raises(SurveyFormatError, match=r"walk\\xff\\xfe.txt.gz: the file name is not "
+                                                r"valid UTF-8"):
+        find_trace_files([tmp_path / "in"])
+    res = CliRunner().invoke(main, ["ingest", str(tmp_path / "in"), "--store",
+                                    str(tmp_path / "store")])
+    assert res.exit_code == 1 and "Traceback" not in res.output
+    assert "the file name is not valid UTF-8" in res.output
