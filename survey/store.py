@@ -309,6 +309,11 @@ class SurveyStore:
         column present, one row per trace id, a 64-digit sha256 each."""
         path = self.root / "catalog.parquet"
         if not path.exists():
+            # a store's first commit writes the catalog; processing comes after, so a processed
+            # catalog without it means the catalog was lost, not that nothing was ingested
+            if (self.root / "processed" / "catalog.parquet").exists():
+                raise StoreError(f"{path}: missing, but the store has processed walks: "
+                                 "damaged store (ingest the traces into a new store)")
             return pd.DataFrame({c: pd.Series([], dtype=t) for c, t in CATALOG_COLUMNS.items()})
         table = read_parquet_checked(path, what="catalog")
         if "parts_json" not in table.column_names:

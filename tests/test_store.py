@@ -299,6 +299,24 @@ def test_a_damaged_catalog_is_refused(tmp_path):
         SurveyStore.open(tmp_path / "s").table("sensors")
 
 
+def test_a_processed_store_whose_catalog_is_lost_is_refused(tmp_path):
+    """`store verify` said 'ok (0 traces)' and `build --store` reused the store."""
+    from click.testing import CliRunner
+
+    from survey.cli import main
+    from survey.process_store import process_store
+
+    store = _one_sample_trace(tmp_path)
+    assert not SurveyStore.open(store.root).verify()  # whole before
+    process_store(store)
+    (store.root / "catalog.parquet").unlink()
+    with pytest.raises(StoreError, match="catalog.parquet: missing, but the store has "
+                                         "processed walks"):
+        SurveyStore.open(store.root).catalog()
+    res = CliRunner().invoke(main, ["store", "verify", str(store.root)])
+    assert res.exit_code == 1 and "damaged store" in res.output
+
+
 def test_a_file_renamed_and_replaced_in_one_run_loses_nothing(tmp_path):
     """w0 renamed to w5 and other content put at w0, in one run: w5 was called a duplicate
     of the stored w0, whose content this same run replaced, so it ended in no catalog row."""
