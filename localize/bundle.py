@@ -479,6 +479,8 @@ def check_manifest_layout(manifest: dict, mpath: Path) -> None:
 
     for key in ("site_id", "floor_id", "floor_name", "software_version"):
         need(isinstance(manifest.get(key), str), key)
+    for key in ("site_id", "floor_id", "floor_name"):  # registry folder names, printed
+        need(not any(ord(c) < 32 or ord(c) == 127 for c in manifest[key]), key)
     need(manifest.get("kind") in ("floor", "site"), "kind")
     build = manifest.get("build")
     need(isinstance(build, dict) and isinstance(build.get("params", {}), dict), "build")
@@ -495,6 +497,9 @@ def check_manifest_layout(manifest: dict, mpath: Path) -> None:
                                           for t in tables.values()), "tables")
     for name, meta in tables.items():
         _member_entry(meta.get("file"), f"table {name!r} file", mpath, members)
+        # each table and layer in its own file, as the writer names them: a layer pointed at
+        # another's file (re-sealed) would load another quantity under its name
+        need(meta.get("file") == f"tables/{name}.parquet", f"tables.{name}.file")
     if manifest.get("grid") is None:
         return
     need(isinstance(manifest["grid"], dict), "grid")
@@ -510,8 +515,10 @@ def check_manifest_layout(manifest: dict, mpath: Path) -> None:
         and m.get("kind") in ("scalar", "angle") for m in layers.values()), "layers")
     for name, meta in layers.items():
         check_layer_kind(name, meta["unit"], meta["kind"], mpath)
-        for key in ("file", "std_file"):
+        for key, own in (("file", f"layers/{name}.npy"),
+                         ("std_file", f"layers/{name}_std.npy")):
             _member_entry(meta.get(key), f"layer {name!r} {key}", mpath, members)
+            need(meta[key] == own, f"layers.{name}.{key}")
 
 
 def check_layer_kind(name: str, unit: str, kind: str, where: object) -> None:

@@ -243,6 +243,15 @@ MANIFEST_TAMPERING = [
     ("1e-300 m cells", lambda m: m["grid"].update(cell_m=1e-300), "grid cell_m 1e-300 m"),
     ("1 km cells", lambda m: m["grid"].update(cell_m=1000.0), "grid cell_m 1000 m"),
     ("far origin", lambda m: m["grid"].update(x0_m=1e12), "grid origin"),
+    # each passed every check before session 38
+    ("strength read from the vertical layer's file",
+     lambda m: m["layers"]["strength"].update(file=m["layers"]["vertical"]["file"]),
+     "field 'layers.strength.file' is missing or malformed"),
+    ("Wi-Fi fingerprints read from another table's file",
+     lambda m: m["tables"]["wifi_fp"].update(file=m["tables"]["source_walks"]["file"]),
+     "field 'tables.wifi_fp.file' is missing or malformed"),
+    ("a newline in the floor name (a registry folder name)",
+     lambda m: m.update(floor_name="F1\nF2"), "field 'floor_name' is missing or malformed"),
 ]
 
 
