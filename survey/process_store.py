@@ -487,6 +487,14 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
                     f"{MAX_WAYPOINT_OUTSIDE_SENSORS_S:g} s outside the walk's sensor rows "
                     f"dropped (t_ms {', '.join(map(str, stray[:5]))}"
                     + (" ..." if len(stray) > 5 else "") + ")")
+            missed = walk.legs["flags"].str.contains("waypoint", regex=False)
+            if missed.any():  # a mis-clicked waypoint bends the walk's positions silently
+                report.warnings.append(
+                    f"{row.trace_id}: the step track misses the waypoints of {int(missed.sum())}"
+                    f" of its {len(missed)} legs by more than "
+                    f"{params.positions.max_waypoint_residual_m:g} m (up to "
+                    f"{np.nanmax(walk.legs['waypoint_residual_m']):.1f} m): a waypoint clicked "
+                    "at the wrong place or time? `indoormap survey-report` lists its legs")
             outputs = {"samples": walk.samples, "steps": walk.steps, "legs": walk.legs,
                       "wifi": _position_rows(tables["wifi"], "scan_t_ms", walk),
                       "ble": _position_rows(tables["ble"], "t_ms", walk)}

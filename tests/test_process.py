@@ -228,6 +228,30 @@ def test_process_store_warns_of_a_dropped_waypoint(tmp_path, monkeypatch):
                                  f"dropped (t_ms {t_end + 3_600_000})" in w]
 
 
+def test_process_store_warns_of_a_misclicked_waypoint(tmp_path):
+    """One waypoint clicked 17 m from where the walker was: the map lost a third of its
+    held-out skill and nothing said so but survey-report."""
+    import gzip
+
+    from survey.ingest import ingest
+    from survey.process_store import process_store
+
+    src = min((SITE / "F1" / "path_data_files").glob("*.txt.gz"))
+    lines = gzip.decompress(src.read_bytes()).decode().split("\n")
+    i = [k for k, ln in enumerate(lines) if "\tTYPE_WAYPOINT\t" in ln][1]
+    t, kind, x, y = lines[i].split("\t")
+    lines[i] = "\t".join([t, kind, f"{float(x) + 12:.1f}", f"{float(y) + 12:.1f}"])
+    (tmp_path / "in").mkdir()
+    (tmp_path / "in" / src.name).write_bytes(gzip.compress("\n".join(lines).encode()))
+    ingest([src], tmp_path / "clean")
+    clean = process_store(tmp_path / "clean")
+    assert not [w for w in clean.warnings if "misses the waypoints" in w]
+    ingest([tmp_path / "in"], tmp_path / "store")
+    report = process_store(tmp_path / "store")
+    assert [w for w in report.warnings if w.startswith(src.name.split(".")[0]) and
+            "the step track misses the waypoints of" in w and "survey-report" in w]
+
+
 def test_coincident_waypoints_are_flagged(walks):
     tr = _walk(walks)
     wp = tr.waypoints.copy()
