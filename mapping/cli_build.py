@@ -365,7 +365,7 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
         with progress("ingest", unit="files") as update:
             summary = ingest(inputs, store_path, progress=update)
         for o in summary.failed:
-            say(f"  unreadable: {o.path}: {o.detail}")
+            say(f"  unreadable: {at_path(o.path, str(o.detail))}")
         if summary.bad:
             say(f"  {bad_lines_summary(summary.bad, summary.messages)}")
             for m in summary.messages[1:5]:
