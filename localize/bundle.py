@@ -459,6 +459,12 @@ def _finite_float(text: str) -> float:
     return value
 
 
+def has_control_character(text: str) -> bool:
+    """Whether ``text`` holds a control character (below U+0020, or DEL): refused in the ids
+    and names that become registry folder names and printed lines."""
+    return any(ord(c) < 32 or ord(c) == 127 for c in text)
+
+
 def _member_entry(value, what: str, mpath: Path, members: dict) -> None:
     if not isinstance(value, str) or value not in members:
         raise BundleIntegrityError(f"{mpath}: {what} {value!r} is not a listed member")
@@ -480,7 +486,9 @@ def check_manifest_layout(manifest: dict, mpath: Path) -> None:
     for key in ("site_id", "floor_id", "floor_name", "software_version"):
         need(isinstance(manifest.get(key), str), key)
     for key in ("site_id", "floor_id", "floor_name"):  # registry folder names, printed
-        need(not any(ord(c) < 32 or ord(c) == 127 for c in manifest[key]), key)
+        if has_control_character(manifest[key]):
+            raise BundleIntegrityError(f"{mpath}: field {key!r} holds a control character "
+                                       f"({manifest[key]!r})")
     need(manifest.get("kind") in ("floor", "site"), "kind")
     build = manifest.get("build")
     need(isinstance(build, dict) and isinstance(build.get("params", {}), dict), "build")

@@ -89,21 +89,42 @@ def trace_files(paths: tuple[str, ...], failures: WalkFailures) -> list[Path]:
     return list(unique.values())
 
 
-def refuse_output_inside_data(out: Path, option: str = "-o") -> None:
-    """A usage error when the output folder ``out`` is, or lies inside, a map bundle, a
-    registry floor folder or a survey store: files written there made the bundle fail its
-    checks ("not listed in the manifest"), and ``--overwrite`` replaced a store's
-    ``catalog.parquet`` with a track."""
-    from localize.bundle import is_bundle_dir
+def _indoormap_data(folder: Path) -> str | None:
+    """``"map bundle"``, ``"registry floor folder"``, ``"survey store"`` or None: what
+    indoormap keeps in ``folder``, by its own marker files (a ``manifest.json`` of another
+    program is not a bundle)."""
+    import json
 
+    def doc(name: str) -> dict:
+        try:
+            d = json.loads((folder / name).read_bytes()[:1 << 20])
+        except (OSError, ValueError):
+            return {}
+        return d if isinstance(d, dict) else {}
+
+    from localize.bundle import BUNDLE_FORMAT
+
+    if doc("manifest.json").get("format") == BUNDLE_FORMAT:
+        return "map bundle"
+    if (folder / "CURRENT").is_file() and (folder / "history.json").is_file():
+        return "registry floor folder"
+    if "schema_version" in doc("store.json"):
+        return "survey store"
+    return None
+
+
+def refuse_output_inside_data(out: Path) -> None:
+    """A usage error (``-o``) when the output folder ``out`` is, or lies inside, a map
+    bundle, a registry floor folder or a survey store: files written there made the bundle
+    fail its checks ("not listed in the manifest"), and ``--overwrite`` replaced a store's
+    ``catalog.parquet`` with a track."""
     p = out.resolve()
     for folder in (p, *p.parents):
-        what = ("map bundle" if is_bundle_dir(folder) else
-                "survey store" if (folder / "store.json").is_file() else None)
+        what = _indoormap_data(folder)
         if what:
             raise click.BadParameter(f"{out} is {'' if folder == p else 'inside '}the {what} "
                                      f"{folder}: write the results elsewhere",
-                                     param_hint=option)
+                                     param_hint="-o")
 
 
 def read_walk(path: Path) -> Trace:

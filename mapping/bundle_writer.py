@@ -27,6 +27,7 @@ from localize.bundle import (
     check_layer_kind,
     check_layer_values,
     check_tables,
+    has_control_character,
     manifest_bytes,
 )
 from survey import __version__
@@ -82,6 +83,9 @@ def _check(content: BundleContent) -> None:
         if not isinstance(getattr(content, key), str):
             raise BundleError(f"bundle {key} must be a string, got "
                               f"{getattr(content, key)!r}")
+        if has_control_character(getattr(content, key)):
+            raise BundleError(f"bundle {key} {getattr(content, key)!r} holds a control "
+                              "character (from a trace header?); a reader would refuse it")
     try:  # the tables and numbers a reader checks, with its functions (localize.bundle)
         _check_numbers(content)
     except BundleIntegrityError as err:

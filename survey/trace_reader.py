@@ -156,12 +156,13 @@ def find_trace_files(paths: Iterable[str | os.PathLike]) -> list[Path]:
             raise not_regular(p)
         else:
             raise SurveyFormatError("no such file or folder", path=str(p), reason="missing")
-    for f in found:  # the name is the trace id, kept in the store's tables and printed
+    for f in found:  # the name is the trace id and the path the source, kept in the store
         try:
-            f.name.encode("utf-8")
+            str(f).encode("utf-8")
         except UnicodeEncodeError:
             raise SurveyFormatError(
-                "the file name is not valid UTF-8 (it becomes the trace id): rename it",
+                "the path is not valid UTF-8 (the file name becomes the trace id, the path "
+                "is kept in the store): rename it",
                 path=os.fsencode(f).decode("utf-8", "backslashreplace"),
                 reason="file_name") from None
     return sorted(set(found))

@@ -251,7 +251,7 @@ MANIFEST_TAMPERING = [
      lambda m: m["tables"]["wifi_fp"].update(file=m["tables"]["source_walks"]["file"]),
      "field 'tables.wifi_fp.file' is missing or malformed"),
     ("a newline in the floor name (a registry folder name)",
-     lambda m: m.update(floor_name="F1\nF2"), "field 'floor_name' is missing or malformed"),
+     lambda m: m.update(floor_name="F1\nF2"), "field 'floor_name' holds a control character"),
 ]
 
 
@@ -435,5 +435,16 @@ def test_the_writer_refuses_what_a_reader_would(tmp_path, edit, message):
     content = _content()
     edit(content)
     with pytest.raises(BundleError, match="refused before writing: .*" + message):
+        write_bundle(tmp_path / "b", content)
+    assert not (tmp_path / "b").exists()
+
+
+def test_the_writer_refuses_a_site_id_the_reader_would(tmp_path):
+    """A control character in a trace header's SiteID reached the manifest: the build wrote
+    bundles that `bundle verify` then refused."""
+    import dataclasses
+
+    content = dataclasses.replace(_content(), site_id="site\x01")
+    with pytest.raises(BundleError, match="bundle site_id 'site.x01' holds a control character"):
         write_bundle(tmp_path / "b", content)
     assert not (tmp_path / "b").exists()

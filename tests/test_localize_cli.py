@@ -349,3 +349,9 @@ def test_localize_refuses_to_write_into_a_bundle_or_a_store(truth_bundles, tmp_p
     assert sorted(p.name for p in store.iterdir()) == ["store.json"]
     load_bundle(bundle)  # still whole
     assert not (bundle / "tracks").exists()
+    # another program's manifest.json above the output is no bundle
+    (tmp_path / "web").mkdir()
+    (tmp_path / "web" / "manifest.json").write_text('{"name": "my app"}')
+    res = CliRunner().invoke(main, ["localize", str(truth_bundles["F1"]), str(walk), "-o",
+                                    str(tmp_path / "web" / "tracks"), "--no-plot"])
+    assert res.exit_code == 0, res.output

@@ -426,10 +426,15 @@ def test_a_file_name_that_is_not_utf8_is_refused_by_name(tmp_path):
     (tmp_path / "in").mkdir()
     bad = tmp_path / "in" / os.fsdecode(b"walk\xff\xfe.txt.gz")
     bad.write_bytes(src.read_bytes())
-    with pytest.raises(SurveyFormatError, match=r"walk\\xff\\xfe.txt.gz: the file name is not "
+    with pytest.raises(SurveyFormatError, match=r"walk\\xff\\xfe.txt.gz: the path is not "
                                                 r"valid UTF-8"):
         find_trace_files([tmp_path / "in"])
     res = CliRunner().invoke(main, ["ingest", str(tmp_path / "in"), "--store",
                                     str(tmp_path / "store")])
     assert res.exit_code == 1 and "Traceback" not in res.output
-    assert "the file name is not valid UTF-8" in res.output
+    assert "the path is not valid UTF-8" in res.output
+    folder = tmp_path / os.fsdecode(b"walks\xff")  # a good name in a bad folder
+    folder.mkdir()
+    bad.rename(folder / src.name)
+    with pytest.raises(SurveyFormatError, match=r"walks\\xff/.*: the path is not valid"):
+        find_trace_files([tmp_path])

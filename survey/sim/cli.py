@@ -10,24 +10,33 @@ import click
 from ..trace_format import STREAM_NAMES
 
 
-#: What the simulator writes in a floor folder (besides the traces it lists).
+#: What the simulator writes in a floor folder (besides the traces it lists);
+#: ``walk_plan.geojson`` is the routes file's name in sites simulated before it was renamed.
 FLOOR_FILES = ("floor_info.json", "geojson_map.json", "planned_routes.geojson",
-               "path_data_files")
+               "walk_plan.geojson", "path_data_files")
 
 
 def not_simulated(site_dir: Path) -> list[Path]:
     """Entries of a simulated site folder that its last simulation did not write (by its
     ``truth/site.json``): anything beside ``truth/`` and its floors, or in a floor folder
-    beside :data:`FLOOR_FILES` and the walks' traces. An unreadable ``site.json`` leaves
-    every entry but ``truth/`` foreign."""
+    beside :data:`FLOOR_FILES` and the walks' traces (``truth/`` is the simulator's whole).
+
+    Raises
+    ------
+    PublishError
+        ``truth/site.json`` cannot be read as a simulated site's."""
     import json
 
+    from ..errors import PublishError
+
+    path = site_dir / "truth" / "site.json"
     try:
-        truth = json.loads((site_dir / "truth" / "site.json").read_text())
+        truth = json.loads(path.read_text())
         floors = {str(f["name"]) for f in truth["floors"]}
         traces = {str(w["trace_path"]) for w in truth["walks"]}
-    except (OSError, ValueError, KeyError, TypeError):
-        floors, traces = set(), set()
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise PublishError(f"{path}: not a simulated site's truth ({err}); --overwrite "
+                           "replaces simulated sites only, move the folder away first") from err
     foreign = []
     for entry in sorted(site_dir.iterdir()):
         if entry.name == "truth" and entry.is_dir() and not entry.is_symlink():
