@@ -95,14 +95,15 @@ def _indoormap_data(folder: Path) -> str | None:
     program is not a bundle)."""
     import json
 
+    from localize.bundle import BUNDLE_FORMAT
+    from survey.regular_files import read_regular
+
     def doc(name: str) -> dict:
-        try:
-            d = json.loads((folder / name).read_bytes()[:1 << 20])
+        try:  # a small regular file (a FIFO named manifest.json is not waited on)
+            d = json.loads(read_regular(folder / name, 1 << 20))
         except (OSError, ValueError):
             return {}
         return d if isinstance(d, dict) else {}
-
-    from localize.bundle import BUNDLE_FORMAT
 
     if doc("manifest.json").get("format") == BUNDLE_FORMAT:
         return "map bundle"

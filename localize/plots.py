@@ -21,6 +21,10 @@ from survey.publish import atomic_write_bytes
 __all__ = ["plot_cdfs", "plot_track"]
 
 
+#: Colour of the cells off a bundle's reachable area, in every figure over a floor.
+OFF_MASK_GREY = "#9e9e9e"
+
+
 def _save_png(fig, path: str | Path) -> None:
     """The figure as a PNG at ``path``, written whole or not at all (a full disk or a killed
     process leaves the previous file, never a truncated one)."""
@@ -63,7 +67,7 @@ def plot_track(path: str | Path, bundle: MapBundle, tracks: Mapping[str, Track],
     ax = fig.subplots()
     # cells off the reachable area shaded grey, as in the validation report's figures
     ax.imshow(np.where(np.asarray(bundle.mask, dtype=bool), np.nan, 1.0), origin="lower",
-              cmap=ListedColormap(["#9e9e9e"]), alpha=0.8, interpolation="nearest",
+              cmap=ListedColormap([OFF_MASK_GREY]), alpha=0.8, interpolation="nearest",
               extent=(g.x0_m, x1, g.y0_m, y1))
     for name, tr in tracks.items():
         xs, ys = lines[name]

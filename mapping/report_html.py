@@ -32,6 +32,7 @@ from matplotlib.patches import Patch, Rectangle
 from numpy.typing import ArrayLike
 
 from localize.bundle import Grid
+from localize.plots import OFF_MASK_GREY
 from survey.publish import atomic_write_bytes
 from survey.regular_files import read_regular
 
@@ -118,7 +119,7 @@ class FloorCanvas:
             ax.imshow(self.image, extent=self.image_extent, cmap="gray", vmin=0, vmax=1,
                       interpolation="bilinear", zorder=0)
         shade = np.where(self.mask, np.nan, 1.0)
-        ax.imshow(shade, origin="lower", extent=self.extent, cmap=ListedColormap(["#9e9e9e"]),
+        ax.imshow(shade, origin="lower", extent=self.extent, cmap=ListedColormap([OFF_MASK_GREY]),
                   alpha=0.55 if self.image is not None else 0.8, interpolation="nearest",
                   zorder=1)
         ax.set_xlim(self.extent[0], self.extent[1])

@@ -420,8 +420,9 @@ class FloorData:
     pcat: pd.DataFrame  # processed catalog rows of the floor (ok and skipped)
     catalog: pd.DataFrame  # store catalog rows of the floor
     waypoints: pd.DataFrame
-    #: walks processed in the store but not among the bundle's source walks (``build
-    #: --exclude``, or ingested after the build): left out of every table above
+    #: walks of the floor in the store, processed ok or not processed, that are not among the
+    #: bundle's source walks (``build --exclude``, or ingested after the build): left out of
+    #: every table above
     not_in_bundle: tuple[str, ...] = ()
 
 
@@ -1145,8 +1146,8 @@ def data_quality_section(bundle: MapBundle, fd: FloorData, th: dict, params: Val
     out["walks_not_in_bundle"] = list(fd.not_in_bundle)
     if fd.not_in_bundle:
         findings.append(Finding(
-            "walks_not_in_bundle", "info", f"{len(fd.not_in_bundle)} processed walk(s) of the "
-            f"floor in the store are not among the bundle's source walks (build --exclude, or "
+            "walks_not_in_bundle", "info", f"{len(fd.not_in_bundle)} walk(s) of the floor in "
+            f"the store are not among the bundle's source walks (build --exclude, or "
             f"ingested later) and are left out of this report: "
             + ", ".join(fd.not_in_bundle[:params.max_listed])
             + (" ..." if len(fd.not_in_bundle) > params.max_listed else ""), "data_quality"))

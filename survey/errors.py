@@ -17,7 +17,7 @@ def at_path(path: object, text: str) -> str:
     its file once. A longer path that starts with the same characters (``out/F10`` for
     ``out/F1``) is not ``path``."""
     p = str(path)
-    if text.startswith(p) and text[len(p):len(p) + 1] == ":" or text.startswith(p + " ("):
+    if text.startswith(p + ":") or text.startswith(p + " ("):
         return text
     return f"{p}: {text}"
 

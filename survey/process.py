@@ -93,6 +93,13 @@ def _stream(sensors: pd.DataFrame, name: str) -> pd.DataFrame:
     return rows.sort_values("t_ms", kind="stable").reset_index(drop=True)
 
 
+def accelerometer_stream(sensors: pd.DataFrame, min_rows: int = 1) -> pd.DataFrame:
+    """The accelerometer rows (time-sorted): the calibrated stream when it has ``min_rows``
+    rows or more, else the uncalibrated one (a phone may log only that)."""
+    acc = _stream(sensors, "accelerometer")
+    return acc if len(acc) >= min_rows else _stream(sensors, "accelerometer_uncalibrated")
+
+
 def reported_bias(sensors: pd.DataFrame) -> NDArray[np.float64] | None:
     """The phone's own hard-iron estimate (uT): the median bias of the uncalibrated
     magnetometer stream, or None when the stream or its bias is missing."""
@@ -305,9 +312,7 @@ def process_walk(trace_id: str, sensors: pd.DataFrame, waypoints: pd.DataFrame,
         magnetometer, or no steps.
     """
     wt, wxy, n_dup_wp = clean_waypoints(waypoints["t_ms"], waypoints[["x_m", "y_m"]])
-    acc = _stream(sensors, "accelerometer")
-    if not len(acc):
-        acc = _stream(sensors, "accelerometer_uncalibrated")
+    acc = accelerometer_stream(sensors)
     if len(acc) < 10:
         raise ProcessingError(f"{trace_id}: no accelerometer stream")
     rv = _stream(sensors, "rotation_vector")

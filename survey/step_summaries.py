@@ -37,8 +37,8 @@ from survey.attitude import AttitudeParams, classify_attitude
 from survey.carried_heading import CarriedHeadingParams, carried_heading_deg
 from survey.errors import ProcessingError
 from survey.field_features import field_features
-from survey.process import _stream, calibrated_field, compass_track_deg, gyro_heading_deg, \
-    waypoints_off_sensors
+from survey.process import _stream, accelerometer_stream, calibrated_field, compass_track_deg, \
+    gyro_heading_deg, waypoints_off_sensors
 from survey.rotation import interpolate_rotation_vector, rotation_matrices
 from survey.steps import detect_steps
 from survey.trace_format import Trace
@@ -159,9 +159,7 @@ def step_summaries(trace: Trace, params: StepSummaryParams = StepSummaryParams()
         No accelerometer, no rotation vector, no magnetometer, or no steps.
     """
     tid = trace.trace_id
-    acc = _stream(trace.sensors, "accelerometer")
-    if len(acc) < 10:
-        acc = _stream(trace.sensors, "accelerometer_uncalibrated")
+    acc = accelerometer_stream(trace.sensors, min_rows=10)
     if len(acc) < 10:
         raise ProcessingError(f"{tid}: no accelerometer stream: no steps can be detected")
     rv = _stream(trace.sensors, "rotation_vector")
@@ -259,12 +257,9 @@ def waypoints_of(trace: Trace) -> tuple[NDArray[np.float64], NDArray[np.float64]
     wp = trace.waypoints
     if wp is None or not len(wp):
         return np.empty(0), np.empty((0, 2))
-    stream = trace.sensors["stream"]
-    acc_t = trace.sensors.loc[stream == "accelerometer", "t_ms"]
-    if not len(acc_t):
-        acc_t = trace.sensors.loc[stream == "accelerometer_uncalibrated", "t_ms"]
-    if len(acc_t):  # without any, the walk has no steps and no track to score
-        wp = wp[~waypoints_off_sensors(wp["t_ms"], acc_t)]
+    acc = accelerometer_stream(trace.sensors, min_rows=10)  # what the steps come from
+    if len(acc):  # without any, the walk has no steps and no track to score
+        wp = wp[~waypoints_off_sensors(wp["t_ms"], acc["t_ms"])]
     wp = wp.sort_values("t_ms", kind="stable")
     return wp["t_ms"].to_numpy(np.float64), wp[["x_m", "y_m"]].to_numpy(np.float64)
 
