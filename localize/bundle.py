@@ -470,9 +470,29 @@ def _member_entry(value, what: str, mpath: Path, members: dict) -> None:
         raise BundleIntegrityError(f"{mpath}: {what} {value!r} is not a listed member")
 
 
+#: The top-level fields of a schema-1 manifest: all of them in a floor bundle, all but the
+#: raster ones (:data:`RASTER_FIELDS`) in a site bundle. A writer that adds one changes the
+#: schema version; within a version, new tables and layers are what a writer may add.
+MANIFEST_FIELDS = frozenset({"format", "schema_version", "kind", "site_id", "floor_id",
+                             "floor_name", "map_frame", "software_version", "grid", "mask",
+                             "layers", "tables", "build", "metrics", "members", "bundle_id"})
+RASTER_FIELDS = frozenset({"grid", "mask", "layers"})
+#: ``metrics.heldout_strength``: field -> whether a count (int) or a score (number or null).
+#: ``localize --method auto`` chooses its method by ``corr_5m``.
+HELDOUT_FIELDS = {"shape_rmse_ut": False, "constant_shape_rmse_ut": False, "skill": False,
+                  "corr_0.7m": False, "corr_5m": False, "n_samples": True, "n_walks": True,
+                  "folds": True}
+
+
+def _is_real(value: object) -> bool:
+    """A JSON number (int or float, not a bool)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
 def check_manifest_layout(manifest: dict, mpath: Path) -> None:
-    """The manifest's fields have the types every reader relies on, and every file it points
-    at (mask, layers, tables) is one of its checksummed members.
+    """The manifest has the fields of its kind and no other (:data:`MANIFEST_FIELDS`), with the
+    types every reader relies on, and every file it points at (mask, layers, tables) is one of
+    its checksummed members.
 
     Raises
     ------
@@ -483,16 +503,33 @@ def check_manifest_layout(manifest: dict, mpath: Path) -> None:
         if not ok:
             raise BundleIntegrityError(f"{mpath}: field {field!r} is missing or malformed")
 
+    unknown = sorted(set(manifest) - MANIFEST_FIELDS)
+    if unknown:
+        raise BundleIntegrityError(f"{mpath}: unknown field(s) {', '.join(map(repr, unknown))}"
+                                   f" (a schema {SCHEMA_VERSION} manifest has none)")
+    need(manifest.get("kind") in ("floor", "site"), "kind")
+    wanted = MANIFEST_FIELDS - (RASTER_FIELDS if manifest["kind"] == "site" else set())
+    for key in sorted(wanted - set(manifest)):
+        need(False, key)
+    if manifest["kind"] == "site" and RASTER_FIELDS & set(manifest):
+        raise BundleIntegrityError(f"{mpath}: a site bundle has no grid, mask or layers")
     for key in ("site_id", "floor_id", "floor_name", "software_version"):
         need(isinstance(manifest.get(key), str), key)
     for key in ("site_id", "floor_id", "floor_name"):  # registry folder names, printed
         if has_control_character(manifest[key]):
             raise BundleIntegrityError(f"{mpath}: field {key!r} holds a control character "
                                        f"({manifest[key]!r})")
-    need(manifest.get("kind") in ("floor", "site"), "kind")
     build = manifest.get("build")
     need(isinstance(build, dict) and isinstance(build.get("params", {}), dict), "build")
-    need(isinstance(manifest.get("metrics", {}), dict), "metrics")
+    need(isinstance(manifest.get("metrics"), dict), "metrics")
+    held = manifest["metrics"].get("heldout_strength")
+    if held is not None:  # localize --method auto chooses by it
+        need(isinstance(held, dict), "metrics.heldout_strength")
+        for key, count in HELDOUT_FIELDS.items():
+            value = held.get(key)
+            need(key in held and (type(value) is int if count else value is None
+                                  or _is_real(value)),
+                 f"metrics.heldout_strength.{key}")
     walks = build.get("source_walks", [])
     need(isinstance(walks, list) and all(isinstance(w, dict) and isinstance(
         w.get("trace_id"), str) for w in walks), "build.source_walks")
@@ -500,7 +537,7 @@ def check_manifest_layout(manifest: dict, mpath: Path) -> None:
     need(isinstance(members, dict) and all(
         isinstance(m, dict) and isinstance(m.get("size"), int)
         and isinstance(m.get("sha256"), str) for m in members.values()), "members")
-    tables = manifest.get("tables", {})
+    tables = manifest["tables"]
     need(isinstance(tables, dict) and all(isinstance(t, dict) and isinstance(t.get("rows"), int)
                                           for t in tables.values()), "tables")
     for name, meta in tables.items():
@@ -508,9 +545,10 @@ def check_manifest_layout(manifest: dict, mpath: Path) -> None:
         # each table and layer in its own file, as the writer names them: a layer pointed at
         # another's file (re-sealed) would load another quantity under its name
         need(meta.get("file") == f"tables/{name}.parquet", f"tables.{name}.file")
-    if manifest.get("grid") is None:
+    if manifest["kind"] == "site":
         return
-    need(isinstance(manifest["grid"], dict), "grid")
+    need(isinstance(manifest["grid"], dict) and all(
+        _is_real(manifest["grid"].get(k)) for k in ("x0_m", "y0_m", "cell_m")), "grid")
     try:
         grid = Grid.from_dict(manifest["grid"])  # finite, positive, whole numbers of cells
     except BundleError as err:

@@ -79,6 +79,8 @@ def _check(content: BundleContent) -> None:
     """What :func:`localize.bundle.load_bundle` would refuse, refused before writing."""
     if content.kind not in ("floor", "site"):
         raise BundleError(f"bundle kind must be 'floor' or 'site', got {content.kind!r}")
+    if (content.grid is None) != (content.kind == "site"):  # as a reader checks
+        raise BundleError("a floor bundle needs a grid and a site bundle has none")
     for key in ("site_id", "floor_id", "floor_name"):
         if not isinstance(getattr(content, key), str):
             raise BundleError(f"bundle {key} must be a string, got "

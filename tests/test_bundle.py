@@ -40,7 +40,10 @@ def _content(offset: float = 0.0, floor: str = "F1") -> BundleContent:
                 "azimuth": Layer(az, np.where(mask, 2.0, np.nan).astype(np.float32), "deg",
                                  "angle")},
         tables={"walks": pa.table({"trace_id": ["a", "b"], "n": [1, 2]})},
-        build={"build_time": "2026-01-01T00:00:00Z", "params": {"cell_m": 0.5}})
+        build={"build_time": "2026-01-01T00:00:00Z", "params": {"cell_m": 0.5}},
+        metrics={"heldout_strength": {"shape_rmse_ut": 4.2, "constant_shape_rmse_ut": 5.0,
+                                      "skill": 0.16, "corr_0.7m": 0.1, "corr_5m": None,
+                                      "n_samples": 900, "n_walks": 9, "folds": 5}})
 
 
 @pytest.fixture
@@ -230,7 +233,8 @@ def _set(m: dict, path: str, value) -> None:
 @pytest.mark.parametrize("field, value, match", [
     ("members.mask.npy", "x", "'members' is missing or malformed"),
     ("layers.azimuth.file", None, "layer 'azimuth' file None is not a listed member"),
-    ("mask", None, "mask None is not a listed member"),
+    ("mask", "x.npy", "mask 'x.npy' is not a listed member"),
+    ("mask", None, "field 'mask' is missing or malformed"),
     ("layers", ["a"], "'layers' is missing or malformed"),
     ("site_id", None, "'site_id' is missing or malformed"),
     ("floor_name", 3, "'floor_name' is missing or malformed"),
@@ -243,6 +247,18 @@ def _set(m: dict, path: str, value) -> None:
     ("build.source_walks", [1], "'build.source_walks' is missing or malformed"),
     ("build.params", [1], "'build' is missing or malformed"),
     ("grid.width", 24.5, "manifest grid is malformed: width and height must be whole"),
+    # each loaded before session 39
+    ("tables", None, "field 'tables' is missing or malformed"),  # wifi-locate failed later
+    ("grid", None, "field 'grid' is missing or malformed"),  # a floor bundle with no map
+    ("grid.x0_m", "1.5", "field 'grid' is missing or malformed"),
+    ("signature", "trust me", "unknown field(s) 'signature'"),
+    # localize --method auto chose another method by it
+    ("metrics.heldout_strength", {"corr_5m": "0.9"},
+     "field 'metrics.heldout_strength.shape_rmse_ut' is missing or malformed"),
+    ("metrics.heldout_strength.corr_5m", "0.9",
+     "field 'metrics.heldout_strength.corr_5m' is missing or malformed"),
+    ("metrics.heldout_strength.folds", 5.0,
+     "field 'metrics.heldout_strength.folds' is missing or malformed"),
     # a table outside the bundle, by path or by a name the members do not list
     ("tables.walks.file", "../outside.parquet", "table 'walks' file '../outside.parquet' is "
                                                 "not a listed member"),
