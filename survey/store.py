@@ -21,7 +21,7 @@ import hashlib
 import json
 import os
 import re
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -401,6 +401,20 @@ class SurveyStore:
                 progress(i + 1, len(cat))
         return problems
 
+    def stray_files(self, catalog: pd.DataFrame | None = None,
+                    pending: Iterable[Mapping[str, Any]] = ()) -> list[Path]:
+        """Files under the part folders that ``catalog`` (default: the store's) and a writer's
+        ``pending`` catalog rows do not name, or temporaries of crashed writes: what a crashed
+        ingest leaves; the next writer deletes them (:meth:`_StoreWriter.collect_garbage`)."""
+        catalog = self.catalog() if catalog is None else catalog
+        rows = [(r.site, r.floor, r.trace_id, r.sha256) for r in catalog.itertuples(index=False)]
+        rows += [(r["site"], r["floor"], r["trace_id"], r["sha256"]) for r in pending]
+        live = {part_path(t, *row) for row in rows for t in TABLES}
+        return [p for table in TABLES if (self.root / table).is_dir()
+                for p in sorted((self.root / table).rglob("*"))
+                if p.is_file() and (p.name.startswith(TMP_PREFIX)
+                                    or str(p.relative_to(self.root)) not in live)]
+
     def schema_version(self) -> int:
         """The store's schema version (``store.json``, checked by :meth:`open`)."""
         try:
@@ -582,20 +596,14 @@ class _StoreWriter:
 
     def collect_garbage(self) -> int:
         """Delete part files the catalog does not name and temporaries of crashed writes."""
-        live = {part_path(t, r.site, r.floor, r.trace_id, r.sha256)
-                for r in self.cat.itertuples(index=False) for t in TABLES}
-        live |= {part_path(t, r["site"], r["floor"], r["trace_id"], r["sha256"])
-                 for r in self.pending.values() for t in TABLES}
         removed = remove_stale_temporaries(self.root)
+        for p in self.store.stray_files(self.cat, self.pending.values()):
+            p.unlink()
+            removed += 1
         for table in TABLES:
             base = self.root / table
             if not base.exists():
                 continue
-            for p in base.rglob("*"):
-                if p.is_file() and (p.name.startswith(TMP_PREFIX)
-                                    or str(p.relative_to(self.root)) not in live):
-                    p.unlink()
-                    removed += 1
             for d in sorted((q for q in base.rglob("*") if q.is_dir()), reverse=True):
                 with contextlib.suppress(OSError):
                     d.rmdir()  # only empty partitions go

@@ -214,11 +214,23 @@ def test_crash_during_ingest_leaves_a_consistent_store(tmp_path, point):
         assert len(store.table("sensors", trace_ids=["w0"])) == 7 * 20
     for name in ("sensors", "wifi", "ble", "waypoints"):
         store.table(name)  # every part file the catalog names is there and readable
+    # stray parts, never read: the crashed ingest's new ones (w0 changed, w9), or the
+    # replaced w0's old ones; verify names them and passes
+    from click.testing import CliRunner
+
+    from survey.cli import main
+    stray = store.stray_files()
+    n_stray = 8 if point == "ingest:before-catalog" else 4
+    assert len(stray) == n_stray and all(p.name.startswith(("w0-", "w9-")) for p in stray)
+    res = CliRunner().invoke(main, ["store", "verify", str(store.root)])
+    assert res.exit_code == 0, res.output
+    assert f"note    {n_stray} file(s) the catalog does not name" in res.output
     # the next ingest takes over the stale lock, finishes the work and removes all litter
     s = ingest([tmp_path / "in"], tmp_path / "store")
     assert not s.failed
     files = _files(store.root)
-    assert not any(".tmp-" in p or p.endswith(".lock") for p in files)
+    assert not any(".tmp-" in p or p.endswith(".lock") for p in files) and \
+        not store.stray_files()
     assert len([p for p in files if p.endswith(".parquet") and "/" in p]) == 4 * 4
     assert np.array_equal(sorted(store.catalog()["trace_id"]), ["w0", "w1", "w2", "w9"])
 
