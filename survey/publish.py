@@ -201,9 +201,10 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes, *, overwrite: bool 
         if crash is not None:
             crash_point(crash)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as err:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
+        _name_file(err, path)
         raise
     if sync_dir:
         fsync_dir(path.parent)
@@ -239,9 +240,17 @@ def atomic_directory(target: str | os.PathLike, *, overwrite: bool = False,
         shutil.rmtree(aside, ignore_errors=True)
         shutil.rmtree(tmp, ignore_errors=True)
         crash_point(f"{crash_prefix}:after-rename")
-    except BaseException:
+    except BaseException as err:
         shutil.rmtree(tmp, ignore_errors=True)
+        _name_file(err, target)
         raise
+
+
+def _name_file(err: BaseException, path: Path) -> None:
+    """Give an operating-system error without a file name (a write's "No space left on
+    device", an fsync's I/O error) the ``path`` being written, which the CLI prints."""
+    if isinstance(err, OSError) and err.filename is None:
+        err.filename = str(path)
 
 
 #: A set of moves in progress (:func:`replace_together`), kept in the targets' folder.

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import stat
+from pathlib import Path
 
 import pytest
 
@@ -278,3 +279,55 @@ def test_an_old_target_with_the_staged_folders_names_sizes_and_times_is_not_take
     _kill_replace_together(tmp_path, "replace_together:after-0")
     remove_stale_temporaries(tmp_path)
     assert [(tmp_path / n / "v").read_text() for n in "abc"] == ["new"] * 3
+
+
+def test_a_full_disk_is_reported_with_the_file_being_written(tmp_path, monkeypatch):
+    """A write's "No space left on device" carries no file name; the CLI's line names the
+    file (or bundle folder) being written, and nothing is left behind."""
+    import errno
+
+    from click.testing import CliRunner
+
+    from survey.cli import main
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(os, "fsync", full)
+    with pytest.raises(OSError) as err:
+        atomic_write_bytes(tmp_path / "a.bin", b"x")
+    assert err.value.filename == str(tmp_path / "a.bin") and not list(tmp_path.iterdir())
+    with pytest.raises(OSError) as err:
+        with atomic_directory(tmp_path / "d") as staged:
+            (staged / "f").write_bytes(b"x")
+    assert err.value.filename == str(tmp_path / "d") and not list(tmp_path.iterdir())
+    trace = min((Path(__file__).resolve().parents[1] / "data" / "sample_site" / "F1"
+                 / "path_data_files").glob("*.txt.gz"))
+    res = CliRunner().invoke(main, ["ingest", str(trace), "--store", str(tmp_path / "s")])
+    assert res.exit_code == 1 and "Traceback" not in res.output
+    assert f"error: {tmp_path / 's'}" in res.output and "No space left on device" in res.output
+
+
+def test_ctrl_c_while_the_cli_loads_ends_like_ctrl_c_in_a_command(monkeypatch, capsys):
+    """The console script imports the CLI inside its Ctrl-C handling (before session 39 a
+    Ctrl-C in the first second printed a traceback from inside pandas' import)."""
+    import sys
+    import tomllib
+
+    from survey.entry import run
+
+    scripts = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml")
+                            .read_text())["project"]["scripts"]
+    assert scripts == {"indoormap": "survey.entry:run"}
+
+    class Interrupted:
+        def find_spec(self, name, path=None, target=None):
+            if name == "survey.cli":
+                raise KeyboardInterrupt
+            return None
+
+    monkeypatch.delitem(sys.modules, "survey.cli", raising=False)
+    monkeypatch.setattr(sys, "meta_path", [Interrupted(), *sys.meta_path])
+    with pytest.raises(SystemExit) as end:
+        run()
+    assert end.value.code == 1 and capsys.readouterr().err == "Aborted!\n"
