@@ -85,13 +85,27 @@ def _is_floor_dir(p: Path) -> bool:
 def floors_of(path: Path) -> list[Path]:
     """A floor folder itself, or the floor folders of a site folder."""
     if _is_floor_dir(path):
-        return [path]
-    floors = sorted(p for p in path.iterdir() if p.is_dir() and _is_floor_dir(p))
+        floors = [path]
+    else:
+        floors = sorted(p for p in path.iterdir() if p.is_dir() and _is_floor_dir(p))
     if not floors:
         raise click.UsageError(f"{path}: neither a floor folder (geojson_map.json) nor a site "
                                "folder of floors; give a folder of traces a floor plan with "
                                "--plan")
+    for floor in floors:  # before the work, not when publishing
+        check_floor_bundle_name(floor.name, f"{floor}: the folder name")
     return floors
+
+
+def check_floor_bundle_name(name: str, what: str) -> None:
+    """A usage error unless ``name`` can name a floor's bundle folder (not the site bundle's
+    ``_site``, nor a name no folder can have); ``what`` says where the name came from."""
+    try:
+        if safe_name(name) == SITE_BUNDLE:
+            raise RegistryError(f"{SITE_BUNDLE!r} names the site bundle")
+    except RegistryError as err:
+        raise click.UsageError(f"{what} {name!r} cannot name a floor bundle folder ({err})"
+                               ) from err
 
 
 def ingested_from(catalog: pd.DataFrame, summary: IngestSummary, folder: Path
@@ -115,6 +129,7 @@ def floor_of_traces(catalog: pd.DataFrame, summary: IngestSummary, source: Path)
     if len(names) > 1:
         raise click.UsageError(f"{source}: walks of floors {', '.join(names)}; name the "
                                "plan's floor with --floor")
+    check_floor_bundle_name(names[0], f"{source}: the walks' floor")
     return names[0]
 
 
@@ -318,12 +333,7 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
         plans = {f.name: plan for f, plan in read_from.items()}
     else:
         if floor_name is not None:
-            try:
-                if safe_name(floor_name) == SITE_BUNDLE:
-                    raise RegistryError(SITE_BUNDLE)
-            except RegistryError as err:
-                raise click.BadParameter(f"{floor_name!r} cannot name a floor bundle folder",
-                                         param_hint="--floor") from err
+            check_floor_bundle_name(floor_name, "--floor")
         inputs = [source]
         plan = read_floor_plan(plan_file)
         read_from = {plan_file: plan}

@@ -461,6 +461,12 @@ def test_build_cli_with_a_dxf_plan_and_a_folder_of_traces(tmp_path):
         res = runner.invoke(main, ["build", str(two), "--plan", str(tmp_path / "F2.dxf"),
                                    "--floor", bad, "-o", str(tmp_path / "z")])
         assert res.exit_code == 2 and "cannot name a floor bundle folder" in res.output
+    # a floor folder named so is refused before the work (before session 39: after the ingest)
+    shutil.copytree(SITE / "F2", tmp_path / "site" / "_site")
+    res = runner.invoke(main, ["build", str(tmp_path / "site"), "-o", str(tmp_path / "w")])
+    assert res.exit_code == 2 and f"{tmp_path / 'site' / '_site'}: the folder name '_site' " \
+        "cannot name a floor bundle folder ('_site' names the site bundle)" in res.output
+    assert not (tmp_path / "w").exists() and "ingest" not in res.output
     res = runner.invoke(main, ["build", str(SITE / "F2"), "--floor", "F2",
                                "-o", str(tmp_path / "y")])
     assert res.exit_code == 2 and "--floor names the floor of a --plan build" in res.output
