@@ -25,7 +25,8 @@ from pathlib import Path
 import click
 import numpy as np
 
-from localize.cli_common import WalkFailures, read_walk, say_floor_choice, trace_files
+from localize.cli_common import TraceIds, WalkFailures, read_walk, say_floor_choice, \
+    trace_files
 from localize.errors import LocalizationError
 from localize.floors import ble_window_ms, device_table
 from localize.rssi_calibration import checked_rssi_calibration
@@ -134,8 +135,11 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
     lacking = sorted(set(map(str, models["ble"].floors)) - set(map(str, models["wifi"].floors))
                      ) if kind == "auto" and len(tried_auto) == 2 else []
 
+    seen = TraceIds()
+
     def one(f: Path) -> None:
         trace = read_walk(f)
+        seen.claim(trace.trace_id, f)  # its rows would mix with the other walk's
         if trace.header.site_id and site.site_id and trace.header.site_id != site.site_id:
             raise LocalizationError(f"{trace.trace_id}: recorded at site "
                                     f"{trace.header.site_id}, but the site bundle {site.path} "
@@ -258,9 +262,11 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
     maps = SiteMaps.open(bundle_path)
     out = _CsvRows(["trace_id", "floor", "t_ms", "n_known", "x_m", "y_m", "sigma_m", "error_m"])
     failures = WalkFailures()
+    seen = TraceIds()
 
     def one(f: Path) -> None:
         trace = read_walk(f)
+        seen.claim(trace.trace_id, f)  # its rows would mix with the other walk's
         scans = _scans(trace, kind, maps.ble_window_ms)
         if not scans:
             other = "ble" if kind == "wifi" else "wifi"

@@ -318,6 +318,24 @@ def test_floor_command_refuses_a_walk_of_another_site(built, tmp_path):
     assert res.exit_code == 1 and "recorded at site othersite" in res.output
 
 
+def test_two_walks_with_one_trace_id_are_refused_by_floor_and_wifi_locate(built, tmp_path):
+    """As localize and evaluate refuse them: their rows would share one trace_id (before
+    session 39 both walks' rows were printed under it, exit 0). The first walk's rows stay."""
+    first, other = sorted((SITE / "F1" / "path_data_files").glob("*.txt.gz"))[:2]
+    for folder, walk in (("a", first), ("b", other)):  # same name, other walk
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / first.name).write_bytes(walk.read_bytes())
+    tid = first.name.split(".")[0]
+    for command in ("floor", "wifi-locate"):
+        res = CliRunner().invoke(main, [command, str(built), str(tmp_path / "a"),
+                                        str(tmp_path / "b")])
+        assert res.exit_code == 1 and f"trace id {tid} is also" in res.stderr, res.output
+        rows = _rows(res.stdout)
+        assert rows and {r["trace_id"] for r in rows} == {tid}
+        alone = CliRunner().invoke(main, [command, str(built), str(tmp_path / "a")])
+        assert alone.exit_code == 0 and _rows(alone.stdout) == rows
+
+
 def test_wifi_locate_command(built, tmp_path):
     runner = CliRunner()
     res = runner.invoke(main, ["wifi-locate", str(built), str(SITE / "F2" / "path_data_files")])
