@@ -323,8 +323,10 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
             plot_path.resolve() == csv_path.resolve():
         raise click.BadParameter("--plot-file and --csv name the same file",
                                  param_hint="--plot-file")
-    for target, suffix in ((plot_path, ".png"), (csv_path, ".csv")):
+    for target, suffix, option in ((plot_path, ".png", "--plot-file"),
+                                   (csv_path, ".csv", "--csv")):
         if target is not None:
+            refuse_output_inside_data(target, option)  # a file there damaged a bundle
             refuse_to_replace(target, overwrite, suffixes=(suffix,))  # before the work
             if target.parent.exists() and not target.parent.is_dir():
                 raise click.BadParameter(f"{target.parent} is a file, not a folder")

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, TypeVar
 import click
 
 from localize.errors import LocalizationError
-from localize.floors import HEADER_DOUBT
+from localize.floors import HEADER_DOUBT, MODEL_LACKS
 
 if TYPE_CHECKING:
     from survey.trace_format import Trace
@@ -114,18 +114,18 @@ def _indoormap_data(folder: Path) -> str | None:
     return None
 
 
-def refuse_output_inside_data(out: Path) -> None:
-    """A usage error (``-o``) when the output folder ``out`` is, or lies inside, a map
-    bundle, a registry floor folder or a survey store: files written there made the bundle
-    fail its checks ("not listed in the manifest"), and ``--overwrite`` replaced a store's
-    ``catalog.parquet`` with a track."""
+def refuse_output_inside_data(out: Path, param_hint: str = "-o") -> None:
+    """A usage error (naming the option ``param_hint``) when the output folder or file
+    ``out`` is, or lies inside, a map bundle, a registry floor folder or a survey store:
+    files written there made the bundle fail its checks ("not listed in the manifest"), and
+    ``--overwrite`` replaced a store's ``catalog.parquet`` with a track."""
     p = out.resolve()
     for folder in (p, *p.parents):
         what = _indoormap_data(folder)
         if what:
             raise click.BadParameter(f"{out} is {'' if folder == p else 'inside '}the {what} "
                                      f"{folder}: write the results elsewhere",
-                                     param_hint="-o")
+                                     param_hint=param_hint)
 
 
 def read_walk(path: Path) -> Trace:
@@ -208,7 +208,7 @@ def say_floor_choice(trace_id: str, bundle, how: str) -> None:
     header's floor is one the Wi-Fi floor model contradicts
     (:meth:`localize.floors.SiteMaps.choose`'s ``how``); nothing for a header's floor."""
     floor = bundle.manifest.get("floor_name", "")
-    if HEADER_DOUBT in how:  # the header decides: said, not overruled
+    if HEADER_DOUBT in how or MODEL_LACKS in how:  # said, not overruled
         click.echo(f"warning: {trace_id}: floor {floor} by the {how}", err=True)
     elif "floor model" in how:
         click.echo(f"{trace_id}: floor {floor} by the {how}", err=True)

@@ -296,16 +296,22 @@ class SiteMaps:
             known = getattr(model, "floors", None) if name == "Wi-Fi" else None
             lacking = sorted(set(self._by_name) - {str(f) for f in known}) \
                 if known is not None else []
+            lacks = f"{MODEL_LACKS} {', '.join(lacking)}: a walk there is put elsewhere"
             if lacking and self.ble_floor_model is not None:
                 # it puts a walk on a floor it knows even when the walk is on one it lacks
-                deferred = found, how, {str(f) for f in known}
+                deferred = found, how, {str(f) for f in known}, lacks
                 missing.append(f"the Wi-Fi floor model lacks floor {', '.join(lacking)}")
                 continue
             if deferred is not None and best in deferred[2]:
-                break  # BLE names a floor the Wi-Fi model knows: Wi-Fi, the better, decides
+                # BLE names a floor the Wi-Fi model knows: Wi-Fi, the better, decides
+                return deferred[0], f"{deferred[1]}; {', '.join(missing)}"
+            if lacking:  # and nothing else to ask (a site bundle rebuilt from fewer floors)
+                how += lacks
             return found, how + (f"; {', '.join(missing)}" if missing else "")
-        if deferred is not None:
-            return deferred[0], f"{deferred[1]}; {', '.join(missing)}"
+        if deferred is not None:  # BLE could not tell: the Wi-Fi model decides, unchecked
+            rest = missing[1:]  # what BLE lacked, after the Wi-Fi model's entry
+            return deferred[0], deferred[1] + deferred[3] + (f"; {', '.join(rest)}"
+                                                             if rest else "")
         if len(self.bundles) == 1:
             return next(iter(self.bundles.values())), "the only floor bundle"
         raise LocalizationError(f"{where}: the walk names no floor (no floor id or known floor "
@@ -321,6 +327,12 @@ DOUBT_MIN_SCANS = 5
 #: How :meth:`SiteMaps.choose`'s phrase for a header's floor goes on when the Wi-Fi floor
 #: model doubts it (what a caller looks for to warn).
 HEADER_DOUBT = "; but the Wi-Fi floor model puts"
+
+#: How :meth:`SiteMaps.choose`'s phrase goes on when the floor model that chose lacks some of
+#: the floors given (Wi-Fi surveyed on only some of them, or a folder whose site bundle was
+#: rebuilt from fewer floors than its floor bundles): a warning, as a walk on those floors is
+#: put on another.
+MODEL_LACKS = "; the model lacks floor"
 
 #: BLE window (ms) of bundles whose manifest does not record one (they were all built with it)
 DEFAULT_BLE_WINDOW_MS = 2000

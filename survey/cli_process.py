@@ -126,6 +126,9 @@ def survey_report_command(store_dir: str, site: str | None, floor: str | None,
     heading_offset_deg (median compass minus walking direction, deg); ufh_share (share of
     steps with the phone held flat and forward); session (calibration session)."""
     if csv_path:
+        from localize.cli_common import refuse_output_inside_data
+
+        refuse_output_inside_data(Path(csv_path), "--csv")  # a file there damaged a bundle
         refuse_to_replace(csv_path, overwrite, suffixes=(".csv",))
     everything = cat = processed_catalog(store_dir)
     if site is not None:

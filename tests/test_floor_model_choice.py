@@ -24,8 +24,9 @@ import pytest
 from click.testing import CliRunner
 
 from localize.bundle import load_bundle
+from localize.cli_common import say_floor_choice
 from localize.errors import LocalizationError
-from localize.floors import SiteMaps
+from localize.floors import MODEL_LACKS, SiteMaps
 from mapping.bundle_writer import BundleContent, write_bundle
 from mapping.radio_build import site_observations, site_radio
 from survey.cli import main
@@ -74,7 +75,8 @@ def wifi_on_f1_only(built, sample_store, tmp_path_factory) -> Path:  # noqa: F81
                       radio.site_content(site_id))
 
 
-def test_a_wifi_floor_model_lacking_a_floor_does_not_outvote_the_ble_model(wifi_on_f1_only):
+def test_a_wifi_floor_model_lacking_a_floor_does_not_outvote_the_ble_model(wifi_on_f1_only,
+                                                                           capsys):
     maps = SiteMaps.open(wifi_on_f1_only)
     assert maps.floor_model.floors.tolist() == ["F1"]
     for f in F2_WALKS[:3]:  # Wi-Fi and BLE, recorded on F2
@@ -87,10 +89,20 @@ def test_a_wifi_floor_model_lacking_a_floor_does_not_outvote_the_ble_model(wifi_
     t = read_trace(sorted((SITE / "F1" / "path_data_files").glob("*.txt.gz"))[0])
     bundle, how = maps.choose(t.trace_id, "", "", "", scans_of(t), ble_scans_of(t))
     assert bundle.manifest["floor_name"] == "F1" and how.startswith("Wi-Fi floor model ("), how
-    # without BLE windows the one-floor Wi-Fi model still answers, as before
+    assert "put elsewhere" not in how  # BLE agrees: no warning
+    # without BLE windows the one-floor Wi-Fi model still answers, as before, and says what
+    # it lacks as a warning (before session 39 a note, and none without a BLE model)
     t = read_trace(F2_WALKS[0])
     bundle, how = maps.choose(t.trace_id, "", "", "", scans_of(t), [])
     assert bundle.manifest["floor_name"] == "F1" and how.startswith("Wi-Fi floor model (")
+    assert f"{MODEL_LACKS} F2: a walk there is put elsewhere; no BLE windows in the walk" \
+        in how, how
+    maps.ble_floor_model = None  # a site bundle rebuilt from F1 alone beside F2's bundle
+    bundle, how = maps.choose(t.trace_id, "", "", "", scans_of(t), ble_scans_of(t))
+    assert bundle.manifest["floor_name"] == "F1" and how.endswith(
+        f"{MODEL_LACKS} F2: a walk there is put elsewhere"), how
+    say_floor_choice(t.trace_id, bundle, how)
+    assert capsys.readouterr().err.startswith(f"warning: {t.trace_id}: floor F1 by the Wi-Fi")
 
 
 def test_a_wifi_floor_model_lacking_the_header_floor_does_not_doubt_it(wifi_on_f1_only):

@@ -346,6 +346,15 @@ def test_localize_refuses_to_write_into_a_bundle_or_a_store(truth_bundles, tmp_p
         res = CliRunner().invoke(main, ["localize", str(truth_bundles["F1"]), str(walk), "-o",
                                         str(out), "--overwrite", "--no-plot"])
         assert res.exit_code == 2 and "write the results elsewhere" in res.output, res.output
+    # evaluate's and survey-report's files likewise (before session 39 they were written)
+    for command in (["evaluate", str(truth_bundles["F1"]), str(walk), "--methods", "pdr",
+                     "--csv", str(bundle / "errors.csv")],
+                    ["evaluate", str(truth_bundles["F1"]), str(walk), "--methods", "pdr",
+                     "--plot-file", str(bundle / "layers" / "cdf.png")],
+                    ["survey-report", "--store", str(store), "--csv", str(store / "qa.csv")]):
+        res = CliRunner().invoke(main, command)
+        assert res.exit_code == 2 and "write the results elsewhere" in res.output, res.output
+        assert ("--csv" if "--csv" in command else "--plot-file") in res.output
     assert sorted(p.name for p in store.iterdir()) == ["store.json"]
     load_bundle(bundle)  # still whole
     assert not (bundle / "tracks").exists()
