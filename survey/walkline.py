@@ -37,6 +37,7 @@ from .trace_bytes import MAX_TRACE_BYTES
 from .trace_format import (
     BLE_COLUMNS,
     BLE_DTYPES,
+    MAX_FROM_MEDIAN_TIME_MS,
     STREAM_NAMES,
     WAYPOINT_LIMIT_M,
     WIFI_COLUMNS,
@@ -45,6 +46,7 @@ from .trace_format import (
     Trace,
     TraceHeader,
     empty_table,
+    far_from_median_time,
     sensor_limit,
 )
 
@@ -321,18 +323,28 @@ def parse_sensor_csv(data: bytes, *, path: str = "<input>", strict: bool = False
     out_of_range = ~row_bad & ((t >= MAX_TIME_MS) | implausible)
     if acc is not None:
         out_of_range |= ~row_bad & (np.abs(acc) > 127)
+    # a row far in time from the others (a wrong clock, a stray row), as the trace reader's
+    # time_outlier: one row at time 0 made step detection ask for hundreds of GiB
+    timed = np.flatnonzero(~row_bad & ~out_of_range)
+    time_outlier = np.zeros(len(t), dtype=bool)
+    time_outlier[timed] = far_from_median_time(t[timed], np.zeros(len(timed), np.int64), 1)
     problems = {"non_numeric": (row_bad, "non-numeric, missing or non-finite value"),
                 "out_of_range": (out_of_range, "t_ms beyond 2^53 ms, accuracy beyond 127 or a "
                                                "sensor value no phone reports (e.g. beyond "
-                                               "2000 m/s^2)")}
-    any_bad = row_bad | out_of_range
+                                               "2000 m/s^2)"),
+                "time_outlier": (time_outlier, f"t_ms is over "
+                                               f"{MAX_FROM_MEDIAN_TIME_MS // 3_600_000} h from "
+                                               "the median time of the log's rows (a wrong "
+                                               "clock or a stray row)")}
+    any_bad = row_bad | out_of_range | time_outlier
     if any_bad.any() or wrong_width:
         line, skipped_line = _row_lines(data, table.num_rows,
                                         [n or 0 for n, _, _ in wrong_width])
-        text = np.where(row_bad, problems["non_numeric"][1], problems["out_of_range"][1])
+        reason = np.select([row_bad, out_of_range], ["non_numeric", "out_of_range"],
+                           "time_outlier")
         # the first 20 bad lines (for the messages) are among the first 20 of either kind
-        bad = sorted([(int(line[i]), str(text[i]), "non_numeric" if row_bad[i]
-                       else "out_of_range") for i in np.flatnonzero(any_bad)[:20]]
+        bad = sorted([(int(line[i]), problems[reason[i]][1], str(reason[i]))
+                      for i in np.flatnonzero(any_bad)[:20]]
                      + [(int(at), f"{got} fields, the header has {want}", "field_count")
                         for at, (_, got, want) in zip(skipped_line[:20], wrong_width)])
         if strict:

@@ -194,6 +194,25 @@ def test_a_sensor_value_no_phone_reports_is_out_of_range(tmp_path):
         read_walk_plan(tmp_path / "plan.geojson", strict=True)
 
 
+def test_a_row_far_in_time_is_a_time_outlier(tmp_path):
+    """As in the trace reader (tests/test_trace_time_outliers.py): a row at time 0 among
+    rows of 2019 is a time_outlier bad line, not a sample that made step detection span
+    49 years (before session 39 the walk-plan CSV kept it)."""
+    t0 = 1_565_000_000_000
+    rows = "".join(f"{t0 + 20 * i},1,2,3\n" for i in range(50))
+    (tmp_path / "a.csv").write_text("t_ms,acc_x,acc_y,acc_z\n" + rows[:80] + "0,1,2,3\n"
+                                    + rows[80:])
+    _plan(tmp_path, [_feature("a", [[0, 0], [1, 0]], start_ms=t0, end_ms=t0 + 980)])
+    (trace, _, _), = read_walk_plan(tmp_path / "plan.geojson")
+    assert trace.sensors["t_ms"].min() == t0 and len(trace.sensors) == 50
+    assert trace.report.bad == {"time_outlier": 1}
+    assert trace.report.messages == [f"{tmp_path / 'a.csv'}:6: t_ms is over 12 h from the "
+                                     "median time of the log's rows (a wrong clock or a stray "
+                                     "row)"]
+    with pytest.raises(SurveyFormatError, match=r"a.csv:6: t_ms is over 12 h"):
+        read_walk_plan(tmp_path / "plan.geojson", strict=True)
+
+
 def test_a_row_of_the_wrong_width_is_one_bad_line(tmp_path):
     """A row with too few or too many fields (a logger killed mid-row leaves a cut last row)
     is one `field_count` bad line, numbered as the file's lines (blank ones counted), in
