@@ -35,7 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from survey.errors import BundleError, BundleIntegrityError, RegistryError
 from survey.publish import file_sha256, finish_interrupted_publication
-from survey.regular_files import NotRegularFile
+from survey.regular_files import NotRegularFile, read_regular
 
 if TYPE_CHECKING:  # an annotation: pyarrow is imported when a table is read
     import pyarrow as pa
@@ -644,9 +644,13 @@ def safe_name(name: str) -> str:
 
 
 def read_registry_record(path: Path) -> Any:
-    """A registry JSON file's content; a :class:`RegistryError` naming it when damaged."""
+    """A registry JSON file's content (``CURRENT``, ``history.json``: regular files of at
+    most :data:`MAX_MANIFEST_BYTES`, as the registry writes them); a :class:`RegistryError`
+    naming it when damaged, a link, a FIFO or device (never waited on) or too large."""
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
+        if path.is_symlink():  # a pointer into another floor's or site's folder
+            raise NotRegularFile("a link, not the file the registry writes")
+        return json.loads(read_regular(path, MAX_MANIFEST_BYTES).decode("utf-8"))
     except (OSError, UnicodeDecodeError, ValueError, RecursionError) as err:
         raise RegistryError(f"{path}: damaged registry file ({err})") from err
 

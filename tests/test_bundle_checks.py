@@ -6,6 +6,7 @@ match again, as a buggy writer or another tool would leave them) are refused by
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -395,6 +396,27 @@ def test_a_version_folder_removed_is_named(registry):
     shutil.rmtree(reg.root / "site" / "F1" / "versions" / e2["bundle_id"])
     with pytest.raises(RegistryError, match="its folder is missing"):
         load_bundle(reg.root / "site" / "F1")
+
+
+@pytest.mark.parametrize("name", ["CURRENT", "history.json"])
+@pytest.mark.parametrize("kind", ["link", "fifo"])
+def test_a_registry_file_that_is_a_link_or_a_fifo_is_refused_unread(registry, tmp_path, name,
+                                                                    kind):
+    """Before session 39 a FIFO named CURRENT made every reader wait forever, and a CURRENT
+    linked to another floor's was followed."""
+    reg, e1, e2 = registry
+    path = reg.root / "site" / "F1" / name
+    kept = tmp_path / name
+    shutil.move(path, kept)
+    if kind == "link":
+        path.symlink_to(kept)
+    else:
+        os.mkfifo(path)
+    with pytest.raises(RegistryError, match=f"{name}: damaged registry file"):
+        load_bundle(reg.root / "site" / "F1")  # no wait: a FIFO is not opened
+    path.unlink()
+    shutil.move(kept, path)
+    assert load_bundle(reg.root / "site" / "F1").bundle_id == e2["bundle_id"]
 
 
 def test_polar_may_be_scalar_as_in_the_simulators_truth_bundles(bundle):
