@@ -45,6 +45,7 @@ from .process import MAX_WAYPOINT_OUTSIDE_SENSORS_S, ProcessedWalk, ProcessParam
     calibration_sessions, process_walk, reported_bias
 from .publish import TMP_PREFIX, atomic_write_bytes, crash_point, fsync_dir, \
     remove_stale_temporaries
+from .regular_files import read_regular
 from .store import (SurveyStore, _arrow_column, _parquet_bytes, check_columns, files_match,
                     part_path, part_record, read_parquet_checked)
 
@@ -55,6 +56,8 @@ PROCESSED_CATALOG_COLUMNS = ("trace_id", "sha256", "site", "floor", "inputs_sha2
 #: The session-fit cache, under ``processed/`` (:func:`store_session_fits`).
 SESSION_CACHE = "session_fits.json"
 SESSION_CACHE_FORMAT = "indoormap-session-fits"
+#: Largest session-fit cache read (a few kB per calibration session).
+MAX_SESSION_CACHE_BYTES = 256 * 1024**2
 #: Version of what the session-fit cache holds. Bump it when how a fit is written changes:
 #: caches of other versions are fitted again. A change to the fitting code itself needs no
 #: bump: the key holds the sha256 of its source files (:func:`_fit_code_sha256`).
@@ -297,7 +300,7 @@ def _read_session_cache(path: Path) -> tuple[dict, dict, str | None]:
     if not path.exists():
         return {}, {}, None
     try:
-        doc = json.loads(path.read_bytes())
+        doc = json.loads(read_regular(path, MAX_SESSION_CACHE_BYTES))  # no FIFO wait
         if not isinstance(doc, dict) or doc.get("format") != SESSION_CACHE_FORMAT:
             raise ValueError(f"not an {SESSION_CACHE_FORMAT} file")
         if doc.get("version") != SESSION_FIT_VERSION:

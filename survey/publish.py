@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 from .errors import PublishError
-from .regular_files import open_regular
+from .regular_files import open_regular, read_regular
 
 TMP_PREFIX = ".tmp-"
 
@@ -485,7 +485,7 @@ def _read_journal(parent: Path) -> _Journal | None:
     """The journal in ``parent`` (paths checked); None when there is none."""
     journal = parent / JOURNAL_NAME
     try:
-        text = journal.read_text()
+        text = read_regular(journal, 16 * 1024**2)  # a FIFO is not waited on
     except (FileNotFoundError, NotADirectoryError):
         return None
     except OSError as exc:

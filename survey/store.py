@@ -40,6 +40,7 @@ except ImportError:  # Windows: the pid in the lock file alone keeps writers apa
     fcntl = None  # type: ignore[assignment]
 from .publish import TMP_PREFIX, atomic_write_bytes, crash_point, file_sha256, fsync_dir, \
     remove_stale_temporaries
+from .regular_files import read_regular
 from .trace_format import BLE_COLUMNS, SENSOR_COLUMNS, WAYPOINT_COLUMNS, WIFI_COLUMNS, Trace
 
 STORE_FORMAT = "indoormap-survey-store"
@@ -270,7 +271,7 @@ class SurveyStore:
             raise StoreError(f"{root}: not a survey store (missing store.json); "
                              "create one with `indoormap ingest ... --store DIR`")
         try:
-            meta = json.loads(meta_path.read_text())
+            meta = _read_store_json(meta_path)
         except (OSError, ValueError) as err:
             raise StoreError(f"{meta_path}: unreadable ({err})") from err
         if not isinstance(meta, dict):
@@ -418,7 +419,7 @@ class SurveyStore:
     def schema_version(self) -> int:
         """The store's schema version (``store.json``, checked by :meth:`open`)."""
         try:
-            return int(json.loads((self.root / "store.json").read_text())["schema_version"])
+            return int(_read_store_json(self.root / "store.json")["schema_version"])
         except (OSError, ValueError, TypeError, KeyError) as err:
             raise StoreError(f"{self.root / 'store.json'}: unreadable ({err})") from err
 
@@ -477,6 +478,11 @@ def _take_lock(lock: Path, root: Path) -> int:
             fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
     os.write(fd, str(os.getpid()).encode())
     return fd
+
+
+def _read_store_json(path: Path) -> Any:
+    """``store.json``'s content: a regular file of at most 1 MiB (a FIFO is not waited on)."""
+    return json.loads(read_regular(path, 1024**2))
 
 
 def _read_pid(path: Path) -> int | None:

@@ -90,3 +90,29 @@ def test_csv_overwrite_replaces_a_csv_only(sample_store, tmp_path):  # noqa: F81
                                     str(table), "--overwrite"])
     assert res.exit_code == 0, res.output
     assert table.read_text().startswith("trace_id,floor,status")
+
+
+@needs_fifo
+def test_a_fifo_in_place_of_a_stores_or_publications_own_files_is_refused(sample_store,
+                                                                         tmp_path, no_hang):
+    """store.json, the session-fit cache and a build folder's publication journal are read as
+    capped regular files (session 39: a FIFO in their place made `store info`, `process` and
+    every reader of a build folder wait forever)."""
+    from survey.errors import PublishError, StoreError
+    from survey.process_store import SESSION_CACHE, store_session_fits
+    from survey.publish import JOURNAL_NAME, finish_interrupted_publication
+
+    store = tmp_path / "store"
+    shutil.copytree(sample_store, store)
+    cache = store / "processed" / SESSION_CACHE
+    cache.unlink()
+    os.mkfifo(cache)
+    fits = store_session_fits(SurveyStore.open(store), ["SIM-A1"])
+    assert "damaged session-fit cache (NotRegularFile" in fits.warnings[0], fits.warnings
+    (store / "store.json").unlink()
+    os.mkfifo(store / "store.json")
+    with pytest.raises(StoreError, match="store.json: unreadable .*not a regular file"):
+        SurveyStore.open(store)
+    os.mkfifo(tmp_path / JOURNAL_NAME)
+    with pytest.raises(PublishError, match="unreadable publication journal.*not a regular"):
+        finish_interrupted_publication(tmp_path)
