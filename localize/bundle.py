@@ -156,7 +156,7 @@ class Grid:
     @classmethod
     def from_dict(cls, d: dict) -> Grid:
         try:
-            if not all(isinstance(d[k], int) for k in ("width", "height")):
+            if not all(type(d[k]) is int for k in ("width", "height")):  # not true
                 raise ValueError("width and height must be whole numbers of cells")
             return cls(float(d["x0_m"]), float(d["y0_m"]), float(d["cell_m"]), d["width"],
                        d["height"])
@@ -522,14 +522,7 @@ def check_manifest_layout(manifest: dict, mpath: Path) -> None:
     build = manifest.get("build")
     need(isinstance(build, dict) and isinstance(build.get("params", {}), dict), "build")
     need(isinstance(manifest.get("metrics"), dict), "metrics")
-    held = manifest["metrics"].get("heldout_strength")
-    if held is not None:  # localize --method auto chooses by it
-        need(isinstance(held, dict), "metrics.heldout_strength")
-        for key, count in HELDOUT_FIELDS.items():
-            value = held.get(key)
-            need(key in held and (type(value) is int if count else value is None
-                                  or _is_real(value)),
-                 f"metrics.heldout_strength.{key}")
+    check_heldout_strength(manifest["metrics"], mpath)
     walks = build.get("source_walks", [])
     need(isinstance(walks, list) and all(isinstance(w, dict) and isinstance(
         w.get("trace_id"), str) for w in walks), "build.source_walks")
@@ -565,6 +558,22 @@ def check_manifest_layout(manifest: dict, mpath: Path) -> None:
                          ("std_file", f"layers/{name}_std.npy")):
             _member_entry(meta.get(key), f"layer {name!r} {key}", mpath, members)
             need(meta[key] == own, f"layers.{name}.{key}")
+
+
+def check_heldout_strength(metrics: dict, where: object) -> None:
+    """``metrics.heldout_strength``, when present, has every field of :data:`HELDOUT_FIELDS`
+    with its type (``localize --method auto`` chooses its method by ``corr_5m``); else a
+    :class:`BundleIntegrityError` naming ``where`` and the field."""
+    held = metrics.get("heldout_strength")
+    if held is None:
+        return
+    bad = [""] if not isinstance(held, dict) else [
+        f".{key}" for key, count in HELDOUT_FIELDS.items()
+        if key not in held or not (type(held[key]) is int if count
+                                   else held[key] is None or _is_real(held[key]))]
+    if bad:
+        raise BundleIntegrityError(f"{where}: field 'metrics.heldout_strength{bad[0]}' is "
+                                   "missing or malformed")
 
 
 def check_layer_kind(name: str, unit: str, kind: str, where: object) -> None:

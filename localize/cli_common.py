@@ -156,17 +156,19 @@ def read_walk(path: Path) -> Trace:
 
 class TraceIds:
     """The trace ids of one run's walks: a second walk with an id already seen would replace
-    the first one's outputs (``<trace_id>.parquet``) or be merged with it in the scores."""
+    the first one's outputs (``<trace_id>.parquet``), be merged with it in the scores, or
+    print its rows under the same id; ``why`` says which (the end of the error)."""
 
-    def __init__(self) -> None:
+    def __init__(self, why: str = "its outputs would replace the other's") -> None:
         self._first: dict[str, Path] = {}
+        self._why = why
 
     def claim(self, trace_id: str, path: Path) -> None:
         """Note ``trace_id`` as ``path``'s; a LocalizationError if another file had it."""
         first = self._first.setdefault(trace_id, path)
         if first != path:  # another file: trace_files named each file once
             raise LocalizationError(f"{path}: trace id {trace_id} is also {first}'s in this "
-                                    "run; rename one (its outputs would replace the other's)")
+                                    f"run; rename one ({self._why})")
 
 
 class WalkFailures:
@@ -205,8 +207,9 @@ class WalkFailures:
 
 def say_floor_choice(trace_id: str, bundle, how: str) -> None:
     """Standard error: the floor a floor model chose for a walk, or a warning when the
-    header's floor is one the Wi-Fi floor model contradicts
-    (:meth:`localize.floors.SiteMaps.choose`'s ``how``); nothing for a header's floor."""
+    header's floor is one the Wi-Fi floor model contradicts, or when the model that chose
+    lacks some of the floors given (:meth:`localize.floors.SiteMaps.choose`'s ``how``);
+    nothing for a header's floor."""
     floor = bundle.manifest.get("floor_name", "")
     if HEADER_DOUBT in how or MODEL_LACKS in how:  # said, not overruled
         click.echo(f"warning: {trace_id}: floor {floor} by the {how}", err=True)

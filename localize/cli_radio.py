@@ -135,11 +135,11 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
     lacking = sorted(set(map(str, models["ble"].floors)) - set(map(str, models["wifi"].floors))
                      ) if kind == "auto" and len(tried_auto) == 2 else []
 
-    seen = TraceIds()
+    seen = TraceIds("its rows would be printed under the other's id")
 
     def one(f: Path) -> None:
         trace = read_walk(f)
-        seen.claim(trace.trace_id, f)  # its rows would mix with the other walk's
+        seen.claim(trace.trace_id, f)
         if trace.header.site_id and site.site_id and trace.header.site_id != site.site_id:
             raise LocalizationError(f"{trace.trace_id}: recorded at site "
                                     f"{trace.header.site_id}, but the site bundle {site.path} "
@@ -262,11 +262,11 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
     maps = SiteMaps.open(bundle_path)
     out = _CsvRows(["trace_id", "floor", "t_ms", "n_known", "x_m", "y_m", "sigma_m", "error_m"])
     failures = WalkFailures()
-    seen = TraceIds()
+    seen = TraceIds("its rows would be printed under the other's id")
 
     def one(f: Path) -> None:
         trace = read_walk(f)
-        seen.claim(trace.trace_id, f)  # its rows would mix with the other walk's
+        seen.claim(trace.trace_id, f)
         scans = _scans(trace, kind, maps.ble_window_ms)
         if not scans:
             other = "ble" if kind == "wifi" else "wifi"

@@ -185,6 +185,11 @@ class SiteMaps:
             (b := self.floor_bundle(str(f))) is not None and b.floor_id == bundle.floor_id
             for f in known)
 
+    def _lacking(self, model) -> list[str]:
+        """The given floors (by name) a floor model cannot put a walk on: none when it does
+        not list its floors."""
+        return [n for n, b in sorted(self._by_name.items()) if not self._knows(model, b)]
+
     def _wifi_doubt(self, header_bundle: MapBundle,
                     wifi_scans: Sequence[RadioScan | None] | None, device_model: str) -> str:
         """``"; but the Wi-Fi floor model puts V of N Wi-Fi scans on floor F"`` when it puts
@@ -293,25 +298,26 @@ class SiteMaps:
                 raise LocalizationError(f"{where}: the {name} floor model says floor {best}, "
                                         "which has no bundle")
             how = f"{name} floor model ({n_on} of {n_known} {what} on it{calibrated})"
-            known = getattr(model, "floors", None) if name == "Wi-Fi" else None
-            lacking = sorted(set(self._by_name) - {str(f) for f in known}) \
-                if known is not None else []
-            lacks = f"{MODEL_LACKS} {', '.join(lacking)}: a walk there is put elsewhere"
-            if lacking and self.ble_floor_model is not None:
-                # it puts a walk on a floor it knows even when the walk is on one it lacks
-                deferred = found, how, {str(f) for f in known}, lacks
-                missing.append(f"the Wi-Fi floor model lacks floor {', '.join(lacking)}")
+            lacking = self._lacking(model)
+            if name == "Wi-Fi" and lacking and self.ble_floor_model is not None:
+                # it puts a walk on a floor it knows even when the walk is on one it lacks:
+                # the BLE model may name one of those
+                deferred = found, how, lacking
                 continue
-            if deferred is not None and best in deferred[2]:
-                # BLE names a floor the Wi-Fi model knows: Wi-Fi, the better, decides
-                return deferred[0], f"{deferred[1]}; {', '.join(missing)}"
-            if lacking:  # and nothing else to ask (a site bundle rebuilt from fewer floors)
-                how += lacks
-            return found, how + (f"; {', '.join(missing)}" if missing else "")
+            tail = f"; {', '.join(missing)}" if missing else ""
+            if deferred is not None:
+                wifi_found, wifi_how, wifi_lacking = deferred
+                note = f"; the Wi-Fi floor model lacks floor {', '.join(wifi_lacking)}"
+                if best in wifi_lacking:  # BLE names a floor the Wi-Fi model lacks: it decides
+                    return found, how + _lacks(lacking) + note + tail
+                # BLE names a floor the Wi-Fi model knows: Wi-Fi, the better, decides; the BLE
+                # model confirms it only if it could have named the floors Wi-Fi lacks
+                unseen = [f for f in wifi_lacking if f in lacking]
+                return wifi_found, wifi_how + (_lacks(unseen) if unseen else note) + tail
+            return found, how + _lacks(lacking) + tail
         if deferred is not None:  # BLE could not tell: the Wi-Fi model decides, unchecked
-            rest = missing[1:]  # what BLE lacked, after the Wi-Fi model's entry
-            return deferred[0], deferred[1] + deferred[3] + (f"; {', '.join(rest)}"
-                                                             if rest else "")
+            return deferred[0], deferred[1] + _lacks(deferred[2]) + (
+                f"; {', '.join(missing)}" if missing else "")
         if len(self.bundles) == 1:
             return next(iter(self.bundles.values())), "the only floor bundle"
         raise LocalizationError(f"{where}: the walk names no floor (no floor id or known floor "
@@ -333,6 +339,14 @@ HEADER_DOUBT = "; but the Wi-Fi floor model puts"
 #: rebuilt from fewer floors than its floor bundles): a warning, as a walk on those floors is
 #: put on another.
 MODEL_LACKS = "; the model lacks floor"
+
+
+def _lacks(floors: Sequence[str]) -> str:
+    """:data:`MODEL_LACKS`'s phrase for ``floors`` the deciding model cannot name ("" for
+    none)."""
+    return (f"{MODEL_LACKS} {', '.join(floors)}: walks there are put on a floor it knows"
+            if floors else "")
+
 
 #: BLE window (ms) of bundles whose manifest does not record one (they were all built with it)
 DEFAULT_BLE_WINDOW_MS = 2000

@@ -24,6 +24,7 @@ from localize.bundle import (
     bundle_id_of,
     canonical_json,
     check_grid_limits,
+    check_heldout_strength,
     check_layer_kind,
     check_layer_values,
     check_tables,
@@ -98,6 +99,7 @@ def _check_numbers(content: BundleContent) -> None:
     """The grid, layers and tables of :func:`_check`."""
     where = f"{content.kind} bundle {content.floor_name!r}"
     check_tables(content.tables, where)
+    check_heldout_strength(content.metrics, where)
     if content.grid is None:
         if content.layers:
             raise BundleError("layers need a grid")

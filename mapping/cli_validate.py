@@ -48,6 +48,7 @@ def validate_command(bundle: Path, store_dir: Path | None, out_dir: Path,
 
     Exit status: 0 when every threshold holds, 1 when any fails (or the inputs are unusable),
     2 on usage errors."""
+    from localize.cli_common import refuse_output_inside_data
     from mapping.validate import (
         ValidateParams,
         ValidationError,
@@ -57,6 +58,7 @@ def validate_command(bundle: Path, store_dir: Path | None, out_dir: Path,
         write_metrics,
     )
 
+    refuse_output_inside_data(out_dir)  # files there made a bundle fail its checks
     if out_dir.exists() and any(out_dir.iterdir()):  # said before minutes of work
         refuse_to_replace(out_dir, overwrite)
         if not (out_dir / "metrics.json").is_file():

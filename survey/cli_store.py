@@ -58,9 +58,10 @@ def store_verify(store_dir: Path) -> None:
         click.echo(f"FAILED  {cache} (the next `indoormap process` fits "
                    "the sessions again and rewrites it)")
     stray = store.stray_files()
-    if stray:  # not a failure: a crashed ingest's parts, never read
+    if stray:  # not a failure: never read
         click.echo(f"note    {len(stray)} file(s) the catalog does not name, e.g. {stray[0]} "
-                   "(left by an interrupted ingest; the next `indoormap ingest` deletes them)")
+                   "(an ingest running now, or one interrupted: the next `indoormap ingest` "
+                   "deletes them)")
     if raw or processed or cache:
         sys.exit(1)
     click.echo(f"ok      {store_dir} ({n} traces)")

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import errno
 import hashlib
 import json
 import os
@@ -246,10 +247,16 @@ def atomic_directory(target: str | os.PathLike, *, overwrite: bool = False,
         raise
 
 
+#: Errors of writing that the system reports without a file name: no space, over quota, an
+#: I/O error, a file too large, a read-only file system.
+_WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EIO, errno.EFBIG, errno.EROFS})
+
+
 def _name_file(err: BaseException, path: Path) -> None:
-    """Give an operating-system error without a file name (a write's "No space left on
-    device", an fsync's I/O error) the ``path`` being written, which the CLI prints."""
-    if isinstance(err, OSError) and err.filename is None:
+    """Give a write's operating-system error that names no file (``"No space left on
+    device"`` from a write, an I/O error from an fsync) the ``path`` being written, which the
+    CLI prints. Other errors keep their own message and file name."""
+    if isinstance(err, OSError) and err.filename is None and err.errno in _WRITE_ERRNOS:
         err.filename = str(path)
 
 

@@ -21,7 +21,7 @@ import hashlib
 import json
 import os
 import re
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -402,19 +402,22 @@ class SurveyStore:
                 progress(i + 1, len(cat))
         return problems
 
-    def stray_files(self, catalog: pd.DataFrame | None = None,
-                    pending: Iterable[Mapping[str, Any]] = ()) -> list[Path]:
-        """Files under the part folders that ``catalog`` (default: the store's) and a writer's
-        ``pending`` catalog rows do not name, or temporaries of crashed writes: what a crashed
-        ingest leaves; the next writer deletes them (:meth:`_StoreWriter.collect_garbage`)."""
+    def stray_files(self, catalog: pd.DataFrame | None = None) -> list[Path]:
+        """Files under the part folders that ``catalog`` (default: the store's) does not name,
+        or temporaries of crashed writes: what an interrupted ingest leaves (or a running one
+        has not committed yet); the next writer deletes them
+        (:meth:`_StoreWriter.collect_garbage`). A folder removed while listed is skipped."""
         catalog = self.catalog() if catalog is None else catalog
-        rows = [(r.site, r.floor, r.trace_id, r.sha256) for r in catalog.itertuples(index=False)]
-        rows += [(r["site"], r["floor"], r["trace_id"], r["sha256"]) for r in pending]
-        live = {part_path(t, *row) for row in rows for t in TABLES}
-        return [p for table in TABLES if (self.root / table).is_dir()
-                for p in sorted((self.root / table).rglob("*"))
-                if p.is_file() and (p.name.startswith(TMP_PREFIX)
-                                    or str(p.relative_to(self.root)) not in live)]
+        live = {part_path(t, r.site, r.floor, r.trace_id, r.sha256)
+                for r in catalog.itertuples(index=False) for t in TABLES}
+        found = []
+        for table in TABLES:
+            for folder, _, names in os.walk(self.root / table):  # errors (gone): skipped
+                for name in names:
+                    p = Path(folder) / name
+                    if name.startswith(TMP_PREFIX) or str(p.relative_to(self.root)) not in live:
+                        found.append(p)
+        return sorted(found)
 
     def schema_version(self) -> int:
         """The store's schema version (``store.json``, checked by :meth:`open`)."""
@@ -603,7 +606,7 @@ class _StoreWriter:
     def collect_garbage(self) -> int:
         """Delete part files the catalog does not name and temporaries of crashed writes."""
         removed = remove_stale_temporaries(self.root)
-        for p in self.store.stray_files(self.cat, self.pending.values()):
+        for p in self.store.stray_files(self.cat):
             p.unlink()
             removed += 1
         for table in TABLES:

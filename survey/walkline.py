@@ -162,7 +162,8 @@ def read_walk_plan(path: str | os.PathLike, *, strict: bool = False
             raise SurveyFormatError(f"sensor log {log!r} not readable "
                                     f"({getattr(err, 'strerror', None) or err})",
                                     path=where, reason="io") from err
-        trace = parse_sensor_csv(csv_bytes, path=str(csv_path), strict=strict)
+        trace = parse_sensor_csv(csv_bytes, path=str(csv_path), strict=strict,
+                                 reference_ms=float(np.median(times)))
         trace.trace_id = walk_id
         for prop, attr in _HEADER_PROPS.items():
             if props.get(prop) is not None:
@@ -257,8 +258,11 @@ def _row_lines(data: bytes, n_rows: int, skipped: list[int]
     return np.arange(n_rows) + 2, at + 1
 
 
-def parse_sensor_csv(data: bytes, *, path: str = "<input>", strict: bool = False) -> Trace:
-    """Parse a walk-line sensor CSV into a :class:`Trace` (sensors only)."""
+def parse_sensor_csv(data: bytes, *, path: str = "<input>", strict: bool = False,
+                     reference_ms: float | None = None) -> Trace:
+    """Parse a walk-line sensor CSV into a :class:`Trace` (sensors only). ``reference_ms``:
+    the walk's time (Unix ms; the median of its plan's vertex times) rows are measured from
+    for ``time_outlier`` (default: the median time of the rows)."""
     report = ParseReport(path=path)
     wrong_width: list[tuple[int | None, int, int]] = []  # (row number, fields, expected)
 
@@ -323,19 +327,28 @@ def parse_sensor_csv(data: bytes, *, path: str = "<input>", strict: bool = False
     out_of_range = ~row_bad & ((t >= MAX_TIME_MS) | implausible)
     if acc is not None:
         out_of_range |= ~row_bad & (np.abs(acc) > 127)
-    # a row far in time from the others (a wrong clock, a stray row), as the trace reader's
-    # time_outlier: one row at time 0 made step detection ask for hundreds of GiB
+    # a row far in time from the walk (its plan's times, else the rows'): a wrong clock or a
+    # stray row, as the trace reader's time_outlier; one row at time 0 made step detection
+    # ask for hundreds of GiB
     timed = np.flatnonzero(~row_bad & ~out_of_range)
     time_outlier = np.zeros(len(t), dtype=bool)
-    time_outlier[timed] = far_from_median_time(t[timed], np.zeros(len(timed), np.int64), 1)
+    if reference_ms is None:
+        time_outlier[timed] = far_from_median_time(t[timed], np.zeros(len(timed), np.int64), 1)
+    else:
+        time_outlier[timed] = np.abs(t[timed] - reference_ms) > MAX_FROM_MEDIAN_TIME_MS
+        if len(timed) and time_outlier[timed].all():
+            raise SurveyFormatError(
+                f"every row's t_ms is over {MAX_FROM_MEDIAN_TIME_MS // 3_600_000} h from the "
+                f"walk plan's vertex times (median {reference_ms:.0f} ms): the log and the "
+                "plan are on different clocks", path=path, reason="clock")
     problems = {"non_numeric": (row_bad, "non-numeric, missing or non-finite value"),
                 "out_of_range": (out_of_range, "t_ms beyond 2^53 ms, accuracy beyond 127 or a "
                                                "sensor value no phone reports (e.g. beyond "
                                                "2000 m/s^2)"),
                 "time_outlier": (time_outlier, f"t_ms is over "
                                                f"{MAX_FROM_MEDIAN_TIME_MS // 3_600_000} h from "
-                                               "the median time of the log's rows (a wrong "
-                                               "clock or a stray row)")}
+                                               "the walk's time (a wrong clock or a stray "
+                                               "row)")}
     any_bad = row_bad | out_of_range | time_outlier
     if any_bad.any() or wrong_width:
         line, skipped_line = _row_lines(data, table.num_rows,

@@ -451,6 +451,8 @@ def test_commands_on_a_resealed_bad_map_stop_with_one_line_naming_it(built, tmp_
      "layer 'heading_offset' must have unit 'deg' and kind 'angle'"),
     (lambda c: c.layers["strength"].values.__setitem__((5, 5), 1e6),
      "layer strength file holds values from"),
+    (lambda c: c.metrics.update(heldout_strength={"corr_5m": 0.8, "skill": 0.2}),
+     "field 'metrics.heldout_strength.shape_rmse_ut' is missing or malformed"),
 ])
 def test_the_writer_refuses_what_a_reader_would(tmp_path, edit, message):
     """A bundle the loader would refuse is not written (and so never published)."""
@@ -459,6 +461,22 @@ def test_the_writer_refuses_what_a_reader_would(tmp_path, edit, message):
     with pytest.raises(BundleError, match="refused before writing: .*" + message):
         write_bundle(tmp_path / "b", content)
     assert not (tmp_path / "b").exists()
+
+
+def test_floor_bundles_have_a_grid_and_site_bundles_none(tmp_path, bundle):
+    """The writer refuses, and the loader (re-sealed) refuses, the other combination."""
+    import dataclasses
+
+    content = _content()
+    for wrong in (dataclasses.replace(content, grid=None, mask=None, layers={}),
+                  dataclasses.replace(content, kind="site")):
+        with pytest.raises(BundleError, match="a floor bundle needs a grid and a site bundle "
+                                              "has none"):
+            write_bundle(tmp_path / "w", wrong)
+        assert not (tmp_path / "w").exists()
+    _edit_manifest(bundle, lambda m: m.update(kind="site"))
+    with pytest.raises(BundleIntegrityError, match="a site bundle has no grid, mask or layers"):
+        load_bundle(bundle)
 
 
 def test_the_writer_refuses_a_site_id_the_reader_would(tmp_path):

@@ -89,20 +89,45 @@ def test_a_wifi_floor_model_lacking_a_floor_does_not_outvote_the_ble_model(wifi_
     t = read_trace(sorted((SITE / "F1" / "path_data_files").glob("*.txt.gz"))[0])
     bundle, how = maps.choose(t.trace_id, "", "", "", scans_of(t), ble_scans_of(t))
     assert bundle.manifest["floor_name"] == "F1" and how.startswith("Wi-Fi floor model ("), how
-    assert "put elsewhere" not in how  # BLE agrees: no warning
+    assert MODEL_LACKS not in how  # BLE, which knows F2, agrees: no warning
     # without BLE windows the one-floor Wi-Fi model still answers, as before, and says what
     # it lacks as a warning (before session 39 a note, and none without a BLE model)
     t = read_trace(F2_WALKS[0])
     bundle, how = maps.choose(t.trace_id, "", "", "", scans_of(t), [])
     assert bundle.manifest["floor_name"] == "F1" and how.startswith("Wi-Fi floor model (")
-    assert f"{MODEL_LACKS} F2: a walk there is put elsewhere; no BLE windows in the walk" \
-        in how, how
+    assert f"{MODEL_LACKS} F2: walks there are put on a floor it knows; no BLE windows in " \
+        "the walk" in how, how
     maps.ble_floor_model = None  # a site bundle rebuilt from F1 alone beside F2's bundle
     bundle, how = maps.choose(t.trace_id, "", "", "", scans_of(t), ble_scans_of(t))
     assert bundle.manifest["floor_name"] == "F1" and how.endswith(
-        f"{MODEL_LACKS} F2: a walk there is put elsewhere"), how
+        f"{MODEL_LACKS} F2: walks there are put on a floor it knows"), how
     say_floor_choice(t.trace_id, bundle, how)
     assert capsys.readouterr().err.startswith(f"warning: {t.trace_id}: floor F1 by the Wi-Fi")
+
+
+def test_floor_models_that_both_lack_a_given_floor_warn_even_when_they_agree(built, tmp_path):
+    """A site bundle of F1 and F2 beside bundles of F1, F2 and F3 (a site bundle rebuilt from
+    fewer floors): BLE naming the floor Wi-Fi chose confirms nothing, as neither model can
+    name F3, so a walk on F3 would be put on F1 or F2: a warning, not a note."""
+    import numpy as np
+
+    from mapping.bundle_writer import Layer
+
+    for name in ("F1", "F2", "_site"):
+        shutil.copytree(built / name, tmp_path / name)
+    f2 = load_bundle(built / "F2")
+    m = f2.manifest
+    write_bundle(tmp_path / "F3", BundleContent(
+        m["site_id"], "floor-3", "F3", grid=f2.grid, mask=np.asarray(f2.mask),
+        layers={n: Layer(np.asarray(v), np.asarray(f2.std[n]), m["layers"][n]["unit"],
+                         m["layers"][n]["kind"]) for n, v in f2.layers.items()},
+        tables=dict(f2.tables), build=m["build"], metrics=m["metrics"]))
+    maps = SiteMaps.open(tmp_path)
+    assert maps.ble_floor_model is not None
+    t = read_trace(F2_WALKS[0])
+    bundle, how = maps.choose(t.trace_id, "", "", "", scans_of(t), ble_scans_of(t))
+    assert bundle.manifest["floor_name"] == "F2" and how.startswith("Wi-Fi floor model (")
+    assert how.endswith(f"{MODEL_LACKS} F3: walks there are put on a floor it knows"), how
 
 
 def test_a_wifi_floor_model_lacking_the_header_floor_does_not_doubt_it(wifi_on_f1_only):

@@ -82,8 +82,14 @@ def test_csv_overwrite_replaces_a_csv_only(sample_store, tmp_path):  # noqa: F81
     before = catalog.read_bytes()
     res = CliRunner().invoke(main, ["survey-report", "--store", str(store), "--csv",
                                     str(catalog), "--overwrite"])
-    assert res.exit_code == 1 and "is not a .csv file; --overwrite replaces only" in res.output
+    assert res.exit_code == 2 and "is inside the survey store" in res.output  # session 39
     assert catalog.read_bytes() == before
+    plan = tmp_path / "plan.geojson"  # another input, outside the store
+    plan.write_text("{}")
+    res = CliRunner().invoke(main, ["survey-report", "--store", str(store), "--csv",
+                                    str(plan), "--overwrite"])
+    assert res.exit_code == 1 and "is not a .csv file; --overwrite replaces only" in res.output
+    assert plan.read_text() == "{}"
     table = tmp_path / "walks.csv"
     table.write_text("old")
     res = CliRunner().invoke(main, ["survey-report", "--store", str(store), "--csv",

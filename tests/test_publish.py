@@ -301,6 +301,14 @@ def test_a_full_disk_is_reported_with_the_file_being_written(tmp_path, monkeypat
         with atomic_directory(tmp_path / "d") as staged:
             (staged / "f").write_bytes(b"x")
     assert err.value.filename == str(tmp_path / "d") and not list(tmp_path.iterdir())
+    # errors of another kind keep their message and their file (a PublishError is an OSError)
+    with pytest.raises(PublishError, match="^already there$"):
+        with atomic_directory(tmp_path / "d"):
+            raise PublishError("already there")
+    with pytest.raises(FileNotFoundError) as err:
+        with atomic_directory(tmp_path / "d"):
+            (tmp_path / "gone.txt").read_bytes()
+    assert err.value.filename == str(tmp_path / "gone.txt")
     trace = min((Path(__file__).resolve().parents[1] / "data" / "sample_site" / "F1"
                  / "path_data_files").glob("*.txt.gz"))
     res = CliRunner().invoke(main, ["ingest", str(trace), "--store", str(tmp_path / "s")])

@@ -317,6 +317,11 @@ def test_a_report_is_replaced_whole_and_only_when_asked(sites, tmp_path):
     other, _ = _validate(bundle, None, tmp_path / "docs", "--overwrite")
     assert other.exit_code == 1 and "is not a validation report" in other.output
     assert (tmp_path / "docs" / "a.txt").read_text() == "keep me"
+    # a report inside the bundle would make it fail its checks (session 39)
+    inside = CliRunner().invoke(main, ["validate", str(bundle), "-o", str(bundle / "report"),
+                                       "-q"])
+    assert inside.exit_code == 2 and "is inside the map bundle" in inside.output
+    assert not (bundle / "report").exists()
 
 
 def test_usage_errors_exit_2(tmp_path):

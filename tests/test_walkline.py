@@ -14,7 +14,10 @@ from survey.store import SurveyStore
 from survey.walkline import read_walk_plan
 
 
-def _csv(path, n=100, t0=1_700_000_000_000, extra_bad_row=False):
+T0 = 1_700_000_000_000  # the sensor logs' first time (Unix ms)
+
+
+def _csv(path, n=100, t0=T0, extra_bad_row=False):
     rng = np.random.default_rng(1)
     cols = ["t_ms", "acc_x", "acc_y", "acc_z", "mag_x", "mag_y", "mag_z", "rot_x", "rot_y",
             "rot_z", "mag_uncal_x", "mag_uncal_y", "mag_uncal_z", "mag_bias_x", "mag_bias_y",
@@ -77,7 +80,7 @@ def test_plan_with_both_time_styles_lands_in_store(tmp_path):
 
 def test_bad_csv_row_lenient_and_strict(tmp_path):
     _csv(tmp_path / "a.csv", extra_bad_row=True)
-    plan = _plan(tmp_path, [_feature("a", [[0, 0], [1, 0]], start_ms=1, end_ms=2)])
+    plan = _plan(tmp_path, [_feature("a", [[0, 0], [1, 0]], start_ms=T0, end_ms=T0 + 1980)])
     (trace, _, _), = read_walk_plan(plan)
     assert trace.report.bad == {"non_numeric": 1}
     assert trace.report.messages[0].endswith("a.csv:6: non-numeric, missing or non-finite value")
@@ -108,7 +111,7 @@ def test_plan_errors_name_file_and_feature(tmp_path, feature, message):
 
 def test_csv_errors(tmp_path):
     (tmp_path / "a.csv").write_text("time,acc_x\n1,2\n")
-    plan = _plan(tmp_path, [_feature("a", [[0, 0], [1, 0]], start_ms=1, end_ms=2)])
+    plan = _plan(tmp_path, [_feature("a", [[0, 0], [1, 0]], start_ms=T0, end_ms=T0 + 1980)])
     with pytest.raises(SurveyFormatError, match="needs a 't_ms' column"):
         read_walk_plan(plan)
     (tmp_path / "a.csv").write_text("t_ms,acc_x,acc_y\n1,2,3\n")
@@ -121,7 +124,7 @@ def test_csv_errors(tmp_path):
 
 def test_folders_ignore_geojson_that_is_not_a_walk_plan(tmp_path):
     _csv(tmp_path / "a.csv")
-    _plan(tmp_path, [_feature("a", [[0, 0], [1, 0]], start_ms=1, end_ms=2)])
+    _plan(tmp_path, [_feature("a", [[0, 0], [1, 0]], start_ms=T0, end_ms=T0 + 1980)])
     (tmp_path / "floor.geojson").write_text(json.dumps(
         {"type": "FeatureCollection", "features": [{"type": "Feature", "properties": {},
                                                     "geometry": None}]}))
@@ -146,7 +149,7 @@ def test_sensor_log_must_be_a_regular_file(tmp_path):
 
 def test_a_walk_id_cannot_place_files_outside_the_store(tmp_path):
     _csv(tmp_path / "a.csv")
-    feature = _feature("a", [[0, 0], [1, 0]], start_ms=1, end_ms=2)
+    feature = _feature("a", [[0, 0], [1, 0]], start_ms=T0, end_ms=T0 + 1980)
     feature["properties"]["walk_id"] = "../../../../outside"
     _plan(tmp_path, [feature])
     store_dir = tmp_path / "deep" / "store"
@@ -158,7 +161,7 @@ def test_a_walk_id_cannot_place_files_outside_the_store(tmp_path):
 
 def test_a_changed_collection_property_changes_the_walk(tmp_path):
     _csv(tmp_path / "a.csv")
-    plan = _plan(tmp_path, [_feature("a", [[0, 0], [1, 0]], start_ms=1, end_ms=2)])
+    plan = _plan(tmp_path, [_feature("a", [[0, 0], [1, 0]], start_ms=T0, end_ms=T0 + 1980)])
     ingest([plan], tmp_path / "store")
     doc = json.loads(plan.read_text())
     doc["properties"]["floor_name"] = "F3"
@@ -196,8 +199,9 @@ def test_a_sensor_value_no_phone_reports_is_out_of_range(tmp_path):
 
 def test_a_row_far_in_time_is_a_time_outlier(tmp_path):
     """As in the trace reader (tests/test_trace_time_outliers.py): a row at time 0 among
-    rows of 2019 is a time_outlier bad line, not a sample that made step detection span
-    49 years (before session 39 the walk-plan CSV kept it)."""
+    rows of 2019 is a time_outlier bad line, measured from the plan's vertex times, not a
+    sample that made step detection span 49 years (before session 39 the walk-plan CSV
+    kept it)."""
     t0 = 1_565_000_000_000
     rows = "".join(f"{t0 + 20 * i},1,2,3\n" for i in range(50))
     (tmp_path / "a.csv").write_text("t_ms,acc_x,acc_y,acc_z\n" + rows[:80] + "0,1,2,3\n"
@@ -207,10 +211,18 @@ def test_a_row_far_in_time_is_a_time_outlier(tmp_path):
     assert trace.sensors["t_ms"].min() == t0 and len(trace.sensors) == 50
     assert trace.report.bad == {"time_outlier": 1}
     assert trace.report.messages == [f"{tmp_path / 'a.csv'}:6: t_ms is over 12 h from the "
-                                     "median time of the log's rows (a wrong clock or a stray "
-                                     "row)"]
+                                     "walk's time (a wrong clock or a stray row)"]
     with pytest.raises(SurveyFormatError, match=r"a.csv:6: t_ms is over 12 h"):
         read_walk_plan(tmp_path / "plan.geojson", strict=True)
+    # measured from the plan's times: of two rows, the one at time 0 is the stray
+    (tmp_path / "a.csv").write_text(f"t_ms,acc_x,acc_y,acc_z\n{t0},1,2,3\n0,1,2,3\n")
+    (trace, _, _), = read_walk_plan(tmp_path / "plan.geojson")
+    assert trace.sensors["t_ms"].tolist() == [t0] and trace.report.bad == {"time_outlier": 1}
+    # a log wholly on another clock than its plan is refused, named
+    (tmp_path / "a.csv").write_text("t_ms,acc_x,acc_y,acc_z\n" + rows.replace("15650", "15750"))
+    with pytest.raises(SurveyFormatError, match=r"a.csv: every row's t_ms is over 12 h from "
+                                                r"the walk plan's vertex times"):
+        read_walk_plan(tmp_path / "plan.geojson")
 
 
 def test_a_row_of_the_wrong_width_is_one_bad_line(tmp_path):
