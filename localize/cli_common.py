@@ -95,12 +95,12 @@ def _indoormap_data(folder: Path) -> str | None:
     program is not a bundle)."""
     import json
 
-    from localize.bundle import BUNDLE_FORMAT
+    from localize.bundle import BUNDLE_FORMAT, MAX_MANIFEST_BYTES
     from survey.regular_files import read_regular
 
     def doc(name: str) -> dict:
         try:  # a small regular file (a FIFO named manifest.json is not waited on)
-            d = json.loads(read_regular(folder / name, 1 << 20))
+            d = json.loads(read_regular(folder / name, MAX_MANIFEST_BYTES))
         except (OSError, ValueError):
             return {}
         return d if isinstance(d, dict) else {}

@@ -304,7 +304,7 @@ class SiteMaps:
                 # the BLE model may name one of those
                 deferred = found, how, lacking
                 continue
-            tail = f"; {', '.join(missing)}" if missing else ""
+            tail = _also(missing)
             if deferred is not None:
                 wifi_found, wifi_how, wifi_lacking = deferred
                 note = f"; the Wi-Fi floor model lacks floor {', '.join(wifi_lacking)}"
@@ -316,8 +316,7 @@ class SiteMaps:
                 return wifi_found, wifi_how + (_lacks(unseen) if unseen else note) + tail
             return found, how + _lacks(lacking) + tail
         if deferred is not None:  # BLE could not tell: the Wi-Fi model decides, unchecked
-            return deferred[0], deferred[1] + _lacks(deferred[2]) + (
-                f"; {', '.join(missing)}" if missing else "")
+            return deferred[0], deferred[1] + _lacks(deferred[2]) + _also(missing)
         if len(self.bundles) == 1:
             return next(iter(self.bundles.values())), "the only floor bundle"
         raise LocalizationError(f"{where}: the walk names no floor (no floor id or known floor "
@@ -346,6 +345,11 @@ def _lacks(floors: Sequence[str]) -> str:
     none)."""
     return (f"{MODEL_LACKS} {', '.join(floors)}: walks there are put on a floor it knows"
             if floors else "")
+
+
+def _also(missing: Sequence[str]) -> str:
+    """``"; A, B"``: what the models that did not decide lacked ("" for nothing)."""
+    return f"; {', '.join(missing)}" if missing else ""
 
 
 #: BLE window (ms) of bundles whose manifest does not record one (they were all built with it)

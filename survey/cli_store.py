@@ -46,7 +46,8 @@ def store_verify(store_dir: Path) -> None:
     format). Exit 1 if any fails; ingesting a failed trace's file again repairs it, and
     `process` then redoes its walk (and refits a damaged cache)."""
     store = SurveyStore.open(store_dir)
-    n = len(store.catalog())
+    catalog = store.catalog()
+    n = len(catalog)
     with progress("verify", n, unit="traces") as update:
         raw = store.verify(progress=update)
     processed = verify_processed(store)
@@ -57,7 +58,7 @@ def store_verify(store_dir: Path) -> None:
     if cache:
         click.echo(f"FAILED  {cache} (the next `indoormap process` fits "
                    "the sessions again and rewrites it)")
-    stray = store.stray_files()
+    stray = store.stray_files(catalog)
     if stray:  # not a failure: never read
         click.echo(f"note    {len(stray)} file(s) the catalog does not name, e.g. {stray[0]} "
                    "(an ingest running now, or one interrupted: the next `indoormap ingest` "

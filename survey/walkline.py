@@ -46,7 +46,6 @@ from .trace_format import (
     Trace,
     TraceHeader,
     empty_table,
-    far_from_median_time,
     sensor_limit,
 )
 
@@ -162,8 +161,8 @@ def read_walk_plan(path: str | os.PathLike, *, strict: bool = False
             raise SurveyFormatError(f"sensor log {log!r} not readable "
                                     f"({getattr(err, 'strerror', None) or err})",
                                     path=where, reason="io") from err
-        trace = parse_sensor_csv(csv_bytes, path=str(csv_path), strict=strict,
-                                 reference_ms=float(np.median(times)))
+        trace = parse_sensor_csv(csv_bytes, reference_ms=float(np.median(times)),
+                                 path=str(csv_path), strict=strict)
         trace.trace_id = walk_id
         for prop, attr in _HEADER_PROPS.items():
             if props.get(prop) is not None:
@@ -258,11 +257,11 @@ def _row_lines(data: bytes, n_rows: int, skipped: list[int]
     return np.arange(n_rows) + 2, at + 1
 
 
-def parse_sensor_csv(data: bytes, *, path: str = "<input>", strict: bool = False,
-                     reference_ms: float | None = None) -> Trace:
+def parse_sensor_csv(data: bytes, *, reference_ms: float, path: str = "<input>",
+                     strict: bool = False) -> Trace:
     """Parse a walk-line sensor CSV into a :class:`Trace` (sensors only). ``reference_ms``:
-    the walk's time (Unix ms; the median of its plan's vertex times) rows are measured from
-    for ``time_outlier`` (default: the median time of the rows)."""
+    the walk's time (Unix ms; the median of its plan's vertex times), which a row more than
+    :data:`MAX_FROM_MEDIAN_TIME_MS` from is a ``time_outlier``."""
     report = ParseReport(path=path)
     wrong_width: list[tuple[int | None, int, int]] = []  # (row number, fields, expected)
 
@@ -327,20 +326,15 @@ def parse_sensor_csv(data: bytes, *, path: str = "<input>", strict: bool = False
     out_of_range = ~row_bad & ((t >= MAX_TIME_MS) | implausible)
     if acc is not None:
         out_of_range |= ~row_bad & (np.abs(acc) > 127)
-    # a row far in time from the walk (its plan's times, else the rows'): a wrong clock or a
-    # stray row, as the trace reader's time_outlier; one row at time 0 made step detection
-    # ask for hundreds of GiB
-    timed = np.flatnonzero(~row_bad & ~out_of_range)
-    time_outlier = np.zeros(len(t), dtype=bool)
-    if reference_ms is None:
-        time_outlier[timed] = far_from_median_time(t[timed], np.zeros(len(timed), np.int64), 1)
-    else:
-        time_outlier[timed] = np.abs(t[timed] - reference_ms) > MAX_FROM_MEDIAN_TIME_MS
-        if len(timed) and time_outlier[timed].all():
-            raise SurveyFormatError(
-                f"every row's t_ms is over {MAX_FROM_MEDIAN_TIME_MS // 3_600_000} h from the "
-                f"walk plan's vertex times (median {reference_ms:.0f} ms): the log and the "
-                "plan are on different clocks", path=path, reason="clock")
+    # a row far in time from the walk's plan: a wrong clock or a stray row, as the trace
+    # reader's time_outlier; one row at time 0 made step detection ask for hundreds of GiB
+    timed = ~row_bad & ~out_of_range
+    time_outlier = timed & (np.abs(t - reference_ms) > MAX_FROM_MEDIAN_TIME_MS)
+    if timed.any() and (time_outlier == timed).all():
+        raise SurveyFormatError(
+            f"every row's t_ms is over {MAX_FROM_MEDIAN_TIME_MS // 3_600_000} h from the walk "
+            f"plan's vertex times (median {reference_ms:.0f} ms): the log and the plan are on "
+            "different clocks", path=path, reason="clock")
     problems = {"non_numeric": (row_bad, "non-numeric, missing or non-finite value"),
                 "out_of_range": (out_of_range, "t_ms beyond 2^53 ms, accuracy beyond 127 or a "
                                                "sensor value no phone reports (e.g. beyond "
