@@ -27,8 +27,8 @@ from pathlib import Path
 import click
 import numpy as np
 
-from localize.cli_common import (AliasedOption, TraceIds, WalkFailures, read_walk,
-                                  refuse_output_inside_data, say_floor_choice, trace_files)
+from localize.cli_common import (AliasedOption, FloorChoices, TraceIds, WalkFailures,
+                                  read_walk, refuse_output_inside_data, trace_files)
 from localize.methods import METHODS, SMOOTHABLE, auto_method, method_label
 from survey.publish import refuse_to_replace
 
@@ -143,13 +143,14 @@ def _write_table(table, target: Path, fmt: str, overwrite: bool = False) -> None
     atomic_write_bytes(target, sink.getvalue().to_pybytes(), overwrite=overwrite)
 
 
-def _prepare_walk(trace, maps, start_opt: str | tuple[float, float], waypoints_xy):
+def _prepare_walk(trace, maps, start_opt: str | tuple[float, float], waypoints_xy,
+                  floors_said: FloorChoices):
     """What both commands do before localizing a walk: its steps, its floor's bundle (the
     header's floor, else the site's Wi-Fi floor model, else its BLE floor model:
-    :meth:`localize.floors.SiteMaps.choose`, said on standard error when a model chose; with a
-    warning when the bundle was built from the walk), the radio model for its phone (Wi-Fi,
-    else BLE: :func:`localize.walk_radio.walk_radio`; the steps then carry the walk's BLE
-    windows), and its start (with a warning when it is off the floor). Returns ``(wr, bundle,
+    :meth:`localize.floors.SiteMaps.choose`, said on standard error by ``floors_said`` when a
+    model chose; with a warning when the bundle was built from the walk), the radio model for
+    its phone (Wi-Fi, else BLE: :func:`localize.walk_radio.walk_radio`; the steps then carry
+    the walk's BLE windows), and its start (with a warning when it is off the floor). Returns ``(wr, bundle,
     start_xy, how)``, ``wr`` the :class:`~localize.walk_radio.WalkRadio` (its ``steps`` and
     ``radio`` are what to localize with); ``how`` names BLE and why when BLE is used."""
     from localize.walk_radio import walk_radio
@@ -160,7 +161,7 @@ def _prepare_walk(trace, maps, start_opt: str | tuple[float, float], waypoints_x
     bundle, chosen = maps.choose(steps.trace_id, steps.site_id, steps.floor_id,
                                  steps.floor_name, steps.scans, ble,
                                  device_model=trace.header.model or "")
-    say_floor_choice(trace.trace_id, bundle, chosen)
+    floors_said.say(trace.trace_id, bundle, chosen)
     _warn_if_source_walk(bundle, trace.trace_id)
     wr = walk_radio(bundle, trace.header.model, steps, ble)
     start_xy, how = _start_of(start_opt, wr, waypoints_xy)
@@ -225,6 +226,7 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
     start_opt = _parse_start(start)
     refuse_output_inside_data(out)
     maps = SiteMaps.open(bundle_path)
+    floors_said = FloorChoices()
     failures = WalkFailures()
     files = trace_files(walks, failures)
     created = not out.exists()
@@ -240,7 +242,7 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
         for existing in (target, png) if plot else (target,):
             refuse_to_replace(existing, overwrite)  # before the work, not after
         xy_wp = waypoints_of(trace)[1]
-        wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp)
+        wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp, floors_said)
         loc = make_localizer(method, bundle, _params(particles), radio=wr.radio, rng=seed)
         track = loc.run(wr.steps, start_xy=start_xy, smooth=smooth)
         guided = getattr(loc, "guided", False)
@@ -332,6 +334,7 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
                 raise click.BadParameter(f"{target.parent} is a file, not a folder")
     start_opt = _parse_start(start)
     maps = SiteMaps.open(bundle_path)
+    floors_said = FloorChoices()
     failures = WalkFailures()
     files = trace_files(walks, failures)
     rows = [(m, False) for m in names] + [(m, True) for m in names
@@ -349,7 +352,7 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
         if len(t_wp) == 0:
             click.echo(f"{f}: no waypoints, skipped", err=True)
             return
-        wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp)
+        wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp, floors_said)
         _warn_if_outside_map(bundle, trace.trace_id, xy_wp)
         if wr.kind == "ble":  # the scores of this walk are BLE's, not Wi-Fi's
             click.echo(f"{trace.trace_id}: start {how}", err=True)

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, TypeVar
 import click
 
 from localize.errors import LocalizationError
-from localize.floors import HEADER_DOUBT, MODEL_LACKS
+from localize.floors import HEADER_DOUBT, LACKS_PHRASE, MODEL_LACKS
 
 if TYPE_CHECKING:
     from survey.trace_format import Trace
@@ -205,13 +205,26 @@ class WalkFailures:
             sys.exit(1)
 
 
-def say_floor_choice(trace_id: str, bundle, how: str) -> None:
-    """Standard error: the floor a floor model chose for a walk, or a warning when the
-    header's floor is one the Wi-Fi floor model contradicts, or when the model that chose
-    lacks some of the floors given (:meth:`localize.floors.SiteMaps.choose`'s ``how``);
-    nothing for a header's floor."""
-    floor = bundle.manifest.get("floor_name", "")
-    if HEADER_DOUBT in how or MODEL_LACKS in how:  # said, not overruled
-        click.echo(f"warning: {trace_id}: floor {floor} by the {how}", err=True)
-    elif "floor model" in how:
-        click.echo(f"{trace_id}: floor {floor} by the {how}", err=True)
+class FloorChoices:
+    """Says on standard error, walk by walk, the floor a floor model chose
+    (:meth:`localize.floors.SiteMaps.choose`'s ``how``): a note when a model chose, a warning
+    when the Wi-Fi floor model contradicts the header's floor or when the model that chose
+    lacks some of the floors given; nothing for a header's floor. The same lacking floors are
+    warned of once per run (a folder with Wi-Fi on only some floors and no BLE model would
+    repeat it for every walk); later walks' notes refer to it."""
+
+    def __init__(self) -> None:
+        self._lacks_warned: set[str] = set()
+
+    def say(self, trace_id: str, bundle, how: str) -> None:
+        floor = bundle.manifest.get("floor_name", "")
+        lacks = LACKS_PHRASE.search(how)
+        repeated = lacks is not None and lacks.group(0) in self._lacks_warned
+        if repeated:
+            how = how.replace(lacks.group(0), f"{MODEL_LACKS} {lacks.group(1)} (warned above)")
+        elif lacks is not None:
+            self._lacks_warned.add(lacks.group(0))
+        if HEADER_DOUBT in how or (lacks is not None and not repeated):  # said, not overruled
+            click.echo(f"warning: {trace_id}: floor {floor} by the {how}", err=True)
+        elif "floor model" in how:
+            click.echo(f"{trace_id}: floor {floor} by the {how}", err=True)

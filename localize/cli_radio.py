@@ -25,8 +25,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from localize.cli_common import TraceIds, WalkFailures, read_walk, say_floor_choice, \
-    trace_files
+from localize.cli_common import FloorChoices, TraceIds, WalkFailures, read_walk, trace_files
 from localize.errors import LocalizationError
 from localize.floors import ble_window_ms, device_table
 from localize.rssi_calibration import checked_rssi_calibration
@@ -260,6 +259,7 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
                                      f"dBm); got {calibration!r}",
                                      param_hint="--calibration") from err
     maps = SiteMaps.open(bundle_path)
+    floors_said = FloorChoices()
     out = _CsvRows(["trace_id", "floor", "t_ms", "n_known", "x_m", "y_m", "sigma_m", "error_m"])
     failures = WalkFailures()
     seen = TraceIds("its rows would be printed under the other's id")
@@ -279,7 +279,7 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
                                   scans if kind == "ble" else ble_scans_of(trace,
                                                                            maps.ble_window_ms),
                                   device_model=h.model or "")
-        say_floor_choice(trace.trace_id, bundle, how)
+        floors_said.say(trace.trace_id, bundle, how)
         pos = bundle_positioner(bundle, kind)
         if pos is None:
             raise LocalizationError(f"{bundle.path}: no {kind} fingerprints in this bundle")

@@ -12,6 +12,7 @@ object with ``floor_of(scan) -> floor id | None``
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Protocol
@@ -338,6 +339,9 @@ HEADER_DOUBT = "; but the Wi-Fi floor model puts"
 #: rebuilt from fewer floors than its floor bundles): a warning, as a walk on those floors is
 #: put on another.
 MODEL_LACKS = "; the model lacks floor"
+#: :data:`MODEL_LACKS`'s whole phrase; group 1 the floors lacking ("F2, F3")
+LACKS_PHRASE = re.compile(re.escape(MODEL_LACKS) + r" ([^:;]+): walks there are put on a floor "
+                          r"it knows")
 
 
 def _lacks(floors: Sequence[str]) -> str:

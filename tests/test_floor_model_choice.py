@@ -24,7 +24,7 @@ import pytest
 from click.testing import CliRunner
 
 from localize.bundle import load_bundle
-from localize.cli_common import say_floor_choice
+from localize.cli_common import FloorChoices
 from localize.errors import LocalizationError
 from localize.floors import MODEL_LACKS, SiteMaps
 from mapping.bundle_writer import BundleContent, write_bundle
@@ -101,8 +101,19 @@ def test_a_wifi_floor_model_lacking_a_floor_does_not_outvote_the_ble_model(wifi_
     bundle, how = maps.choose(t.trace_id, "", "", "", scans_of(t), ble_scans_of(t))
     assert bundle.manifest["floor_name"] == "F1" and how.endswith(
         f"{MODEL_LACKS} F2: walks there are put on a floor it knows"), how
-    say_floor_choice(t.trace_id, bundle, how)
+    said = FloorChoices()
+    said.say(t.trace_id, bundle, how)
     assert capsys.readouterr().err.startswith(f"warning: {t.trace_id}: floor F1 by the Wi-Fi")
+    # the next walks of the run: the same lack is warned of once, then a note refers to it
+    said.say("next-walk", bundle, how)
+    err = capsys.readouterr().err
+    assert err.startswith("next-walk: floor F1 by the Wi-Fi floor model (") and err.endswith(
+        f"{MODEL_LACKS} F2 (warned above)\n"), err
+    # a run of its own warns again; so does a walk with another lack in the same run
+    FloorChoices().say("other-run", bundle, how)
+    assert capsys.readouterr().err.startswith("warning: other-run: ")
+    said.say("third", bundle, how.replace(f"{MODEL_LACKS} F2:", f"{MODEL_LACKS} F2, F3:"))
+    assert capsys.readouterr().err.startswith("warning: third: ")
 
 
 def test_floor_models_that_both_lack_a_given_floor_warn_even_when_they_agree(built, tmp_path):
