@@ -29,8 +29,8 @@ from __future__ import annotations
 
 import os
 import re
+from collections import Counter, deque
 from collections.abc import Iterable, Iterator, Sequence
-from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -392,12 +392,28 @@ def _drop_time_outliers(blocks: list[dict | None], b: _Batch, bad: _Collector) -
         n = len(cols["gline"])
         mine, at = far[at:at + n], at + n
         if mine.any():
-            bad.add(cols["gline"][mine], "time_outlier", np.array(
-                [f"{_TYPE_LIST[k]}: time {int(t)} ms is over "
-                 f"{MAX_FROM_MEDIAN_TIME_MS // 3_600_000} h from the median time of the "
-                 "walk's rows of this type (a wrong clock or a stray row)"
-                 for k, t in zip(cols["type"][mine], cols["t_ms"][mine])], dtype=object))
+            glines = cols["gline"][mine]
+            # a message per row is only needed for the rows a report can show, each file's
+            # first MAX_MESSAGES bad lines: a log half on another clock has 10^5-10^6 of them
+            detail = np.full(len(glines), "time far from the median time of the walk's rows of "
+                                           "its type", dtype=object)
+            shown = _first_per_file(glines, b.file_of_line, MAX_MESSAGES)
+            detail[shown] = [f"{_TYPE_LIST[k]}: time {int(t)} ms is over "
+                             f"{MAX_FROM_MEDIAN_TIME_MS // 3_600_000} h from the median time "
+                             "of the walk's rows of this type (a wrong clock or a stray row)"
+                             for k, t in zip(cols["type"][mine][shown],
+                                             cols["t_ms"][mine][shown])]
+            bad.add(glines, "time_outlier", detail)
             blocks[i] = _take(cols, np.flatnonzero(~mine))
+
+
+def _first_per_file(glines: np.ndarray, file_of_line: np.ndarray, n: int) -> np.ndarray:
+    """Indices into ``glines`` (global line numbers) of the first ``n`` lines of each file."""
+    files = file_of_line[glines]
+    order = np.lexsort((glines, files))
+    sorted_files = files[order]
+    rank = np.arange(len(order)) - np.searchsorted(sorted_files, sorted_files, side="left")
+    return order[rank < n]
 
 
 def _take(cols: dict, index: np.ndarray) -> dict:
@@ -844,8 +860,7 @@ def _assemble(prepared: tuple[_Batch, list[str | None], dict[int, dict | None]],
         report.skipped = {k: int(v[f]) for k, v in skipped_per_file.items() if v[f]}
         report.dropped = {k: int(v[f]) for k, v in tables.dropped.items() if v[f]}
         a, z = bad_bounds[f], bad_bounds[f + 1]
-        for r in reasons[a:z]:
-            report.bad[r] = report.bad.get(r, 0) + 1
+        report.bad = dict(Counter(reasons[a:z].tolist()))
         m = min(z, a + MAX_MESSAGES)  # this file's bad lines only
         report.messages = [f"{b.paths[f]}:{g - b.first_line[f] + 1}: {d}"
                            for g, d in zip(glines[a:m], details[a:m])]

@@ -60,6 +60,31 @@ def test_a_row_within_the_bound_is_kept_and_batches_read_as_single_files(tmp_pat
     assert [x.report.bad for x in both] == [{"time_outlier": 2}, {}]
 
 
+def test_many_stray_rows_each_file_reports_its_first_ones_in_full(tmp_path):
+    """Messages are written only for the rows a report can show (each file's first
+    MAX_MESSAGES bad lines; a log half on another clock has 10^5 or more): every shown one
+    names its own line, type and time, in both files of one batch, and strict mode the first."""
+    from survey.trace_reader import MAX_MESSAGES
+
+    n_stray = 3 * MAX_MESSAGES
+    stray = "".join(f"{i}\tTYPE_{'GYROSCOPE' if i % 3 else 'ACCELEROMETER'}\t1\t2\t3\t3\n"
+                    for i in range(n_stray))
+    clean_lines = parse_trace_bytes(_text(), path="x.txt").report.lines_total
+    for name in ("a.txt", "b.txt"):
+        (tmp_path / name).write_bytes(_text(stray))
+    for t in iter_traces([tmp_path / "a.txt", tmp_path / "b.txt"]):
+        r = t.report
+        assert r.bad == {"time_outlier": n_stray} and len(r.messages) == MAX_MESSAGES
+        for k, msg in enumerate(r.messages):
+            kind = "GYROSCOPE" if k % 3 else "ACCELEROMETER"
+            assert msg.startswith(f"{t.report.path}:{clean_lines + k + 1}: TYPE_{kind}: time "
+                                  f"{k} ms is over 12 h from the median time"), msg
+    with pytest.raises(SurveyFormatError) as info:
+        parse_trace_bytes(_text(stray), path="walk.txt", strict=True)
+    assert info.value.line == clean_lines + 1 and "TYPE_ACCELEROMETER: time 0 ms" in str(
+        info.value)
+
+
 def test_a_whole_stream_on_another_clock_is_kept_for_the_clock_check():
     """Wi-Fi stamped with the time since boot: every scan is far from the sensors, but the
     scans agree with each other, so none is an outlier and clock_mismatch says why."""
