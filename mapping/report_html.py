@@ -631,8 +631,9 @@ def render_html(result: ValidationResult, figures: dict[str, bytes]) -> str:
              + (f" &middot; floor image {_e(canvas.image_source)}" if canvas.image_source
                 else "") + "</p>",
              f"<div id='verdict' class='verdict {v}'>"
-             + ("PASS: every threshold holds" if v == "pass" else
-                f"FAIL: {len(fails)} problem(s) to fix before leaving the building")
+             + _e(result.verdict_text())
+             + (": every threshold checked holds" if v == "pass" else
+                f": {len(fails)} problem(s) to fix before leaving the building")
              + "</div>"]
     # problems: a line per failed check, the map, then every problem numbered as on the map
     parts.append("<section id='problems'><h2>What to fix</h2>")

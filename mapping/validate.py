@@ -271,6 +271,19 @@ class ValidationResult:
     def failed(self) -> list[Finding]:
         return [f for f in self.findings if f.severity == "fail"]
 
+    def verdict_text(self) -> str:
+        """The verdict as the CLI and the report say it: ``"PASS"``, or ``"PASS on 6 of 14
+        checks (8 not run: their input was missing)"`` when checks could not run (no survey
+        store given), so that a bundle checked alone does not read as validated; ``"FAIL"``
+        likewise."""
+        rows = [c for c in self.metrics.get("checks", []) if c["status"] != "off"]
+        not_run = sum(c["status"] == "not run" for c in rows)
+        text = self.verdict.upper()
+        if not_run:
+            text += (f" on {len(rows) - not_run} of {len(rows)} checks ({not_run} not run: "
+                     "their input was missing)")
+        return text
+
     def to_json(self) -> dict:
         return _jsonable({"verdict": self.verdict, "thresholds": self.thresholds,
                           "findings": [f.to_dict() for f in self.findings], **self.metrics})
@@ -1547,7 +1560,7 @@ def summary_lines(result: ValidationResult) -> list[str]:
     m = result.metrics
     b = m["bundle"]
     lines = [f"{b['site_id']}/{b['floor_name']} bundle {b['bundle_id'][:16]}: "
-             f"{result.verdict.upper()}"]
+             f"{result.verdict_text()}"]
     cov = m.get("coverage", {}).get("euclidean", {})
     if cov:
         lines.append("coverage: " + ", ".join(f"{100 * v:.0f} % within {k[7:]}"

@@ -242,6 +242,12 @@ def test_without_store_checks_the_bundle_alone(sites, tmp_path):
     assert "heldout" not in metrics and metrics["coverage"]["source"].startswith("bundle")
     assert any(f["check"] == "no_store" for f in metrics["findings"])
     assert "warning: no survey store given (--store)" in res.output  # not only in the HTML
+    # the verdict itself says how few checks ran (it read "PASS" alone)
+    statuses = [c["status"] for c in metrics["checks"] if c["status"] != "off"]
+    n_not_run = statuses.count("not run")
+    assert n_not_run >= 5, statuses  # held-out, consistency, data quality
+    assert (f": PASS on {len(statuses) - n_not_run} of {len(statuses)} checks ({n_not_run} "
+            "not run: their input was missing)") in res.output
     assert (tmp_path / "r" / "report.html").exists() or not HAS_MPL
 
 
