@@ -27,8 +27,9 @@ from pathlib import Path
 import click
 import numpy as np
 
-from localize.cli_common import (AliasedOption, FloorChoices, TraceIds, WalkFailures,
-                                  read_walk, refuse_output_inside_data, trace_files)
+from localize.cli_common import (AliasedOption, FloorChoices, SeenWalks, TraceIds,
+                                  WalkFailures, read_walk, refuse_output_inside_data,
+                                  trace_files)
 from localize.methods import METHODS, SMOOTHABLE, auto_method, method_label
 from survey.publish import refuse_to_replace
 
@@ -100,17 +101,6 @@ def _warn_if_off_floor(bundle, start_xy: tuple[float, float] | None) -> None:
                    f"{g.y0_m + g.height * g.cell_m:g} m)", err=True)
 
 
-def _warn_if_source_walk(bundle, trace_id: str) -> None:
-    """Warn when the bundle was built from this walk: its track, and any error measured on it,
-    is then better than an unseen walk's would be."""
-    if bundle.has_table("source_walks"):
-        used = set(bundle.table("source_walks").column("trace_id").to_pylist())
-        if trace_id in used:
-            click.echo(f"warning: {trace_id} was used to build {bundle.path}: the map has seen "
-                       "it, so its track (and any error measured on it) is better than an unseen "
-                       "walk's would be", err=True)
-
-
 def _warn_if_outside_map(bundle, trace_id: str, waypoints_xy: np.ndarray) -> None:
     """Warn when waypoints (m, shape (W, 2)) lie where the bundle's strength layer has no
     data (no survey walk passed near): errors there measure a place the map does not cover,
@@ -144,15 +134,16 @@ def _write_table(table, target: Path, fmt: str, overwrite: bool = False) -> None
 
 
 def _prepare_walk(trace, maps, start_opt: str | tuple[float, float], waypoints_xy,
-                  floors_said: FloorChoices):
+                  floors_said: FloorChoices, in_build: SeenWalks):
     """What both commands do before localizing a walk: its steps, its floor's bundle (the
     header's floor, else the site's Wi-Fi floor model, else its BLE floor model:
     :meth:`localize.floors.SiteMaps.choose`, said on standard error by ``floors_said`` when a
-    model chose; with a warning when the bundle was built from the walk), the radio model for
-    its phone (Wi-Fi, else BLE: :func:`localize.walk_radio.walk_radio`; the steps then carry
-    the walk's BLE windows), and its start (with a warning when it is off the floor). Returns ``(wr, bundle,
-    start_xy, how)``, ``wr`` the :class:`~localize.walk_radio.WalkRadio` (its ``steps`` and
-    ``radio`` are what to localize with); ``how`` names BLE and why when BLE is used."""
+    model chose; with a warning by ``in_build`` when the bundle was built from the walk), the
+    radio model for its phone (Wi-Fi, else BLE: :func:`localize.walk_radio.walk_radio`; the
+    steps then carry the walk's BLE windows), and its start (with a warning when it is off the
+    floor). Returns ``(wr, bundle, start_xy, how)``, ``wr`` the
+    :class:`~localize.walk_radio.WalkRadio` (its ``steps`` and ``radio`` are what to localize
+    with); ``how`` names BLE and why when BLE is used."""
     from localize.walk_radio import walk_radio
     from survey.step_summaries import ble_scans_of, step_summaries
 
@@ -162,7 +153,7 @@ def _prepare_walk(trace, maps, start_opt: str | tuple[float, float], waypoints_x
                                  steps.floor_name, steps.scans, ble,
                                  device_model=trace.header.model or "")
     floors_said.say(trace.trace_id, bundle, chosen)
-    _warn_if_source_walk(bundle, trace.trace_id)
+    in_build.check(bundle, trace.trace_id)
     wr = walk_radio(bundle, trace.header.model, steps, ble)
     start_xy, how = _start_of(start_opt, wr, waypoints_xy)
     _warn_if_off_floor(bundle, start_xy)
@@ -226,7 +217,7 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
     start_opt = _parse_start(start)
     refuse_output_inside_data(out)
     maps = SiteMaps.open(bundle_path)
-    floors_said = FloorChoices()
+    floors_said, in_build = FloorChoices(), SeenWalks()
     failures = WalkFailures()
     files = trace_files(walks, failures)
     created = not out.exists()
@@ -242,7 +233,8 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
         for existing in (target, png) if plot else (target,):
             refuse_to_replace(existing, overwrite)  # before the work, not after
         xy_wp = waypoints_of(trace)[1]
-        wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp, floors_said)
+        wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp,
+                                                  floors_said, in_build)
         loc = make_localizer(method, bundle, _params(particles), radio=wr.radio, rng=seed)
         track = loc.run(wr.steps, start_xy=start_xy, smooth=smooth)
         guided = getattr(loc, "guided", False)
@@ -275,6 +267,7 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
     finally:
         if created and out.is_dir() and not any(out.iterdir()):
             out.rmdir()  # nothing was written: leave no empty folder behind
+    in_build.finish()
     failures.exit_if_any(len(files))
 
 
@@ -334,7 +327,7 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
                 raise click.BadParameter(f"{target.parent} is a file, not a folder")
     start_opt = _parse_start(start)
     maps = SiteMaps.open(bundle_path)
-    floors_said = FloorChoices()
+    floors_said, in_build = FloorChoices(), SeenWalks()
     failures = WalkFailures()
     files = trace_files(walks, failures)
     rows = [(m, False) for m in names] + [(m, True) for m in names
@@ -352,7 +345,8 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
         if len(t_wp) == 0:
             click.echo(f"{f}: no waypoints, skipped", err=True)
             return
-        wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp, floors_said)
+        wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp,
+                                                  floors_said, in_build)
         _warn_if_outside_map(bundle, trace.trace_id, xy_wp)
         if wr.kind == "ble":  # the scores of this walk are BLE's, not Wi-Fi's
             click.echo(f"{trace.trace_id}: start {how}", err=True)
@@ -374,6 +368,7 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
 
     for f in files:
         failures.run(f, lambda f=f: one(f))
+    in_build.finish()
     if not evaluated:
         click.echo("no walk was evaluated", err=True)
         failures.exit_if_any(len(files))

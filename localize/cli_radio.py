@@ -25,7 +25,8 @@ from pathlib import Path
 import click
 import numpy as np
 
-from localize.cli_common import FloorChoices, TraceIds, WalkFailures, read_walk, trace_files
+from localize.cli_common import (FloorChoices, SeenWalks, TraceIds, WalkFailures,
+                                  read_walk, trace_files)
 from localize.errors import LocalizationError
 from localize.floors import ble_window_ms, device_table
 from localize.rssi_calibration import checked_rssi_calibration
@@ -259,7 +260,7 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
                                      f"dBm); got {calibration!r}",
                                      param_hint="--calibration") from err
     maps = SiteMaps.open(bundle_path)
-    floors_said = FloorChoices()
+    floors_said, in_build = FloorChoices(), SeenWalks()
     out = _CsvRows(["trace_id", "floor", "t_ms", "n_known", "x_m", "y_m", "sigma_m", "error_m"])
     failures = WalkFailures()
     seen = TraceIds("its rows would be printed under the other's id")
@@ -280,6 +281,7 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
                                                                            maps.ble_window_ms),
                                   device_model=h.model or "")
         floors_said.say(trace.trace_id, bundle, how)
+        in_build.check(bundle, trace.trace_id)
         pos = bundle_positioner(bundle, kind)
         if pos is None:
             raise LocalizationError(f"{bundle.path}: no {kind} fingerprints in this bundle")
@@ -326,4 +328,5 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
     files = trace_files(walks, failures)
     for f in files:
         failures.run(f, lambda f=f: one(f))
+    in_build.finish()
     failures.exit_if_any(len(files))

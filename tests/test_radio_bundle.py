@@ -14,6 +14,7 @@ import pytest
 from click.testing import CliRunner
 
 from localize.bundle import load_bundle
+from localize.cli_common import SeenWalks
 from localize.errors import LocalizationError
 from localize.fingerprint_positioner import FingerprintPositioner, fingerprint_kinds
 from localize.floor_classifier import FloorClassifier
@@ -554,18 +555,29 @@ def test_site_maps_open_a_bundle_a_build_folder_or_nothing(built, tmp_path):
 
 
 def test_localizing_a_walk_the_map_was_built_from_says_so(built, tmp_path):
-    """A source walk's track is better than an unseen walk's: both commands warn, naming the
-    walk and the bundle."""
+    """A source walk's track is better than an unseen walk's: the three commands that
+    localize warn, naming the walk and the bundle (wifi-locate did not before session 40); a
+    run of many such walks names the first three and counts the rest in one line."""
     walk = min((SITE / "F2" / "path_data_files").glob("*.txt*"))
     tid = walk.name.split(".")[0]
     assert tid in load_bundle(built / "F2").table("source_walks").column("trace_id").to_pylist()
     runner = CliRunner()
-    for args in (["localize", str(built), str(walk), "-o", str(tmp_path / "out"), "--no-plot"],
-                 ["evaluate", str(built), str(walk)]):
-        res = runner.invoke(main, [*args, "--method", "pdr"])
+    for args in (["localize", str(built), str(walk), "-o", str(tmp_path / "out"), "--no-plot",
+                  "--method", "pdr"],
+                 ["evaluate", str(built), str(walk), "--method", "pdr"],
+                 ["wifi-locate", str(built), str(walk)]):
+        res = runner.invoke(main, args)
         assert res.exit_code == 0, res.output
         assert f"warning: {tid} was used to build {built / 'F2'}: the map has seen it" \
             in res.stderr
+        assert "more walk(s)" not in res.stderr
+    walks = sorted((SITE / "F2" / "path_data_files").glob("*.txt*"))
+    assert len(walks) > SeenWalks.NAMED
+    res = runner.invoke(main, ["evaluate", str(built), *map(str, walks), "--method", "pdr"])
+    assert res.exit_code == 0, res.output
+    assert res.stderr.count(" was used to build ") == SeenWalks.NAMED
+    assert (f"warning: {len(walks) - SeenWalks.NAMED} more walk(s) were used to build their "
+            "bundle (") in res.stderr
 
 
 def test_evaluate_warns_about_waypoints_where_the_map_has_no_data(built, tmp_path):
