@@ -117,14 +117,22 @@ def process_command(store_dir: str, site: str | None, floor: str | None,
 @click.option("--csv", "csv_path", type=click.Path(dir_okay=False), default=None,
               help="Also write the table as CSV.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing --csv file.")
+@click.option("--legs", "list_legs", is_flag=True,
+              help="List the flagged legs, a row each, instead of the walks.")
 def survey_report_command(store_dir: str, site: str | None, floor: str | None,
-                          csv_path: str | None, overwrite: bool) -> None:
+                          csv_path: str | None, overwrite: bool, list_legs: bool) -> None:
     """Per-walk QA, a row per walk: status; steps; length_m (positioned track, m); legs and
     flagged legs (between waypoints; reasons at the end); step_k (the walk's Weinberg step
     factor K, step length = K (a_max - a_min)^(1/4), m / (m/s2)^(1/4)); calibration (the
     magnetometer calibration used; for a skipped walk, why it was skipped);
     heading_offset_deg (median compass minus walking direction, deg); ufh_share (share of
-    steps with the phone held flat and forward); session (calibration session)."""
+    steps with the phone held flat and forward); session (calibration session).
+
+    With --legs, a row per flagged leg: trace_id, leg (0 = from the first waypoint to the
+    second, as validate counts them), its start time (t_start_ms, Unix ms) and duration_s, distance_m between its
+    waypoints, speed_mps, step_m (mean step length), scale (step track over waypoint
+    distance), heading_rotation_deg, waypoint_residual_m (how far the step track misses the
+    leg's end waypoint) and flags."""
     if csv_path:
         from localize.cli_common import refuse_output_inside_data
 
@@ -136,6 +144,9 @@ def survey_report_command(store_dir: str, site: str | None, floor: str | None,
     if floor is not None:
         cat = cat[cat["floor"] == floor]
     _require_walks(cat, everything, site, floor)
+    if list_legs:
+        _report_legs(store_dir, site, floor, csv_path, overwrite)
+        return
     rows = []
     for r in cat.itertuples(index=False):
         s = r.summary
@@ -164,3 +175,31 @@ def survey_report_command(store_dir: str, site: str | None, floor: str | None,
                                                  or "none"))
     except Exception as err:  # noqa: BLE001 - the report stays useful without the legs table
         click.echo(f"(no leg table: {err})")
+
+
+#: what ``survey-report --legs`` shows of the legs table, with its rounding
+_LEG_COLUMNS = {"trace_id": None, "leg": None, "t_start_ms": 0, "duration_s": 1,
+                "distance_m": 1, "speed_mps": 2, "step_m": 2, "scale": 2,
+                "heading_rotation_deg": 1, "waypoint_residual_m": 2, "flags": None}
+
+
+def _report_legs(store_dir: str, site: str | None, floor: str | None, csv_path: str | None,
+                 overwrite: bool) -> None:
+    """``survey-report --legs``: the flagged legs of the walks chosen, a row each."""
+    import pandas as pd
+
+    legs = processed_table(store_dir, "legs", site=site, floor=floor)
+    flagged = legs[legs["flags"] != ""]
+    table = pd.DataFrame({c: flagged[c] if r is None else flagged[c].round(r)
+                          for c, r in _LEG_COLUMNS.items()})
+    table["t_start_ms"] = table["t_start_ms"].astype("int64")
+    if csv_path:
+        atomic_write_bytes(Path(csv_path), table.to_csv(index=False).encode(),
+                           overwrite=overwrite)
+    if not len(table):
+        click.echo(f"no flagged legs among {legs['trace_id'].nunique()} walk(s)")
+        return
+    with pd.option_context("display.max_rows", None, "display.width", 250):
+        click.echo(table.to_string(index=False))
+    click.echo(f"{len(table)} flagged leg(s) of {table['trace_id'].nunique()} walk(s), "
+               f"{len(legs)} legs in all")

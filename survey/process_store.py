@@ -496,7 +496,7 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
                     f"{row.trace_id}: the step track misses the waypoints of {int(missed.sum())}"
                     f" of its {len(missed)} legs by more than "
                     f"{params.positions.max_waypoint_residual_m:g} m: a waypoint clicked at "
-                    "the wrong place or time? `indoormap survey-report` lists its legs")
+                    "the wrong place or time? `indoormap survey-report --legs` lists them")
             outputs = {"samples": walk.samples, "steps": walk.steps, "legs": walk.legs,
                       "wifi": _position_rows(tables["wifi"], "scan_t_ms", walk),
                       "ble": _position_rows(tables["ble"], "t_ms", walk)}

@@ -248,8 +248,26 @@ def test_process_store_warns_of_a_misclicked_waypoint(tmp_path):
     assert not [w for w in clean.warnings if "misses the waypoints" in w]
     ingest([tmp_path / "in"], tmp_path / "store")
     report = process_store(tmp_path / "store")
-    assert [w for w in report.warnings if w.startswith(src.name.split(".")[0]) and
-            "the step track misses the waypoints of" in w and "survey-report" in w]
+    tid = src.name.split(".")[0]
+    assert [w for w in report.warnings if w.startswith(tid) and
+            "the step track misses the waypoints of" in w and "survey-report --legs" in w]
+    # which the warning points to: the legs into and out of the moved waypoint (1), a row each
+    from click.testing import CliRunner
+
+    from survey.cli import main
+
+    res = CliRunner().invoke(main, ["survey-report", "--store", str(tmp_path / "store"),
+                                    "--legs", "--csv", str(tmp_path / "legs.csv")])
+    assert res.exit_code == 0, res.output
+    legs = pd.read_csv(tmp_path / "legs.csv")
+    bent = legs[legs["flags"].str.contains("waypoint")]
+    assert set(bent["trace_id"]) == {tid} and {0, 1} <= set(bent["leg"]), legs
+    assert (bent["waypoint_residual_m"] > 2.0).any()  # max_waypoint_residual_m
+    assert "flagged leg(s) of 1 walk(s)" in res.output and tid in res.output
+    clean_legs = CliRunner().invoke(main, ["survey-report", "--store", str(tmp_path / "clean"),
+                                           "--legs", "--csv", str(tmp_path / "clean.csv")])
+    assert clean_legs.exit_code == 0, clean_legs.output
+    assert not pd.read_csv(tmp_path / "clean.csv")["flags"].str.contains("waypoint").any()
 
 
 def test_coincident_waypoints_are_flagged(walks):
