@@ -426,7 +426,11 @@ def read_manifest(path: Path) -> dict:
     except FileNotFoundError as err:
         if not path.exists():
             raise BundleError(f"{path}: no such file or folder") from err
-        raise BundleError(f"{path}: not a map bundle (no manifest.json)") from err
+        inner = sorted(q.name for q in path.iterdir() if is_bundle_dir(q)) \
+            if path.is_dir() else []
+        raise BundleError(f"{path}: not a map bundle (no manifest.json)" + (
+            f"; it is a folder of bundles ({', '.join(inner)}): give one of them, e.g. "
+            f"{path / inner[0]}" if inner else "")) from err
     except (OSError, UnicodeDecodeError, ValueError, RecursionError) as err:
         raise BundleIntegrityError(f"{mpath}: unreadable manifest ({err})") from err
     if not isinstance(manifest, dict) or manifest.get("format") != BUNDLE_FORMAT:

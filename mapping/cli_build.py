@@ -481,12 +481,26 @@ def bundle_group() -> None:
 @click.argument("path", type=click.Path(exists=True, path_type=Path))
 @click.option("--json", "as_json", is_flag=True, help="Print the whole manifest.")
 def bundle_info(path: Path, as_json: bool) -> None:
-    """Summary of a bundle (verified first)."""
-    b = load_bundle(path)
-    m = b.manifest
-    if as_json:
-        click.echo(json.dumps(m, indent=1, sort_keys=True))
+    """Summary of a bundle (verified first). A folder of bundles (what `build -o` writes, a
+    registry's site folder) gives each bundle's, and with --json an object of their manifests
+    keyed by folder name."""
+    paths = _bundle_paths((path,))
+    bundles = [load_bundle(p) for p in paths]
+    one = len(paths) == 1 and paths[0] == path
+    if as_json:  # several: {"F1": manifest, ...}, by path below PATH
+        click.echo(json.dumps(bundles[0].manifest if one else {
+            str(p.relative_to(path)): b.manifest for p, b in zip(paths, bundles)},
+            indent=1, sort_keys=True))
         return
+    for p, b in zip(paths, bundles):
+        if not one:
+            click.echo(f"{p}:")
+        _say_bundle(b)
+
+
+def _say_bundle(b) -> None:
+    """``bundle info``'s summary of one bundle."""
+    m = b.manifest
     where = ("site-level bundle" if m.get("kind") == "site"
              else f"floor {m.get('floor_name') or m.get('floor_id', '?')}")
     click.echo(f"bundle {m['bundle_id']}\n  site {m['site_id']} {where} "

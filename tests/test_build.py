@@ -20,6 +20,7 @@ from mapping.floorplan import FloorPlan, read_floor_plan
 from mapping.radio_build import build_site_radio
 from mapping.truth_errors import truth_errors
 from survey.cli import main
+from survey.errors import BundleError
 from survey.ingest import ingest
 from survey.process_store import process_store
 from survey.sim.site import load_field
@@ -214,6 +215,19 @@ def test_build_cli_twice_identical_bytes(tmp_path):
     assert model is not None and _site_floor_model(load_bundle(floor)) == model
     site = runner.invoke(main, ["bundle", "info", str(tmp_path / "a" / "_site")])
     assert site.exit_code == 0 and "site-level bundle" in site.output
+    # the build's output folder: each bundle's summary under its path (before session 40:
+    # "not a map bundle (no manifest.json)"), or its manifests keyed by folder name
+    both = runner.invoke(main, ["bundle", "info", str(tmp_path / "a")])
+    assert both.exit_code == 0, both.output
+    assert f"{a}:\nbundle " in both.output and "site-level bundle" in both.output
+    manifests = json.loads(runner.invoke(main, ["bundle", "info", "--json",
+                                                str(tmp_path / "a")]).output)
+    assert sorted(manifests) == ["F2", "_site"] and manifests["F2"] == load_bundle(a).manifest
+    assert runner.invoke(main, ["bundle", "info", str(tmp_path / "reg")]).output.count(
+        "\nbundle ") == 2  # a registry root: its floors' current versions (F2, _site)
+    with pytest.raises(BundleError, match="a folder of bundles \\(F2, _site\\): give one of "
+                       "them"):
+        load_bundle(tmp_path / "a")  # what validate and the others say
     assert (f"floor model (Wi-Fi, {model['transmitters']} transmitters): floors "
             f"{', '.join(model['floors'])}") in site.output
     verify = runner.invoke(main, ["bundle", "verify", str(a), str(tmp_path)])
