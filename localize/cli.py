@@ -335,6 +335,7 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
     errors: dict[str, list[np.ndarray]] = {_row_name(m, sm): [] for m, sm in rows}
     table: list[dict] = []  # one row per method and waypoint, for --csv
     evaluated: set[str] = set()  # walks with at least one method's errors
+    ran: dict[str, set[str]] = {}  # what each row ran ("auto": what it chose per bundle)
 
     seen = TraceIds()
 
@@ -356,6 +357,8 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
                 track = loc.run(wr.steps, start_xy=start_xy, smooth=sm)
                 err = waypoint_errors(track, t_wp, xy_wp)
                 errors[_row_name(m, sm)].append(err)
+                ran.setdefault(_row_name(m, sm), set()).add(
+                    method_label(loc.method, getattr(loc, "guided", False)))
                 evaluated.add(trace.trace_id)
                 if csv_path is not None:
                     est = track.at(t_wp)
@@ -374,12 +377,17 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
         failures.exit_if_any(len(files))
         sys.exit(1)  # every walk lacked waypoints
     n_walks = len(evaluated)
-    w = max([20, *(len(m) + 2 for m in errors)])  # "magpp_gaussian+smoothed" is 23 wide
+    # auto is labelled with what it ran ("auto (align)"): its rows and curve equal that
+    # method's when both are asked for
+    label = {m: f"{m} ({', '.join(sorted(ran[m]))})" if m.split("+")[0] == "auto" and m in ran
+             else m for m in errors}
+    w = max([20, *(len(v) + 2 for v in label.values())])  # "magpp_gaussian+smoothed": 23
     click.echo(f"{'method':<{w}}{'n':>6}{'median':>9}{'p80':>9}{'mean':>9}  (m, at the "
                f"waypoints of {n_walks} walk(s))")
     for m, v in errors.items():
         s = summarize(np.concatenate(v) if v else np.empty(0))
-        click.echo(f"{m:<{w}}{s['n']:>6}{s['median']:>9.2f}{s['p80']:>9.2f}{s['mean']:>9.2f}")
+        click.echo(f"{label[m]:<{w}}{s['n']:>6}{s['median']:>9.2f}{s['p80']:>9.2f}"
+                   f"{s['mean']:>9.2f}")
     if csv_path is not None:
         import pyarrow as pa
 
@@ -391,8 +399,10 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
         plot_path.parent.mkdir(parents=True, exist_ok=True)
         title = (f"{bundle_path.name}: {n_walks} walk(s), start {start}"
                  + (f", {failures.count} failure(s)" if failures.count else ""))
-        if not plot_cdfs(plot_path, {m: np.concatenate(v) for m, v in errors.items() if v},
-                         title=title):
+        if plot_cdfs(plot_path, {label[m]: np.concatenate(v) for m, v in errors.items() if v},
+                     title=title):
+            click.echo(f"plot: {plot_path}", err=True)
+        else:
             click.echo("(no plot: matplotlib not installed)", err=True)
     failures.exit_if_any(len(files))
 

@@ -106,12 +106,15 @@ def plot_cdfs(path: str | Path, errors: Mapping[str, NDArray[np.float64]], title
         return False
     fig = Figure(figsize=(6, 4))
     ax = fig.subplots()
-    for name, e in errors.items():
+    styles = ("-", "--", ":", "-.")  # a curve equal to another (auto and what it ran) shows
+    # through it
+    for i, (name, e) in enumerate(errors.items()):
         e = np.sort(np.asarray(e)[np.isfinite(e)])
         if e.size:
-            ax.plot(e, np.arange(1, e.size + 1) / e.size, label=name)
-    ax.set_xlabel("error (m)")
-    ax.set_ylabel("share")
+            ax.plot(e, np.arange(1, e.size + 1) / e.size, label=name,
+                    linestyle=styles[i % len(styles)])
+    ax.set_xlabel("error at the waypoints (m)")
+    ax.set_ylabel("share of waypoints")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     ax.set_title(title, fontsize=9)

@@ -85,12 +85,15 @@ def test_localize_errors_exit_1(truth_bundles, tmp_path):  # noqa: F811
 def test_evaluate_prints_errors_and_cdfs(truth_bundles, tmp_path):  # noqa: F811
     res = CliRunner().invoke(main, ["evaluate", str(truth_bundles["F1"]), str(F1_WALKS),
                                     "--method", "indoormap", "--method", "pdr",
+                                    "--method", "auto",
                                     "--particles", "150", "--plot-file", str(tmp_path / "cdf.png"),
                                     "--csv", str(tmp_path / "errors.csv")])
     assert res.exit_code == 0, res.output
-    lines = {ln.split()[0]: ln.split() for ln in res.output.splitlines() if ln.strip()}
+    lines = {ln.split()[0]: ln.split() for ln in res.stdout.splitlines() if ln.strip()}
     assert float(lines["indoormap"][2]) < float(lines["pdr"][2])  # median error
-    assert (tmp_path / "cdf.png").exists()
+    # auto says what it ran (truth maps record no held-out quality: the filter), and equals it
+    assert lines["auto"][1] == "(indoormap)" and lines["auto"][2:] == lines["indoormap"][1:]
+    assert (tmp_path / "cdf.png").exists() and f"plot: {tmp_path / 'cdf.png'}" in res.stderr
     # every error as a row: the printed medians are those of the table's rows
     table = pd.read_csv(tmp_path / "errors.csv", dtype={"trace_id": str})
     assert table["trace_id"].nunique() == len(list(F1_WALKS.glob("*.txt.gz")))
