@@ -205,6 +205,8 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
 
     A walk that fails (unreadable, no start, another site) is reported with its file and the
     others go on; the exit status is then 1."""
+    import pyarrow as pa
+
     from localize.baselines import make_localizer
     from localize.floors import SiteMaps
     from localize.plots import plot_track
@@ -246,7 +248,13 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
             if choice.guided and not guided:
                 used += (" (not guided: a given start)" if start_xy is not None
                          else " (not guided: no radio model)")
-        _write_table(track.to_arrow(), target, fmt, overwrite=overwrite)
+        table = track.to_arrow()
+        if fmt == "csv":  # a CSV has no metadata: the walk, floor and method as columns
+            for i, (name, value) in enumerate((("trace_id", track.trace_id),
+                                               ("floor_id", track.floor_id),
+                                               ("method", track.method))):
+                table = table.add_column(i, name, pa.array([str(value)] * len(table)))
+        _write_table(table, target, fmt, overwrite=overwrite)
         msg = (f"{trace.trace_id}: {len(track)} {'smoothed ' if smooth else ''}steps on "
                f"{bundle.floor_id} "
                f"({bundle.manifest.get('floor_name', '')}) by {used}, start {how}, "

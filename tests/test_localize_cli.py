@@ -9,6 +9,7 @@ import pytest
 from click.testing import CliRunner
 from localize_fixtures import SAMPLE, truth_bundles  # noqa: F401  (fixture)
 
+from localize.bundle import load_bundle
 from survey.cli import main
 
 F1_WALKS = SAMPLE / "F1" / "path_data_files"
@@ -44,6 +45,11 @@ def test_localize_csv_on_a_folder_of_bundles(truth_bundles, tmp_path):  # noqa: 
     assert res.exit_code == 0, res.output  # a start off the floor's area is said, not refused
     assert "warning: start 12,30.5 is off the reachable area of F2" in res.output
     assert len(list(tmp_path.glob("*.csv"))) == 1 and not list(tmp_path.glob("*.png"))
+    # a CSV has no metadata: which walk, floor and method are columns (session 40)
+    rows = pd.read_csv(next(tmp_path.glob("*.csv")), dtype={"trace_id": str})
+    assert list(rows.columns[:4]) == ["trace_id", "floor_id", "method", "step"]
+    assert set(rows["trace_id"]) == {walk.name.split(".")[0]} and set(rows["method"]) == {"pdr"}
+    assert set(rows["floor_id"]) == {load_bundle(bundles / "F2").floor_id}
 
 
 def test_localize_on_a_registry_site_folder(truth_bundles, tmp_path):  # noqa: F811
@@ -53,8 +59,6 @@ def test_localize_on_a_registry_site_folder(truth_bundles, tmp_path):  # noqa: F
     reg = Registry(tmp_path / "reg")
     for f in ("F1", "F2"):
         reg.publish(truth_bundles[f])
-    from localize.bundle import load_bundle
-
     site = tmp_path / "reg" / load_bundle(truth_bundles["F1"]).site_id
     walk = min((SAMPLE / "F2" / "path_data_files").glob("*.txt.gz"))
     res = CliRunner().invoke(main, ["localize", str(site), str(walk), "-o", str(tmp_path / "o"),
@@ -336,8 +340,6 @@ def test_localize_refuses_to_write_into_a_bundle_or_a_store(truth_bundles, tmp_p
     """`-o BUNDLE` left an unlisted file that made the bundle fail its checks, and `-o STORE
     --overwrite` replaced the store's catalog.parquet with a track (a walk named catalog)."""
     import shutil
-
-    from localize.bundle import load_bundle
 
     walk = min(F1_WALKS.glob("*.txt.gz"))
     bundle = tmp_path / "F1"
