@@ -260,9 +260,12 @@ class SiteMaps:
                 found = self.bundles[floor_id]
                 return found, "floor id in the trace header" + self._wifi_doubt(
                     found, wifi_scans, device_model)
-            raise LocalizationError(f"{where}: unknown floor {floor_id} "
-                                    f"({floor_name or '?'}); bundles exist for "
-                                    f"{sorted(self._by_name)}")
+            given = ", ".join(sorted(self._by_name))
+            raise LocalizationError(
+                f"{where}: unknown floor {floor_id} ({floor_name or '?'}); " + (
+                    f"the bundle given is of floor {given}: give the folder of the site's "
+                    "bundles (what `indoormap build` writes) to localize walks of every floor"
+                    if len(self._by_name) == 1 else f"bundles exist for floors {given}"))
         if floor_name and floor_name in self._by_name:
             found = self._by_name[floor_name]
             return found, "floor name in the trace header" + self._wifi_doubt(
@@ -322,7 +325,7 @@ class SiteMaps:
             return next(iter(self.bundles.values())), "the only floor bundle"
         raise LocalizationError(f"{where}: the walk names no floor (no floor id or known floor "
                                 f"name in its header) and no floor model decided: "
-                                f"{'; '.join(missing)}; floors: {sorted(self._by_name)}")
+                                f"{'; '.join(missing)}; floors: {', '.join(sorted(self._by_name))}")
 
 
 #: A header's floor is doubted (:meth:`SiteMaps.choose`) when the Wi-Fi floor model puts at

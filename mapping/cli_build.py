@@ -89,9 +89,18 @@ def floors_of(path: Path) -> list[Path]:
     else:
         floors = sorted(p for p in path.iterdir() if p.is_dir() and _is_floor_dir(p))
     if not floors:
-        raise click.UsageError(f"{path}: neither a floor folder (geojson_map.json) nor a site "
-                               "folder of floors; give a folder of traces a floor plan with "
-                               "--plan")
+        hint = "a folder of traces needs its floor plan: --plan PLAN"
+        if (path.parent / "geojson_map.json").exists():  # <floor>/path_data_files
+            hint = f"its floor folder is {path.parent}"
+        else:
+            sites = sorted(p for p in path.iterdir() if p.is_dir() and any(
+                q.is_dir() and _is_floor_dir(q) for q in p.iterdir()))
+            if sites:  # a folder of sites
+                hint = (f"it holds the site folder {sites[0].name}: build {sites[0]}"
+                        if len(sites) == 1 else f"it holds the site folders "
+                        f"{', '.join(p.name for p in sites)}: build each, e.g. {sites[0]}")
+        raise click.UsageError(f"{path}: neither a floor folder (with geojson_map.json) nor a "
+                               f"site folder of floors; {hint}")
     for floor in floors:  # before the work, not when publishing
         check_floor_bundle_name(floor.name, f"{floor}: the folder name")
     return floors

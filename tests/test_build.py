@@ -258,6 +258,20 @@ def test_build_cli_refuses_bad_options_before_any_work(tmp_path, args, message):
     assert (tmp_path / "FILE").read_text() == "keep me" and not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("given, hint", [
+    ("{SITE}/F2/path_data_files", "its floor folder is {SITE}/F2"),  # the traces of a floor
+    ("{SITE}/..", "it holds the site folder sample_site: build "),  # a folder of sites
+    ("{tmp}", "a folder of traces needs its floor plan: --plan PLAN"),
+])
+def test_a_folder_that_is_no_floor_or_site_says_which_is(tmp_path, given, hint):
+    """A floor's path_data_files or the folder above a site was refused with only "neither
+    a floor folder nor a site folder"; the error now names the folder to give."""
+    res = CliRunner().invoke(main, ["build", given.format(SITE=SITE, tmp=tmp_path), "-o",
+                                    str(tmp_path / "o")])
+    assert res.exit_code == 2, res.output
+    assert hint.format(SITE=SITE) in res.output.replace("\n", " "), res.output
+
+
 def test_a_broken_floor_info_is_named_with_its_line(tmp_path):
     floor = tmp_path / "F2"
     shutil.copytree(SITE / "F2", floor, ignore=shutil.ignore_patterns("path_data_files"))

@@ -190,7 +190,7 @@ def test_a_walk_with_neither_gets_an_error_naming_what_was_missing(built, tmp_pa
         maps.select_for(trace.trace_id, "", "", "", scans_of(trace), ble_scans_of(trace))
     msg = str(err.value)
     assert "names no floor" in msg and "no Wi-Fi scans in the walk; no BLE windows in the walk" \
-        in msg and "floors: ['F1', 'F2']" in msg
+        in msg and "floors: F1, F2" in msg
     # scans the models do not know, and no models at all, are named too
     stranger = [RadioScan(0, np.array(["00:00:00:00:00:01"]), np.array([-60.0]))]
     with pytest.raises(LocalizationError, match="none of its 1 Wi-Fi scans hears a transmitter "

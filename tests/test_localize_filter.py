@@ -189,8 +189,13 @@ def test_unknown_floor(truth_bundles, sim_walks):  # noqa: F811
     maps = SiteMaps([load_bundle(truth_bundles["F1"]), load_bundle(truth_bundles["F2"])])
     w = _f1(sim_walks)[0]
     assert maps.select(w.steps).floor_id == w.steps.floor_id
-    with pytest.raises(LocalizationError, match="unknown floor"):
+    with pytest.raises(LocalizationError, match="unknown floor nope \\(F9\\); bundles exist "
+                       "for floors F1, F2$"):
         maps.select(replace(w.steps, floor_id="nope", floor_name="F9"))
+    # a single floor's bundle given for a walk of another floor: what to give instead
+    with pytest.raises(LocalizationError, match="the bundle given is of floor F2: give the "
+                       "folder of the site's bundles"):
+        SiteMaps([load_bundle(truth_bundles["F2"])]).select(w.steps)
     with pytest.raises(LocalizationError, match="site"):
         maps.select(replace(w.steps, site_id="elsewhere"))
     with pytest.raises(LocalizationError, match="no floor"):
