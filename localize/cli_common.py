@@ -5,6 +5,7 @@ the others go on, and options renamed for consistency whose old spellings still 
 
 from __future__ import annotations
 
+import re
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -150,7 +151,10 @@ def read_walk(path: Path) -> Trace:
         raise SurveyFormatError(mismatch, path=str(path), reason="clock")
     r = trace.report
     if r.bad_total:
-        click.echo(f"warning: {path}: {bad_lines_summary(r.bad, r.messages)}", err=True)
+        # the messages name the file too ("path:12: reason"): said once, before them
+        said = [re.sub(r"^(\d+): ", r"line \1: ", m[len(str(path)) + 1:].lstrip())
+                if m.startswith(f"{path}:") else m for m in r.messages[:1]]
+        click.echo(f"warning: {path}: {bad_lines_summary(r.bad, said)}", err=True)
     return trace
 
 

@@ -145,12 +145,10 @@ class BaseLocalizer:
         except (TypeError, ValueError) as err:
             raise LocalizationError(f"start position {xy!r} is not two numbers (x, y m)") \
                 from err
-        g = self.bundle.grid
-        m = MAX_START_OFF_MAP_M
-        if not (g.x0_m - m <= x <= g.x0_m + g.width * g.cell_m + m
-                and g.y0_m - m <= y <= g.y0_m + g.height * g.cell_m + m):  # False for NaN
+        if not start_within_reach(self.bundle.grid, x, y):
             raise LocalizationError(f"start position ({x:g}, {y:g}) m is not finite or more "
-                                    f"than {m:g} m off the floor's map: wrong floor or units?")
+                                    f"than {MAX_START_OFF_MAP_M:g} m off the floor's map: "
+                                    "wrong floor or units?")
         return x, y
 
     def _start_at(self, x: float, y: float, t_ms: float, sigma: float | None,
@@ -413,3 +411,11 @@ class Localizer(BaseLocalizer):
         if self.state is None:
             raise LocalizationError("not started")
         return self.state.x[0], self.state.y[0], self.state.w[0]
+
+
+def start_within_reach(grid, x: float, y: float) -> bool:
+    """Whether a start (m, map frame) is finite and within :data:`MAX_START_OFF_MAP_M` of the
+    floor's ``grid``: a filter refuses one that is not."""
+    m = MAX_START_OFF_MAP_M
+    return bool(grid.x0_m - m <= x <= grid.x0_m + grid.width * grid.cell_m + m
+                and grid.y0_m - m <= y <= grid.y0_m + grid.height * grid.cell_m + m)

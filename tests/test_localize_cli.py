@@ -44,6 +44,11 @@ def test_localize_csv_on_a_folder_of_bundles(truth_bundles, tmp_path):  # noqa: 
                                     "--start", "12,30.5", "--overwrite"])
     assert res.exit_code == 0, res.output  # a start off the floor's area is said, not refused
     assert "warning: start 12,30.5 is off the reachable area of F2" in res.output
+    far = CliRunner().invoke(main, ["localize", str(bundles), str(walk), "-o",
+                                    str(tmp_path / "far"), "--no-plot", "--method", "pdr",
+                                    "--start", "1000,1000"])
+    assert far.exit_code == 1 and "more than 200 m off the floor's map" in far.output
+    assert "warning: start" not in far.output  # said once, as the error
     assert len(list(tmp_path.glob("*.csv"))) == 1 and not list(tmp_path.glob("*.png"))
     # a CSV has no metadata: which walk, floor and method are columns (session 40)
     rows = pd.read_csv(next(tmp_path.glob("*.csv")), dtype={"trace_id": str})
@@ -227,7 +232,8 @@ def test_a_damaged_walk_is_localized_with_a_warning(truth_bundles, tmp_path):  #
                                     "--methods", "pdr"])
     assert res.exit_code == 0, res.output
     assert f"warning: {cut}: 1 bad line(s) skipped (" in res.output
-    assert f"; first: {cut}:" in res.output
+    n = len(lines) // 2 + 1  # the file is named once, the bad line by its number
+    assert f"; first: line {n}: " in res.output and res.output.count(str(cut)) == 1, res.output
 
 
 def test_a_walk_whose_sensor_clock_differs_is_refused_by_name(truth_bundles, tmp_path):  # noqa: F811
