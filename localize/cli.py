@@ -222,10 +222,10 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
 
     start_opt = _parse_start(start)
     refuse_output_inside_data(out)
+    failures = WalkFailures()
+    files = trace_files(walks, failures)  # a mistyped path is said before the bundles load
     maps = SiteMaps.open(bundle_path)
     floors_said, in_build = FloorChoices(), SeenWalks()
-    failures = WalkFailures()
-    files = trace_files(walks, failures)
     created = not out.exists()
 
     seen = TraceIds()
@@ -338,10 +338,10 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
             if target.parent.exists() and not target.parent.is_dir():
                 raise click.BadParameter(f"{target.parent} is a file, not a folder")
     start_opt = _parse_start(start)
+    failures = WalkFailures()
+    files = trace_files(walks, failures)  # a mistyped path is said before the bundles load
     maps = SiteMaps.open(bundle_path)
     floors_said, in_build = FloorChoices(), SeenWalks()
-    failures = WalkFailures()
-    files = trace_files(walks, failures)
     rows = [(m, False) for m in names] + [(m, True) for m in names
                                           if smooth and m in SMOOTHABLE]
     errors: dict[str, list[np.ndarray]] = {_row_name(m, sm): [] for m, sm in rows}

@@ -187,7 +187,10 @@ class WalkFailures:
         """Report a walk path that does not exist."""
         self.count += 1
         self.n_missing += 1
-        click.echo(f"error: {path}: no such file or folder", err=True)
+        p = str(path)
+        other = p[:-3] if p.endswith(".gz") else p + ".gz"  # walk.txt for walk.txt.gz
+        hint = f" (there is {other})" if other != p and Path(other).is_file() else ""
+        click.echo(f"error: {path}: no such file or folder{hint}", err=True)
 
     def run(self, where: str | Path, fn: Callable[[], T]) -> T | None:
         """``fn()``, or None after reporting an indoormap error (bad trace, no start, ...)

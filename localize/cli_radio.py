@@ -259,10 +259,11 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
             raise click.BadParameter(f"must be auto, none or K,B (calibrated = K * rssi + B "
                                      f"dBm); got {calibration!r}",
                                      param_hint="--calibration") from err
+    failures = WalkFailures()
+    files = trace_files(walks, failures)  # a mistyped path is said before the bundles load
     maps = SiteMaps.open(bundle_path)
     floors_said, in_build = FloorChoices(), SeenWalks()
     out = _CsvRows(["trace_id", "floor", "t_ms", "n_known", "x_m", "y_m", "sigma_m", "error_m"])
-    failures = WalkFailures()
     seen = TraceIds("its rows would be printed under the other's id")
 
     def one(f: Path) -> None:
@@ -325,7 +326,6 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
                    + (f"; error vs waypoint track median {np.median(e):.2f} m" if len(e) else ""),
                    err=True)
 
-    files = trace_files(walks, failures)
     for f in files:
         failures.run(f, lambda f=f: one(f))
     in_build.finish()

@@ -179,6 +179,12 @@ def test_localize_reports_a_failing_walk_and_goes_on(truth_bundles, tmp_path):  
                                     str(nothing)])
     assert res.exit_code == 1 and "1 failure(s) in 1 walk(s)" in res.output
     assert not nothing.exists()
+    walk = min(F1_WALKS.glob("*.txt.gz"))  # walk.txt given for walk.txt.gz: said which exists
+    typo = str(walk)[:-3]
+    res = CliRunner().invoke(main, ["localize", str(truth_bundles["F1"]), typo, "-o",
+                                    str(nothing)])
+    assert res.exit_code == 1 and f"error: {typo}: no such file or folder (there is {walk})" \
+        in res.output
 
 
 def test_evaluate_goes_on_past_a_bad_walk_and_a_failing_method(truth_bundles,  # noqa: F811
