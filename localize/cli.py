@@ -212,6 +212,7 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
     import pyarrow as pa
 
     from localize.baselines import make_localizer
+    from localize.evaluate import waypoint_errors
     from localize.floors import SiteMaps
     from localize.plots import plot_track
 
@@ -238,11 +239,15 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
         png = out / f"{name}.png"
         for existing in (target, png) if plot else (target,):
             refuse_to_replace(existing, overwrite)  # before the work, not after
-        xy_wp = waypoints_of(trace)[1]
+        t_wp, xy_wp = waypoints_of(trace)
         wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp,
                                                   floors_said, in_build)
         loc = make_localizer(method, bundle, _params(particles), radio=wr.radio, rng=seed)
         track = loc.run(wr.steps, start_xy=start_xy, smooth=smooth)
+        err = waypoint_errors(track, t_wp, xy_wp) if len(t_wp) else np.empty(0)
+        err = err[np.isfinite(err)]  # the walk's recorded waypoints, where it has them
+        scored = (f"error at its {len(err)} waypoints median {np.median(err):.1f} m, max "
+                  f"{err.max():.1f} m" if len(err) else "")
         guided = getattr(loc, "guided", False)
         ran = method_label(loc.method, guided)
         used = method
@@ -254,20 +259,22 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
                          else " (not guided: no radio model)")
         table = track.to_arrow()
         if fmt == "csv":  # a CSV has no metadata: the walk, floor and method as columns
-            for i, (name, value) in enumerate((("trace_id", track.trace_id),
-                                               ("floor_id", track.floor_id),
-                                               ("method", track.method))):
-                table = table.add_column(i, name, pa.array([str(value)] * len(table)))
+            for i, (column, value) in enumerate((("trace_id", track.trace_id),
+                                                 ("floor_id", track.floor_id),
+                                                 ("method", track.method))):
+                table = table.add_column(i, column, pa.array([str(value)] * len(table)))
         _write_table(table, target, fmt, overwrite=overwrite)
         msg = (f"{trace.trace_id}: {len(track)} {'smoothed ' if smooth else ''}steps on "
                f"{bundle.floor_id} "
                f"({bundle.manifest.get('floor_name', '')}) by {used}, start {how}, "
-               f"{track.n_recoveries} recoveries -> {target}")
+               f"{track.n_recoveries} recoveries" + (f", {scored}" if scored else "")
+               + f" -> {target}")
         if plot:
             kind = "smoothed offline" if smooth else "real time"
             if plot_track(png, bundle, {ran: track}, xy_wp,
                           title=f"{trace.trace_id} on {bundle.manifest.get('floor_name', '')} "
-                                f"({bundle.floor_id[:12]}): {ran}, {kind}, start {how}"):
+                                f"({bundle.floor_id[:12]}): {ran}, {kind}, start {how}"
+                                + (f"\n{scored}" if scored else "")):
                 msg += f", {png.name}"
             else:
                 msg += " (no plot: matplotlib not installed)"

@@ -79,11 +79,12 @@ def plot_track(path: str | Path, bundle: MapBundle, tracks: Mapping[str, Track],
                     ms=8, label=f"{name}: all particles died, re-drawn")
     if waypoints_xy is not None and len(waypoints_xy):
         ax.plot(waypoints_xy[:, 0], waypoints_xy[:, 1], "k.--", lw=0.6, ms=5, label="waypoints")
-        for i, (wx, wy) in enumerate(waypoints_xy):
-            ax.annotate(str(i + 1), (wx, wy), textcoords="offset points", xytext=(3, 3),
+        for (wx, wy), numbers in _waypoint_labels(waypoints_xy):
+            ax.annotate(numbers, (wx, wy), textcoords="offset points", xytext=(3, 3),
                         fontsize=6)
     ax.plot([], [], "ko", mfc="none", label="start")
     ax.plot([], [], "ks", label="end")
+    ax.plot([], [], "s", color=OFF_MASK_GREY, alpha=0.8, ms=8, label="off the reachable area")
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
     ax.set_xlabel("x east (m)")
@@ -94,6 +95,22 @@ def plot_track(path: str | Path, bundle: MapBundle, tracks: Mapping[str, Track],
     fig.tight_layout()
     _save_png(fig, path)
     return True
+
+
+def _waypoint_labels(waypoints_xy: NDArray[np.float64], within_m: float = 0.5
+                     ) -> list[tuple[tuple[float, float], str]]:
+    """The waypoints' order numbers (from 1) to write beside them: one label per place, those
+    of waypoints within ``within_m`` (m) of an earlier one joined ("3, 5"), whose numbers
+    were drawn over each other."""
+    places: list[tuple[tuple[float, float], list[str]]] = []
+    for i, (wx, wy) in enumerate(waypoints_xy):
+        near = next((p for p in places if np.hypot(p[0][0] - wx, p[0][1] - wy) <= within_m),
+                    None)
+        if near is None:
+            places.append(((float(wx), float(wy)), [str(i + 1)]))
+        else:
+            near[1].append(str(i + 1))
+    return [(xy, ", ".join(numbers)) for xy, numbers in places]
 
 
 def plot_cdfs(path: str | Path, errors: Mapping[str, NDArray[np.float64]], title: str = ""

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pandas as pd
 import pyarrow.parquet as pq
@@ -11,6 +13,8 @@ from localize_fixtures import SAMPLE, truth_bundles  # noqa: F401  (fixture)
 
 from localize.bundle import load_bundle
 from survey.cli import main
+from survey.step_summaries import waypoints_of
+from survey.trace_reader import read_trace
 
 F1_WALKS = SAMPLE / "F1" / "path_data_files"
 
@@ -28,6 +32,23 @@ def test_localize_writes_positions_and_plots(truth_bundles, tmp_path):  # noqa: 
     assert table.schema.metadata[b"smoothed"] == b"false"
     assert (tmp_path / "out" / f"{tid}.png").stat().st_size > 1000
     assert "start first waypoint" in res.output
+    # the walk's error at its waypoints is said (and in the plot's title), as evaluate scores it
+    said = re.search(r"error at its (\d+) waypoints median ([\d.]+) m, max ([\d.]+) m",
+                     res.output)
+    assert said and int(said.group(1)) == len(waypoints_of(read_trace(walk))[0]), res.output
+    scored = CliRunner().invoke(main, ["evaluate", str(truth_bundles["F1"]), str(walk),
+                                       "--particles", "200"])
+    row = next(ln.split() for ln in scored.stdout.splitlines() if ln.startswith("auto"))
+    assert float(said.group(2)) == pytest.approx(float(row[3]), abs=0.051)  # its median
+
+
+def test_waypoint_numbers_at_one_place_are_written_once():
+    """Waypoints clicked at one place (a loop's start and end) get one label, "1, 7", not
+    two numbers drawn over each other; places 0.6 m apart keep their own."""
+    from localize.plots import _waypoint_labels
+
+    xy = np.array([[0.0, 0.0], [5, 0], [5, 5], [5.6, 5], [0.3, 0.2], [5.1, 0.1]])
+    assert [label for _, label in _waypoint_labels(xy)] == ["1, 5", "2, 6", "3", "4"]
 
 
 def test_localize_csv_on_a_folder_of_bundles(truth_bundles, tmp_path):  # noqa: F811
