@@ -426,11 +426,15 @@ def read_manifest(path: Path) -> dict:
     except FileNotFoundError as err:
         if not path.exists():
             raise BundleError(f"{path}: no such file or folder") from err
-        inner = sorted(q.name for q in path.iterdir() if is_bundle_dir(q)) \
-            if path.is_dir() else []
+        try:  # a hint only: a folder that cannot be listed is no bundle all the same
+            inner = sorted(q.name for q in path.iterdir() if is_bundle_dir(q)) \
+                if path.is_dir() else []
+        except OSError:
+            inner = []
+        floors = [n for n in inner if n != "_site"]  # the site bundle is no floor's
         raise BundleError(f"{path}: not a map bundle (no manifest.json)" + (
             f"; it is a folder of bundles ({', '.join(inner)}): give one of them, e.g. "
-            f"{path / inner[0]}" if inner else "")) from err
+            f"{path / (floors or inner)[0]}" if inner else "")) from err
     except (OSError, UnicodeDecodeError, ValueError, RecursionError) as err:
         raise BundleIntegrityError(f"{mpath}: unreadable manifest ({err})") from err
     if not isinstance(manifest, dict) or manifest.get("format") != BUNDLE_FORMAT:

@@ -376,12 +376,13 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
                 track = loc.run(wr.steps, start_xy=start_xy, smooth=sm)
                 err = waypoint_errors(track, t_wp, xy_wp)
                 errors[_row_name(m, sm)].append(err)
-                ran.setdefault(_row_name(m, sm), set()).add(
-                    method_label(loc.method, getattr(loc, "guided", False)))
+                label = method_label(loc.method, getattr(loc, "guided", False))
+                ran.setdefault(_row_name(m, sm), set()).add(label)
                 evaluated.add(trace.trace_id)
                 if csv_path is not None:
                     est = track.at(t_wp)
                     table.extend({"trace_id": trace.trace_id, "method": _row_name(m, sm),
+                                  "ran": label,
                                   "waypoint": i + 1, "t_ms": int(t_wp[i]), "x_m": xy_wp[i, 0],
                                   "y_m": xy_wp[i, 1], "est_x_m": est[i, 0],
                                   "est_y_m": est[i, 1], "error_m": err[i]}

@@ -17,9 +17,11 @@ from localize.errors import LocalizationError
 from localize.floors import HEADER_DOUBT, LACKS_PHRASE, MODEL_LACKS
 
 if TYPE_CHECKING:
+    from localize.bundle import MapBundle
     from survey.trace_format import Trace
 
-__all__ = ["AliasedOption", "WalkFailures", "read_walk", "trace_files"]
+__all__ = ["AliasedOption", "FloorChoices", "SeenWalks", "WalkFailures", "read_walk",
+           "trace_files"]
 
 T = TypeVar("T")
 
@@ -189,7 +191,7 @@ class WalkFailures:
         self.n_missing += 1
         p = str(path)
         other = p[:-3] if p.endswith(".gz") else p + ".gz"  # walk.txt for walk.txt.gz
-        hint = f" (there is {other})" if other != p and Path(other).is_file() else ""
+        hint = f" (there is {other})" if Path(other).is_file() else ""
         click.echo(f"error: {path}: no such file or folder{hint}", err=True)
 
     def run(self, where: str | Path, fn: Callable[[], T]) -> T | None:
@@ -225,7 +227,9 @@ class SeenWalks:
         self.more: list[str] = []
         self._named = 0
 
-    def check(self, bundle, trace_id: str) -> None:
+    def check(self, bundle: MapBundle, trace_id: str) -> None:
+        """Warn (or count, past the first :attr:`NAMED`) when ``bundle`` was built from walk
+        ``trace_id``."""
         if not bundle.has_table("source_walks") or trace_id not in set(
                 bundle.table("source_walks").column("trace_id").to_pylist()):
             return
@@ -258,7 +262,9 @@ class FloorChoices:
     def __init__(self) -> None:
         self._lacks_warned: set[str] = set()
 
-    def say(self, trace_id: str, bundle, how: str) -> None:
+    def say(self, trace_id: str, bundle: MapBundle, how: str) -> None:
+        """Say how walk ``trace_id`` was put on ``bundle``'s floor (``how``: the phrase of
+        :meth:`~localize.floors.SiteMaps.choose`)."""
         floor = bundle.manifest.get("floor_name", "")
         lacks = LACKS_PHRASE.search(how)
         repeated = lacks is not None and lacks.group(0) in self._lacks_warned
@@ -266,7 +272,7 @@ class FloorChoices:
             how = how.replace(lacks.group(0), f"{MODEL_LACKS} {lacks.group(1)} (warned above)")
         elif lacks is not None:
             self._lacks_warned.add(lacks.group(0))
-        if HEADER_DOUBT in how or (lacks is not None and not repeated):  # said, not overruled
+        if HEADER_DOUBT in how or (MODEL_LACKS in how and not repeated):  # said, not overruled
             click.echo(f"warning: {trace_id}: floor {floor} by the {how}", err=True)
         elif "floor model" in how:
             click.echo(f"{trace_id}: floor {floor} by the {how}", err=True)

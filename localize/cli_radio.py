@@ -175,10 +175,11 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
             if ok.any():
                 break
         if not ok.any():
+            what = {"wifi": "Wi-Fi scans", "ble": "BLE windows"}
             heard = {k: sum(sc is not None for sc in classify(k)[1]) for k in tried}
-            why = "; ".join(f"no {k} scans in the walk" if not n else
-                            f"none of its {n} {k} scans hears a transmitter the floor model knows"
-                            for k, n in heard.items())
+            why = "; ".join(f"no {what[k]} in the walk" if not n else
+                            f"none of its {n} {what[k]} hears a transmitter the floor model "
+                            "knows" for k, n in heard.items())
             raise LocalizationError(f"{trace.trace_id}: {why}; floor unknown")
         n_known = np.isfinite(rssi).sum(axis=1)
         mine = []  # the walk's rows, written once it is through

@@ -17,7 +17,7 @@ from functools import partial
 import numpy as np
 from numpy.typing import NDArray
 
-from localize.bundle import MapBundle
+from localize.bundle import Grid, MapBundle
 from localize.errors import LocalizationError
 from localize.floors import check_walk_fits
 from localize.maps import FilterMap
@@ -413,7 +413,7 @@ class Localizer(BaseLocalizer):
         return self.state.x[0], self.state.y[0], self.state.w[0]
 
 
-def start_within_reach(grid, x: float, y: float) -> bool:
+def start_within_reach(grid: Grid, x: float, y: float) -> bool:
     """Whether a start (m, map frame) is finite and within :data:`MAX_START_OFF_MAP_M` of the
     floor's ``grid``: a filter refuses one that is not."""
     m = MAX_START_OFF_MAP_M

@@ -263,7 +263,7 @@ class SiteMaps:
             given = ", ".join(sorted(self._by_name))
             raise LocalizationError(
                 f"{where}: unknown floor {floor_id} ({floor_name or '?'}); " + (
-                    f"the bundle given is of floor {given}: give the folder of the site's "
+                    f"the bundles given hold only floor {given}: give the folder of the site's "
                     "bundles (what `indoormap build` writes) to localize walks of every floor"
                     if len(self._by_name) == 1 else f"bundles exist for floors {given}"))
         if floor_name and floor_name in self._by_name:
@@ -343,7 +343,7 @@ HEADER_DOUBT = "; but the Wi-Fi floor model puts"
 #: put on another.
 MODEL_LACKS = "; the model lacks floor"
 #: :data:`MODEL_LACKS`'s whole phrase; group 1 the floors lacking ("F2, F3")
-LACKS_PHRASE = re.compile(re.escape(MODEL_LACKS) + r" ([^:;]+): walks there are put on a floor "
+LACKS_PHRASE = re.compile(re.escape(MODEL_LACKS) + r" (.+?): walks there are put on a floor "
                           r"it knows")
 
 

@@ -123,8 +123,8 @@ def plot_cdfs(path: str | Path, errors: Mapping[str, NDArray[np.float64]], title
         return False
     fig = Figure(figsize=(6, 4))
     ax = fig.subplots()
-    styles = ("-", "--", ":", "-.")  # a curve equal to another (auto and what it ran) shows
-    # through it
+    # distinct line styles: a curve equal to another (auto and what it ran) shows through it
+    styles = ("-", "--", ":", "-.")
     for i, (name, e) in enumerate(errors.items()):
         e = np.sort(np.asarray(e)[np.isfinite(e)])
         if e.size:

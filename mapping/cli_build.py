@@ -93,8 +93,13 @@ def floors_of(path: Path) -> list[Path]:
         if (path.parent / "geojson_map.json").exists():  # <floor>/path_data_files
             hint = f"its floor folder is {path.parent}"
         else:
-            sites = sorted(p for p in path.iterdir() if p.is_dir() and any(
-                q.is_dir() and _is_floor_dir(q) for q in p.iterdir()))
+            sites = []
+            for p in sorted(q for q in path.iterdir() if q.is_dir()):
+                try:  # a hint only: a folder that cannot be listed is passed over
+                    if any(q.is_dir() and _is_floor_dir(q) for q in p.iterdir()):
+                        sites.append(p)
+                except OSError:
+                    continue
             if sites:  # a folder of sites
                 hint = (f"it holds the site folder {sites[0].name}: build {sites[0]}"
                         if len(sites) == 1 else f"it holds the site folders "
@@ -492,19 +497,29 @@ def bundle_group() -> None:
 def bundle_info(path: Path, as_json: bool) -> None:
     """Summary of a bundle (verified first). A folder of bundles (what `build -o` writes, a
     registry's site folder) gives each bundle's, and with --json an object of their manifests
-    keyed by folder name."""
+    keyed by folder name (exit 1 when any fails to load, after the others' summaries)."""
     paths = _bundle_paths((path,))
-    bundles = [load_bundle(p) for p in paths]
     one = len(paths) == 1 and paths[0] == path
     if as_json:  # several: {"F1": manifest, ...}, by path below PATH
-        click.echo(json.dumps(bundles[0].manifest if one else {
-            str(p.relative_to(path)): b.manifest for p, b in zip(paths, bundles)},
+        click.echo(json.dumps(load_bundle(path).manifest if one else {
+            str(p.relative_to(path)): load_bundle(p).manifest for p in paths},
             indent=1, sort_keys=True))
         return
-    for p, b in zip(paths, bundles):
-        if not one:
-            click.echo(f"{p}:")
+    if one:
+        _say_bundle(load_bundle(path))
+        return
+    failed = 0
+    for p in paths:  # each as it loads; a damaged one is said and the others go on
+        try:
+            b = load_bundle(p)
+        except IndoormapError as err:
+            failed += 1
+            click.echo(f"FAILED  {at_path(p, str(err))}")
+            continue
+        click.echo(f"{p}:")
         _say_bundle(b)
+    if failed:
+        sys.exit(1)
 
 
 def _say_bundle(b) -> None:

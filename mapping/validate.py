@@ -272,15 +272,15 @@ class ValidationResult:
         return [f for f in self.findings if f.severity == "fail"]
 
     def verdict_text(self) -> str:
-        """The verdict as the CLI and the report say it: ``"PASS"``, or ``"PASS on 6 of 14
-        checks (8 not run: their input was missing)"`` when checks could not run (no survey
-        store given), so that a bundle checked alone does not read as validated; ``"FAIL"``
-        likewise."""
+        """The verdict as the CLI and the report say it: ``"PASS"``, or ``"PASS (3 of 14
+        checks ran; 11 not run: their input was missing)"`` when checks could not run (no
+        survey store given), so that a bundle checked alone does not read as validated;
+        ``"FAIL"`` likewise."""
         rows = [c for c in self.metrics.get("checks", []) if c["status"] != "off"]
         not_run = sum(c["status"] == "not run" for c in rows)
         text = self.verdict.upper()
         if not_run:
-            text += (f" on {len(rows) - not_run} of {len(rows)} checks ({not_run} not run: "
+            text += (f" ({len(rows) - not_run} of {len(rows)} checks ran; {not_run} not run: "
                      "their input was missing)")
         return text
 

@@ -129,10 +129,10 @@ def survey_report_command(store_dir: str, site: str | None, floor: str | None,
     steps with the phone held flat and forward); session (calibration session).
 
     With --legs, a row per flagged leg: trace_id, leg (0 = from the first waypoint to the
-    second, as validate counts them), its start time (t_start_ms, Unix ms) and duration_s, distance_m between its
-    waypoints, speed_mps, step_m (mean step length), scale (step track over waypoint
-    distance), heading_rotation_deg, waypoint_residual_m (how far the step track misses the
-    leg's end waypoint) and flags."""
+    second, as validate counts them), its start time (t_start_ms, Unix ms) and duration_s,
+    distance_m between its waypoints, speed_mps, step_m (mean step length), scale (step
+    track over waypoint distance), heading_rotation_deg, waypoint_residual_m (how far the
+    step track misses the leg's end waypoint) and flags."""
     if csv_path:
         from localize.cli_common import refuse_output_inside_data
 

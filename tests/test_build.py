@@ -228,6 +228,15 @@ def test_build_cli_twice_identical_bytes(tmp_path):
     with pytest.raises(BundleError, match="a folder of bundles \\(F2, _site\\): give one of "
                        "them"):
         load_bundle(tmp_path / "a")  # what validate and the others say
+    lower = tmp_path / "lower"  # the example given is a floor's, also where _site sorts first
+    for name, src in (("level1", a), ("_site", tmp_path / "a" / "_site")):
+        shutil.copytree(src, lower / name)
+    with pytest.raises(BundleError, match=f"e.g. {lower / 'level1'}$"):
+        load_bundle(lower)
+    (lower / "_site" / "notes.txt").write_text("unlisted")  # one damaged bundle among them
+    damaged = runner.invoke(main, ["bundle", "info", str(lower)])
+    assert damaged.exit_code == 1 and f"{lower / 'level1'}:\nbundle " in damaged.output
+    assert f"FAILED  {lower / '_site'}" in damaged.output
     assert (f"floor model (Wi-Fi, {model['transmitters']} transmitters): floors "
             f"{', '.join(model['floors'])}") in site.output
     verify = runner.invoke(main, ["bundle", "verify", str(a), str(tmp_path)])

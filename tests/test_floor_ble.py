@@ -150,7 +150,7 @@ def test_a_walk_without_wifi_and_floor_header_is_put_on_its_floor_by_ble(built, 
     # asked for BLE of a walk with none: said so (it read "no ble scan hears a transmitter")
     no_ble = _without(WALK, tmp_path / "no_ble.txt", ble=True)
     res = runner.invoke(main, ["floor", "--kind", "ble", str(built), str(no_ble)])
-    assert res.exit_code == 1 and ": no ble scans in the walk; floor unknown" in res.stderr
+    assert res.exit_code == 1 and ": no BLE windows in the walk; floor unknown" in res.stderr
 
 
 def _reading(ble: list, offset_db: float) -> list:

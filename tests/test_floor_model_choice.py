@@ -114,6 +114,12 @@ def test_a_wifi_floor_model_lacking_a_floor_does_not_outvote_the_ble_model(wifi_
     assert capsys.readouterr().err.startswith("warning: other-run: ")
     said.say("third", bundle, how.replace(f"{MODEL_LACKS} F2:", f"{MODEL_LACKS} F2, F3:"))
     assert capsys.readouterr().err.startswith("warning: third: ")
+    odd = how.replace(f"{MODEL_LACKS} F2:", f"{MODEL_LACKS} Level 2: east; B:")  # ':' and ';'
+    for k in range(2):  # a floor name with a colon is warned of too, then referred to
+        said.say("odd", bundle, odd)
+        err = capsys.readouterr().err
+        assert err.startswith("warning: odd: ") if k == 0 else err.endswith(
+            f"{MODEL_LACKS} Level 2: east; B (warned above)\n"), err
 
 
 def test_floor_models_that_both_lack_a_given_floor_warn_even_when_they_agree(built, tmp_path):

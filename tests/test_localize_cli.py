@@ -127,6 +127,7 @@ def test_evaluate_prints_errors_and_cdfs(truth_bundles, tmp_path):  # noqa: F811
     # every error as a row: the printed medians are those of the table's rows
     table = pd.read_csv(tmp_path / "errors.csv", dtype={"trace_id": str})
     assert table["trace_id"].nunique() == len(list(F1_WALKS.glob("*.txt.gz")))
+    assert set(table.loc[table["method"] == "auto", "ran"]) == {"indoormap"}  # what it ran
     for method in ("indoormap", "pdr"):
         rows = table[table["method"] == method]
         assert float(lines[method][1]) == len(rows)

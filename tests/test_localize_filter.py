@@ -193,7 +193,7 @@ def test_unknown_floor(truth_bundles, sim_walks):  # noqa: F811
                        "for floors F1, F2$"):
         maps.select(replace(w.steps, floor_id="nope", floor_name="F9"))
     # a single floor's bundle given for a walk of another floor: what to give instead
-    with pytest.raises(LocalizationError, match="the bundle given is of floor F2: give the "
+    with pytest.raises(LocalizationError, match="the bundles given hold only floor F2: give the "
                        "folder of the site's bundles"):
         SiteMaps([load_bundle(truth_bundles["F2"])]).select(w.steps)
     with pytest.raises(LocalizationError, match="site"):

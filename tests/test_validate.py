@@ -246,7 +246,7 @@ def test_without_store_checks_the_bundle_alone(sites, tmp_path):
     statuses = [c["status"] for c in metrics["checks"] if c["status"] != "off"]
     n_not_run = statuses.count("not run")
     assert n_not_run >= 5, statuses  # held-out, consistency, data quality
-    assert (f": PASS on {len(statuses) - n_not_run} of {len(statuses)} checks ({n_not_run} "
+    assert (f": PASS ({len(statuses) - n_not_run} of {len(statuses)} checks ran; {n_not_run} "
             "not run: their input was missing)") in res.output
     assert (tmp_path / "r" / "report.html").exists() or not HAS_MPL
 
