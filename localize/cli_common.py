@@ -226,12 +226,17 @@ class SeenWalks:
     def __init__(self) -> None:
         self.more: list[str] = []
         self._named = 0
+        self._sources: dict[str, set[str]] = {}  # bundle id -> its source walks' trace ids
 
     def check(self, bundle: MapBundle, trace_id: str) -> None:
         """Warn (or count, past the first :attr:`NAMED`) when ``bundle`` was built from walk
         ``trace_id``."""
-        if not bundle.has_table("source_walks") or trace_id not in set(
-                bundle.table("source_walks").column("trace_id").to_pylist()):
+        sources = self._sources.get(bundle.bundle_id)
+        if sources is None:  # once per bundle, not per walk
+            sources = self._sources[bundle.bundle_id] = set(
+                bundle.table("source_walks").column("trace_id").to_pylist()
+                if bundle.has_table("source_walks") else ())
+        if trace_id not in sources:
             return
         if self._named < self.NAMED:
             self._named += 1

@@ -17,7 +17,7 @@ import click
 import numpy as np
 import pandas as pd
 
-from localize.bundle import bundle_dirs, load_bundle
+from localize.bundle import MapBundle, bundle_dirs, load_bundle
 from survey.errors import IndoormapError, PublishError, RegistryError, at_path
 from survey.publish import (
     JOURNAL_NAME,
@@ -82,28 +82,33 @@ def _is_floor_dir(p: Path) -> bool:
     return (p / "geojson_map.json").exists()
 
 
+def _floor_dirs_in(path: Path) -> list[Path]:
+    """The floor folders directly in ``path``, sorted."""
+    return sorted(p for p in path.iterdir() if p.is_dir() and _is_floor_dir(p))
+
+
+def _has_floor_dirs(path: Path) -> bool:
+    """Whether ``path`` is a folder with floor folders in it (False when it cannot be
+    listed: a hint's test, never an error)."""
+    try:
+        return path.is_dir() and bool(_floor_dirs_in(path))
+    except OSError:
+        return False
+
+
 def floors_of(path: Path) -> list[Path]:
     """A floor folder itself, or the floor folders of a site folder."""
-    if _is_floor_dir(path):
-        floors = [path]
-    else:
-        floors = sorted(p for p in path.iterdir() if p.is_dir() and _is_floor_dir(p))
+    floors = [path] if _is_floor_dir(path) else _floor_dirs_in(path)
     if not floors:
         hint = "a folder of traces needs its floor plan: --plan PLAN"
+        sites = [p for p in sorted(path.iterdir()) if _has_floor_dirs(p)]
         if (path.parent / "geojson_map.json").exists():  # <floor>/path_data_files
             hint = f"its floor folder is {path.parent}"
-        else:
-            sites = []
-            for p in sorted(q for q in path.iterdir() if q.is_dir()):
-                try:  # a hint only: a folder that cannot be listed is passed over
-                    if any(q.is_dir() and _is_floor_dir(q) for q in p.iterdir()):
-                        sites.append(p)
-                except OSError:
-                    continue
-            if sites:  # a folder of sites
-                hint = (f"it holds the site folder {sites[0].name}: build {sites[0]}"
-                        if len(sites) == 1 else f"it holds the site folders "
-                        f"{', '.join(p.name for p in sites)}: build each, e.g. {sites[0]}")
+        elif len(sites) == 1:  # the folder above a site
+            hint = f"it holds the site folder {sites[0].name}: build {sites[0]}"
+        elif sites:
+            hint = (f"it holds the site folders {', '.join(p.name for p in sites)}: build "
+                    f"each, e.g. {sites[0]}")
         raise click.UsageError(f"{path}: neither a floor folder (with geojson_map.json) nor a "
                                f"site folder of floors; {hint}")
     for floor in floors:  # before the work, not when publishing
@@ -508,21 +513,28 @@ def bundle_info(path: Path, as_json: bool) -> None:
     if one:
         _say_bundle(load_bundle(path))
         return
+    for p, b in _load_each(paths):  # each as it loads
+        click.echo(f"{p}:")
+        _say_bundle(b)
+
+
+def _load_each(paths: list[Path]) -> Iterator[tuple[Path, MapBundle]]:
+    """Each bundle of ``paths`` loaded (and verified) in turn; one that fails is said
+    (``FAILED  path: why``) and the others go on; exit 1 at the end if any failed."""
     failed = 0
-    for p in paths:  # each as it loads; a damaged one is said and the others go on
+    for p in paths:
         try:
             b = load_bundle(p)
         except IndoormapError as err:
             failed += 1
             click.echo(f"FAILED  {at_path(p, str(err))}")
             continue
-        click.echo(f"{p}:")
-        _say_bundle(b)
+        yield p, b
     if failed:
         sys.exit(1)
 
 
-def _say_bundle(b) -> None:
+def _say_bundle(b: MapBundle) -> None:
     """``bundle info``'s summary of one bundle."""
     m = b.manifest
     where = ("site-level bundle" if m.get("kind") == "site"
@@ -568,16 +580,8 @@ def bundle_verify(paths: tuple[Path, ...]) -> None:
     """Verify bundles (every member's checksum, schema, no unlisted files). A folder of
     bundles (what `build -o` writes, a registry's site folder) is verified bundle by bundle; a
     registry's floor folder by its current version. Exit 1 if any fails."""
-    bad = 0
-    for p in _bundle_paths(paths):
-        try:
-            b = load_bundle(p)
-            click.echo(f"ok      {p} ({b.bundle_id[:16]})")
-        except IndoormapError as err:
-            bad += 1
-            click.echo(f"FAILED  {at_path(p, str(err))}")
-    if bad:
-        sys.exit(1)
+    for p, b in _load_each(_bundle_paths(paths)):
+        click.echo(f"ok      {p} ({b.bundle_id[:16]})")
 
 
 @bundle_group.command("diff")
