@@ -5,6 +5,7 @@ Exit codes: 0 success, 1 data or validation failure, 2 usage error (click's own)
 
 from __future__ import annotations
 
+import importlib
 import os
 import signal
 import sys
@@ -22,9 +23,58 @@ def _terminated(signum: int, frame) -> None:
     raise SystemExit(128 + signum)
 
 
+# name: (module, attribute, the line `indoormap --help` gives it). A command's module is
+# imported only when that command runs (or its own --help is asked for): the survey and
+# mapping modules load pandas and scipy, about a second, which `indoormap localize`, whose
+# runtime needs numpy and pyarrow only, and `indoormap --help` need not wait for.
+COMMANDS: dict[str, tuple[str, str, str]] = {
+    "build": ("mapping.cli_build", "build_command",
+              "Build map bundles of a floor or a whole site from its survey."),
+    "bundle": ("mapping.cli_bundle", "bundle_group",
+               "Inspect, verify, compare and publish map bundles."),
+    "evaluate": ("localize.cli", "evaluate_command",
+                 "Error of localizers at the waypoints of walks, with CDFs."),
+    "floor": ("localize.cli_radio", "floor_command",
+              "Predicted floor per scan and per walk from radio scans."),
+    "ingest": ("survey.cli_ingest", "ingest_command",
+               "Ingest survey traces into a survey store."),
+    "localize": ("localize.cli", "localize_command",
+                 "Localize walks on map bundles: positions per step and a plot."),
+    "process": ("survey.cli_process", "process_command",
+                "Position and calibrate a store's samples along their walks."),
+    "simulate": ("survey.sim.cli", "simulate",
+                 "Simulate a surveyed site (traces, plans and truth)."),
+    "store": ("survey.cli_store", "store_group",
+              "Inspect and verify survey stores."),
+    "survey-report": ("survey.cli_process", "survey_report_command",
+                      "Per-walk quality of a survey, a row per walk (or leg)."),
+    "validate": ("mapping.cli_validate", "validate_command",
+                 "Validate a floor's map bundle: coverage, consistency, held-out error."),
+    "wifi-locate": ("localize.cli_radio", "wifi_locate_command",
+                    "Wi-Fi (or BLE) position per scan from a bundle's fingerprints."),
+}
+
+
 class _Group(click.Group):
     """Maps indoormap's own errors and the operating system's (a read-only or full disk, no
-    permission) to a one-line message and exit code 1; a SIGTERM unwinds like Ctrl-C does."""
+    permission) to a one-line message and exit code 1; a SIGTERM unwinds like Ctrl-C does.
+    Its commands (:data:`COMMANDS`) are imported when they are used."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted(COMMANDS)
+
+    def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
+        if name not in COMMANDS:
+            return None
+        module, attribute, short_help = COMMANDS[name]
+        command = getattr(importlib.import_module(module), attribute)
+        command.short_help = short_help
+        return command
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        """The command list from :data:`COMMANDS`, without importing the commands."""
+        with formatter.section("Commands"):
+            formatter.write_dl([(name, COMMANDS[name][2]) for name in self.list_commands(ctx)])
 
     def invoke(self, ctx: click.Context):
         # only where SIGTERM would kill us anyway: an embedding program's handler (or its
@@ -55,26 +105,6 @@ class _Group(click.Group):
 @click.version_option(__version__, prog_name="indoormap")
 def main() -> None:
     """indoormap: survey data to versioned map bundles for smartphone indoor positioning."""
-
-
-def _register() -> None:
-    from .cli_ingest import ingest_command
-    from .cli_process import process_command, survey_report_command
-    from .cli_store import store_group
-    from .sim.cli import simulate
-
-    from mapping.cli_build import build_command, bundle_group
-    from localize.cli import evaluate_command, localize_command
-    from localize.cli_radio import floor_command, wifi_locate_command
-    from mapping.cli_validate import validate_command
-
-    for command in (simulate, ingest_command, store_group, process_command,
-                    survey_report_command, build_command, bundle_group, validate_command, localize_command,
-                    evaluate_command, floor_command, wifi_locate_command):
-        main.add_command(command)
-
-
-_register()
 
 
 if __name__ == "__main__":  # python -m survey.cli

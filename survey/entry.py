@@ -1,6 +1,6 @@
-"""The ``indoormap`` console script: imports the command-line interface (which loads pandas,
-scipy and pyarrow, a second or more) under the handling its commands give Ctrl-C: "Aborted!"
-and exit status 1, not a traceback from the middle of an import."""
+"""The ``indoormap`` console script: imports the command-line interface under the handling its
+commands give Ctrl-C ("Aborted!" and exit status 1, not a traceback from the middle of an
+import). Each command's own module is imported when it runs, under click's handling."""
 
 from __future__ import annotations
 
