@@ -522,9 +522,10 @@ def reduce_site_radio(source: WalkSource, device_of: pd.Series, floors: Sequence
         model_rows = _SampleRows()
         ssid_of: dict[str, str] = {}
         seen = set()
-        for i, (walk, obs) in enumerate(source.read(kind, walks), 1):
-            if i % 100 == 0:
-                say(f"{kind}: read walk {i}/{len(walks)}")
+        n_read = 0
+        for n_read, (walk, obs) in enumerate(source.read(kind, walks), 1):
+            if n_read % 100 == 0:
+                say(f"{kind}: read walk {n_read}/{len(walks)}")
             if kind == "wifi":
                 obs = _with_calibration(obs, kb_of)
                 first_ssids(obs, ssid_of)
@@ -539,6 +540,9 @@ def reduce_site_radio(source: WalkSource, device_of: pd.Series, floors: Sequence
                 seen.add(f)
                 if walk["trace_id"] in sample:
                     model_rows.add(f, part)
+        if n_read:  # the last progress line; a walk whose rows are all invalid is passed over
+            say(f"{kind}: read {n_read} walks" + (f" ({len(walks) - n_read} without valid rows)"
+                                                  if n_read < len(walks) else ""))
         if not seen:
             notes.append(f"no {kind} rows on any floor")
             continue

@@ -178,3 +178,16 @@ def test_a_walk_on_two_floors_feeds_each_floor(wifi_obs, device_of):  # noqa: F8
     for floor in ("F1", "F2"):
         assert (joined.fingerprints[(floor, "wifi")].rp["n_scans"].sum()
                 == separate.fingerprints[(floor, "wifi")].rp["n_scans"].sum())
+
+
+def test_progress_ends_with_the_walks_read(sample_store):  # noqa: F811
+    """The last progress line of each kind counts the walks read, so that a run does not seem
+    to stop short ('read walk 100/102' was the last line of 102 walks)."""
+    st = SurveyStore.open(sample_store)
+    obs = {k: site_observations(st, None, ["F1", "F2"], k) for k in ("wifi", "ble")}
+    obs["ble"] = obs["ble"][obs["ble"]["trace_id"] != obs["ble"]["trace_id"].iloc[0]]
+    device_of = st.traces(None).set_index("trace_id")["device_model"].fillna("").astype(str)
+    said: list[str] = []
+    site_radio(obs, device_of, ["F1", "F2"], progress=said.append)
+    for kind in ("wifi", "ble"):
+        assert f"{kind}: read {obs[kind]['trace_id'].nunique()} walks" in said
