@@ -38,6 +38,11 @@ if TYPE_CHECKING:  # an annotation: ingest is imported when a build runs
     from survey.ingest import IngestSummary
 
 
+#: Below this share of the reachable area within 2 m of a sample a build warns: less than half
+#: the floor mapped (validate's own coverage check asks for 80 %).
+THIN_COVERAGE = 0.5
+
+
 def _iso_time(ctx: click.Context, param: click.Parameter, text: str | None) -> str | None:
     """``--build-time`` checked (a click callback): an ISO 8601 date and time, kept as given."""
     if text is None:
@@ -431,7 +436,7 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
         registry = Registry(registry_dir) if registry_dir else None
         radio = build_site_radio(store, list(plans), site=site, params=params.radio,
                                  exclude_walks=left_out, progress=say)
-        site_id, site_build_time, site_walks, done = "", "", [], []
+        site_id, site_build_time, site_walks, done, thin = "", "", [], [], []
         for name, plan in plans.items():
             content = build_floor(store, plan, floor=name, site=site, params=params,
                                   radio=radio, exclude_walks=left_out, progress=say)
@@ -443,6 +448,11 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
             done.append((name, f"{name}: bundle {bundle_id[:16]} -> {out / name} "
                                f"({content.metrics['n_walks']} walks; reachable area within "
                                f"2 m of a sample: {100 * cov['within_2m']:.0f} %)"))
+            if cov["within_2m"] < THIN_COVERAGE:
+                thin.append(f"warning: {name}: only {100 * cov['within_2m']:.0f} % of the "
+                            "reachable area lies within 2 m of a surveyed sample, so the "
+                            "magnetic layers hold no values on most of the floor; survey more "
+                            f"walks (`indoormap validate {out / name}` shows the gaps)")
         site_content = radio.site_content(site_id, build={
             "build_time": site_build_time, "seed": params.seed,
             "source_walks": sorted(site_walks, key=lambda w: w["trace_id"])})
@@ -472,6 +482,8 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
             elif registry:
                 entry = registry.publish(out / name)
                 click.echo(f"  published as {site_id}/{name} #{entry['seq']}")
+        for warning in thin:
+            click.echo(warning, err=True)
 
 
 def site_model_floors_dropped(registry: Registry, site_id: str, floors: list[str]

@@ -14,6 +14,7 @@ from click.testing import CliRunner
 
 from localize.bundle import load_bundle
 from mapping.build import BuildError, BuildParams, build_floor
+from mapping.cli_build import THIN_COVERAGE
 from mapping.bundle_writer import write_bundle
 from mapping.errors import FingerprintError
 from mapping.floorplan import FloorPlan, read_floor_plan
@@ -574,3 +575,21 @@ def test_a_trace_of_another_site_in_a_floor_folder_is_refused(tmp_path):
                                     "--store", str(store), "--exclude", "000foreign"])
     assert res.exit_code == 0, res.output
     assert load_bundle(tmp_path / "out" / "F2").site_id == site_id
+
+
+def test_a_build_covering_little_of_its_floor_warns(tmp_path):
+    """One walk maps a strip of the floor: the build says so (and names validate), where the
+    whole survey does not warn."""
+    floor = tmp_path / "F2"
+    shutil.copytree(SITE / "F2", floor, ignore=shutil.ignore_patterns("path_data_files"))
+    (floor / "path_data_files").mkdir()
+    one = sorted((SITE / "F2" / "path_data_files").glob("*.txt.gz"))[0]
+    shutil.copy(one, floor / "path_data_files")
+    res = CliRunner().invoke(main, ["build", str(floor), "-o", str(tmp_path / "out")])
+    assert res.exit_code == 0, res.output
+    within_2m = load_bundle(tmp_path / "out" / "F2").manifest["metrics"]["coverage"]["within_2m"]
+    assert within_2m < THIN_COVERAGE
+    assert (f"warning: F2: only {100 * within_2m:.0f} % of the reachable area lies within 2 m"
+            in res.output and "indoormap validate" in res.output)
+    whole = CliRunner().invoke(main, ["build", str(SITE / "F2"), "-o", str(tmp_path / "all")])
+    assert whole.exit_code == 0 and "warning: F2: only" not in whole.output
