@@ -49,8 +49,9 @@ import threading
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-DEFAULT = REPO.parent / "shared" / "ilc" / "site1" / "F1"
+from real_data import ILC_SITE1, REPO  # $INDOORMAP_ILC or ../shared/ilc
+
+DEFAULT = ILC_SITE1 / "F1"
 sys.path.insert(0, str(REPO))
 
 from survey.trace_bytes import read_trace_bytes

@@ -18,8 +18,9 @@ import tempfile
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-DEFAULT = REPO.parent / "shared" / "ilc" / "site1" / "F1"
+from real_data import ILC_SITE1  # $INDOORMAP_ILC or ../shared/ilc
+
+DEFAULT = ILC_SITE1 / "F1"
 
 
 def same_tree(a: Path, b: Path) -> bool:

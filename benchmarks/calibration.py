@@ -32,8 +32,9 @@ from survey.process import process_walk
 from survey.rotation import interpolate_rotation_vector, rotation_matrices
 from survey.trace_reader import find_trace_files, iter_traces
 
-REPO = Path(__file__).resolve().parents[1]
-DEFAULT = REPO.parent / "shared" / "ilc" / "site1" / "F1"
+from real_data import ILC_SITE1  # $INDOORMAP_ILC or ../shared/ilc
+
+DEFAULT = ILC_SITE1 / "F1"
 
 
 def earth(trace, t_ms, device_field):

@@ -31,8 +31,9 @@ import sys
 import tempfile
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-SHARED_F1 = REPO.parent / "shared" / "ilc" / "site1" / "F1"
+from real_data import ILC_SITE1, REPO  # $INDOORMAP_ILC or ../shared/ilc
+
+SHARED_F1 = ILC_SITE1 / "F1"
 
 CHILD = r"""
 import json, resource, sys, time, gzip

@@ -37,8 +37,9 @@ from localize.radio import KnnRadioPositioner
 from localize.steps import RadioScan, StepSummaries
 from localize.track import Track
 
-REPO = Path(__file__).resolve().parents[1]
-SHARED_SITE = REPO.parent / "shared" / "ilc" / "site1"
+from real_data import ILC_SITE1, REPO  # $INDOORMAP_ILC or ../shared/ilc
+
+SHARED_SITE = ILC_SITE1
 
 #: Methods in table order; "pdr@wp0" is PDR from the first waypoint (the ILC baseline);
 #: "name[variant]" runs a method with other parameters (:data:`VARIANTS`).

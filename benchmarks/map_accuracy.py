@@ -22,8 +22,9 @@ from pathlib import Path
 
 import pandas as pd
 
-REPO = Path(__file__).resolve().parents[1]
-SITE = REPO.parent / "shared" / "ilc" / "site1"
+from real_data import ILC_SITE1  # $INDOORMAP_ILC or ../shared/ilc
+
+SITE = ILC_SITE1
 
 
 def main() -> int:

@@ -67,8 +67,9 @@ from survey.ingest import ingest
 from survey.process_store import process_store
 from survey.store import SurveyStore
 
-REPO = Path(__file__).resolve().parents[1]
-SITE = REPO.parent / "shared" / "ilc" / "site1"
+from real_data import ILC_SITE1  # $INDOORMAP_ILC or ../shared/ilc
+
+SITE = ILC_SITE1
 TRANSFORMS = ((0.85, -8.0), (1.0, -12.0))
 CAL_SCANS = 8
 #: the floor models' phones (k, b, rows below this many dBm lost or None): the survey phones'

@@ -8,18 +8,18 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from ilc_sample import SHARED_ILC, SKIP_REASON
 
 from survey.sim.site import ensure_sample_site
 
 REPO = Path(__file__).resolve().parents[1]
-SHARED_ILC = REPO.parent / "shared" / "ilc"
 ensure_sample_site(REPO / "data" / "sample_site")
 
 
 @pytest.fixture
 def ilc_floor():
-    """``../shared/ilc/site1/F1`` or skip."""
+    """``site1/F1`` of the ILC traces (``$INDOORMAP_ILC`` or ``../shared/ilc``), or skip."""
     floor = SHARED_ILC / "site1" / "F1"
     if not (floor / "path_data_files").is_dir():
-        pytest.skip("../shared/ilc is not available")
+        pytest.skip(SKIP_REASON)
     return floor

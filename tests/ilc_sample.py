@@ -4,19 +4,24 @@ tests (sensor streams and waypoints only; the full reader is ``survey.trace_read
 from __future__ import annotations
 
 import gzip
+import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-SHARED_ILC = Path(__file__).resolve().parents[1].parent / "shared" / "ilc"
+#: The real ILC traces: ``$INDOORMAP_ILC`` when set (the folder holding ``site1/``, e.g. for a
+#: checkout elsewhere than beside ``shared``), else ``../shared/ilc``.
+SHARED_ILC = Path(os.environ.get("INDOORMAP_ILC")
+                  or Path(__file__).resolve().parents[1].parent / "shared" / "ilc")
+SKIP_REASON = f"{SHARED_ILC} is not available (set INDOORMAP_ILC to the ILC traces' folder)"
 
 
 def ilc_walks(floor: str = "F1", count: int = 5) -> list[Path]:
     """The first ``count`` trace files of ``site1/<floor>``, or skip the test."""
     folder = SHARED_ILC / "site1" / floor / "path_data_files"
     if not folder.is_dir():
-        pytest.skip("../shared/ilc is not available")
+        pytest.skip(SKIP_REASON)
     return sorted(folder.glob("*.txt.gz"))[:count]
 
 
