@@ -96,6 +96,13 @@ class APSelection:
                 out[r] = out.get(r, 0) + 1
         return dict(sorted(out.items()))
 
+    def summary_text(self) -> str:
+        """:meth:`summary` as text, e.g. ``hotspot_ssid 70, moved 17, rare 218; 22 for more
+        than one reason`` (the counts then add up to more than the dropped); '' if none."""
+        text = ", ".join(f"{k} {v}" for k, v in self.summary().items())
+        several = int(self.dropped["reason"].str.contains(";", regex=False).sum())
+        return text + (f"; {several} for more than one reason" if several else "")
+
 
 def is_locally_administered(mac: Sequence[str] | NDArray[np.str_]) -> NDArray[np.bool_]:
     """True where the MAC address has the locally-administered bit (0x02 of the first octet)."""

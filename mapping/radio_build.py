@@ -551,7 +551,7 @@ def reduce_site_radio(source: WalkSource, device_of: pd.Series, floors: Sequence
             sel = evidence.select(ssid=ssid_of if kind == "wifi" else None, floor_order=floors)
             selections[kind] = sel
             kept = set(sel.kept.tolist())
-            why = ", ".join(f"{k} {v}" for k, v in sel.summary().items())
+            why = sel.summary_text()
             say(f"{kind}: kept {len(sel.kept)} transmitters, dropped {len(sel.dropped)}"
                 + (f" ({why})" if why else ""))
         del evidence

@@ -62,6 +62,9 @@ def test_every_reason_and_nothing_else():
     assert reasons["00:00:00:00:00:08"] == "rare"
     assert sel.kept.tolist() == ["00:00:00:00:00:01", "00:00:00:00:00:09", "02:00:00:00:00:02"]
     assert sel.summary()["rare"] == 1
+    # 6 dropped, 7 reasons: the text says why the counts add up to more
+    assert sel.summary_text() == ("far_floors 1, flat 2, hotspot_ssid 1, moved 1, moving 1, "
+                                  "rare 1; 1 for more than one reason")
     assert set(sel.dropped.columns) >= {"ap", "ssid", "reason", "detail", "locally_administered"}
     detail = dict(zip(sel.dropped["ap"], sel.dropped["detail"]))
     assert "floors 3 apart" in detail["00:00:00:00:00:06"]
