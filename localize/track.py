@@ -25,7 +25,8 @@ class Estimate:
     x_m, y_m : float
         Estimated position (map frame, m).
     spread_m : float
-        RMS distance of the particles from the estimate (m); 0 for single-point methods.
+        RMS distance of the particles from the estimate (m); for the alignment, the RMS
+        spread of its shift; for Wi-Fi alone, the last fix's sigma; 0 for PDR.
     alive_fraction : float
         Share of particles whose last move stayed reachable (before resampling).
     recovered : bool
