@@ -138,11 +138,11 @@ def _write_table(table, target: Path, fmt: str, overwrite: bool = False) -> None
 
 
 def _prepare_walk(trace, maps, start_opt: str | tuple[float, float], waypoints_xy,
-                  floors_said: FloorChoices, in_build: SeenWalks):
+                  floors_said: FloorChoices):
     """What both commands do before localizing a walk: its steps, its floor's bundle (the
     header's floor, else the site's Wi-Fi floor model, else its BLE floor model:
     :meth:`localize.floors.SiteMaps.choose`, said on standard error by ``floors_said`` when a
-    model chose; with a warning by ``in_build`` when the bundle was built from the walk), the
+    model chose), the
     radio model for its phone (Wi-Fi, else BLE: :func:`localize.walk_radio.walk_radio`; the
     steps then carry the walk's BLE windows), and its start (with a warning when it is off the
     floor). Returns ``(wr, bundle, start_xy, how)``, ``wr`` the
@@ -157,7 +157,6 @@ def _prepare_walk(trace, maps, start_opt: str | tuple[float, float], waypoints_x
                                  steps.floor_name, steps.scans, ble,
                                  device_model=trace.header.model or "")
     floors_said.say(trace.trace_id, bundle, chosen)
-    in_build.check(bundle, trace.trace_id)
     wr = walk_radio(bundle, trace.header.model, steps, ble)
     start_xy, how = _start_of(start_opt, wr, waypoints_xy)
     _warn_if_off_floor(bundle, start_xy)
@@ -240,8 +239,7 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
         for existing in (target, png) if plot else (target,):
             refuse_to_replace(existing, overwrite)  # before the work, not after
         t_wp, xy_wp = waypoints_of(trace)
-        wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp,
-                                                  floors_said, in_build)
+        wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp, floors_said)
         loc = make_localizer(method, bundle, _params(particles), radio=wr.radio, rng=seed)
         track = loc.run(wr.steps, start_xy=start_xy, smooth=smooth)
         err = waypoint_errors(track, t_wp, xy_wp) if len(t_wp) else np.empty(0)
@@ -278,6 +276,7 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
                 msg += f", {png.name}"
             else:
                 msg += " (no plot: matplotlib not installed)"
+        in_build.check(bundle, trace.trace_id)  # a walk that failed is not counted
         click.echo(msg)
 
     try:
@@ -365,8 +364,7 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
         if len(t_wp) == 0:
             click.echo(f"{f}: no waypoints, skipped", err=True)
             return
-        wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp,
-                                                  floors_said, in_build)
+        wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp, floors_said)
         _warn_if_outside_map(bundle, trace.trace_id, xy_wp)
         if wr.kind == "ble":  # the scores of this walk are BLE's, not Wi-Fi's
             click.echo(f"{trace.trace_id}: start {how}", err=True)
@@ -388,6 +386,8 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
                                   "est_y_m": est[i, 1], "error_m": err[i]}
                                  for i in range(len(err)))
             failures.run(f"{f} ({_row_name(m, sm)})", run)
+        if trace.trace_id in evaluated:  # scored by some method: its scores are in-sample
+            in_build.check(bundle, trace.trace_id)
 
     for f in files:
         failures.run(f, lambda f=f: one(f))

@@ -286,7 +286,6 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
                                                                            maps.ble_window_ms),
                                   device_model=h.model or "")
         floors_said.say(trace.trace_id, bundle, how)
-        in_build.check(bundle, trace.trace_id)
         pos = bundle_positioner(bundle, kind)
         if pos is None:
             raise LocalizationError(f"{bundle.path}: no {kind} fingerprints in this bundle")
@@ -323,6 +322,7 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
                          "sigma_m": float(fixes.sigma_m[i]) if np.isfinite(fixes.sigma_m[i])
                          else "", "error_m": float(err[i]) if np.isfinite(err[i]) else ""})
         out.write(rows)
+        in_build.check(bundle, trace.trace_id)  # a walk that failed is not counted
         e = err[np.isfinite(err)]
         click.echo(f"{trace.trace_id}: {len(scans)} {kind} scans on {floor}, "
                    f"{int(located.sum())} located; "

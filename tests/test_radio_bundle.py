@@ -578,6 +578,10 @@ def test_localizing_a_walk_the_map_was_built_from_says_so(built, tmp_path):
     assert res.stderr.count(" was used to build ") == SeenWalks.NAMED
     assert (f"warning: {len(walks) - SeenWalks.NAMED} more walk(s) were used to build their "
             "bundle (") in res.stderr
+    # a walk that fails is not warned of (nor counted): it has no track to be better
+    res = runner.invoke(main, ["localize", str(built), str(walk), "-o", str(tmp_path / "far"),
+                               "--no-plot", "--start", "100000,100000"])
+    assert res.exit_code == 1 and "was used to build" not in res.stderr, res.output
 
 
 def test_evaluate_warns_about_waypoints_where_the_map_has_no_data(built, tmp_path):
