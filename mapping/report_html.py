@@ -153,8 +153,15 @@ class FloorCanvas:
 _LEFT, _CB_GAP, _CB_W, _CB_LABELS, _TITLE, _BOTTOM = 0.6, 0.08, 0.13, 0.85, 0.55, 0.5
 
 
+#: Map panels per row: the report's page is 1250 px wide, and a figure of three 6-inch panels
+#: at :data:`DPI` was shown at 60 % of its size, its 7-point labels unreadable.
+MAX_COLUMNS = 2
+
+
 def _panels(canvas: FloorCanvas, n: int, ncols: int, panel_w: float = 4.8):
-    """A figure of ``n`` map panels, each with a colour-bar axes (``ax._cax``)."""
+    """A figure of ``n`` map panels, each with a colour-bar axes (``ax._cax``), in rows of
+    ``ncols`` (at most :data:`MAX_COLUMNS`)."""
+    ncols = max(1, min(ncols, MAX_COLUMNS, n))
     nrows = math.ceil(n / ncols)
     map_w = panel_w
     map_h = map_w / canvas.aspect
@@ -464,12 +471,18 @@ def fig_cdfs(result: ValidationResult) -> bytes | None:
         if layer not in layers:
             layers.append(layer)
     n = len(layers) + (radio is not None)
-    fig = Figure(figsize=(4.6 * n, 3.6))
-    axes = fig.subplots(1, n, squeeze=False)
-    fig.subplots_adjust(left=0.6 / (4.6 * n), right=1 - 0.15 / (4.6 * n), bottom=0.15,
-                        top=0.9, wspace=0.25)
+    ncols = min(n, MAX_COLUMNS)
+    nrows = math.ceil(n / ncols)
+    fw, fh = 4.6 * ncols, 3.6 * nrows
+    fig = Figure(figsize=(fw, fh))
+    grid = fig.subplots(nrows, ncols, squeeze=False)
+    fig.subplots_adjust(left=0.6 / fw, right=1 - 0.15 / fw, bottom=0.55 / fh,
+                        top=1 - 0.36 / fh, wspace=0.25, hspace=0.45)
+    for ax in grid.flat[n:]:  # an odd count's empty last cell
+        ax.set_visible(False)
+    axes = list(grid.flat[:n])
     colors = {"constant map (floor mean)": "#999999", OURS: "#d7191c"}
-    for ax, layer in zip(axes[0], layers):
+    for ax, layer in zip(axes, layers):
         unit = "deg" if layer == "heading_offset" else "uT"
         for (pipe, la), v in res.items():
             if la != layer or not len(v):
@@ -489,7 +502,7 @@ def fig_cdfs(result: ValidationResult) -> bytes | None:
         ax.legend(fontsize=6.5, loc="lower right")
         ax.tick_params(labelsize=7)
     if radio is not None:
-        ax = axes[0][-1]
+        ax = axes[-1]
         curves = (("scan by scan", radio, "#2c7bb6"),
                   ("whole walk", result.arrays.get("radio_walk_errors_m"), "#d7191c"))
         for label, errors, color in curves:
