@@ -13,7 +13,7 @@ import click
 import numpy as np
 
 from localize.bundle import MapBundle, bundle_dirs, load_bundle
-from survey.errors import IndoormapError, at_path
+from survey.errors import IndoormapError, RegistryError, RollbackRefused, at_path
 
 from .bundle_report import bundle_differences, metric_lines
 from .registry import Registry
@@ -197,5 +197,11 @@ def bundle_use(registry: Path, site_floor: str, version: str, rollback: bool) ->
         known = ", ".join(f"#{h['seq']} {h['bundle_id'][:12]}" for h in history)
         raise click.BadParameter(f"{version!r} names {len(match)} versions of {site_floor}; "
                                  f"published: {known}", param_hint="VERSION")
-    reg.set_current(site, floor, match[0]["bundle_id"], allow_rollback=rollback)
+    try:
+        reg.set_current(site, floor, match[0]["bundle_id"], allow_rollback=rollback)
+    except RollbackRefused as err:
+        than = (f"the current #{err.current_seq}" if err.current_known else
+                f"the newest #{err.current_seq} (the current pointer is unreadable)")
+        raise RegistryError(f"{site_floor}: #{err.seq} is older than {than}; pass --rollback "
+                            "to go back to it") from err
     click.echo(f"{site_floor}: current is #{match[0]['seq']} {match[0]['bundle_id'][:16]}")

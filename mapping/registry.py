@@ -38,7 +38,7 @@ from localize.bundle import (
     registry_current,
     safe_name,
 )
-from survey.errors import RegistryError
+from survey.errors import RegistryError, RollbackRefused
 from survey.publish import atomic_directory, atomic_write_bytes, crash_point
 
 try:
@@ -175,16 +175,20 @@ class Registry:
         entry = next((h for h in history if h["bundle_id"] == bundle_id), None)
         if entry is None:
             raise RegistryError(f"{site}/{floor}: version {bundle_id} is not published")
+        known = True
         try:
             cur = self.current(site, floor, history)
         except RegistryError:
             # a damaged or dangling pointer is repaired by pointing it at a version; which one
             # was current is unknown, so anything but the newest counts as a rollback
-            cur = {"seq": max(h["seq"] for h in history)}
+            cur, known = {"seq": max(h["seq"] for h in history)}, False
         if cur is not None and entry["seq"] < cur["seq"] and not allow_rollback:
-            raise RegistryError(
-                f"{site}/{floor}: version {bundle_id[:12]} (#{entry['seq']}) is older than the "
-                f"current #{cur['seq']}; rolling back needs allow_rollback (CLI: --rollback)")
+            than = f"the current #{cur['seq']}" if known else \
+                f"the newest #{cur['seq']} (the current pointer is unreadable)"
+            raise RollbackRefused(
+                f"{site}/{floor}: version {bundle_id[:12]} (#{entry['seq']}) is older than "
+                f"{than}; rolling back needs allow_rollback=True",
+                seq=entry["seq"], current_seq=cur["seq"], current_known=known)
         if verify:
             load_bundle(self._floor(site, floor) / "versions" / bundle_id)  # intact, or refused
         atomic_write_bytes(self._floor(site, floor) / "CURRENT",

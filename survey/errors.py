@@ -84,3 +84,15 @@ class BundleIntegrityError(BundleError):
 
 class RegistryError(IndoormapError):
     """A bundle registry operation is refused (unknown version, silent rollback, ...)."""
+
+
+class RollbackRefused(RegistryError):
+    """Pointing a registry floor at an older version than its current one, without allowing
+    a rollback. ``seq`` and ``current_seq`` are the two versions' sequence numbers;
+    ``current_known`` is False when the pointer was unreadable and ``current_seq`` is the
+    newest version's."""
+
+    def __init__(self, message: str, *, seq: int, current_seq: int,
+                 current_known: bool = True) -> None:
+        super().__init__(message)
+        self.seq, self.current_seq, self.current_known = seq, current_seq, current_known

@@ -22,7 +22,7 @@ from mapping.bundle_report import bundle_differences, metric_lines
 from mapping.bundle_writer import BundleContent, Layer, write_bundle
 from mapping.registry import Registry
 from survey.cli import main
-from survey.errors import BundleError, BundleIntegrityError, RegistryError
+from survey.errors import BundleError, BundleIntegrityError, RegistryError, RollbackRefused
 
 
 def _content(offset: float = 0.0, floor: str = "F1") -> BundleContent:
@@ -382,8 +382,9 @@ def test_registry_versions_move_forward(tmp_path):
     assert (e1["seq"], e2["seq"]) == (1, 2)
     assert reg.open("site", "F1").bundle_id == e2["bundle_id"]
     assert reg.publish(tmp_path / "v2") == e2  # idempotent
-    with pytest.raises(RegistryError, match="rolling back needs allow_rollback"):
+    with pytest.raises(RollbackRefused, match="rolling back needs allow_rollback") as refused:
         reg.set_current("site", "F1", e1["bundle_id"])
+    assert (refused.value.seq, refused.value.current_seq) == (1, 2)
     reg.set_current("site", "F1", e1["bundle_id"], allow_rollback=True)
     assert reg.open("site", "F1").bundle_id == e1["bundle_id"]
     with pytest.raises(RegistryError, match="not published"):
@@ -493,7 +494,9 @@ def test_a_damaged_registry_is_named(tmp_path, name, text, message):
         for res in (use_old, use_new):
             assert res.exit_code == 1 and message in res.output
     else:
-        assert use_old.exit_code == 1 and "rolling back needs" in use_old.output
+        assert use_old.exit_code == 1 and ("#1 is older than the newest #2 (the current "
+                                           "pointer is unreadable); pass --rollback"
+                                           ) in use_old.output
         assert use_new.exit_code == 0, use_new.output
         assert Registry(reg).current("site", "F1")["seq"] == 2
 
@@ -515,7 +518,9 @@ def test_registry_command_line(tmp_path):
 
     assert listed() == [["site/F1", "#1", ids[0]], ["*", "site/F1", "#2", ids[1]]]
     back = run(main, ["bundle", "use", reg, "site/F1", "#1"])
-    assert back.exit_code == 1 and "rolling back needs" in back.output
+    assert back.exit_code == 1 and ("site/F1: #1 is older than the current #2; pass "
+                                    "--rollback to go back to it") in back.output
+    assert listed()[1][0] == "*"  # refused: #2 stays current
     assert run(main, ["bundle", "use", reg, "site/F1", "#1", "--rollback"]).exit_code == 0
     assert listed()[0] == ["*", "site/F1", "#1", ids[0]]
     assert run(main, ["bundle", "use", reg, "site/F1", ids[1][:10]]).exit_code == 0
