@@ -371,24 +371,27 @@ def fig_consistency(result: ValidationResult, canvas: FloorCanvas) -> bytes | No
         return None
     th = result.thresholds
     thr = th.get("disagreement_ut") or 3.0
-    map_w = 5.6
+    # the map above, the two bar charts below it (side by side the three were 17 inches wide)
+    bars_w, bars_h, label_w, gap = 3.3, 3.6, 1.0, 1.6
+    fw = label_w + bars_w + gap + bars_w + 0.3
+    map_w = min(5.6, fw - _LEFT - _CB_GAP - _CB_W - _CB_LABELS)
     map_h = map_w / canvas.aspect
-    fh = max(map_h, 3.6) + _TITLE + _BOTTOM
-    fw = _LEFT + map_w + _CB_GAP + _CB_W + _CB_LABELS + 1.0 + 3.3 + 1.6 + 3.3 + 0.3
+    bars_row = _TITLE + bars_h + _BOTTOM
+    fh = _TITLE + map_h + _BOTTOM + bars_row
     fig = Figure(figsize=(fw, fh))
-    y0 = _BOTTOM / fh
-    ax = fig.add_axes((_LEFT / fw, y0, map_w / fw, map_h / fh))
-    ax._cax = fig.add_axes(((_LEFT + map_w + _CB_GAP) / fw, y0, _CB_W / fw, map_h / fh))
+    y_map = (bars_row + _BOTTOM) / fh
+    ax = fig.add_axes((_LEFT / fw, y_map, map_w / fw, map_h / fh))
+    ax._cax = fig.add_axes(((_LEFT + map_w + _CB_GAP) / fw, y_map, _CB_W / fw, map_h / fh))
     canvas.base(ax)
     canvas.raster(ax, a["disagreement_strength"], grid=result.report_grid, cmap="YlOrRd",
                   vmin=0, vmax=2 * thr, label="SD between walks (uT)")
-    bar_h = (fh - _TITLE - _BOTTOM) / fh
-    x_bars = _LEFT + map_w + _CB_GAP + _CB_W + _CB_LABELS + 1.0
+    y0, bar_h = _BOTTOM / fh, bars_h / fh
+    x_bars = label_w
     d = con["disagreement_strength"]
     ax.set_title(f"where overlapping walks disagree (strength SD)\n"
                  f"{100 * (d['share_above'] or 0):.0f} % of {d['multi_walk_cells']} "
                  f"shared cells above {thr:g} uT", fontsize=8.5)
-    ax2 = fig.add_axes((x_bars / fw, y0, 3.3 / fw, bar_h))
+    ax2 = fig.add_axes((x_bars / fw, y0, bars_w / fw, bar_h))
     offs = [(w, r) for w, r in con["walk_offsets_ut"].items()
             if r.get("offset_ut") is not None]
     offs.sort(key=lambda wr: -wr[1]["offset_ut"])
@@ -412,7 +415,7 @@ def fig_consistency(result: ValidationResult, canvas: FloorCanvas) -> bytes | No
     ax2.set_title("walk offsets after levelling\n(largest 25; red dashes = threshold)",
                   fontsize=8.5)
     ax2.tick_params(labelsize=7)
-    ax3 = fig.add_axes(((x_bars + 3.3 + 1.6) / fw, y0, 3.3 / fw, bar_h))
+    ax3 = fig.add_axes(((x_bars + bars_w + gap) / fw, y0, bars_w / fw, bar_h))
     lev = con.get("levelling", [])
     if lev:
         lev = sorted(lev, key=lambda r: r["norm_ut"])[-25:]
