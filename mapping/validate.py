@@ -1328,7 +1328,9 @@ def validate_bundle(bundle: MapBundle | str | Path,
         content is checked (coverage from its manifest, levelling, predicted quality with a
         nominal noise level).
     thresholds : dict, optional
-        Full thresholds (see :func:`load_thresholds`); default :data:`DEFAULT_THRESHOLDS`.
+        Thresholds to change from :data:`DEFAULT_THRESHOLDS` (``None`` disables a check), as
+        :func:`load_thresholds` takes them: the others keep their defaults, and an unknown
+        key is a :class:`ValidationError` (a typo must not disable a check).
     floor_dir : path, optional
         Floor folder with ``floor_image.png`` / ``geojson_map.json`` for the figures (default:
         found from the store's source paths).
@@ -1338,7 +1340,7 @@ def validate_bundle(bundle: MapBundle | str | Path,
     b = bundle if isinstance(bundle, MapBundle) else load_bundle(bundle)
     if b.grid is None or b.mask is None:
         raise ValidationError(f"{b.path}: not a floor bundle (no grid)")
-    th = dict(thresholds) if thresholds is not None else dict(DEFAULT_THRESHOLDS)
+    th = load_thresholds(overrides=thresholds)  # partial: the rest are the defaults
     findings: list[Finding] = []
     arrays: dict = {}
     timings: dict[str, float] = {}

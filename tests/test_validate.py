@@ -35,6 +35,7 @@ from mapping.validate import (
     ValidationError,
     line_accounts,
     load_thresholds,
+    validate_bundle,
     walking_distance,
 )
 from survey.cli import main
@@ -233,6 +234,28 @@ def test_thresholds_file_overrides_and_rejects_unknown_keys(sites, tmp_path):
     with pytest.raises(ValidationError, match="finite number"):
         load_thresholds(overrides={"walk_offset_max_ut": "x"})
     assert load_thresholds() == DEFAULT_THRESHOLDS
+
+
+def test_python_thresholds_change_only_the_keys_given(sites):
+    """validate_bundle(thresholds=...) takes what to change, as the file does: given one key
+    it ran that check alone, and a misspelt key gave PASS on a floor that fails."""
+    _, bundle, store = sites["bad"]
+    params = ValidateParams(holdout=False, heading_holdout=False, radio=False)
+
+    def statuses(thresholds):
+        result = validate_bundle(bundle, store, thresholds=thresholds, params=params)
+        return result, {c["check"]: c["status"] for c in result.metrics["checks"]}
+
+    full, every = statuses(None)
+    relaxed, some = statuses({"walk_offset_max_ut": 50})
+    assert some.keys() == every.keys() and some["walk_offset"] == "pass"
+    assert {k: v for k, v in some.items() if k != "walk_offset"} == \
+        {k: v for k, v in every.items() if k != "walk_offset"}
+    assert relaxed.thresholds["coverage_within_2m_min"] == DEFAULT_THRESHOLDS[
+        "coverage_within_2m_min"]
+    assert statuses({})[0].verdict == full.verdict == "fail"
+    with pytest.raises(ValidationError, match="walk_ofset_max_ut"):
+        validate_bundle(bundle, store, thresholds={"walk_ofset_max_ut": 8}, params=params)
 
 
 def test_without_store_checks_the_bundle_alone(sites, tmp_path):
