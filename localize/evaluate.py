@@ -21,18 +21,29 @@ def waypoint_errors(track: Track, t_ms: ArrayLike, xy_m: ArrayLike) -> NDArray[n
     xy_m : array_like (k, 2)
         Reference positions (m).
     """
-    ref = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
-    est = track.at(np.asarray(t_ms, dtype=np.float64))
+    t = np.asarray(t_ms, dtype=np.float64).reshape(-1)
+    ref = _xy_rows(xy_m, len(t), "waypoint_errors")
+    est = track.at(t)
     return np.hypot(*(est - ref).T)
+
+
+def _xy_rows(xy_m: ArrayLike, n: int, where: str) -> NDArray[np.float64]:
+    """``xy_m`` as an (n, 2) array; a ValueError for any other shape (a (2, n) array was
+    read row-major, its x and y mixed)."""
+    ref = np.asarray(xy_m, dtype=np.float64)
+    if ref.size == 0 and n == 0:
+        return ref.reshape(0, 2)
+    if ref.shape != (n, 2):
+        hint = " (transposed? one row per point)" if ref.shape == (2, n) else ""
+        raise ValueError(f"{where}: positions of shape ({n}, 2) expected, one row per point, "
+                         f"got {ref.shape}{hint}")
+    return ref
 
 
 def step_errors(track: Track, true_xy_m: ArrayLike) -> NDArray[np.float64]:
     """Distance (m) between each step's estimate and the true position at that step
     (``true_xy_m`` shape (m, 2), one row per step of the track)."""
-    ref = np.asarray(true_xy_m, dtype=np.float64).reshape(-1, 2)
-    if len(ref) != len(track):
-        raise ValueError(f"step_errors: {len(ref)} true positions for a track of {len(track)} "
-                         "steps")
+    ref = _xy_rows(true_xy_m, len(track), "step_errors")
     return np.hypot(track.x_m - ref[:, 0], track.y_m - ref[:, 1])
 
 

@@ -124,9 +124,15 @@ def floor_samples(store: SurveyStore, site: str | None, floor: str) -> pd.DataFr
 def floor_walks(store: SurveyStore, site: str | None, floor: str,
                 exclude_walks: Collection[str] = ()) -> pd.DataFrame:
     """Processed-catalog rows of the floor's walks that processed ``ok``, minus
-    ``exclude_walks`` (trace ids); raises :class:`BuildError` when none is left."""
+    ``exclude_walks`` (trace ids of the store); raises :class:`BuildError` when none is left
+    or an excluded id is not in the store."""
     if isinstance(exclude_walks, str):
         raise TypeError("exclude_walks is a collection of trace ids, not one string")
+    unknown = sorted(set(map(str, exclude_walks)) - set(store.catalog()["trace_id"].astype(str)))
+    if unknown:  # a typo or a file name would leave the walk in the map, unseen
+        shown = ", ".join(unknown[:3]) + (", ..." if len(unknown) > 3 else "")
+        raise BuildError(f"{store.root}: exclude_walks names {len(unknown)} trace id(s) the "
+                         f"store does not hold: {shown} (trace ids, not file names)")
     pcat = processed_catalog(store)
     pcat = pcat[(pcat["floor"] == floor) & (pcat["status"] == "ok")]
     if site is not None:

@@ -147,6 +147,10 @@ def test_excluded_walks_stay_out_of_the_map(store):
         build_floor(store, plan, floor="F1", exclude_walks=set(walks))
     with pytest.raises(TypeError, match="collection of trace ids"):
         build_floor(store, plan, floor="F1", exclude_walks=walks[0])
+    # an id the store lacks (a typo, a file name) would leave its walk in an "unseen" map
+    with pytest.raises(BuildError, match=r"names 1 trace id\(s\) the store does not hold: "
+                                         rf"{walks[0]}\.txt\.gz \(trace ids, not file names\)"):
+        build_floor(store, plan, floor="F1", exclude_walks=[walks[1], f"{walks[0]}.txt.gz"])
 
 
 def test_release_free_memory_runs_twice():

@@ -15,7 +15,7 @@ from localize.methods import auto_method
 from localize.bundle import load_bundle
 from localize.engine import MultiUserEngine
 from localize.errors import LocalizationError
-from localize.evaluate import step_errors, summarize
+from localize.evaluate import step_errors, summarize, waypoint_errors
 from localize.filter import Localizer
 from localize.floors import SiteMaps
 from localize.params import FilterParams
@@ -308,8 +308,17 @@ def test_step_errors_needs_one_true_position_per_step():
     track = Track(z, np.array([0.0, 1.0, 2.0]), z, z, np.ones(3), np.zeros(3, bool),
                   Estimate(0.0, 0.0, 0.0))
     np.testing.assert_allclose(step_errors(track, [[0, 0], [1, 1], [2, 0]]), [0, 1, 0])
-    with pytest.raises(ValueError, match="1 true positions for a track of 3 steps"):
+    with pytest.raises(ValueError, match=r"step_errors: positions of shape \(3, 2\) expected, "
+                                         r"one row per point, got \(1, 2\)"):
         step_errors(track, [[0.0, 0.0]])  # before: broadcast against every step
+    # waypoints given as (2, k), x and y mixed up by a row-major reshape before
+    timed = Track(np.array([0.0, 1.0, 2.0]), np.array([0.0, 1.0, 2.0]), z, z, np.ones(3),
+                  np.zeros(3, bool), Estimate(-1.0, 0.0, 0.0))
+    t_wp, xy_wp = [0.0, 1.0, 2.0], np.array([[0.0, 1.0, 2.0], [0.0, 1.0, 0.0]])
+    with pytest.raises(ValueError, match=r"got \(2, 3\) \(transposed\? one row per point\)"):
+        waypoint_errors(timed, t_wp, xy_wp)
+    np.testing.assert_allclose(waypoint_errors(timed, t_wp, xy_wp.T), [0, 1, 0])
+    assert waypoint_errors(timed, [], np.empty(0)).shape == (0,)
 
 
 def test_engine_radio_fixes_bring_wrongly_started_users_back(f1_bundle, sim_walks):  # noqa: F811
