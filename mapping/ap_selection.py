@@ -100,7 +100,7 @@ class APSelection:
         """:meth:`summary` as text, e.g. ``hotspot_ssid 70, moved 17, rare 218; 22 for more
         than one reason`` (the counts then add up to more than the dropped); '' if none."""
         text = ", ".join(f"{k} {v}" for k, v in self.summary().items())
-        several = sum(";" in r for r in self.dropped["reason"])  # none: an empty float column
+        several = sum(";" in r for r in self.dropped["reason"])  # not .str: empty is float
         return text + (f"; {several} for more than one reason" if several else "")
 
 

@@ -128,7 +128,8 @@ def floor_walks(store: SurveyStore, site: str | None, floor: str,
     or an excluded id is not in the store."""
     if isinstance(exclude_walks, str):
         raise TypeError("exclude_walks is a collection of trace ids, not one string")
-    unknown = sorted(set(map(str, exclude_walks)) - set(store.catalog()["trace_id"].astype(str)))
+    unknown = sorted(set(map(str, exclude_walks)) - set(store.catalog()["trace_id"].astype(str))
+                     ) if len(exclude_walks) else []
     if unknown:  # a typo or a file name would leave the walk in the map, unseen
         shown = ", ".join(unknown[:3]) + (", ..." if len(unknown) > 3 else "")
         raise BuildError(f"{store.root}: exclude_walks names {len(unknown)} trace id(s) the "

@@ -340,7 +340,7 @@ def fig_coverage(result: ValidationResult, canvas: FloorCanvas) -> bytes | None:
 def fig_layers(result: ValidationResult, canvas: FloorCanvas, std: bool = False) -> bytes:
     b = result.bundle
     names = list(b.manifest["layers"])
-    fig, axes = _panels(canvas, len(names), 3, panel_w=4.6)
+    fig, axes = _panels(canvas, len(names), MAX_COLUMNS, panel_w=4.6)
     for ax, name in zip(axes, names):
         meta = b.manifest["layers"][name]
         canvas.base(ax)
@@ -444,7 +444,7 @@ def fig_heldout_maps(result: ValidationResult, canvas: FloorCanvas) -> bytes | N
     if not names and radio is None:
         return None
     n = len(names) + (radio is not None)
-    fig, axes = _panels(canvas, n, n, panel_w=5.0)
+    fig, axes = _panels(canvas, n, MAX_COLUMNS, panel_w=5.0)
     if radio is not None:
         canvas.base(axes[-1])
         canvas.raster(axes[-1], radio, grid=result.report_grid, cmap="YlOrRd", vmin=0,
@@ -530,7 +530,7 @@ def fig_predicted(result: ValidationResult, canvas: FloorCanvas) -> bytes | None
     pr = result.metrics["predicted"]
     lim = pr["magnetic_resolution_m"]["limit_m"]
     n = 2 + ("radio_bound_m" in a)
-    fig, axes = _panels(canvas, n, n, panel_w=5.4)
+    fig, axes = _panels(canvas, n, MAX_COLUMNS, panel_w=5.4)
     canvas.base(axes[0])
     res = a["magnetic_resolution_m"]
     fin = res[np.isfinite(res)]

@@ -5,6 +5,7 @@ Exit codes: 0 success, 1 data or validation failure, 2 usage error (click's own)
 
 from __future__ import annotations
 
+import difflib
 import importlib
 import os
 import signal
@@ -70,6 +71,15 @@ class _Group(click.Group):
         command = getattr(importlib.import_module(module), attribute)
         command.short_help = short_help
         return command
+
+    def resolve_command(self, ctx: click.Context, args: list[str]):
+        name = args[0] if args else ""
+        if name not in COMMANDS and not name.startswith("-") and not ctx.resilient_parsing:
+            # click's own "Did you mean" reads self.commands, which the table leaves empty
+            close = difflib.get_close_matches(name, list(COMMANDS), n=1)
+            raise click.UsageError(f"No such command {name!r}."
+                                   + (f" Did you mean {close[0]!r}?" if close else ""), ctx)
+        return super().resolve_command(ctx, args)
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
         """The command list from :data:`COMMANDS`, without importing the commands."""

@@ -521,6 +521,9 @@ def test_registry_command_line(tmp_path):
     assert back.exit_code == 1 and ("site/F1: #1 is older than the current #2; pass "
                                     "--rollback to go back to it") in back.output
     assert listed()[1][0] == "*"  # refused: #2 stays current
+    again = run(main, ["bundle", "publish", str(tmp_path / "v1"), "--registry", reg])
+    assert again.exit_code == 1 and "already published as #1, older than the current #2; " \
+        "to make it current: indoormap bundle use" in again.output
     assert run(main, ["bundle", "use", reg, "site/F1", "#1", "--rollback"]).exit_code == 0
     assert listed()[0] == ["*", "site/F1", "#1", ids[0]]
     assert run(main, ["bundle", "use", reg, "site/F1", ids[1][:10]]).exit_code == 0
