@@ -170,7 +170,7 @@ def bundle_publish(paths: tuple[Path, ...], registry_dir: Path, no_current: bool
             e = reg.publish(p, make_current=not no_current)
         except RollbackRefused as err:  # an older version published again
             raise RegistryError(f"{p}: already published as #{err.seq}, older than "
-                                f"{_than(err)}; to make it current: indoormap bundle use "
+                                f"{err.current_text}; to make it current: indoormap bundle use "
                                 f"{registry_dir} SITE/FLOOR '#{err.seq}' --rollback") from err
         click.echo(f"{p}: {e['bundle_id'][:16]} #{e['seq']}"
                    + ("" if no_current else " (current)"))
@@ -205,12 +205,6 @@ def bundle_use(registry: Path, site_floor: str, version: str, rollback: bool) ->
     try:
         reg.set_current(site, floor, match[0]["bundle_id"], allow_rollback=rollback)
     except RollbackRefused as err:
-        raise RegistryError(f"{site_floor}: #{err.seq} is older than {_than(err)}; pass "
+        raise RegistryError(f"{site_floor}: #{err.seq} is older than {err.current_text}; pass "
                             "--rollback to go back to it") from err
     click.echo(f"{site_floor}: current is #{match[0]['seq']} {match[0]['bundle_id'][:16]}")
-
-
-def _than(err: RollbackRefused) -> str:
-    """The version a refused rollback is older than, in words."""
-    return (f"the current #{err.current_seq}" if err.current_known else
-            f"the newest #{err.current_seq} (the current pointer is unreadable)")

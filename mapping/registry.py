@@ -183,12 +183,8 @@ class Registry:
             # was current is unknown, so anything but the newest counts as a rollback
             cur, known = {"seq": max(h["seq"] for h in history)}, False
         if cur is not None and entry["seq"] < cur["seq"] and not allow_rollback:
-            than = f"the current #{cur['seq']}" if known else \
-                f"the newest #{cur['seq']} (the current pointer is unreadable)"
-            raise RollbackRefused(
-                f"{site}/{floor}: version {bundle_id[:12]} (#{entry['seq']}) is older than "
-                f"{than}; rolling back needs allow_rollback=True",
-                seq=entry["seq"], current_seq=cur["seq"], current_known=known)
+            raise RollbackRefused(f"{site}/{floor}", bundle_id, seq=entry["seq"],
+                                  current_seq=cur["seq"], current_known=known)
         if verify:
             load_bundle(self._floor(site, floor) / "versions" / bundle_id)  # intact, or refused
         atomic_write_bytes(self._floor(site, floor) / "CURRENT",

@@ -158,10 +158,10 @@ _LEFT, _CB_GAP, _CB_W, _CB_LABELS, _TITLE, _BOTTOM = 0.6, 0.08, 0.13, 0.85, 0.55
 MAX_COLUMNS = 2
 
 
-def _panels(canvas: FloorCanvas, n: int, ncols: int, panel_w: float = 4.8):
+def _panels(canvas: FloorCanvas, n: int, panel_w: float = 4.8):
     """A figure of ``n`` map panels, each with a colour-bar axes (``ax._cax``), in rows of
-    ``ncols`` (at most :data:`MAX_COLUMNS`)."""
-    ncols = max(1, min(ncols, MAX_COLUMNS, n))
+    :data:`MAX_COLUMNS`."""
+    ncols = max(1, min(MAX_COLUMNS, n))
     nrows = math.ceil(n / ncols)
     map_w = panel_w
     map_h = map_w / canvas.aspect
@@ -310,7 +310,7 @@ def fig_coverage(result: ValidationResult, canvas: FloorCanvas) -> bytes | None:
     if "walking_distance_m" not in a:
         return None
     cov = result.metrics["coverage"]
-    fig, (ax1, ax2) = _panels(canvas, 2, 2)
+    fig, (ax1, ax2) = _panels(canvas, 2)
     canvas.base(ax1)
     d = np.where(np.isinf(a["walking_distance_m"]), 99.0, a["walking_distance_m"])
     lim = cov["unsupported_distance_m"]
@@ -340,7 +340,7 @@ def fig_coverage(result: ValidationResult, canvas: FloorCanvas) -> bytes | None:
 def fig_layers(result: ValidationResult, canvas: FloorCanvas, std: bool = False) -> bytes:
     b = result.bundle
     names = list(b.manifest["layers"])
-    fig, axes = _panels(canvas, len(names), MAX_COLUMNS, panel_w=4.6)
+    fig, axes = _panels(canvas, len(names), panel_w=4.6)
     for ax, name in zip(axes, names):
         meta = b.manifest["layers"][name]
         canvas.base(ax)
@@ -444,7 +444,7 @@ def fig_heldout_maps(result: ValidationResult, canvas: FloorCanvas) -> bytes | N
     if not names and radio is None:
         return None
     n = len(names) + (radio is not None)
-    fig, axes = _panels(canvas, n, MAX_COLUMNS, panel_w=5.0)
+    fig, axes = _panels(canvas, n, panel_w=5.0)
     if radio is not None:
         canvas.base(axes[-1])
         canvas.raster(axes[-1], radio, grid=result.report_grid, cmap="YlOrRd", vmin=0,
@@ -530,7 +530,7 @@ def fig_predicted(result: ValidationResult, canvas: FloorCanvas) -> bytes | None
     pr = result.metrics["predicted"]
     lim = pr["magnetic_resolution_m"]["limit_m"]
     n = 2 + ("radio_bound_m" in a)
-    fig, axes = _panels(canvas, n, MAX_COLUMNS, panel_w=5.4)
+    fig, axes = _panels(canvas, n, panel_w=5.4)
     canvas.base(axes[0])
     res = a["magnetic_resolution_m"]
     fin = res[np.isfinite(res)]

@@ -90,9 +90,13 @@ class RollbackRefused(RegistryError):
     """Pointing a registry floor at an older version than its current one, without allowing
     a rollback. ``seq`` and ``current_seq`` are the two versions' sequence numbers;
     ``current_known`` is False when the pointer was unreadable and ``current_seq`` is the
-    newest version's."""
+    newest version's. ``current_text`` says which: ``the current #2``, or ``the newest #2
+    (the current pointer is unreadable)``."""
 
-    def __init__(self, message: str, *, seq: int, current_seq: int,
+    def __init__(self, where: str, bundle_id: str, *, seq: int, current_seq: int,
                  current_known: bool = True) -> None:
-        super().__init__(message)
         self.seq, self.current_seq, self.current_known = seq, current_seq, current_known
+        self.current_text = (f"the current #{current_seq}" if current_known else
+                             f"the newest #{current_seq} (the current pointer is unreadable)")
+        super().__init__(f"{where}: version {bundle_id[:12]} (#{seq}) is older than "
+                         f"{self.current_text}; rolling back needs allow_rollback=True")
