@@ -45,7 +45,7 @@ from localize.errors import LocalizationError
 from localize.filter import BaseLocalizer, check_step_time
 from localize.params import MAX_STEP_M
 from localize.radio import RadioModel
-from localize.steps import AttitudeCode, StepSummaries, StepSummary
+from localize.steps import AttitudeCode, RadioScan, StepSummaries, StepSummary
 from localize.track import Estimate, Track
 
 __all__ = ["AlignParams", "WalkAligner", "distance_from_mask_m", "walk_shape"]
@@ -312,10 +312,9 @@ class WalkAligner(BaseLocalizer):
     of ``start_sd_m``; without one the walk's first fix is used from the start on, as the
     particle filters start from it. See the module docstring.
 
-    Streaming from a given start gives ``run``'s track. Started from a scan, it does not:
-    ``run`` dates the first fix at its scan's own time and does not apply that scan again at
-    its step, where ``start(scan=...)`` then ``step`` over every step applies it twice (on a
-    real site1 walk the tracks differed by up to 1.6 m; session 41, not mended).
+    Streaming gives ``run``'s track, from a given start or from a scan: ``start(scan=...)``
+    dates the fix at the scan's own time, and ``step`` does not apply that scan again when
+    its step brings it (the same object, or a scan with the same time).
 
     Parameters
     ----------
@@ -346,6 +345,7 @@ class WalkAligner(BaseLocalizer):
         self._fix_t: list[float] = []
         self._fix_z: list[complex] = []
         self._start_given = False
+        self._start_scan: RadioScan | None = None  # the scan the start was located from
         self._pos = 0j          # current estimate (complex m)
         self._spread = 0.0
         #: last alignment: (absolute rotation rad, scale, first index of its window in _t,
@@ -362,9 +362,24 @@ class WalkAligner(BaseLocalizer):
         return Estimate(t_ms, x, y, 0.0 if sigma is None else float(sigma), 1.0, False,
                         self.bundle.floor_id)
 
+    def start(self, x_m: float | None = None, y_m: float | None = None, *, t_ms: float = 0.0,
+              scan: RadioScan | None = None, half_width_m: float | None = None) -> Estimate:
+        """:meth:`BaseLocalizer.start`; a start located from ``scan`` is a fix at the scan's
+        own time (as in :meth:`run`), and that scan is not applied again by :meth:`step`."""
+        est = super().start(x_m, y_m, t_ms=t_ms, scan=scan, half_width_m=half_width_m)
+        if scan is not None and not self._start_given:
+            self._fix_t[0] = _scan_time(scan, t_ms)
+            self._start_scan = scan
+        return est
+
+    def _is_start_scan(self, scan: RadioScan) -> bool:
+        first = self._start_scan
+        return first is not None and (scan is first or bool(scan.t_ms)
+                                      and scan.t_ms == first.t_ms)
+
     def step(self, s: StepSummary) -> Estimate:
-        located = (self.radio.locate(s.scan)
-                   if s.scan is not None and self.radio is not None else None)
+        located = (self.radio.locate(s.scan) if s.scan is not None and self.radio is not None
+                   and not self._is_start_scan(s.scan) else None)
         fix = None if located is None else (located[0], located[1],
                                             _scan_time(s.scan, s.t_ms))
         return self.step_values(s.t_ms, s.compass_deg, s.relative_heading_deg,
