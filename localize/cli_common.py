@@ -146,8 +146,6 @@ def read_walk(path: Path) -> Trace:
     from survey.trace_reader import read_trace
 
     trace = read_trace(path)
-    if trace.is_empty:
-        raise SurveyFormatError(trace.empty_reason(), path=str(path), reason="empty")
     mismatch = trace.clock_mismatch()
     if mismatch:
         raise SurveyFormatError(mismatch, path=str(path), reason="clock")

@@ -90,11 +90,6 @@ def _parse_and_write(root: str, paths: list[str], shas: list[str], sizes: list[i
     for item in iter_traces(paths, strict=strict, batch_bytes=batch_bytes):
         if isinstance(item, ReadFailure):
             out.append((item.path, None, str(item.error)))
-        elif item.is_empty:
-            if strict:
-                raise SurveyFormatError(item.empty_reason(), path=item.report.path,
-                                        reason="empty")
-            out.append((item.report.path, None, item.empty_reason()))
         else:
             sha, size = info[item.report.path]
             row = catalog_row(item, source_path=item.report.path, sha256=sha, size_bytes=size)

@@ -71,7 +71,12 @@ def read_trace_bytes(path: str | os.PathLike, *, strict: bool = False,
 
 
 def not_regular(path: str | os.PathLike) -> SurveyFormatError:
-    """The error for a path that is not a regular file (nor a folder)."""
+    """The error for a path that is not a regular file: a folder where one file was wanted,
+    or a FIFO, socket or device."""
+    if os.path.isdir(path):
+        return SurveyFormatError("a folder, not a trace file: give one .txt or .txt.gz file "
+                                 "(iter_traces(find_trace_files([folder])) reads a folder's)",
+                                 path=str(path), reason="not_regular")
     return SurveyFormatError("not a regular file (a FIFO, socket or device, or a link to one, "
                              "could block or never end), not read", path=str(path),
                              reason="not_regular")

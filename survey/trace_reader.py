@@ -906,12 +906,17 @@ def read_trace(path: str | os.PathLike, *, strict: bool = False,
     Raises
     ------
     SurveyFormatError
-        Unreadable file (or not a regular file), over-size input, a damaged gzip stream, a
-        header giving one key two different values (two traces joined into one file), or
-        (strict) the first malformed line, naming ``file:line`` and the reason.
+        Unreadable file (or not a regular file: a folder, a FIFO), over-size input, a damaged
+        gzip stream, a header giving one key two different values (two traces joined into one
+        file), no sensor sample, waypoint or scan at all (empty, or not a trace file: reason
+        ``"empty"``), or (strict) the first malformed line, naming ``file:line`` and the
+        reason.
     """
     data, note = read_trace_bytes(path, strict=strict, max_bytes=max_bytes)
-    return parse_trace_bytes(data, path=str(path), strict=strict, note=note)
+    trace = parse_trace_bytes(data, path=str(path), strict=strict, note=note)
+    if trace.is_empty:
+        raise _not_a_trace(trace)
+    return trace
 
 
 @dataclass
@@ -928,9 +933,27 @@ def iter_traces(paths: Iterable[str | os.PathLike], *, strict: bool = False,
     """Read traces in batches of about ``batch_bytes`` of text, yielding them in path order.
 
     In lenient mode a file that cannot be read at all (I/O error, not a regular file,
-    over-size, damaged gzip stream, conflicting header: two traces joined) is yielded as a
-    :class:`ReadFailure` and reading goes on; in strict mode its error is raised.
+    over-size, damaged gzip stream, conflicting header: two traces joined, no record at all:
+    empty or not a trace file) is yielded as a :class:`ReadFailure` and reading goes on; in
+    strict mode its error is raised.
     """
+    for item in _read_batched(paths, strict=strict, batch_bytes=batch_bytes,
+                              max_bytes=max_bytes):
+        if isinstance(item, Trace) and item.is_empty:
+            if strict:
+                raise _not_a_trace(item)
+            item = ReadFailure(item.report.path, _not_a_trace(item))
+        yield item
+
+
+def _not_a_trace(trace: Trace) -> SurveyFormatError:
+    """The error for a file read without any record (see :attr:`Trace.is_empty`)."""
+    return SurveyFormatError(trace.empty_reason(), path=trace.report.path, reason="empty")
+
+
+def _read_batched(paths: Iterable[str | os.PathLike], *, strict: bool, batch_bytes: int,
+                  max_bytes: int) -> Iterator[Trace | ReadFailure]:
+    """:func:`iter_traces` without its refusal of files without a record."""
     batches = _batches(paths, strict=strict, batch_bytes=batch_bytes, max_bytes=max_bytes)
     with ThreadPoolExecutor(max_workers=1) as stage:
         pending: Future | None = None  # the batch being prepared

@@ -640,7 +640,10 @@ def check_trace_files(paths: Sequence[Path], store: Path | None = None) -> list[
                         or err.reason == "header_conflict"):
                     p += _refused_in_both_modes(
                         lambda path=path: read_trace(path, strict=True), str(err))
-                else:  # only unreadable files, streams damaged inside and joined walks may
+                elif err.reason == "empty":  # no record at all: strict refuses it too
+                    p += _strict_refuses(lambda path=path: read_trace(path, strict=True))
+                else:  # only unreadable files, streams damaged inside, joined walks and
+                    # files without a single record may
                     p.append(f"lenient_raised: {err.reason}: {err}")
             except Exception as err:  # noqa: BLE001
                 p.append(f"lenient_raised: {type(err).__name__}: {err}")
@@ -676,6 +679,18 @@ def check_trace_files(paths: Sequence[Path], store: Path | None = None) -> list[
     if store is not None:
         problems = [p + check_ingest(paths, store) for p in problems]
     return problems
+
+
+def _strict_refuses(strict_read: Callable[[], object]) -> list[str]:
+    """A file lenient mode refuses as holding no record is refused by strict mode too (at its
+    first bad line, or as empty)."""
+    try:
+        strict_read()
+    except SurveyFormatError:
+        return []
+    except Exception as err:  # noqa: BLE001
+        return [f"strict_raised: {type(err).__name__}: {err}"]
+    return ["strict_mismatch: strict read what lenient refused as holding no record"]
 
 
 def _refused_in_both_modes(strict_read: Callable[[], object], lenient: str) -> list[str]:

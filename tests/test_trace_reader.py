@@ -179,11 +179,27 @@ def test_nan_with_a_payload_is_non_finite_on_both_paths():
 
 
 def test_empty_file(tmp_path):
+    t = parse_trace_bytes(b"")
+    assert t.report.lines_total == 0 and len(t.sensors) == 0 and len(t.waypoints) == 0
+    assert list(t.sensors.columns)[:2] == ["stream", "t_ms"] and t.is_empty
     p = tmp_path / "empty.txt"
     p.write_bytes(b"")
-    t = read_trace(p)
-    assert t.report.lines_total == 0 and len(t.sensors) == 0 and len(t.waypoints) == 0
-    assert list(t.sensors.columns)[:2] == ["stream", "t_ms"]
+    with pytest.raises(SurveyFormatError, match=r"empty\.txt: no sensor sample, waypoint or "
+                       r"scan in 0 lines \(0 bad\): empty, or not a trace file") as ei:
+        read_trace(p)
+    assert ei.value.reason == "empty"
+
+
+def test_a_file_of_another_kind_or_a_folder_is_refused_naming_it(tmp_path):
+    """A floor's JSON files and its folder are what a user passes by mistake: each is refused
+    naming the path and saying what it is, not read as an empty walk or called a FIFO."""
+    info = tmp_path / "floor_info.json"
+    info.write_text('{"map_info": {"width": 250.2, "height": 200.1}}\n')
+    with pytest.raises(SurveyFormatError, match=r"floor_info\.json: no sensor sample.* in 1 "
+                       r"lines \(1 bad\): empty, or not a trace file \(first problem"):
+        read_trace(info)
+    with pytest.raises(SurveyFormatError, match=rf"{tmp_path}: a folder, not a trace file"):
+        read_trace(tmp_path)
 
 
 @pytest.mark.parametrize("n_waypoints", [0, 1])
@@ -234,9 +250,11 @@ def test_random_bytes(tmp_path):
     rng = np.random.default_rng(0)
     p = tmp_path / "noise.txt"
     p.write_bytes(rng.integers(0, 256, 20000, dtype=np.uint8).tobytes())
-    t = read_trace(p)
+    t = parse_trace_bytes(p.read_bytes(), path=str(p))
     assert t.report.accounted_lines() == t.report.lines_total
     assert len(t.sensors) == 0
+    with pytest.raises(SurveyFormatError, match="noise.txt: no sensor sample, waypoint or scan"):
+        read_trace(p)
     with pytest.raises(SurveyFormatError, match="noise.txt:1"):
         read_trace(p, strict=True)
     gz = tmp_path / "noise.txt.gz"
