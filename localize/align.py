@@ -42,7 +42,7 @@ from numpy.typing import NDArray
 
 from localize.bundle import Grid, MapBundle
 from localize.errors import LocalizationError
-from localize.filter import BaseLocalizer, check_step_time
+from localize.filter import BaseLocalizer, check_step, check_step_time
 from localize.params import MAX_STEP_M
 from localize.radio import RadioModel
 from localize.steps import AttitudeCode, RadioScan, StepSummaries, StepSummary
@@ -378,6 +378,9 @@ class WalkAligner(BaseLocalizer):
                                       and scan.t_ms == first.t_ms)
 
     def step(self, s: StepSummary) -> Estimate:
+        """Advance by one step (and its scan's fix, unless it is the start's scan) and return
+        the new real-time estimate; see :meth:`step_values`."""
+        check_step(s, self)
         located = (self.radio.locate(s.scan) if s.scan is not None and self.radio is not None
                    and not self._is_start_scan(s.scan) else None)
         fix = None if located is None else (located[0], located[1],

@@ -18,13 +18,14 @@ import numpy as np
 from localize.align import WalkAligner
 from localize.bundle import MapBundle
 from localize.errors import LocalizationError
-from localize.filter import BaseLocalizer, Localizer, check_step_time
+from localize.filter import BUNDLE_HINT, BaseLocalizer, Localizer, check_step, check_step_time
 from localize.maps import FilterMap
 from localize.methods import METHODS, PARTICLE_FILTERS, SMOOTHABLE, WEIGHT_MODE_OF, auto_method
 from localize.params import FilterParams
 from localize.radio import RadioModel
 from localize.steps import StepSummaries, StepSummary
 from localize.track import Estimate
+from survey.errors import require_type
 
 __all__ = ["METHODS", "PARTICLE_FILTERS", "PdrLocalizer", "RadioOnlyLocalizer", "SMOOTHABLE",
            "make_localizer"]
@@ -58,6 +59,7 @@ class PdrLocalizer(BaseLocalizer):
         return Estimate(t_ms, x, y, 0.0, 1.0, False, self.bundle.floor_id)
 
     def step(self, s: StepSummary) -> Estimate:
+        check_step(s, self)
         if self._last is None:
             raise LocalizationError("call start() (or run()) before step()")
         check_step_time(s.t_ms, self._last.t_ms)
@@ -92,6 +94,7 @@ class RadioOnlyLocalizer(BaseLocalizer):
                         self.bundle.floor_id)
 
     def step(self, s: StepSummary) -> Estimate:
+        check_step(s, self)
         if self._last is None:
             raise LocalizationError("call start() (or run()) before step()")
         check_step_time(s.t_ms, self._last.t_ms)
@@ -118,6 +121,7 @@ def make_localizer(method: str, bundle: MapBundle, params: FilterParams | None =
     """
     if method not in METHODS:
         raise LocalizationError(f"unknown method {method!r}; expected one of {sorted(METHODS)}")
+    require_type(bundle, MapBundle, "make_localizer(bundle)", BUNDLE_HINT)
     if method == "auto":  # by the floor map's measured quality (localize.methods)
         method, guided, _ = auto_method(bundle.manifest.get("metrics") or {})
         params = replace(params or FilterParams(), radio_guide="align" if guided else "fixes")

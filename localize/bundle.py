@@ -358,8 +358,12 @@ class BilinearLookup:
         g = grid
         row, col, inside = g.cell_of(x, y)
         own_ok = inside & mask[row, col]
-        fx = (x - g.x0_m) / g.cell_m - 0.5
-        fy = (y - g.y0_m) / g.cell_m - 0.5
+        # Off-grid and non-finite points (NaN: no position) are held just off the grid, so
+        # that every corner is invalid and the integer cast below is defined.
+        fx = np.nan_to_num(np.clip((x - g.x0_m) / g.cell_m - 0.5, -2.0, g.width + 1.0),
+                           nan=-2.0)
+        fy = np.nan_to_num(np.clip((y - g.y0_m) / g.cell_m - 0.5, -2.0, g.height + 1.0),
+                           nan=-2.0)
         j0, i0 = np.floor(fx).astype(np.int64), np.floor(fy).astype(np.int64)
         wx, wy = fx - j0, fy - i0
         corner, weight, valid = [], [], []

@@ -38,6 +38,7 @@ from localize.stepper import StepInputs, advance
 from localize.steps import RadioScan, StepSummaries, StepSummary
 from localize.track import Estimate, Track
 from localize.update import position_update, radio_likelihood, radio_update
+from survey.errors import require_type
 
 __all__ = ["BaseLocalizer", "Localizer", "first_radio_fix", "make_rng"]
 
@@ -72,6 +73,20 @@ def check_step_time(t_ms: float, last_t_ms: float) -> None:
                                 "or has no time")
 
 
+#: How to get a floor's map (what a wrong-type error suggests).
+BUNDLE_HINT = ("localize.bundle.load_bundle(path) opens one; "
+               "localize.floors.SiteMaps.open(folder) a site's")
+#: How to get a walk's steps (what a wrong-type error suggests).
+STEPS_HINT = "survey.step_summaries.step_summaries(trace) gives a walk's"
+
+
+def check_step(s: StepSummary, owner: object) -> None:
+    """Refuse what is not one :class:`StepSummary` (the whole walk, say: :meth:`run` takes
+    that) as ``owner``'s step."""
+    require_type(s, StepSummary, f"{type(owner).__name__}.step(s)",
+                 "one element of StepSummaries; run() localizes a whole walk")
+
+
 #: How far (m) outside the floor's grid a given start may lie (the filter's start square
 #: doubles up to 200 m looking for reachable cells; farther is a wrong floor or wrong units).
 MAX_START_OFF_MAP_M = 200.0
@@ -90,6 +105,7 @@ class BaseLocalizer:
     can_smooth = False
 
     def __init__(self, bundle: MapBundle, *, radio: RadioModel | None = None) -> None:
+        require_type(bundle, MapBundle, f"{type(self).__name__}(bundle)", BUNDLE_HINT)
         if bundle.grid is None or bundle.mask is None:
             raise LocalizationError(f"{bundle.path}: a site-level bundle has no floor map; "
                                     "give a floor bundle")
@@ -162,6 +178,7 @@ class BaseLocalizer:
     def check(self, steps: StepSummaries) -> None:
         """Refuse walks this method cannot localize on its bundle (see
         :func:`~localize.floors.check_walk_fits`)."""
+        require_type(steps, StepSummaries, f"{type(self).__name__}.run(steps)", STEPS_HINT)
         check_walk_fits(self.bundle, steps)
         if self.needs_magnetometer and not steps.has_magnetometer:
             raise LocalizationError(f"{steps.trace_id or 'walk'}: no magnetometer values; "
@@ -309,6 +326,7 @@ class Localizer(BaseLocalizer):
         LocalizationError
             Called before :meth:`start`, or a step without a finite compass heading.
         """
+        check_step(s, self)
         if self.state is None or self._last is None:
             raise LocalizationError("call start() (or run()) before step()")
         if not np.isfinite(s.compass_deg):

@@ -22,6 +22,15 @@ def at_path(path: object, text: str) -> str:
     return f"{p}: {text}"
 
 
+def require_type(value: object, expected: type, what: str, hint: str) -> None:
+    """Refuse ``value`` unless it is an ``expected``: a :class:`TypeError` naming ``what`` was
+    given and ``hint``, how to get the right thing (a path where a parsed trace belongs is the
+    usual slip; without the check it fails deep inside with an attribute error)."""
+    if not isinstance(value, expected):
+        raise TypeError(f"{what}: a {expected.__name__} is needed ({hint}), "
+                        f"not {type(value).__name__}")
+
+
 class SurveyFormatError(IndoormapError, ValueError):
     """A survey file (trace, walk-line CSV, walk plan) does not follow its format.
 

@@ -35,7 +35,7 @@ from localize.steps import AttitudeCode, RadioScan, StepSummaries, attach_scans,
     attitude_codes, ble_transmitter_ids
 from survey.attitude import AttitudeParams, classify_attitude
 from survey.carried_heading import CarriedHeadingParams, carried_heading_deg
-from survey.errors import ProcessingError
+from survey.errors import ProcessingError, require_type
 from survey.field_features import field_features
 from survey.process import _stream, accelerometer_stream, calibrated_field, compass_track_deg, \
     gyro_heading_deg, waypoints_off_sensors
@@ -74,10 +74,15 @@ class StepSummaryParams:
     carried: CarriedHeadingParams = field(default_factory=CarriedHeadingParams)
 
 
+#: How to get a :class:`Trace` (what a wrong-type error suggests).
+READ_HINT = "survey.trace_reader.read_trace(path) parses a trace file"
+
+
 def scans_of(trace: Trace, max_age_ms: float | None = None) -> list[RadioScan]:
     """The Wi-Fi scans of a trace, by time, each row with its age (ms; the matchers
     down-weight old rows, :data:`localize.radio_match.AGE_FRESH_MS`). ``max_age_ms`` drops
     older rows (None keeps all)."""
+    require_type(trace, Trace, "scans_of", READ_HINT)
     wifi = trace.wifi
     if wifi is None or not len(wifi):
         return []
@@ -98,6 +103,7 @@ def ble_scans_of(trace: Trace, window_ms: int = 2000) -> list[RadioScan]:
     :func:`localize.steps.ble_transmitter_ids`), the way
     :func:`mapping.radio_scans.ble_observations` groups survey rows. Time = the window's last
     sighting (ms)."""
+    require_type(trace, Trace, "ble_scans_of", READ_HINT)
     ble = trace.ble
     if ble is None or not len(ble):
         return []
@@ -157,7 +163,10 @@ def step_summaries(trace: Trace, params: StepSummaryParams = StepSummaryParams()
     ------
     ProcessingError
         No accelerometer, no rotation vector, no magnetometer, or no steps.
+    TypeError
+        ``trace`` is not a :class:`Trace` (a path, say).
     """
+    require_type(trace, Trace, "step_summaries", READ_HINT)
     tid = trace.trace_id
     acc = accelerometer_stream(trace.sensors, min_rows=10)
     if len(acc) < 10:
@@ -254,6 +263,7 @@ def waypoints_of(trace: Trace) -> tuple[NDArray[np.float64], NDArray[np.float64]
     """Waypoint times (ms) and positions (k, 2) of a trace, time-sorted, without those far
     outside its accelerometer rows (:func:`survey.process.waypoints_off_sensors`: processing
     drops them, and a track cannot be scored there)."""
+    require_type(trace, Trace, "waypoints_of", READ_HINT)
     wp = trace.waypoints
     if wp is None or not len(wp):
         return np.empty(0), np.empty((0, 2))

@@ -219,6 +219,55 @@ def test_other_bad_calls(f1_bundle, sim_walks):  # noqa: F811
         make_localizer("nope", f1_bundle)
 
 
+@pytest.mark.parametrize("method", sorted(METHODS))
+def test_the_wrong_thing_passed_names_what_is_needed(f1_bundle, sim_walks, method):  # noqa: F811
+    """A path where a bundle or trace belongs, a trace where its steps belong, the whole walk
+    to step(): each failed deep inside (an AttributeError at filter.py:93, a TypeError in
+    floors.py, numpy's ambiguous truth value) instead of saying what to pass."""
+    from survey.step_summaries import ble_scans_of, scans_of, step_summaries, waypoints_of
+    from survey.trace_reader import read_trace
+
+    w, *others = _f1(sim_walks)
+    scans = [(s, xy) for v in others for s, xy in zip(v.steps.scans, v.true_xy)
+             if s is not None]
+    radio = KnnRadioPositioner.from_scans(np.array([xy for _, xy in scans]),
+                                          [s for s, _ in scans])
+    for wrong in (str(w.trace_path.parent), None):
+        with pytest.raises(TypeError, match=r"\(bundle\): a MapBundle is needed "
+                           r"\(localize.bundle.load_bundle\(path\) opens one.*not "
+                           + type(wrong).__name__):
+            make_localizer(method, wrong, radio=radio)
+    loc = make_localizer(method, f1_bundle, FilterParams(n_particles=100), radio=radio, rng=0)
+    trace = read_trace(w.trace_path)
+    with pytest.raises(TypeError, match=r"run\(steps\): a StepSummaries is needed "
+                       r"\(survey.step_summaries.step_summaries\(trace\).*not Trace"):
+        loc.run(trace, start_xy=w.start_xy)
+    loc.start(*w.start_xy, t_ms=float(w.steps.t_ms[0]) - 500.0)
+    with pytest.raises(TypeError, match=r"step\(s\): a StepSummary is needed \(one element "
+                       r"of StepSummaries; run\(\) localizes a whole walk\), not StepSummaries"):
+        loc.step(w.steps)
+    assert loc.step(w.steps[0]).t_ms == w.steps.t_ms[0]  # the refusals left it usable
+    for fn in (step_summaries, scans_of, ble_scans_of, waypoints_of):
+        for wrong in (str(w.trace_path), w.steps):
+            with pytest.raises(TypeError, match=rf"{fn.__name__}: a Trace is needed "
+                               r"\(survey.trace_reader.read_trace\(path\).*not "
+                               + type(wrong).__name__):
+                fn(wrong)
+
+
+def test_sampling_at_no_position_gives_nan_quietly(f1_bundle):  # noqa: F811
+    """NaN and absurd coordinates (a lost track) sample as NaN, without numpy's 'invalid value
+    encountered in cast' warning (turned into an error here)."""
+    import warnings
+
+    x0, y0 = f1_bundle.grid.x0_m, f1_bundle.grid.y0_m
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = f1_bundle.sample("strength", [np.nan, x0 + 1.0, 1e300, -np.inf],
+                               [y0 + 1.0, np.nan, y0 + 1.0, y0 + 1.0])
+    assert got.shape == (4,) and np.isnan(got).all()
+
+
 @pytest.mark.parametrize("method", ["indoormap", "align"])
 def test_bad_starts_and_steps_are_localization_errors(tmp_path, f1_bundle, sim_walks,  # noqa: F811
                                                       method):
