@@ -30,7 +30,7 @@ from survey.magcal import fit_sphere
 from survey.positions import time_linear_positions
 from survey.process import process_walk
 from survey.rotation import interpolate_rotation_vector, rotation_matrices
-from survey.trace_reader import find_trace_files, iter_traces
+from survey.trace_reader import ReadFailure, find_trace_files, iter_traces
 
 from real_data import ILC_SITE1  # $INDOORMAP_ILC or ../shared/ilc
 
@@ -70,6 +70,9 @@ def main() -> int:
     for floor in floors:
         rows = []
         for i, tr in enumerate(iter_traces(find_trace_files([floor / "path_data_files"]))):
+            if isinstance(tr, ReadFailure):
+                print(f"skipped {tr.path}: {tr.error}", file=sys.stderr)
+                continue
             walk = process_walk(tr.trace_id, tr.sensors, tr.waypoints)
             s = walk.samples
             unc = tr.stream("magnetic_field_uncalibrated").set_index("t_ms").reindex(s["t_ms"])

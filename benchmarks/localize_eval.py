@@ -20,6 +20,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+import sys
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -227,7 +228,11 @@ def real_walks(floor_dir: Path, work: Path) -> list[EvalWalk]:
 
         out = []
         for path in find_trace_files([floor_dir / "path_data_files"]):
-            trace = read_trace(path)
+            try:
+                trace = read_trace(path)
+            except IndoormapError as err:  # an empty or foreign file: not a walk
+                print(f"  skipped {err}", file=sys.stderr)
+                continue
             wp_t, wp_xy = waypoints_of(trace)
             if len(wp_t) < 2:
                 continue

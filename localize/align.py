@@ -164,11 +164,6 @@ def walk_shape(steps: StepSummaries, params: AlignParams = AlignParams()
     return _steps_shape(steps, params)[0]
 
 
-def _scan_time(scan, step_t_ms: float) -> float:
-    """A scan's own time (ms), else its step's."""
-    return float(scan.t_ms or step_t_ms)
-
-
 def _fix_covariance(t_s: NDArray, start_given: bool, p: AlignParams) -> NDArray[np.float64]:
     """Per-axis covariance (m^2) of the fixes at times ``t_s`` (s); with ``start_given`` the
     first is a given start position, independent of the others."""
@@ -362,15 +357,11 @@ class WalkAligner(BaseLocalizer):
         return Estimate(t_ms, x, y, 0.0 if sigma is None else float(sigma), 1.0, False,
                         self.bundle.floor_id)
 
-    def start(self, x_m: float | None = None, y_m: float | None = None, *, t_ms: float = 0.0,
-              scan: RadioScan | None = None, half_width_m: float | None = None) -> Estimate:
-        """:meth:`BaseLocalizer.start`; a start located from ``scan`` is a fix at the scan's
-        own time (as in :meth:`run`), and that scan is not applied again by :meth:`step`."""
-        est = super().start(x_m, y_m, t_ms=t_ms, scan=scan, half_width_m=half_width_m)
-        if scan is not None and not self._start_given:
-            self._fix_t[0] = _scan_time(scan, t_ms)
-            self._start_scan = scan
-        return est
+    def _started_from(self, scan: RadioScan | None, t_fix_ms: float) -> None:
+        """The start fix is dated at ``t_fix_ms`` (its scan's time, not the start's), and
+        ``scan`` (if any) is not applied again by :meth:`step`."""
+        self._fix_t[0] = float(t_fix_ms)
+        self._start_scan = scan
 
     def _is_start_scan(self, scan: RadioScan) -> bool:
         first = self._start_scan
@@ -383,8 +374,7 @@ class WalkAligner(BaseLocalizer):
         check_step(s, self)
         located = (self.radio.locate(s.scan) if s.scan is not None and self.radio is not None
                    and not self._is_start_scan(s.scan) else None)
-        fix = None if located is None else (located[0], located[1],
-                                            _scan_time(s.scan, s.t_ms))
+        fix = None if located is None else (located[0], located[1], s.scan.time_or(s.t_ms))
         return self.step_values(s.t_ms, s.compass_deg, s.relative_heading_deg,
                                 s.delta_acc_ms2, s.attitude == AttitudeCode.CARRIED, fix)
 
@@ -496,7 +486,7 @@ class WalkAligner(BaseLocalizer):
         self.check(steps)
         t0 = float(steps.t_ms[0]) - 500.0 if start_t_ms is None else float(start_t_ms)
         fixes = [] if self.radio is None or steps.scans is None else [
-            (i, _scan_time(sc, steps.t_ms[i]), f) for i, sc in enumerate(steps.scans)
+            (i, sc.time_or(steps.t_ms[i]), f) for i, sc in enumerate(steps.scans)
             if sc is not None and (f := self.radio.locate(sc)) is not None]
         if start_xy is None and not fixes:
             raise LocalizationError(f"{steps.trace_id or 'walk'}: no start position given and "
@@ -506,10 +496,12 @@ class WalkAligner(BaseLocalizer):
         else:  # the first fix, at its own time, known from the start on
             _, t_fix, f = fixes[0]
             start = self._start_at(f[0], f[1], t0, f[2], None)
-            self._fix_t[0] = t_fix
+            self._started_from(None, t_fix)  # its scan is not among the later fixes
         later = fixes if start_xy is not None else fixes[1:]  # the start fix is in already
         if smooth:
-            return self._offline(steps, start, later)
+            track = self._offline(steps, start, later)
+            track.info["seen_by_map"] = self.seen_by_map(steps)
+            return track
         by_step = {i: (t, f) for i, t, f in later}
         axis = steps.attitude == AttitudeCode.CARRIED
         est = [self._advance(steps.t_ms[i], steps.compass_deg[i],
@@ -517,7 +509,7 @@ class WalkAligner(BaseLocalizer):
                              by_step.get(i)) for i in range(len(steps))]
         track = Track.from_estimates(start, est, method=self.method, trace_id=steps.trace_id,
                                      floor_id=self.bundle.floor_id)
-        track.info["smoothed"] = False
+        track.info.update(smoothed=False, seen_by_map=self.seen_by_map(steps))
         return track
 
     def _offline(self, steps: StepSummaries, start: Estimate, later: list) -> Track:

@@ -27,10 +27,11 @@ from numpy.typing import ArrayLike, NDArray
 from localize.align import AlignParams, WalkAligner
 from localize.bundle import MapBundle
 from localize.errors import LocalizationError
-from localize.filter import check_step_time
+from localize.filter import BUNDLE_HINT, check_step_time
 from localize.steps import AttitudeCode
 from localize.stepper import StepInputs, StepOutputs
 from localize.ticks import check_tick_inputs, checked_tick_fixes, per_user, tick_ids
+from survey.errors import require_type
 
 __all__ = ["MultiUserAligner"]
 
@@ -47,6 +48,7 @@ class MultiUserAligner:
     """
 
     def __init__(self, bundle: MapBundle, params: AlignParams | None = None) -> None:
+        require_type(bundle, MapBundle, "MultiUserAligner(bundle)", BUNDLE_HINT)
         self.bundle = bundle
         self.params = params or AlignParams()
         self._aligners: dict[int, WalkAligner] = {}
@@ -62,7 +64,8 @@ class MultiUserAligner:
         return np.fromiter(self._aligners, dtype=np.int64, count=len(self._aligners))
 
     def add_users(self, start_xy: ArrayLike, t_ms: ArrayLike,
-                  sigma_m: ArrayLike | None = None) -> NDArray[np.int64]:
+                  sigma_m: ArrayLike | None = None, fix_t_ms: ArrayLike | None = None
+                  ) -> NDArray[np.int64]:
         """Start alignments for new users; returns their ids.
 
         Parameters
@@ -74,18 +77,26 @@ class MultiUserAligner:
         sigma_m : array_like (k,), optional
             A fix's accuracy (m): the start is then the first of the user's fixes, with the
             fixes' error model. NaN or absent: a known position (``AlignParams.start_sd_m``).
+        fix_t_ms : array_like (k,), optional
+            For starts that are fixes: their scan times (Unix ms) when the start is earlier
+            (NaN or absent: ``t_ms``), as :meth:`WalkAligner.run` starts half a second before
+            the first step at the first fix of the walk (do not tick that fix again).
         """
         xy = np.asarray(start_xy, dtype=np.float64).reshape(-1, 2)
         k = len(xy)
         t = per_user(t_ms, k, "t_ms")
         sigma = np.full(k, np.nan) if sigma_m is None else per_user(sigma_m, k, "sigma_m")
-        if not np.isfinite(t).all():
-            raise LocalizationError("add_users: a start time is not finite (t_ms)")
+        fix_t = t if fix_t_ms is None else np.where(
+            np.isnan(f := per_user(fix_t_ms, k, "fix_t_ms")), t, f)
+        if not (np.isfinite(t).all() and np.isfinite(fix_t).all()):
+            raise LocalizationError("add_users: a start time is not finite (t_ms, fix_t_ms)")
         new = []
-        for (x, y), t0, s in zip(xy, t, sigma):
+        for (x, y), t0, s, tf in zip(xy, t, sigma, fix_t):
             aligner = WalkAligner(self.bundle, self.params)
             aligner.begin(*aligner._checked_start((x, y)), float(t0),
                           float(s) if np.isfinite(s) else None)
+            if np.isfinite(s):
+                aligner._started_from(None, float(tf))
             new.append(aligner)  # every start checked before anyone is added
         ids = np.arange(self._next_id, self._next_id + k, dtype=np.int64)
         self._next_id += k

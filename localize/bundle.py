@@ -287,6 +287,13 @@ class MapBundle:
     def has_table(self, name: str) -> bool:
         return name in self.manifest.get("tables", {})
 
+    def source_walk_ids(self) -> frozenset[str]:
+        """Trace ids of the walks the bundle was built from (its ``source_walks`` table;
+        empty without one): errors measured on them flatter the map."""
+        if not self.has_table("source_walks"):
+            return frozenset()
+        return frozenset(self.table("source_walks").column("trace_id").to_pylist())
+
     def reachable(self, x_m: ArrayLike, y_m: ArrayLike) -> NDArray[np.bool_]:
         """Whether each point lies in a reachable cell."""
         row, col, inside = self.grid.cell_of(x_m, y_m)

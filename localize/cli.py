@@ -29,7 +29,7 @@ import numpy as np
 
 from localize.cli_common import (AliasedOption, FloorChoices, SeenWalks, TraceIds,
                                   WalkFailures, read_walk, refuse_output_inside_data,
-                                  trace_files)
+                                  trace_files, waypoint_errors_quietly)
 from localize.methods import METHODS, SMOOTHABLE, auto_method, method_label
 from survey.publish import refuse_to_replace
 
@@ -211,7 +211,6 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
     import pyarrow as pa
 
     from localize.baselines import make_localizer
-    from localize.evaluate import waypoint_errors
     from localize.floors import SiteMaps
     from localize.plots import plot_track
 
@@ -242,7 +241,7 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
         wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp, floors_said)
         loc = make_localizer(method, bundle, _params(particles), radio=wr.radio, rng=seed)
         track = loc.run(wr.steps, start_xy=start_xy, smooth=smooth)
-        err = waypoint_errors(track, t_wp, xy_wp) if len(t_wp) else np.empty(0)
+        err = waypoint_errors_quietly(track, t_wp, xy_wp) if len(t_wp) else np.empty(0)
         err = err[np.isfinite(err)]  # the walk's recorded waypoints, where it has them
         scored = (f"error at its {len(err)} waypoints median {np.median(err):.1f} m, max "
                   f"{err.max():.1f} m" if len(err) else "")
@@ -324,7 +323,7 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
     A walk that cannot be read, or a method that fails on a walk, is reported with the file
     (and method) and the rest goes on; the exit status is then 1."""
     from localize.baselines import make_localizer
-    from localize.evaluate import summarize, waypoint_errors
+    from localize.evaluate import summarize
     from localize.floors import SiteMaps
     from survey.step_summaries import waypoints_of
 
@@ -372,7 +371,7 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
             def run(m=m, sm=sm):
                 loc = make_localizer(m, bundle, _params(particles), radio=wr.radio, rng=seed)
                 track = loc.run(wr.steps, start_xy=start_xy, smooth=sm)
-                err = waypoint_errors(track, t_wp, xy_wp)
+                err = waypoint_errors_quietly(track, t_wp, xy_wp)
                 errors[_row_name(m, sm)].append(err)
                 label = method_label(loc.method, getattr(loc, "guided", False))
                 ran.setdefault(_row_name(m, sm), set()).add(label)

@@ -17,7 +17,11 @@ from localize.errors import LocalizationError
 from localize.floors import HEADER_DOUBT, LACKS_PHRASE, MODEL_LACKS
 
 if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import ArrayLike, NDArray
+
     from localize.bundle import MapBundle
+    from localize.track import Track
     from survey.trace_format import Trace
 
 __all__ = ["AliasedOption", "FloorChoices", "SeenWalks", "WalkFailures", "read_walk",
@@ -224,17 +228,11 @@ class SeenWalks:
     def __init__(self) -> None:
         self.more: list[str] = []
         self._named = 0
-        self._sources: dict[str, set[str]] = {}  # bundle id -> its source walks' trace ids
 
     def check(self, bundle: MapBundle, trace_id: str) -> None:
         """Warn (or count, past the first :attr:`NAMED`) when ``bundle`` was built from walk
         ``trace_id``."""
-        sources = self._sources.get(bundle.bundle_id)
-        if sources is None:  # once per bundle, not per walk
-            sources = self._sources[bundle.bundle_id] = set(
-                bundle.table("source_walks").column("trace_id").to_pylist()
-                if bundle.has_table("source_walks") else ())
-        if trace_id not in sources:
+        if trace_id not in bundle.source_walk_ids():
             return
         if self._named < self.NAMED:
             self._named += 1
@@ -252,6 +250,19 @@ class SeenWalks:
                        f"bundle ({shown}): their results too are better than unseen walks' "
                        "would be", err=True)
             self.more = []
+
+
+def waypoint_errors_quietly(track: Track, t_ms: ArrayLike, xy_m: ArrayLike
+                            ) -> NDArray[np.float64]:
+    """:func:`localize.evaluate.waypoint_errors` without its :class:`SeenWalkWarning`: the
+    commands' :class:`SeenWalks` says that in its own words, once per walk."""
+    import warnings
+
+    from localize.evaluate import SeenWalkWarning, waypoint_errors
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SeenWalkWarning)
+        return waypoint_errors(track, t_ms, xy_m)
 
 
 class FloorChoices:

@@ -34,7 +34,7 @@ from localize.align_engine import (MultiUserAligner, advance_aligners, check_ste
                                    step_columns)
 from localize.bundle import MapBundle
 from localize.errors import LocalizationError
-from localize.filter import make_rng
+from localize.filter import BUNDLE_HINT, make_rng
 from localize.maps import FilterMap
 from localize.params import FilterParams
 from localize.particles import (ParticleState, estimate, init_state, inject_around_fix,
@@ -42,6 +42,7 @@ from localize.particles import (ParticleState, estimate, init_state, inject_arou
 from localize.stepper import StepInputs, StepOutputs, advance
 from localize.ticks import check_tick_inputs, checked_tick_fixes, per_user, tick_ids
 from localize.update import position_update
+from survey.errors import require_type
 
 __all__ = ["MultiUserEngine"]
 
@@ -71,6 +72,7 @@ class MultiUserEngine:
     def __init__(self, bundle: MapBundle, params: FilterParams | None = None, *,
                  rng: np.random.Generator | int | None = None, dtype=np.float64,
                  fmap: FilterMap | None = None) -> None:
+        require_type(bundle, MapBundle, "MultiUserEngine(bundle)", BUNDLE_HINT)
         self.params = params or FilterParams()
         if self.params.weight_mode == "dtw":
             raise LocalizationError("the multi-user engine does not run the DTW update")
@@ -99,8 +101,8 @@ class MultiUserEngine:
         return len(self.user_ids)
 
     def add_users(self, start_xy: ArrayLike, half_width_m: ArrayLike | None = None, *,
-                  fix_sigma_m: ArrayLike | None = None, t_ms: ArrayLike | None = None
-                  ) -> NDArray[np.int64]:
+                  fix_sigma_m: ArrayLike | None = None, t_ms: ArrayLike | None = None,
+                  fix_t_ms: ArrayLike | None = None) -> NDArray[np.int64]:
         """Start filters for new users around their start positions; returns their ids.
 
         Parameters
@@ -115,6 +117,11 @@ class MultiUserEngine:
             guided engine those users are guided (class docstring).
         t_ms : array_like (k,), optional
             The starts' times (Unix ms); needed for guided users.
+        fix_t_ms : array_like (k,), optional
+            For guided users, their start fixes' scan times when the start is earlier
+            (:meth:`MultiUserAligner.add_users`); what the single-user guided filter's
+            ``run`` does: start half a second before the first step at the walk's first fix,
+            dated at its scan, which is not ticked again.
         """
         p = self.params
         xy = np.asarray(start_xy, dtype=np.float64).reshape(-1, 2)
@@ -130,7 +137,9 @@ class MultiUserEngine:
                 raise LocalizationError("add_users: users started from a fix on a guided "
                                         "engine need their start times (t_ms)")
             t = per_user(t_ms, k, "t_ms")
-            guide_ids[guided] = self.guide.add_users(xy[guided], t[guided], sigma[guided])
+            fix_t = None if fix_t_ms is None else per_user(fix_t_ms, k, "fix_t_ms")[guided]
+            guide_ids[guided] = self.guide.add_users(xy[guided], t[guided], sigma[guided],
+                                                     fix_t)
         try:
             new = init_state(self.fmap, p, self.rng, xy, hw, dtype=self.dtype)
         except BaseException:

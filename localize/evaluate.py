@@ -2,12 +2,26 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from localize.track import Track
 
-__all__ = ["step_errors", "summarize", "waypoint_errors"]
+__all__ = ["SeenWalkWarning", "step_errors", "summarize", "waypoint_errors"]
+
+
+class SeenWalkWarning(UserWarning):
+    """Errors measured on a walk the map was built from: better than an unseen walk's would
+    be (the CLI says so in its own words and silences this one)."""
+
+
+def _warn_if_seen(track: Track) -> None:
+    if track.info.get("seen_by_map"):
+        warnings.warn(f"{track.trace_id} was used to build the map of floor {track.floor_id}: "
+                      "its errors are better than an unseen walk's would be (build without it: "
+                      "exclude_walks)", SeenWalkWarning, stacklevel=3)
 
 
 def waypoint_errors(track: Track, t_ms: ArrayLike, xy_m: ArrayLike) -> NDArray[np.float64]:
@@ -19,8 +33,18 @@ def waypoint_errors(track: Track, t_ms: ArrayLike, xy_m: ArrayLike) -> NDArray[n
     t_ms : array_like (k,)
         Reference times (Unix ms), e.g. waypoint clicks.
     xy_m : array_like (k, 2)
-        Reference positions (m).
+        Reference positions (m); one point may be given as ``(x, y)``.
+
+    Returns
+    -------
+    ndarray (k,)
+
+    Warns
+    -----
+    SeenWalkWarning
+        The track's walk is one the map was built from (``track.info["seen_by_map"]``).
     """
+    _warn_if_seen(track)
     t = np.asarray(t_ms, dtype=np.float64).reshape(-1)
     ref = _xy_rows(xy_m, len(t), "waypoint_errors")
     est = track.at(t)
@@ -28,11 +52,11 @@ def waypoint_errors(track: Track, t_ms: ArrayLike, xy_m: ArrayLike) -> NDArray[n
 
 
 def _xy_rows(xy_m: ArrayLike, n: int, where: str) -> NDArray[np.float64]:
-    """``xy_m`` as an (n, 2) array; a ValueError for any other shape (a (2, n) array was
-    read row-major, its x and y mixed)."""
+    """``xy_m`` as an (n, 2) array (one point may be a flat ``(x, y)``); a ValueError for any
+    other shape (a (2, n) array was read row-major, its x and y mixed)."""
     ref = np.asarray(xy_m, dtype=np.float64)
-    if ref.size == 0 and n == 0:
-        return ref.reshape(0, 2)
+    if (ref.size == 0 and n == 0) or (ref.shape == (2,) and n == 1):
+        return ref.reshape(n, 2)
     if ref.shape != (n, 2):
         hint = " (transposed? one row per point)" if ref.shape == (2, n) else ""
         raise ValueError(f"{where}: positions of shape ({n}, 2) expected, one row per point, "
@@ -43,6 +67,7 @@ def _xy_rows(xy_m: ArrayLike, n: int, where: str) -> NDArray[np.float64]:
 def step_errors(track: Track, true_xy_m: ArrayLike) -> NDArray[np.float64]:
     """Distance (m) between each step's estimate and the true position at that step
     (``true_xy_m`` shape (m, 2), one row per step of the track)."""
+    _warn_if_seen(track)
     ref = _xy_rows(true_xy_m, len(track), "step_errors")
     return np.hypot(track.x_m - ref[:, 0], track.y_m - ref[:, 1])
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 from functools import partial
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -40,7 +41,7 @@ from localize.track import Estimate, Track
 from localize.update import position_update, radio_likelihood, radio_update
 from survey.errors import require_type
 
-__all__ = ["BaseLocalizer", "Localizer", "first_radio_fix", "make_rng"]
+__all__ = ["BaseLocalizer", "Localizer", "RadioFix", "first_radio_fix", "make_rng"]
 
 
 def make_rng(rng: np.random.Generator | int | None) -> np.random.Generator:
@@ -50,10 +51,20 @@ def make_rng(rng: np.random.Generator | int | None) -> np.random.Generator:
     return np.random.default_rng(0 if rng is None else rng)
 
 
-def first_radio_fix(radio: RadioModel | None, steps: StepSummaries
-                    ) -> tuple[float, float, float, float] | None:
-    """``(x, y, sigma, t_ms)`` of the first scan of ``steps`` that ``radio`` (anything with
-    ``locate(scan)``) can locate (m, m, m, Unix ms); None without radio, scans or a fix."""
+class RadioFix(NamedTuple):
+    """A radio fix of a walk: position and accuracy (m), the scan's time (Unix ms; its
+    step's for a scan without one) and the scan."""
+
+    x_m: float
+    y_m: float
+    sigma_m: float
+    t_ms: float
+    scan: RadioScan
+
+
+def first_radio_fix(radio: RadioModel | None, steps: StepSummaries) -> RadioFix | None:
+    """The fix of the first scan of ``steps`` that ``radio`` (anything with
+    ``locate(scan)``) can locate; None without radio, scans or a fix."""
     if radio is None or steps.scans is None:
         return None
     for i, scan in enumerate(steps.scans):
@@ -61,7 +72,7 @@ def first_radio_fix(radio: RadioModel | None, steps: StepSummaries
             continue
         fix = radio.locate(scan)
         if fix is not None:
-            return fix[0], fix[1], fix[2], float(steps.t_ms[i])
+            return RadioFix(fix[0], fix[1], fix[2], scan.time_or(steps.t_ms[i]), scan)
     return None
 
 
@@ -75,7 +86,7 @@ def check_step_time(t_ms: float, last_t_ms: float) -> None:
 
 #: How to get a floor's map (what a wrong-type error suggests).
 BUNDLE_HINT = ("localize.bundle.load_bundle(path) opens one; "
-               "localize.floors.SiteMaps.open(folder) a site's")
+               "localize.floors.SiteMaps.open(folder).floor_bundle(floor) gives a site's")
 #: How to get a walk's steps (what a wrong-type error suggests).
 STEPS_HINT = "survey.step_summaries.step_summaries(trace) gives a walk's"
 
@@ -144,7 +155,10 @@ class BaseLocalizer:
                 raise LocalizationError("the radio model gives no fix for the start scan")
             x_m, y_m, sigma = fix
         self._keep_genealogy = False  # streaming: real-time estimates only
-        return self.begin(*self._checked_start((x_m, y_m)), t_ms, sigma, half_width_m)
+        est = self.begin(*self._checked_start((x_m, y_m)), t_ms, sigma, half_width_m)
+        if sigma is not None:
+            self._started_from(scan, scan.time_or(t_ms))
+        return est
 
     def begin(self, x_m: float, y_m: float, t_ms: float, sigma: float | None,
               half_width_m: float | None = None) -> Estimate:
@@ -171,6 +185,11 @@ class BaseLocalizer:
                   half_width_m: float | None) -> Estimate:
         raise NotImplementedError
 
+    def _started_from(self, scan: RadioScan | None, t_fix_ms: float) -> None:
+        """The start just made was located from ``scan``, whose time is ``t_fix_ms``: for
+        methods that keep the fixes (the alignment), a fix at that time, and a scan not to
+        apply again when its step brings it."""
+
     def step(self, s: StepSummary) -> Estimate:
         raise NotImplementedError
 
@@ -184,8 +203,8 @@ class BaseLocalizer:
             raise LocalizationError(f"{steps.trace_id or 'walk'}: no magnetometer values; "
                                     f"method {self.method} needs the magnetic field")
 
-    def first_fix(self, steps: StepSummaries) -> tuple[float, float, float, float] | None:
-        """``(x, y, sigma, t_ms)`` of the first scan of the walk the radio model can locate."""
+    def first_fix(self, steps: StepSummaries) -> RadioFix | None:
+        """The fix of the first scan of the walk the radio model can locate."""
         return first_radio_fix(self.radio, steps)
 
     def run(self, steps: StepSummaries, start_xy: tuple[float, float] | None = None, *,
@@ -210,7 +229,8 @@ class BaseLocalizer:
         Returns
         -------
         Track
-            One estimate per step (``info["smoothed"]`` says which kind).
+            One estimate per step (``info["smoothed"]`` says which kind;
+            ``info["seen_by_map"]`` whether the bundle was built from this walk).
         """
         self.check(steps)
         if smooth and not self.can_smooth:
@@ -223,15 +243,22 @@ class BaseLocalizer:
             if fix is None:
                 raise LocalizationError(f"{steps.trace_id or 'walk'}: no start position given "
                                         "and no scan of the walk located by the radio model")
-            start = self._start_at(fix[0], fix[1], t0, fix[2], half_width_m)
+            start = self._start_at(fix.x_m, fix.y_m, t0, fix.sigma_m, half_width_m)
+            self._started_from(fix.scan, fix.t_ms)
         else:
             start = self._start_at(*self._checked_start(start_xy), t0, None, half_width_m)
         self._last = start
         est = [self.step(s) for s in steps]
         track = Track.from_estimates(start, est, method=self.method, trace_id=steps.trace_id,
                                      floor_id=self.bundle.floor_id)
-        track.info["smoothed"] = bool(smooth)
+        track.info.update(smoothed=bool(smooth), seen_by_map=self.seen_by_map(steps))
         return self._smoothed(track) if smooth else track
+
+    def seen_by_map(self, steps: StepSummaries) -> bool:
+        """Whether the bundle was built from this walk (``track.info["seen_by_map"]``; its
+        errors are then better than an unseen walk's, and
+        :func:`localize.evaluate.waypoint_errors` warns)."""
+        return bool(steps.trace_id) and steps.trace_id in self.bundle.source_walk_ids()
 
     def _smoothed(self, track: Track) -> Track:
         raise NotImplementedError
@@ -317,6 +344,10 @@ class Localizer(BaseLocalizer):
         mx, my, spread = estimate(self.state)
         return Estimate(t_ms, float(mx[0]), float(my[0]), float(spread[0]), 1.0, False,
                         self.bundle.floor_id)
+
+    def _started_from(self, scan: RadioScan | None, t_fix_ms: float) -> None:
+        if self._guided:  # the guide's start fix is the scan's, as in WalkAligner.run
+            self.guide._started_from(scan, t_fix_ms)
 
     def step(self, s: StepSummary) -> Estimate:
         """Advance by one step and return the new estimate.

@@ -104,6 +104,10 @@ class RadioScan:
     def __len__(self) -> int:
         return len(self.keys)
 
+    def time_or(self, step_t_ms: float) -> float:
+        """The scan's own time (Unix ms), else ``step_t_ms`` (a scan without a time, 0)."""
+        return float(self.t_ms or step_t_ms)
+
     def fresh(self, max_age_ms: float) -> RadioScan:
         """The scan without the rows older than ``max_age_ms`` (rows of unknown age stay)."""
         if self.age_ms is None:

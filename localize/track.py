@@ -72,6 +72,8 @@ class Track:
 
     @classmethod
     def from_estimates(cls, start: Estimate, estimates: list[Estimate], **kw) -> Track:
+        """The track of ``estimates`` (one per step) after ``start``; ``kw``: the other
+        fields (``method``, ``trace_id``, ``floor_id``, ``info``)."""
         def col(name: str, dtype: DTypeLike = np.float64) -> NDArray:
             return np.array([getattr(e, name) for e in estimates], dtype=dtype)
 
@@ -83,10 +85,12 @@ class Track:
 
     @property
     def n_recoveries(self) -> int:
+        """How many steps re-drew the particles after all had died."""
         return int(np.count_nonzero(self.recovered))
 
     @property
     def xy_m(self) -> NDArray[np.float64]:
+        """Step positions (m), shape (n_steps, 2): columns x, y."""
         return np.column_stack([self.x_m, self.y_m])
 
     def at(self, t_ms: ArrayLike) -> NDArray[np.float64]:

@@ -27,7 +27,8 @@ from localize.bundle import Grid
 from survey.errors import IndoormapError
 from survey.field_features import circular_median_deg, wrap_deg
 from survey.memory import release_free_memory
-from survey.process_store import processed_catalog, processed_table, walks_per_site
+from survey.process_store import processed_floors_text, processed_table, processed_walks, \
+    walks_per_site
 from survey.store import SurveyStore
 
 from .bundle_writer import BundleContent, Layer
@@ -134,14 +135,11 @@ def floor_walks(store: SurveyStore, site: str | None, floor: str,
         shown = ", ".join(unknown[:3]) + (", ..." if len(unknown) > 3 else "")
         raise BuildError(f"{store.root}: exclude_walks names {len(unknown)} trace id(s) the "
                          f"store does not hold: {shown} (trace ids, not file names)")
-    pcat = processed_catalog(store)
-    pcat = pcat[(pcat["floor"] == floor) & (pcat["status"] == "ok")]
-    if site is not None:
-        pcat = pcat[pcat["site"] == site]
+    pcat = processed_walks(store, site=site, floor=floor)
     where = f"floor {floor!r}" + (f" of site {site!r}" if site else "")
     if not len(pcat):
-        raise BuildError(f"{store.root}: no processed walks for {where}; run "
-                         "`indoormap process` first")
+        raise BuildError(f"{store.root}: no processed walks for {where}; "
+                         f"{processed_floors_text(store)}")
     pcat = pcat[~pcat["trace_id"].isin(list(exclude_walks))]
     if not len(pcat):
         raise BuildError(f"{store.root}: all {where}'s processed walks are excluded")

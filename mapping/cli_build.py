@@ -15,7 +15,7 @@ import click
 import numpy as np
 import pandas as pd
 
-from survey.errors import PublishError, RegistryError, at_path
+from survey.errors import PublishError, RegistryError, RollbackRefused, at_path
 from survey.publish import (
     JOURNAL_NAME,
     refuse_to_replace,
@@ -29,6 +29,7 @@ from survey.trace_format import bad_lines_summary
 
 from .build import BuildError, BuildParams, build_floor
 from .bundle_writer import write_bundle
+from .cli_bundle import already_published_text
 from .floorplan import FloorPlan, read_floor_plan
 from .grid import reachable_mask
 from .radio_build import build_site_radio, format_share, n_floors_text
@@ -480,7 +481,12 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
                            "drop (build the site folder to replace it, or publish "
                            f"{out / name} with `indoormap bundle publish`)", err=True)
             elif registry:
-                entry = registry.publish(out / name)
+                try:
+                    entry = registry.publish(out / name)
+                except RollbackRefused as err:  # the same bytes as an older version
+                    click.echo("warning: not made current: "
+                               + already_published_text(out / name, registry_dir, err), err=True)
+                    continue
                 click.echo(f"  published as {site_id}/{name} #{entry['seq']}")
         for warning in thin:
             click.echo(warning, err=True)

@@ -169,11 +169,17 @@ def bundle_publish(paths: tuple[Path, ...], registry_dir: Path, no_current: bool
         try:
             e = reg.publish(p, make_current=not no_current)
         except RollbackRefused as err:  # an older version published again
-            raise RegistryError(f"{p}: already published as #{err.seq}, older than "
-                                f"{err.current_text}; to make it current: indoormap bundle use "
-                                f"{registry_dir} SITE/FLOOR '#{err.seq}' --rollback") from err
+            raise RegistryError(already_published_text(p, registry_dir, err)) from err
         click.echo(f"{p}: {e['bundle_id'][:16]} #{e['seq']}"
                    + ("" if no_current else " (current)"))
+
+
+def already_published_text(path: Path, registry_dir: Path, err: RollbackRefused) -> str:
+    """What publishing a bundle the registry holds as an older version than the current one
+    says: which version it is and the command that makes it current."""
+    return (f"{path}: already published as #{err.seq}, older than {err.current_text}; to make "
+            f"it current: indoormap bundle use {registry_dir} {err.where} '#{err.seq}' "
+            "--rollback")
 
 
 @bundle_group.command("use")

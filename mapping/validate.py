@@ -284,6 +284,15 @@ class ValidationResult:
                      "their input was missing)")
         return text
 
+    def __repr__(self) -> str:
+        """A summary: the verdict, the floor and the failed checks (the full repr, with every
+        raster and point set in ``arrays``, ran to some 44,000 lines in a notebook)."""
+        floor = None if self.bundle is None else self.bundle.floor_id
+        failed = sorted({f.check for f in self.failed})
+        return (f"ValidationResult({self.verdict_text()!r}, floor={floor!r}, "
+                f"findings={len(self.findings)}, failed={failed}, "
+                f"arrays={sorted(self.arrays)})")
+
     def to_json(self) -> dict:
         return _jsonable({"verdict": self.verdict, "thresholds": self.thresholds,
                           "findings": [f.to_dict() for f in self.findings], **self.metrics})

@@ -97,15 +97,28 @@ class RegistryError(IndoormapError):
 
 class RollbackRefused(RegistryError):
     """Pointing a registry floor at an older version than its current one, without allowing
-    a rollback. ``seq`` and ``current_seq`` are the two versions' sequence numbers;
+    a rollback. ``where`` is ``site/floor``, ``bundle_id`` the version refused; ``seq`` and
+    ``current_seq`` are the two versions' sequence numbers;
     ``current_known`` is False when the pointer was unreadable and ``current_seq`` is the
     newest version's. ``current_text`` says which: ``the current #2``, or ``the newest #2
     (the current pointer is unreadable)``."""
 
     def __init__(self, where: str, bundle_id: str, *, seq: int, current_seq: int,
                  current_known: bool = True) -> None:
+        self.where, self.bundle_id = where, bundle_id
         self.seq, self.current_seq, self.current_known = seq, current_seq, current_known
         self.current_text = (f"the current #{current_seq}" if current_known else
                              f"the newest #{current_seq} (the current pointer is unreadable)")
         super().__init__(f"{where}: version {bundle_id[:12]} (#{seq}) is older than "
                          f"{self.current_text}; rolling back needs allow_rollback=True")
+
+    def __reduce__(self):
+        # rebuilt with its fields when it crosses a process (a registry shared by a pool of
+        # builders): the default passes the formatted text alone, which __init__ cannot take
+        return (_rollback_refused, (type(self), self.where, self.bundle_id, self.seq,
+                                    self.current_seq, self.current_known))
+
+
+def _rollback_refused(cls: type, where: str, bundle_id: str, seq: int, current_seq: int,
+                      current_known: bool) -> RollbackRefused:
+    return cls(where, bundle_id, seq=seq, current_seq=current_seq, current_known=current_known)

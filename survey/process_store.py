@@ -684,5 +684,19 @@ def processed_table(store: SurveyStore | str, name: str, *, site: str | None = N
         frame.insert(0, "trace_id", walk["trace_id"])
         frames.append(frame)
     if not frames:
-        raise ProcessingError(f"no processed walks for site={site!r} floor={floor!r}")
+        raise ProcessingError(f"no processed walks for site={site!r} floor={floor!r}; "
+                              f"{processed_floors_text(store)}")
     return pd.concat(frames, ignore_index=True)
+
+
+def processed_floors_text(store: SurveyStore | str) -> str:
+    """``"the store has processed walks of site S floors F1 (3), F2 (1)"``, or says it has
+    none: what a selection that matched nothing names, so a misspelt floor is plain."""
+    ok = processed_walks(store)
+    if not len(ok):
+        return "the store has no processed walks (indoormap process --store STORE)"
+    parts = []
+    for site, walks in ok.groupby("site", sort=True):
+        counts = walks["floor"].value_counts().sort_index()
+        parts.append(f"site {site} floors " + ", ".join(f"{f} ({n})" for f, n in counts.items()))
+    return "the store has processed walks of " + "; ".join(parts)

@@ -265,6 +265,14 @@ class SurveyStore:
 
     @classmethod
     def open(cls, root: str | os.PathLike) -> SurveyStore:
+        """The survey store at ``root`` (as ``indoormap ingest --store`` made it).
+
+        Raises
+        ------
+        StoreError
+            No ``store.json`` there, or one unreadable, of another format or of a schema
+            version this indoormap does not read.
+        """
         root = Path(root)
         meta_path = root / "store.json"
         if not meta_path.exists():

@@ -161,7 +161,8 @@ def test_release_free_memory_runs_twice():
 
 
 def test_unknown_floor_is_a_clear_error(store):
-    with pytest.raises(BuildError, match="no processed walks for floor 'F9'"):
+    with pytest.raises(BuildError, match=r"no processed walks for floor 'F9'; the store has "
+                       r"processed walks of site \S+ floors F1 \(\d+\), F2 \(\d+\)"):
         build_floor(store, read_floor_plan(SITE / "F1"), floor="F9")
 
 

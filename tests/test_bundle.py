@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import multiprocessing
 import os
+import pickle
 import re
 import shutil
 import subprocess
@@ -385,6 +386,9 @@ def test_registry_versions_move_forward(tmp_path):
     with pytest.raises(RollbackRefused, match="rolling back needs allow_rollback") as refused:
         reg.set_current("site", "F1", e1["bundle_id"])
     assert (refused.value.seq, refused.value.current_seq) == (1, 2)
+    copied = pickle.loads(pickle.dumps(refused.value))  # as when it crosses a process
+    assert (type(copied), str(copied), copied.where, copied.current_text) == (
+        RollbackRefused, str(refused.value), "site/F1", "the current #2")
     reg.set_current("site", "F1", e1["bundle_id"], allow_rollback=True)
     assert reg.open("site", "F1").bundle_id == e1["bundle_id"]
     with pytest.raises(RegistryError, match="not published"):
@@ -523,7 +527,7 @@ def test_registry_command_line(tmp_path):
     assert listed()[1][0] == "*"  # refused: #2 stays current
     again = run(main, ["bundle", "publish", str(tmp_path / "v1"), "--registry", reg])
     assert again.exit_code == 1 and "already published as #1, older than the current #2; " \
-        "to make it current: indoormap bundle use" in again.output
+        f"to make it current: indoormap bundle use {reg} site/F1 '#1' --rollback" in again.output
     assert run(main, ["bundle", "use", reg, "site/F1", "#1", "--rollback"]).exit_code == 0
     assert listed()[0] == ["*", "site/F1", "#1", ids[0]]
     assert run(main, ["bundle", "use", reg, "site/F1", ids[1][:10]]).exit_code == 0

@@ -247,6 +247,13 @@ def test_the_wrong_thing_passed_names_what_is_needed(f1_bundle, sim_walks, metho
                        r"of StepSummaries; run\(\) localizes a whole walk\), not StepSummaries"):
         loc.step(w.steps)
     assert loc.step(w.steps[0]).t_ms == w.steps.t_ms[0]  # the refusals left it usable
+    if method == "indoormap":  # the engines of many users too
+        from localize.align_engine import MultiUserAligner
+        from localize.engine import MultiUserEngine
+
+        for engine in (MultiUserEngine, MultiUserAligner):
+            with pytest.raises(TypeError, match=rf"{engine.__name__}\(bundle\): a MapBundle"):
+                engine(str(w.trace_path.parent))
     for fn in (step_summaries, scans_of, ble_scans_of, waypoints_of):
         for wrong in (str(w.trace_path), w.steps):
             with pytest.raises(TypeError, match=rf"{fn.__name__}: a Trace is needed "
@@ -368,6 +375,10 @@ def test_step_errors_needs_one_true_position_per_step():
         waypoint_errors(timed, t_wp, xy_wp)
     np.testing.assert_allclose(waypoint_errors(timed, t_wp, xy_wp.T), [0, 1, 0])
     assert waypoint_errors(timed, [], np.empty(0)).shape == (0,)
+    # one waypoint as a flat (x, y), with its time a scalar: it was refused as shape (2,)
+    np.testing.assert_allclose(waypoint_errors(timed, 1.0, (1.0, 3.0)), [3.0])
+    with pytest.raises(ValueError, match=r"shape \(2, 2\) expected"):
+        waypoint_errors(timed, [0.0, 1.0], (1.0, 3.0))  # two times, one point: ambiguous
 
 
 def test_engine_radio_fixes_bring_wrongly_started_users_back(f1_bundle, sim_walks):  # noqa: F811

@@ -13,7 +13,7 @@ from click.testing import CliRunner
 
 from survey.cli import main
 from survey.cli_process import plan_floor_name
-from survey.errors import StoreError
+from survey.errors import ProcessingError, StoreError
 from survey.ingest import ingest
 from survey.process_store import process_store, processed_catalog, processed_table
 from survey.trace_reader import read_trace
@@ -51,6 +51,9 @@ def test_process_cli_and_report(tmp_path):
     assert sorted(cat["status"]) == ["ok", "ok", "skipped"]
     samples = processed_table(tmp_path / "store", "samples", floor="F1")
     assert samples["trace_id"].nunique() == 2 and samples[["x_m", "y_m"]].notna().all().all()
+    with pytest.raises(ProcessingError, match=r"floor='1F'; the store has processed walks of "
+                       r"site \S+ floors F1 \(2\)$"):  # a misspelt floor names the real ones
+        processed_table(tmp_path / "store", "samples", floor="1F")
     wifi = processed_table(tmp_path / "store", "wifi")
     assert {"x_m", "y_m", "bssid", "rssi_dbm", "age_ms"} <= set(wifi.columns)
     again = runner.invoke(main, ["process", "--store", str(tmp_path / "store"),

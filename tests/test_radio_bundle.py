@@ -55,6 +55,17 @@ def test_a_one_floor_build_keeps_the_registrys_site_model_of_more_floors(built, 
                                       "--registry", str(tmp_path / "reg2")])
     assert fresh.exit_code == 0 and "not published" not in fresh.output
     assert Registry(tmp_path / "reg2").current(site, "_site")["seq"] == 1
+    # the same build again, after another F1 became current, is that older version: it is
+    # not made current, and the warning says how (it raised allow_rollback's refusal)
+    reg2 = Registry(tmp_path / "reg2")
+    assert reg2.publish(built / "F1")["seq"] == 2
+    again = CliRunner().invoke(main, ["build", str(SITE / "F1"), "-o", str(tmp_path / "three"),
+                                      "--registry", str(reg2.root)])
+    assert again.exit_code == 0, again.output
+    assert (f"warning: not made current: {tmp_path / 'three' / 'F1'}: already published as #1, "
+            f"older than the current #2; to make it current: indoormap bundle use {reg2.root} "
+            f"{site}/F1 '#1' --rollback") in again.output
+    assert reg2.current(site, "F1")["seq"] == 2 and "allow_rollback" not in again.output
 
 
 def test_build_writes_radio_tables_and_a_site_bundle(built):
@@ -558,19 +569,27 @@ def test_localizing_a_walk_the_map_was_built_from_says_so(built, tmp_path):
     """A source walk's track is better than an unseen walk's: the three commands that
     localize warn, naming the walk and the bundle (wifi-locate did not before session 40); a
     run of many such walks names the first three and counts the rest in one line."""
+    import warnings
+
+    from localize.evaluate import SeenWalkWarning
+
     walk = min((SITE / "F2" / "path_data_files").glob("*.txt*"))
     tid = walk.name.split(".")[0]
-    assert tid in load_bundle(built / "F2").table("source_walks").column("trace_id").to_pylist()
+    assert tid in load_bundle(built / "F2").source_walk_ids()
     runner = CliRunner()
     for args in (["localize", str(built), str(walk), "-o", str(tmp_path / "out"), "--no-plot",
                   "--method", "pdr"],
                  ["evaluate", str(built), str(walk), "--method", "pdr"],
                  ["wifi-locate", str(built), str(walk)]):
-        res = runner.invoke(main, args)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            res = runner.invoke(main, args)
         assert res.exit_code == 0, res.output
         assert f"warning: {tid} was used to build {built / 'F2'}: the map has seen it" \
             in res.stderr
         assert "more walk(s)" not in res.stderr
+        # the commands say it once in their words, not also as the Python API's warning
+        assert not [w for w in caught if issubclass(w.category, SeenWalkWarning)]
     walks = sorted((SITE / "F2" / "path_data_files").glob("*.txt*"))
     assert len(walks) > SeenWalks.NAMED
     res = runner.invoke(main, ["evaluate", str(built), *map(str, walks), "--method", "pdr"])
@@ -582,6 +601,37 @@ def test_localizing_a_walk_the_map_was_built_from_says_so(built, tmp_path):
     res = runner.invoke(main, ["localize", str(built), str(walk), "-o", str(tmp_path / "far"),
                                "--no-plot", "--start", "100000,100000"])
     assert res.exit_code == 1 and "was used to build" not in res.stderr, res.output
+
+
+@pytest.mark.parametrize("method", ["pdr", "align"])
+def test_errors_measured_in_python_on_a_walk_the_map_has_seen_warn(built, method):
+    """The Python API said nothing where the commands warn: the track records that the map
+    has seen its walk, and waypoint_errors / step_errors warn; an unseen walk stays quiet."""
+    import warnings
+    from dataclasses import replace
+
+    from localize.baselines import make_localizer
+    from localize.evaluate import SeenWalkWarning, step_errors, waypoint_errors
+    from survey.step_summaries import step_summaries, waypoints_of
+    from survey.trace_reader import read_trace
+
+    walk = min((SITE / "F2" / "path_data_files").glob("*.txt*"))
+    trace = read_trace(walk)
+    steps, (t_wp, xy_wp) = step_summaries(trace), waypoints_of(trace)
+    bundle = load_bundle(built / "F2")
+    track = make_localizer(method, bundle).run(steps, start_xy=xy_wp[0])
+    assert track.info["seen_by_map"] is True
+    with pytest.warns(SeenWalkWarning, match=rf"{trace.trace_id} was used to build the map of "
+                      "floor .*: its errors are better than an unseen walk's"):
+        waypoint_errors(track, t_wp, xy_wp)
+    with pytest.warns(SeenWalkWarning):
+        step_errors(track, track.xy_m)
+    unseen = make_localizer(method, bundle).run(replace(steps, trace_id="elsewhere"),
+                                                start_xy=xy_wp[0])
+    assert unseen.info["seen_by_map"] is False
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        waypoint_errors(unseen, t_wp, xy_wp)
 
 
 def test_evaluate_warns_about_waypoints_where_the_map_has_no_data(built, tmp_path):

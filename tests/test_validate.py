@@ -254,6 +254,10 @@ def test_python_thresholds_change_only_the_keys_given(sites):
     assert relaxed.thresholds["coverage_within_2m_min"] == DEFAULT_THRESHOLDS[
         "coverage_within_2m_min"]
     assert statuses({})[0].verdict == full.verdict == "fail"
+    # a notebook shows the verdict, floor and failed checks, not every raster (44,000 lines)
+    shown = repr(full)
+    assert shown.startswith("ValidationResult('FAIL") and "walk_offset" in shown
+    assert len(shown.splitlines()) == 1 and len(shown) < 1000, shown[:2000]
     with pytest.raises(ValidationError, match="walk_ofset_max_ut"):
         validate_bundle(bundle, store, thresholds={"walk_ofset_max_ut": 8}, params=params)
 
