@@ -64,8 +64,7 @@ class MultiUserAligner:
         return np.fromiter(self._aligners, dtype=np.int64, count=len(self._aligners))
 
     def add_users(self, start_xy: ArrayLike, t_ms: ArrayLike,
-                  sigma_m: ArrayLike | None = None, fix_t_ms: ArrayLike | None = None
-                  ) -> NDArray[np.int64]:
+                  sigma_m: ArrayLike | None = None) -> NDArray[np.int64]:
         """Start alignments for new users; returns their ids.
 
         Parameters
@@ -77,26 +76,18 @@ class MultiUserAligner:
         sigma_m : array_like (k,), optional
             A fix's accuracy (m): the start is then the first of the user's fixes, with the
             fixes' error model. NaN or absent: a known position (``AlignParams.start_sd_m``).
-        fix_t_ms : array_like (k,), optional
-            For starts that are fixes: their scan times (Unix ms) when the start is earlier
-            (NaN or absent: ``t_ms``), as :meth:`WalkAligner.run` starts half a second before
-            the first step at the first fix of the walk (do not tick that fix again).
         """
         xy = np.asarray(start_xy, dtype=np.float64).reshape(-1, 2)
         k = len(xy)
         t = per_user(t_ms, k, "t_ms")
         sigma = np.full(k, np.nan) if sigma_m is None else per_user(sigma_m, k, "sigma_m")
-        fix_t = t if fix_t_ms is None else np.where(
-            np.isnan(f := per_user(fix_t_ms, k, "fix_t_ms")), t, f)
-        if not (np.isfinite(t).all() and np.isfinite(fix_t).all()):
-            raise LocalizationError("add_users: a start time is not finite (t_ms, fix_t_ms)")
+        if not np.isfinite(t).all():
+            raise LocalizationError("add_users: a start time is not finite (t_ms)")
         new = []
-        for (x, y), t0, s, tf in zip(xy, t, sigma, fix_t):
+        for (x, y), t0, s in zip(xy, t, sigma):
             aligner = WalkAligner(self.bundle, self.params)
             aligner.begin(*aligner._checked_start((x, y)), float(t0),
                           float(s) if np.isfinite(s) else None)
-            if np.isfinite(s):
-                aligner._started_from(None, float(tf))
             new.append(aligner)  # every start checked before anyone is added
         ids = np.arange(self._next_id, self._next_id + k, dtype=np.int64)
         self._next_id += k

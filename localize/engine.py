@@ -101,8 +101,8 @@ class MultiUserEngine:
         return len(self.user_ids)
 
     def add_users(self, start_xy: ArrayLike, half_width_m: ArrayLike | None = None, *,
-                  fix_sigma_m: ArrayLike | None = None, t_ms: ArrayLike | None = None,
-                  fix_t_ms: ArrayLike | None = None) -> NDArray[np.int64]:
+                  fix_sigma_m: ArrayLike | None = None, t_ms: ArrayLike | None = None
+                  ) -> NDArray[np.int64]:
         """Start filters for new users around their start positions; returns their ids.
 
         Parameters
@@ -117,11 +117,6 @@ class MultiUserEngine:
             guided engine those users are guided (class docstring).
         t_ms : array_like (k,), optional
             The starts' times (Unix ms); needed for guided users.
-        fix_t_ms : array_like (k,), optional
-            For guided users, their start fixes' scan times when the start is earlier
-            (:meth:`MultiUserAligner.add_users`); what the single-user guided filter's
-            ``run`` does: start half a second before the first step at the walk's first fix,
-            dated at its scan, which is not ticked again.
         """
         p = self.params
         xy = np.asarray(start_xy, dtype=np.float64).reshape(-1, 2)
@@ -137,9 +132,7 @@ class MultiUserEngine:
                 raise LocalizationError("add_users: users started from a fix on a guided "
                                         "engine need their start times (t_ms)")
             t = per_user(t_ms, k, "t_ms")
-            fix_t = None if fix_t_ms is None else per_user(fix_t_ms, k, "fix_t_ms")[guided]
-            guide_ids[guided] = self.guide.add_users(xy[guided], t[guided], sigma[guided],
-                                                     fix_t)
+            guide_ids[guided] = self.guide.add_users(xy[guided], t[guided], sigma[guided])
         try:
             new = init_state(self.fmap, p, self.rng, xy, hw, dtype=self.dtype)
         except BaseException:

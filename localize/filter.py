@@ -340,14 +340,15 @@ class Localizer(BaseLocalizer):
         # one for its whole window: from a given start the filter uses the fixes themselves
         self._guided = self.guide is not None and sigma is not None
         if self._guided:
+            # The guide starts where the particles do, at the fix at the start time, and
+            # takes the start scan again at its step: the first fix counts twice. Dating it
+            # at its scan and taking it once, as WalkAligner.run does, measured worse
+            # (session 42, simulated built maps, auto, seeds 0-3: 1.26 / 3.11 / 2.14 m at the
+            # waypoints against 1.22 / 2.97 / 2.07 m; docs/localize.md).
             self.guide.begin(x, y, t_ms, sigma, half_width_m)
         mx, my, spread = estimate(self.state)
         return Estimate(t_ms, float(mx[0]), float(my[0]), float(spread[0]), 1.0, False,
                         self.bundle.floor_id)
-
-    def _started_from(self, scan: RadioScan | None, t_fix_ms: float) -> None:
-        if self._guided:  # the guide's start fix is the scan's, as in WalkAligner.run
-            self.guide._started_from(scan, t_fix_ms)
 
     def step(self, s: StepSummary) -> Estimate:
         """Advance by one step and return the new estimate.

@@ -134,15 +134,13 @@ def test_guided_engine_users_get_the_single_user_guided_filter(f1_bundle, sim_wa
 
     def starts(ws, fs):
         first = [f.at[min(f.at)] for f in fs]
-        return (np.array([f[:2] for f in first]), [w.steps.t_ms[0] - 500.0 for w in ws],
-                [f[2] for f in first])
+        return (np.array([f[:2] for f in first]), [w.steps.t_ms[0] - 500.0 for w in ws])
 
-    def run(eng, ws, fs, ids, from_fix):
+    def run(eng, ws, fs, ids):
         n = min(len(w.steps) for w in ws)
         est = []
-        for i in range(n):  # a start fix (dated at its scan by add_users) is not ticked
-            fx = np.array([(np.nan,) * 3 if started and i == min(f.at) else
-                           f.at.get(i, (np.nan,) * 3) for f, started in zip(fs, from_fix)])
+        for i in range(n):
+            fx = np.array([f.at.get(i, (np.nan,) * 3) for f in fs])
             given = fx.copy()
             out = eng.tick(ids, _inputs(ws, i), fx[:, :2], t_ms=[w.steps.t_ms[i] for w in ws],
                            fix_t_ms=fx[:, 2])
@@ -151,17 +149,17 @@ def test_guided_engine_users_get_the_single_user_guided_filter(f1_bundle, sim_wa
         return np.stack(est, axis=1)  # (users, steps, 2)
 
     eng = MultiUserEngine(f1_bundle, p, rng=9)
-    xy, t0, t_fix = starts(walks[:1], fixes[:1])
-    ids = eng.add_users(xy, fix_sigma_m=[3.0], t_ms=t0, fix_t_ms=t_fix)
-    one = run(eng, walks[:1], fixes[:1], ids, [True])
+    xy, t0 = starts(walks[:1], fixes[:1])
+    ids = eng.add_users(xy, fix_sigma_m=[3.0], t_ms=t0)
+    one = run(eng, walks[:1], fixes[:1], ids)
     assert np.allclose(one[0, :, 0], ref[0].x_m) and np.allclose(one[0, :, 1], ref[0].y_m)
     # several users, one of them started at its true position (not guided)
     eng = MultiUserEngine(f1_bundle, p, rng=9)
-    xy, t0, t_fix = starts(walks, fixes)
+    xy, t0 = starts(walks, fixes)
     xy[2] = walks[2].start_xy
-    ids = eng.add_users(xy, fix_sigma_m=[3.0, 3.0, np.nan], t_ms=t0, fix_t_ms=t_fix)
+    ids = eng.add_users(xy, fix_sigma_m=[3.0, 3.0, np.nan], t_ms=t0)
     assert eng.guide.n_users == 2 and list(eng.guide_ids) == [0, 1, -1]
-    many = run(eng, walks, fixes, ids, [True, True, False])
+    many = run(eng, walks, fixes, ids)
     for k, w in enumerate(walks[:2]):
         n = many.shape[1]
         err, ref_err = (np.median(np.hypot(*(e - w.true_xy[:n]).T)) for e in (
