@@ -498,10 +498,14 @@ class WalkAligner(BaseLocalizer):
             start = self._start_at(f[0], f[1], t0, f[2], None)
             self._started_from(None, t_fix)  # its scan is not among the later fixes
         later = fixes if start_xy is not None else fixes[1:]  # the start fix is in already
-        if smooth:
-            track = self._offline(steps, start, later)
-            track.info["seen_by_map"] = self.seen_by_map(steps)
-            return track
+        track = (self._offline(steps, start, later) if smooth
+                 else self._real_time(steps, start, later))
+        track.info["seen_by_map"] = self.seen_by_map(steps)
+        return track
+
+    def _real_time(self, steps: StepSummaries, start: Estimate, later: list) -> Track:
+        """The walk stepped through, aligned again at every step; ``later``: its fixes after
+        the start's."""
         by_step = {i: (t, f) for i, t, f in later}
         axis = steps.attitude == AttitudeCode.CARRIED
         est = [self._advance(steps.t_ms[i], steps.compass_deg[i],
@@ -509,7 +513,7 @@ class WalkAligner(BaseLocalizer):
                              by_step.get(i)) for i in range(len(steps))]
         track = Track.from_estimates(start, est, method=self.method, trace_id=steps.trace_id,
                                      floor_id=self.bundle.floor_id)
-        track.info.update(smoothed=False, seen_by_map=self.seen_by_map(steps))
+        track.info["smoothed"] = False
         return track
 
     def _offline(self, steps: StepSummaries, start: Estimate, later: list) -> Track:

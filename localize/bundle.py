@@ -252,6 +252,7 @@ class MapBundle:
         self.layers = layers
         self.std = std
         self.tables = tables if tables is not None else {}
+        self._source_walk_ids: frozenset[str] | None = None
 
     @property
     def bundle_id(self) -> str:
@@ -289,10 +290,13 @@ class MapBundle:
 
     def source_walk_ids(self) -> frozenset[str]:
         """Trace ids of the walks the bundle was built from (its ``source_walks`` table;
-        empty without one): errors measured on them flatter the map."""
-        if not self.has_table("source_walks"):
-            return frozenset()
-        return frozenset(self.table("source_walks").column("trace_id").to_pylist())
+        empty without one): errors measured on them flatter the map. Read once per bundle
+        (every localized walk asks)."""
+        if self._source_walk_ids is None:
+            self._source_walk_ids = frozenset(
+                self.table("source_walks").column("trace_id").to_pylist()
+                if self.has_table("source_walks") else ())
+        return self._source_walk_ids
 
     def reachable(self, x_m: ArrayLike, y_m: ArrayLike) -> NDArray[np.bool_]:
         """Whether each point lies in a reachable cell."""
