@@ -29,7 +29,7 @@ import numpy as np
 
 from localize.baselines import make_localizer
 from localize.methods import PARTICLE_FILTERS
-from localize.bundle import MapBundle, load_bundle
+from localize.bundle import RSSI_RANGE_DBM, MapBundle, load_bundle
 from localize.errors import LocalizationError
 from localize.evaluate import step_errors, summarize, waypoint_errors
 from localize.maps import FilterMap
@@ -256,10 +256,13 @@ def real_walks(floor_dir: Path, work: Path) -> list[EvalWalk]:
 
 def with_ble_rssi(walks: list[EvalWalk], k: float, b: float) -> list[EvalWalk]:
     """The walks with their BLE RSSI read as a phone on another scale would: ``k * rssi + b``
-    (dBm). Their Wi-Fi is left as it is."""
+    (dBm), within the range a phone reports (:data:`localize.bundle.RSSI_RANGE_DBM`). Their
+    Wi-Fi is left as it is."""
     if (k, b) == (1.0, 0.0):
         return walks
-    return [replace(w, ble_scans=[RadioScan(s.t_ms, s.keys, k * s.rssi_dbm + b, s.age_ms)
+    return [replace(w, ble_scans=[RadioScan(s.t_ms, s.keys,
+                                            np.clip(k * s.rssi_dbm + b, *RSSI_RANGE_DBM),
+                                            s.age_ms)
                                   for s in w.ble_scans]) for w in walks]
 
 

@@ -42,7 +42,8 @@ from numpy.typing import NDArray
 
 from localize.bundle import Grid, MapBundle
 from localize.errors import LocalizationError
-from localize.filter import BaseLocalizer, check_step, check_step_time
+from localize.filter import (MAX_START_OFF_MAP_M, BaseLocalizer, check_compass, check_step,
+                             check_step_time, within_reach)
 from localize.params import MAX_STEP_M
 from localize.radio import RadioModel
 from localize.steps import AttitudeCode, RadioScan, StepSummaries, StepSummary
@@ -307,9 +308,11 @@ class WalkAligner(BaseLocalizer):
     of ``start_sd_m``; without one the walk's first fix is used from the start on, as the
     particle filters start from it. See the module docstring.
 
-    Streaming gives ``run``'s track, from a given start or from a scan: ``start(scan=...)``
+    Streaming gives ``run``'s track when it starts at ``run``'s start time
+    (``t_ms=steps.t_ms[0] - 500``), from a given start or from a scan: ``start(scan=...)``
     dates the fix at the scan's own time, and ``step`` does not apply that scan again when
-    its step brings it (the same object, or a scan with the same time).
+    its step brings it (the same object, or a scan with the same time). From another start
+    time the track moves by a fraction of a metre (docs/localize.md).
 
     Parameters
     ----------
@@ -394,15 +397,25 @@ class WalkAligner(BaseLocalizer):
         (:class:`localize.align_engine.MultiUserAligner`)."""
         if not self._fix_t:
             raise LocalizationError("call start() (or run()) before step()")
+        check_compass(t_ms, compass_deg)
         check_step_time(t_ms, self._t[-1])
         located = None if fix is None else (float(fix[2]), (float(fix[0]), float(fix[1])))
+        if located is not None and not (np.isfinite(located[0])
+                                        and within_reach(self.bundle.grid, *located[1])):
+            given = ", ".join(f"{v:g}" for v in (*located[1], located[0]))
+            raise LocalizationError(f"step at {t_ms:g} ms: fix ({given}) (x, y m, t ms) is "
+                                    f"not finite or more than {MAX_START_OFF_MAP_M:g} m off "
+                                    "the floor's map: wrong floor or units?; the step was "
+                                    "not taken")
         return self._advance(t_ms, compass_deg, relative_heading_deg, delta_acc_ms2,
                              bool(carried), located)
 
     def _advance(self, t_ms, compass_deg, gyro_deg, swing, axis, fix) -> Estimate:
         """Take one step (and its fix ``(t_ms, (x, y, sigma))``, if any), then align again:
         over the whole grid when a fix came, else around the last alignment (the new step
-        can still meet a wall)."""
+        can still meet a wall). Should the alignment fail, the step is taken back, so that
+        the user carries on with the next one."""
+        n_fixes, stale = len(self._fix_t), self._stale
         self._t.append(float(t_ms))
         self._compass.append(float(compass_deg))
         self._gyro.append(float(gyro_deg))
@@ -412,13 +425,23 @@ class WalkAligner(BaseLocalizer):
             self._fix_t.append(fix[0])
             self._fix_z.append(complex(fix[1][0], fix[1][1]))
             self._stale = True
-        self._align_window(local=not self._stale)
+        try:
+            first = self._align_window(local=not self._stale)
+        except Exception:  # nothing of the alignment's is kept before it succeeds
+            for history in (self._t, self._compass, self._gyro, self._swing, self._axis):
+                del history[-1]
+            del self._fix_t[n_fixes:], self._fix_z[n_fixes:]
+            self._stale = stale
+            raise
+        if first >= _FORGET_STEPS:
+            self._forget(first)
         return Estimate(self._t[-1], float(self._pos.real), float(self._pos.imag),
                         self._spread, 1.0, False, self.bundle.floor_id)
 
-    def _align_window(self, local: bool) -> None:
+    def _align_window(self, local: bool) -> int:
         """Align the last ``window_s`` of the walk (its steps and fixes) and place the walker
-        at its end; ``local`` searches only around the last alignment of the same window."""
+        at its end; ``local`` searches only around the last alignment of the same window.
+        Returns the window's first step index (what :meth:`_forget` may drop before it)."""
         p = self.params
         t = np.asarray(self._t)
         first = max(min(int(np.searchsorted(t, t[-1] - p.window_s * 1000.0)), len(t) - 1) - 1,
@@ -443,8 +466,7 @@ class WalkAligner(BaseLocalizer):
         self._pos, self._spread = pos[-1], best.spread_m
         self._fit = (float(np.angle(best.factor)) + anchor, abs(best.factor), first, pos)
         self._stale = False
-        if first >= _FORGET_STEPS:
-            self._forget(first)
+        return first
 
     def _forget(self, first: int) -> None:
         """Drop the steps before index ``first`` of the step times (the current window's

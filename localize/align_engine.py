@@ -135,7 +135,8 @@ class MultiUserAligner:
         t = per_user(t_ms, k, "t_ms")
         users = self.aligners_of(ids)
         check_step_times(users, t, ids)
-        fix_xy = None if fix_xy_m is None else checked_tick_fixes(fix_xy_m, None, k, 0.0)[0]
+        fix_xy = (None if fix_xy_m is None else
+                  checked_tick_fixes(fix_xy_m, None, k, 0.0, self.bundle.grid, ids)[0])
         fix_t = None if fix_t_ms is None else per_user(fix_t_ms, k, "fix_t_ms")
         return advance_aligners(users, t, step_columns(inputs, k), fix_xy, fix_t)
 

@@ -18,7 +18,8 @@ import numpy as np
 from localize.align import WalkAligner
 from localize.bundle import MapBundle
 from localize.errors import LocalizationError
-from localize.filter import BUNDLE_HINT, BaseLocalizer, Localizer, check_step, check_step_time
+from localize.filter import (BUNDLE_HINT, BaseLocalizer, Localizer, check_compass, check_step,
+                             check_step_time)
 from localize.maps import FilterMap
 from localize.methods import METHODS, PARTICLE_FILTERS, SMOOTHABLE, WEIGHT_MODE_OF, auto_method
 from localize.params import FilterParams
@@ -62,6 +63,7 @@ class PdrLocalizer(BaseLocalizer):
         check_step(s, self)
         if self._last is None:
             raise LocalizationError("call start() (or run()) before step()")
+        check_compass(s.t_ms, s.compass_deg)
         check_step_time(s.t_ms, self._last.t_ms)
         h = np.radians(s.compass_deg - self.heading_offset_deg)
         x = self._last.x_m + self.step_length_m * np.sin(h)

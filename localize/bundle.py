@@ -283,7 +283,9 @@ class MapBundle:
             raise BundleError(f"{self.path}: no table {name!r}; has {sorted(tables)}")
         if name in self.tables:
             return self.tables[name]
-        return pq.read_table(self.path / tables[name]["file"], page_checksum_verification=True)
+        with pq.ParquetFile(self.path / tables[name]["file"],
+                            page_checksum_verification=True) as pf:
+            return pf.read(use_threads=False)  # read_table would import pandas
 
     def has_table(self, name: str) -> bool:
         return name in self.manifest.get("tables", {})
@@ -932,6 +934,8 @@ def _check_table(table: pa.Table, path: object, name: str, key: str) -> None:
     """One table against its :data:`TABLE_SCHEMAS` entry (see :func:`read_checked_tables`)."""
     import pyarrow as pa
 
+    from localize.arrow_numpy import numeric_column
+
     schema = TABLE_SCHEMAS[key]
     where = f"{path}: table {name!r}"
     have = table.column_names
@@ -957,7 +961,7 @@ def _check_table(table: pa.Table, path: object, name: str, key: str) -> None:
                                        "values")
         if want == _TEXT:
             continue
-        values = np.asarray(column.to_numpy(), dtype=np.float64)  # nulls as NaN
+        values = numeric_column(column).astype(np.float64)  # nulls as NaN
         good = np.isfinite(values) & (values >= low) & (values <= high)
         if nullable:
             good |= np.isnan(values)
@@ -978,14 +982,16 @@ def _has_duplicates(table: pa.Table, keys: tuple[str, ...]) -> bool:
     import pyarrow as pa
     import pyarrow.compute as pc
 
+    from localize.arrow_numpy import numeric_column
+
     code = np.zeros(table.num_rows, dtype=np.int64)
     for col in keys:
         column = table.column(col)
         if pa.types.is_integer(column.type):
-            _, values = np.unique(np.asarray(column.to_numpy()), return_inverse=True)
+            _, values = np.unique(numeric_column(column), return_inverse=True)
         else:  # text: the index of each row's value among the distinct ones, already dense
-            values = np.asarray(pc.dictionary_encode(column.combine_chunks()).indices,
-                                dtype=np.int64)
+            values = numeric_column(
+                pc.dictionary_encode(column.combine_chunks()).indices).astype(np.int64)
         code = code * (int(values.max(initial=0)) + 1) + values.ravel()
     return len(np.unique(code)) != len(code)
 
@@ -994,6 +1000,8 @@ def _check_radio_tables(tables: dict[str, pa.Table], path: object, kind: str) ->
     """A radio kind's ``<kind>_rp``, ``<kind>_fp`` and ``<kind>_meta`` together, not empty (a
     floor without rows of the kind has none of its tables), fingerprints of known reference
     points, the meta table one row of its kind."""
+    from localize.arrow_numpy import numeric_column
+
     names = [f"{kind}_{t}" for t in ("rp", "fp", "meta")]
     present = [n for n in names if n in tables]
     if not present:
@@ -1007,8 +1015,8 @@ def _check_radio_tables(tables: dict[str, pa.Table], path: object, kind: str) ->
             raise BundleIntegrityError(
                 f"{path}: table {name!r} has no rows (a floor without {kind} fingerprints has "
                 f"no {kind} tables)")
-    known = np.asarray(rp.column("rp_id").to_numpy())
-    if not np.isin(np.asarray(fp.column("rp_id").to_numpy()), known).all():
+    known = numeric_column(rp.column("rp_id"))
+    if not np.isin(numeric_column(fp.column("rp_id")), known).all():
         raise BundleIntegrityError(f"{path}: table {names[1]!r} column 'rp_id' names reference "
                                    f"points that {names[0]!r} lacks")
     if meta.num_rows != 1 or meta.column("kind")[0].as_py() != kind:

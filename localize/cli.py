@@ -94,10 +94,10 @@ def _warn_if_off_floor(bundle, start_xy: tuple[float, float] | None) -> None:
     """Warn when a given start (m) is off the bundle's reachable area: the particles drawn
     there die at their first move and are re-drawn around it (not when it is so far off that
     the localizer refuses it: that error says so)."""
-    from localize.filter import start_within_reach
+    from localize.filter import within_reach
 
     if start_xy is not None and not bundle.reachable(*start_xy).all() \
-            and start_within_reach(bundle.grid, *start_xy):
+            and within_reach(bundle.grid, *start_xy):
         g = bundle.grid
         click.echo(f"warning: start {start_xy[0]:g},{start_xy[1]:g} is off the reachable area "
                    f"of {bundle.manifest.get('floor_name') or bundle.floor_id} (x {g.x0_m:g} to "

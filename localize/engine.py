@@ -179,7 +179,9 @@ class MultiUserEngine:
         pos = np.minimum(pos, len(order) - 1) if len(order) else pos
         rows = order[pos] if len(order) else pos
         if len(order) == 0 or not np.array_equal(self.user_ids[rows], ids):
-            raise LocalizationError("unknown user id in tick")
+            known = set(self.user_ids.tolist())
+            unknown = [i for i in ids.tolist() if i not in known]
+            raise LocalizationError(f"unknown user ids in tick: {unknown[:10]}")
         return rows
 
     @property
@@ -234,7 +236,8 @@ class MultiUserEngine:
         check_tick_inputs(inputs, users)
         p = self.params
         if fix_xy_m is not None:
-            fix_xy, sigma = checked_tick_fixes(fix_xy_m, fix_sigma_m, k, p.radio_sigma_floor_m)
+            fix_xy, sigma = checked_tick_fixes(fix_xy_m, fix_sigma_m, k, p.radio_sigma_floor_m,
+                                              self.bundle.grid, users)
         rows = slice(None) if ids is None else self.rows_of(ids)
         last = self.last_xy[rows]
         guided = self.guide_ids[rows] >= 0

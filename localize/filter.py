@@ -16,7 +16,7 @@ from functools import partial
 from typing import NamedTuple
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from localize.bundle import Grid, MapBundle
 from localize.errors import LocalizationError
@@ -84,6 +84,20 @@ def check_step_time(t_ms: float, last_t_ms: float) -> None:
                                 "or has no time")
 
 
+def check_compass(t_ms: float, compass_deg: float) -> None:
+    """A streaming step's compass heading (deg) must be a finite number; else a
+    LocalizationError before the localizer takes the step (it carries on with the next)."""
+    try:
+        ok = bool(np.isfinite(float(compass_deg)))
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        given = f"{compass_deg:g}" if isinstance(compass_deg, (float, np.floating)) \
+            else repr(compass_deg)
+        raise LocalizationError(f"step at {t_ms} ms: no compass heading (compass_deg is "
+                                f"{given}); the step was not taken")
+
+
 #: How to get a floor's map (what a wrong-type error suggests).
 BUNDLE_HINT = ("localize.bundle.load_bundle(path) opens one; "
                "localize.floors.SiteMaps.open(folder).floor_bundle(floor) gives a site's")
@@ -126,16 +140,21 @@ class BaseLocalizer:
         self._keep_genealogy = False  # set by run(smooth=True) for the start to see
 
     # -- start ---------------------------------------------------------------------------
-    def start(self, x_m: float | None = None, y_m: float | None = None, *, t_ms: float = 0.0,
-              scan: RadioScan | None = None, half_width_m: float | None = None) -> Estimate:
+    def start(self, x_m: float | None = None, y_m: float | None = None, *,
+              t_ms: float | None = None, scan: RadioScan | None = None,
+              half_width_m: float | None = None) -> Estimate:
         """Start at a given position, or at the radio fix of ``scan``.
 
         Parameters
         ----------
         x_m, y_m : float, optional
             Start position (m). Without it ``scan`` and the radio model give the start.
-        t_ms : float
-            Start time (Unix ms).
+        t_ms : float, optional
+            Start time (Unix ms); default the scan's time when starting from a scan, else 0.
+            :meth:`run` starts half a second before the walk's first step: streaming from
+            that time gives ``run()``'s track exactly. The filter's track does not depend on
+            it; the alignment's (and a guided filter's) moves by a fraction of a metre,
+            with the same accuracy.
         scan : RadioScan, optional
         half_width_m : float, optional
             ``delta`` (m); default from the parameters (and the fix's accuracy).
@@ -154,6 +173,8 @@ class BaseLocalizer:
             if fix is None:
                 raise LocalizationError("the radio model gives no fix for the start scan")
             x_m, y_m, sigma = fix
+        if t_ms is None:
+            t_ms = scan.time_or(0.0) if sigma is not None else 0.0
         self._keep_genealogy = False  # streaming: real-time estimates only
         est = self.begin(*self._checked_start((x_m, y_m)), t_ms, sigma, half_width_m)
         if sigma is not None:
@@ -175,7 +196,7 @@ class BaseLocalizer:
         except (TypeError, ValueError) as err:
             raise LocalizationError(f"start position {xy!r} is not two numbers (x, y m)") \
                 from err
-        if not start_within_reach(self.bundle.grid, x, y):
+        if not within_reach(self.bundle.grid, x, y):
             raise LocalizationError(f"start position ({x:g}, {y:g}) m is not finite or more "
                                     f"than {MAX_START_OFF_MAP_M:g} m off the floor's map: "
                                     "wrong floor or units?")
@@ -361,8 +382,7 @@ class Localizer(BaseLocalizer):
         check_step(s, self)
         if self.state is None or self._last is None:
             raise LocalizationError("call start() (or run()) before step()")
-        if not np.isfinite(s.compass_deg):
-            raise LocalizationError(f"step at {s.t_ms}: no compass heading")
+        check_compass(s.t_ms, s.compass_deg)
         check_step_time(s.t_ms, self._last.t_ms)
         st, p = self.state, self.params
         inp = StepInputs(np.array([s.compass_deg]), np.array([s.frequency_hz]),
@@ -463,9 +483,12 @@ class Localizer(BaseLocalizer):
         return self.state.x[0], self.state.y[0], self.state.w[0]
 
 
-def start_within_reach(grid: Grid, x: float, y: float) -> bool:
-    """Whether a start (m, map frame) is finite and within :data:`MAX_START_OFF_MAP_M` of the
-    floor's ``grid``: a filter refuses one that is not."""
+def within_reach(grid: Grid, x: ArrayLike, y: ArrayLike) -> NDArray[np.bool_] | bool:
+    """Whether positions (m, map frame; scalars or arrays of one shape) are finite and within
+    :data:`MAX_START_OFF_MAP_M` of the floor's ``grid``: a localizer refuses a start or a
+    given fix that is not. A bool for scalars."""
     m = MAX_START_OFF_MAP_M
-    return bool(grid.x0_m - m <= x <= grid.x0_m + grid.width * grid.cell_m + m
-                and grid.y0_m - m <= y <= grid.y0_m + grid.height * grid.cell_m + m)
+    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    ok = ((grid.x0_m - m <= x) & (x <= grid.x0_m + grid.width * grid.cell_m + m)
+          & (grid.y0_m - m <= y) & (y <= grid.y0_m + grid.height * grid.cell_m + m))
+    return bool(ok) if ok.ndim == 0 else ok

@@ -175,18 +175,20 @@ class FingerprintPositioner:
     @classmethod
     def from_tables(cls, rp: pa.Table, fp: pa.Table, **kw) -> FingerprintPositioner:
         """From the ``<kind>_rp`` and ``<kind>_fp`` tables (pyarrow) of a bundle."""
+        from localize.arrow_numpy import numeric_column
+
         need = {"rp": (rp, ("rp_id", "x_m", "y_m")),
                 "fp": (fp, ("rp_id", "ap", "mean_dbm", "var_db2", "detection_rate"))}
         for what, (table, cols) in need.items():
             missing = [c for c in cols if c not in table.column_names]
             if missing:
                 raise LocalizationError(f"fingerprint table {what!r} lacks columns {missing}")
-        rp_id = np.asarray(rp.column("rp_id").to_numpy(), dtype=np.int64)
+        rp_id = numeric_column(rp.column("rp_id")).astype(np.int64)
         order = np.argsort(rp_id, kind="stable")
         rp_id = rp_id[order]
-        xy = np.column_stack([np.asarray(rp.column("x_m").to_numpy(), np.float64)[order],
-                              np.asarray(rp.column("y_m").to_numpy(), np.float64)[order]])
-        fp_rp = np.asarray(fp.column("rp_id").to_numpy(), dtype=np.int64)
+        xy = np.column_stack([numeric_column(rp.column("x_m")).astype(np.float64)[order],
+                              numeric_column(rp.column("y_m")).astype(np.float64)[order]])
+        fp_rp = numeric_column(fp.column("rp_id")).astype(np.int64)
         r_idx = np.searchsorted(rp_id, fp_rp)
         if len(fp_rp) and (np.any(r_idx >= len(rp_id)) or
                            np.any(rp_id[np.minimum(r_idx, len(rp_id) - 1)] != fp_rp)):
@@ -195,9 +197,9 @@ class FingerprintPositioner:
         aps, a_idx = np.unique(ap_col, return_inverse=True)
         shape = (len(rp_id), len(aps))
         mean, var, det = np.full(shape, np.nan), np.full(shape, np.nan), np.zeros(shape)
-        mean[r_idx, a_idx] = fp.column("mean_dbm").to_numpy()
-        var[r_idx, a_idx] = fp.column("var_db2").to_numpy(zero_copy_only=False)
-        det[r_idx, a_idx] = fp.column("detection_rate").to_numpy()
+        mean[r_idx, a_idx] = numeric_column(fp.column("mean_dbm"))
+        var[r_idx, a_idx] = numeric_column(fp.column("var_db2"))
+        det[r_idx, a_idx] = numeric_column(fp.column("detection_rate"))
         return cls(aps, xy, mean, var, det, **kw)
 
     @classmethod

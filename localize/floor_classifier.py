@@ -119,6 +119,8 @@ class FloorClassifier:
         ``feature``."""
         import pyarrow as pa
 
+        from localize.arrow_numpy import numeric_column
+
         coef_name, intercept_name = prefix + COEF_TABLE, prefix + INTERCEPT_TABLE
         for name, table, cols in ((coef_name, coef_table, ("ap", "floor", "coef")),
                                   (intercept_name, intercept_table, ("floor", "intercept"))):
@@ -126,8 +128,8 @@ class FloorClassifier:
             if missing:
                 raise LocalizationError(f"table {name!r} lacks columns {missing}")
         try:
-            intercept = np.asarray(intercept_table.column("intercept").to_numpy(), np.float64)
-            values = np.asarray(coef_table.column("coef").to_numpy(), np.float64)
+            intercept = numeric_column(intercept_table.column("intercept")).astype(np.float64)
+            values = numeric_column(coef_table.column("coef")).astype(np.float64)
         except (TypeError, ValueError, pa.ArrowException) as err:  # text where numbers belong
             raise LocalizationError(f"tables {coef_name!r} / {intercept_name!r}: coefficients "
                                     f"are not numbers ({err})") from err

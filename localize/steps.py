@@ -19,6 +19,7 @@ from enum import IntEnum
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from localize.bundle import RSSI_RANGE_DBM
 from localize.errors import LocalizationError
 
 __all__ = ["AttitudeCode", "RadioScan", "StepSummaries", "StepSummary", "attitude_codes",
@@ -79,9 +80,11 @@ class RadioScan:
     t_ms : int
         Scan time (Unix ms).
     keys : ndarray of str, shape (k,)
-        BSSIDs (lower-case, colon separated) or beacon keys; unique within the scan.
+        BSSIDs (colon separated) or beacon keys; unique within the scan. Lower-cased on
+        construction, as the bundles keep them.
     rssi_dbm : ndarray of float, shape (k,)
-        Received signal strength (dBm).
+        Received signal strength (dBm), within :data:`~localize.bundle.RSSI_RANGE_DBM`
+        (else a LocalizationError naming the scan and the key).
     age_ms : ndarray of float, shape (k,), optional
         Age of each row at the scan time (ms): Android reports, with every scan, transmitters
         last heard up to several seconds before it, and those rows lag the walker. NaN (or no
@@ -94,12 +97,33 @@ class RadioScan:
     age_ms: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
-        if len(self.keys) != len(self.rssi_dbm):
-            raise LocalizationError(f"scan at {self.t_ms}: {len(self.keys)} keys but "
-                                    f"{len(self.rssi_dbm)} RSSI values")
-        if self.age_ms is not None and len(self.age_ms) != len(self.keys):
-            raise LocalizationError(f"scan at {self.t_ms}: {len(self.keys)} keys but "
-                                    f"{len(self.age_ms)} row ages")
+        keys = np.asarray(self.keys)
+        if keys.ndim != 1 or np.ndim(self.rssi_dbm) != 1 or len(keys) != len(self.rssi_dbm):
+            raise LocalizationError(f"scan at {self.t_ms}: {keys.size} keys but "
+                                    f"{np.size(self.rssi_dbm)} RSSI values (one per key)")
+        if self.age_ms is not None and np.size(self.age_ms) != len(keys):
+            raise LocalizationError(f"scan at {self.t_ms}: {len(keys)} keys but "
+                                    f"{np.size(self.age_ms)} row ages")
+        # BSSIDs and beacon ids are matched lower-case, as the bundles keep them: a phone or
+        # tool that writes them upper-case must not miss (or mis-match) every transmitter
+        lower = [str(k).lower() for k in keys.tolist()]
+        if len(set(lower)) != len(lower):
+            twice = next(k for i, k in enumerate(lower) if k in lower[:i])
+            raise LocalizationError(f"scan at {self.t_ms}: key {twice} appears twice (keys "
+                                    "are matched lower-case)")
+        object.__setattr__(self, "keys", np.array(lower, dtype=str))
+        try:
+            rssi = np.asarray(self.rssi_dbm, dtype=np.float64)
+        except (TypeError, ValueError) as err:
+            raise LocalizationError(f"scan at {self.t_ms}: RSSI values are not numbers "
+                                    f"({err})") from err
+        lo, hi = RSSI_RANGE_DBM
+        bad = ~((rssi >= lo) & (rssi <= hi))
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise LocalizationError(f"scan at {self.t_ms}: RSSI {rssi[i]:g} dBm of "
+                                    f"{self.keys[i]} is not in [{lo:g}, {hi:g}] dBm (another "
+                                    "unit?)")
 
     def __len__(self) -> int:
         return len(self.keys)

@@ -9,7 +9,9 @@ from dataclasses import fields
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from localize.bundle import Grid
 from localize.errors import LocalizationError
+from localize.filter import MAX_START_OFF_MAP_M, within_reach
 from localize.stepper import StepInputs
 
 __all__ = ["check_tick_inputs", "checked_tick_fixes", "per_user", "tick_ids"]
@@ -24,17 +26,38 @@ def tick_ids(ids: ArrayLike) -> NDArray[np.int64]:
 
 
 def checked_tick_fixes(fix_xy_m: ArrayLike, fix_sigma_m: ArrayLike | None, k: int,
-                       floor_m: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+                       floor_m: float, grid: Grid, ids: NDArray[np.int64]
+                       ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Fixes as (k, 2) and their SDs as (k,) (NaN or absent: ``floor_m``; raised to it), or a
-    LocalizationError before anyone moves; copies (the engines write into them)."""
-    xy = np.array(fix_xy_m, dtype=np.float64)
+    LocalizationError before anyone moves; copies (the engines write into them).
+
+    A row is a fix (two finite numbers within
+    :data:`~localize.filter.MAX_START_OFF_MAP_M` of the floor's ``grid``, as a start) or
+    NaN, NaN (none); anything else names the users of ``ids`` it came from: a fix in other
+    units or for another floor would drag their tracks off the map."""
+    try:
+        xy = np.array(fix_xy_m, dtype=np.float64)
+    except (TypeError, ValueError) as err:
+        raise LocalizationError(f"fix_xy_m is not numeric ({err}); nobody was advanced") \
+            from err
     if xy.shape == (2,) and k == 1:
         xy = xy.reshape(1, 2)
     if xy.shape != (k, 2):
         raise LocalizationError(f"fix_xy_m has shape {xy.shape}, expected ({k}, 2): one fix "
                                 "(or a NaN row) per user")
-    sigma = np.full(k, np.nan) if fix_sigma_m is None else \
-        np.asarray(fix_sigma_m, dtype=np.float64).reshape(-1)
+    none = np.isnan(xy).all(axis=1)
+    bad = ~none & ~within_reach(grid, xy[:, 0], xy[:, 1])
+    if bad.any():
+        raise LocalizationError(
+            f"users {ids[bad][:10].tolist()}: fix_xy_m {xy[bad][0].tolist()} is not two "
+            f"finite numbers within {MAX_START_OFF_MAP_M:g} m of the floor's map (NaN, NaN "
+            "for no fix; wrong floor or units?); nobody was advanced")
+    try:
+        sigma = (np.full(k, np.nan) if fix_sigma_m is None else
+                 np.asarray(fix_sigma_m, dtype=np.float64).reshape(-1))
+    except (TypeError, ValueError) as err:
+        raise LocalizationError(f"fix_sigma_m is not numeric ({err}); nobody was advanced") \
+            from err
     if sigma.shape != (k,):
         raise LocalizationError(f"fix_sigma_m has {sigma.size} values, expected {k}: one per "
                                 "user")
@@ -42,14 +65,20 @@ def checked_tick_fixes(fix_xy_m: ArrayLike, fix_sigma_m: ArrayLike | None, k: in
 
 
 def check_tick_inputs(inputs: StepInputs, ids: NDArray[np.int64]) -> None:
-    """Every array of ``inputs`` one value per user of ``ids`` (a scalar for one user), and
-    a finite compass heading for each; else a LocalizationError."""
+    """Every array of ``inputs`` numbers, one per user of ``ids`` (a scalar for one user),
+    and a finite compass heading for each; else a LocalizationError."""
     shapes = [(len(ids),)] + ([()] if len(ids) == 1 else [])  # one user: scalars too
     for f in fields(inputs):
         values = getattr(inputs, f.name)
-        if values is not None and np.shape(values) not in shapes:
+        if values is None:
+            continue
+        if np.shape(values) not in shapes:
             raise LocalizationError(f"tick input {f.name} has shape {np.shape(values)}, "
                                     f"expected ({len(ids)},): one value per user")
+        kind = np.asarray(values).dtype.kind
+        if kind not in "biuf":  # text ("1.8") or objects: numpy would convert some of them
+            raise LocalizationError(f"tick input {f.name} is not numeric (dtype "
+                                    f"{np.asarray(values).dtype}); nobody was advanced")
     bad = ~np.isfinite(np.asarray(inputs.compass_deg, dtype=float).reshape(-1))
     if bad.any():
         raise LocalizationError(f"users {ids[bad][:10].tolist()}: no compass heading "

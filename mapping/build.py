@@ -85,6 +85,30 @@ def coverage(grid: Grid, mask: NDArray[np.bool_], support: NDArray[np.bool_],
     return {f"within_{d:g}m": float((mask & (dist <= d)).sum() / n) for d in distances_m}
 
 
+#: Share of a floor's samples within :data:`ON_PLAN_M` of the plan's reachable area below
+#: which a build refuses the floor: most of the survey lies off the plan, so the plan is of
+#: another floor, in another frame or units, or covers part of the walks (its maps would be
+#: judged on the sliver inside and its fingerprints placed off the map).
+MIN_SAMPLES_ON_PLAN = 0.5
+#: How far (m) outside the reachable area a sample still counts as on the plan (the walks'
+#: positions stray 1-2 m from the lines walked).
+ON_PLAN_M = 2.0
+
+
+def samples_on_plan(grid: Grid, mask: NDArray[np.bool_], x_m: NDArray, y_m: NDArray,
+                    within_m: float = ON_PLAN_M) -> float:
+    """Share of the positions ``(x_m, y_m)`` (m, shape (n,)) within ``within_m`` of a
+    reachable cell (``mask``, the grid's shape); positions off the grid are off the plan. 1.0
+    for no positions."""
+    from scipy import ndimage
+
+    if len(x_m) == 0:
+        return 1.0
+    near = ndimage.distance_transform_edt(~mask) * grid.cell_m <= within_m
+    row, col, inside = grid.cell_of(np.asarray(x_m, np.float64), np.asarray(y_m, np.float64))
+    return float((inside & near[row, col]).mean())
+
+
 def build_smoothing(samples: pd.DataFrame, field_enu: np.ndarray, grid: Grid,
                     mask: NDArray[np.bool_],
                     params: BuildParams) -> tuple[RasterParams, dict[str, float]]:
@@ -185,10 +209,13 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
                          if i == n or i % 100 == 0 else None)
     release_free_memory()  # the walks' freed buffers
     say(f"{floor}: {reduction.n_samples} samples")
-    if not (reduction.support & mask).any():
-        raise BuildError(f"floor {floor}: none of the {reduction.n_samples} samples of its "
-                         f"{len(pcat)} walks lies in the plan's reachable area (are the walks "
-                         "and the floor plan in the same frame, in metres?)")
+    on_plan = samples_on_plan(grid, mask, reduction.cv_x_m, reduction.cv_y_m)
+    if not (reduction.support & mask).any() or on_plan < MIN_SAMPLES_ON_PLAN:
+        raise BuildError(
+            f"floor {floor}: {'none' if on_plan == 0 else f'only {100 * on_plan:.0f} %'} of "
+            f"the {reduction.n_samples} samples of its {len(pcat)} walks lie within "
+            f"{ON_PLAN_M:g} m of the plan's reachable area (is the plan this floor's, whole, "
+            "and in the walks' frame, in metres?)")
     raster_params, heading_params, smoothing_scores = params.raster, params.heading_raster, {}
     if params.auto_bandwidth and params.raster.kernel_based:
         say(f"{floor}: cross-validating the smoothing over walks")
@@ -250,6 +277,7 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
     first = cat.loc[walks["trace_id"].iloc[0]]
     degree = DEGREE.get(raster_params.method, 0)  # 0 also for the Delaunay-linear method
     metrics = {"coverage": coverage(grid, mask, reduction.support), "n_walks": int(len(walks)),
+               "samples_on_plan": on_plan,
                "interpolator": raster_params.method,
                "bandwidth_m": raster_params.bandwidth_m, "prior_walks": raster_params.prior_walks,
                "slope_ridge": raster_params.slope_ridge if degree >= 1 else None,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
 import tempfile
@@ -27,10 +28,11 @@ from survey.process_store import walks_per_site
 from survey.regular_files import read_regular
 from survey.trace_format import bad_lines_summary
 
-from .build import BuildError, BuildParams, build_floor
+from .build import ON_PLAN_M, BuildError, BuildParams, build_floor
 from .bundle_writer import write_bundle
 from .cli_bundle import already_published_text
 from .floorplan import FloorPlan, read_floor_plan
+from .floorplan_dxf import DXF_ROLES
 from .grid import reachable_mask
 from .radio_build import build_site_radio, format_share, n_floors_text
 from .registry import SITE_BUNDLE, Registry, safe_name
@@ -42,6 +44,9 @@ if TYPE_CHECKING:  # an annotation: ingest is imported when a build runs
 #: Below this share of the reachable area within 2 m of a sample a build warns: less than half
 #: the floor mapped (validate's own coverage check asks for 80 %).
 THIN_COVERAGE = 0.5
+#: Below this share of the samples on the plan (:func:`mapping.build.samples_on_plan`) a build
+#: warns; below :data:`mapping.build.MIN_SAMPLES_ON_PLAN` it refuses the floor.
+SAMPLES_OFF_PLAN_WARNING = 0.9
 
 
 def _iso_time(ctx: click.Context, param: click.Parameter, text: str | None) -> str | None:
@@ -63,6 +68,23 @@ def _finite(ctx: click.Context, param: click.Parameter, value: float) -> float:
     return value
 
 
+def dxf_layer_roles(given: tuple[str, ...], plan_file: Path | None) -> dict[str, tuple[str, ...]]:
+    """``--dxf-layer ROLE=LAYER`` options as role -> layer names; a usage error for a bad
+    one, or for any without a DXF ``--plan``."""
+    if not given:
+        return {}
+    if plan_file is None or plan_file.suffix.lower() != ".dxf":
+        raise click.UsageError("--dxf-layer names the layers of a DXF --plan")
+    roles: dict[str, list[str]] = {}
+    for item in given:
+        role, sep, layer = item.partition("=")
+        if not sep or role.strip() not in DXF_ROLES or not layer.strip():
+            raise click.BadParameter(f"{item!r} is not ROLE=LAYER with ROLE one of "
+                                     f"{', '.join(DXF_ROLES)}", param_hint="--dxf-layer")
+        roles.setdefault(role.strip(), []).append(layer.strip())
+    return {role: tuple(names) for role, names in roles.items()}
+
+
 def check_grids(plans: dict[Path, FloorPlan], params: BuildParams) -> None:
     """Every floor's grid (plans by the path they were read from) at ``--cell`` within
     :data:`mapping.grid.MAX_GRID_CELLS` and with some reachable cell; else a usage error
@@ -72,8 +94,13 @@ def check_grids(plans: dict[Path, FloorPlan], params: BuildParams) -> None:
         try:
             grid = plan.grid(params.cell_m)
         except ValueError as err:
-            raise click.UsageError(f"{path}: {err}; raise --cell or check the plan's "
-                                   "size") from err
+            x0, y0, x1, y1 = plan.outline.bounds
+            far = (f"its outline spans x {x0:g} to {x1:g} m and y {y0:g} to {y1:g} m, and "
+                   "the map frame runs from (0, 0): shift the plan and the walks near the "
+                   "origin; " if min(x0, y0) > max(x1 - x0, y1 - y0) else "")
+            raise click.UsageError(f"{path}: {err}; {far}check the plan's units (a floor "
+                                   "drawn in mm without units reads 1000 times too large), "
+                                   "or raise --cell") from err
         if not reachable_mask(grid, plan.reachable).any():
             raise click.UsageError(
                 f"{path}: no cell centre of a {params.cell_m:g} m grid lies in the plan's "
@@ -197,19 +224,25 @@ def exclude_names(exclude: tuple[str, ...]) -> list[str]:
 
 def check_exclude_early(names: list[str], inputs: list[Path]) -> None:
     """Before any work: a usage error names an ``--exclude`` name (:func:`exclude_names`)
-    that matches no trace file under ``inputs`` (by file name, or the trace id: the name
-    without ``.txt``/``.txt.gz``), rather than after the whole ingest (:func:`excluded_walks`
-    checks again on the ingested walks)."""
-    from survey.trace_reader import find_trace_files, trace_id_from_path
+    that matches no walk under ``inputs`` (a trace file by its name, or its trace id: the
+    name without ``.txt``/``.txt.gz``; a walk plan's walk by its ``walk_id`` or its sensor
+    log's name, with or without ``.csv``), rather than after the whole ingest
+    (:func:`excluded_walks` checks again on the ingested walks)."""
+    from survey.ingest import find_inputs
+    from survey.trace_reader import trace_id_from_path
+    from survey.walkline import plan_walk_names
 
     if not names:
         return
-    files = find_trace_files([p for p in inputs if p.exists()])
+    files, plans = find_inputs([p for p in inputs if p.exists()])
     known = {f.name for f in files} | {trace_id_from_path(f) for f in files}
+    for plan in plans:
+        known |= plan_walk_names(plan)
     unknown = [n for n in names if n not in known]
     if unknown:
-        raise click.BadParameter(f"{unknown[0]!r} is no walk of this build (a trace id or a "
-                                 f"trace file's name under {', '.join(map(str, inputs))})"
+        raise click.BadParameter(f"{unknown[0]!r} is no walk of this build (a trace id, a "
+                                 "trace file's name or a walk plan's walk_id or sensor log "
+                                 f"under {', '.join(map(str, inputs))})"
                                  + (f"; {len(unknown) - 1} more" if len(unknown) > 1 else ""),
                                  param_hint="--exclude")
 
@@ -244,13 +277,14 @@ def excluded_walks(catalog: pd.DataFrame, summary: IngestSummary, inputs: list[P
             f"{', '.join(map(str, inputs))}")
     mine = catalog[catalog["trace_id"].isin(used)]
     file_names = mine["source_path"].astype(str).map(lambda p: Path(p).name)
-    stems = file_names.str.replace(r"\.txt(\.gz)?$", "", regex=True)
+    stems = file_names.str.replace(r"\.(txt(\.gz)?|csv)$", "", regex=True)
     dropped = set()
     for name in names:
         hit = mine["trace_id"].eq(name) | file_names.eq(name) | stems.eq(name)
         if not hit.any():
-            raise click.BadParameter(f"{name!r} is no walk of this build (a trace id or a "
-                                     "trace file's name)", param_hint="--exclude")
+            raise click.BadParameter(f"{name!r} is no walk of this build (a trace id, a "
+                                     "trace file's name or a walk plan's sensor log)",
+                                     param_hint="--exclude")
         dropped |= set(mine.loc[hit, "trace_id"])
     if dropped:
         say(f"  excluded: {len(dropped)} walk(s) (--exclude)")
@@ -311,18 +345,22 @@ def staging_folder(out: Path) -> Iterator[Path]:
                    "floor's traces and walk plans. GeoJSON in metres (lon/lat with a "
                    "floor_info.json beside it) or a DXF drawing (layers OUTLINE, OBSTACLES, "
                    "WALLS and the like; docs/processing_and_mapping.md).")
+@click.option("--dxf-layer", "dxf_layers", multiple=True, metavar="ROLE=LAYER",
+              help="With a DXF --plan: a layer of the role outline, obstacle or wall (e.g. "
+                   "outline=A-FLOR-OTLN, wall=A-WALL), in place of that role's default names. "
+                   "Repeatable.")
 @click.option("--floor", "floor_name", default=None,
               help="With --plan: the floor's name as its traces give it (default: the one "
                    "floor of SOURCE's traces).")
 @click.option("--exclude", multiple=True, metavar="WALK",
-              help="Leave this walk out of the maps: a trace id or a trace file's name, or "
-                   "@FILE with one per line (walks held out for `indoormap evaluate`). "
-                   "Repeatable.")
+              help="Leave this walk out of the maps: a trace id or a trace file's name (a "
+                   "walk plan's walk_id or sensor log), or @FILE with one per line (walks "
+                   "held out for `indoormap evaluate`). Repeatable.")
 @click.option("--overwrite", is_flag=True, help="Replace existing output bundles.")
 def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir: Path | None,
                   cell_m: float, interpolator: str, build_time: str | None,
-                  plan_file: Path | None, floor_name: str | None, exclude: tuple[str, ...],
-                  overwrite: bool) -> None:
+                  plan_file: Path | None, dxf_layers: tuple[str, ...], floor_name: str | None,
+                  exclude: tuple[str, ...], overwrite: bool) -> None:
     """Build map bundles from a floor folder (floor_info.json, geojson_map.json,
     path_data_files/), a site folder of floors, or (with --plan) a folder of one floor's
     traces: ingest, process, level, interpolate, publish atomically. Writes OUT/<floor> per
@@ -344,6 +382,7 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
     # `.` or `F1/path_data_files/..` name the folder they lead to (its name is the floor's);
     # made absolute without following links, as the ingest compares the paths it found
     source = Path(os.path.abspath(source))
+    layers = dxf_layer_roles(dxf_layers, plan_file)
     if plan_file is None:
         if floor_name is not None:
             raise click.UsageError("--floor names the floor of a --plan build; a floor folder "
@@ -356,7 +395,7 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
         if floor_name is not None:
             check_floor_bundle_name(floor_name, "--floor")
         inputs = [source]
-        plan = read_floor_plan(plan_file)
+        plan = read_floor_plan(plan_file, dxf_layers=layers)
         read_from = {plan_file: plan}
         plans = {floor_name: plan} if floor_name is not None else {}
     for plan_read in read_from.values():
@@ -449,11 +488,19 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
             done.append((name, f"{name}: bundle {bundle_id[:16]} -> {out / name} "
                                f"({content.metrics['n_walks']} walks; reachable area within "
                                f"2 m of a sample: {100 * cov['within_2m']:.0f} %)"))
+            on_plan = content.metrics["samples_on_plan"]
+            if on_plan < SAMPLES_OFF_PLAN_WARNING:
+                thin.append(f"warning: {name}: {100 * (1 - on_plan):.0f} % of the surveyed "
+                            f"samples lie more than {ON_PLAN_M:g} m outside the plan's "
+                            "reachable area; is the plan the whole floor, in the walks' "
+                            "frame?")
             if cov["within_2m"] < THIN_COVERAGE:
                 thin.append(f"warning: {name}: only {100 * cov['within_2m']:.0f} % of the "
                             "reachable area lies within 2 m of a surveyed sample, so the "
                             "magnetic layers hold no values on most of the floor; survey more "
                             f"walks (`indoormap validate {out / name}` shows the gaps)")
+        built_walks = {w["trace_id"] for w in site_walks}
+        thin += input_warnings(summary, cat[cat["trace_id"].isin(list(built_walks))])
         site_content = radio.site_content(site_id, build={
             "build_time": site_build_time, "seed": params.seed,
             "source_walks": sorted(site_walks, key=lambda w: w["trace_id"])})
@@ -490,6 +537,32 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
                 click.echo(f"  published as {site_id}/{name} #{entry['seq']}")
         for warning in thin:
             click.echo(warning, err=True)
+
+
+def input_warnings(summary: IngestSummary, used: pd.DataFrame, shown: int = 5) -> list[str]:
+    """Warnings for the end of a build, where they are read (the ingest's lines scroll away
+    above the progress): the input files left out as unreadable, and the walks built with
+    bad lines skipped (``used``: their catalog rows), each by name with its reasons."""
+    def more(n: int) -> str:
+        return f"; {n - shown} more" if n > shown else ""
+
+    out = []
+    failed = summary.failed
+    if failed:
+        out.append(f"warning: {len(failed)} input file(s) unreadable, left out of the maps: "
+                   + "; ".join(at_path(o.path, str(o.detail)) for o in failed[:shown])
+                   + more(len(failed)))
+    damaged = used[used["n_bad_lines"] > 0] if "n_bad_lines" in used else used.iloc[:0]
+    if len(damaged):
+        def reasons(bad_json: str) -> str:
+            return ", ".join(f"{k} {v}" for k, v in sorted(json.loads(bad_json).items()))
+
+        out.append(f"warning: {len(damaged)} walk(s) built with bad lines skipped: "
+                   + "; ".join(f"{src} ({reasons(bj)})" for src, bj in
+                               zip(damaged["source_path"].head(shown),
+                                   damaged["bad_json"].head(shown)))
+                   + more(len(damaged)))
+    return out
 
 
 def site_model_floors_dropped(registry: Registry, site_id: str, floors: list[str]

@@ -189,8 +189,9 @@ def already_published_text(path: Path, registry_dir: Path, err: RollbackRefused)
 @click.option("--rollback", is_flag=True,
               help="Allow pointing at an older version than the current one.")
 def bundle_use(registry: Path, site_floor: str, version: str, rollback: bool) -> None:
-    """Make a published VERSION (bundle id, a unique prefix of it, or #SEQ) of SITE/FLOOR
-    current. Moving to an older version needs --rollback."""
+    """Make a published VERSION (bundle id, a unique prefix of it, or #SEQ; a bare SEQ
+    that begins no other version's id) of SITE/FLOOR current. Moving to an older version
+    needs --rollback."""
     site, sep, floor = site_floor.partition("/")
     if not sep:
         raise click.BadParameter(f"expected SITE/FLOOR, got {site_floor!r}",
@@ -204,6 +205,13 @@ def bundle_use(registry: Path, site_floor: str, version: str, rollback: bool) ->
         match = [h for h in history if str(h["seq"]) == version[1:]]
     else:
         match = [h for h in history if h["bundle_id"].startswith(version)]
+        seq = [h for h in history if str(h["seq"]) == version]  # `bundle list` prints #SEQ
+        if seq and match and seq != match:
+            raise click.BadParameter(
+                f"{version!r} is #{version} and begins bundle id "
+                f"{match[0]['bundle_id'][:12]}; say '#{version}' or more of the id",
+                param_hint="VERSION")
+        match = match or seq
     if len(match) != 1:
         known = ", ".join(f"#{h['seq']} {h['bundle_id'][:12]}" for h in history)
         raise click.BadParameter(f"{version!r} names {len(match)} versions of {site_floor}; "

@@ -142,7 +142,8 @@ MAX_LONLAT_SPAN_DEG = 0.5
 
 
 def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
-                    obstacle_filter: Callable[[dict], bool] | None = None) -> FloorPlan:
+                    obstacle_filter: Callable[[dict], bool] | None = None,
+                    dxf_layers: dict[str, tuple[str, ...]] | None = None) -> FloorPlan:
     """Read a floor plan.
 
     Parameters
@@ -153,12 +154,16 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
         lon/lat; without, in metres.
     obstacle_filter : callable(properties) -> bool, optional
         Which non-outline features are obstacles (default: all polygons).
+    dxf_layers : dict, optional
+        For a DXF drawing: role (``outline``, ``obstacle``, ``wall``) -> layer names, in
+        place of that role's defaults (:func:`mapping.floorplan_dxf.read_dxf_floor_plan`).
     """
     p = Path(floor_dir_or_geojson)
     if p.suffix.lower() == ".dxf":
         from .floorplan_dxf import read_dxf_floor_plan
 
-        return read_dxf_floor_plan(p)
+        return read_dxf_floor_plan(p, **{f"{role}_layers": tuple(names)
+                                         for role, names in (dxf_layers or {}).items()})
     geo = p / "geojson_map.json" if p.is_dir() else p
     info = geo.parent / "floor_info.json"
     feats = _features(geo)

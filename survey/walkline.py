@@ -86,6 +86,35 @@ def is_walk_plan(path: str | os.PathLike) -> bool:
         and "sensor_log" in f["properties"] for f in feats)
 
 
+def plan_walk_names(path: str | os.PathLike) -> set[str]:
+    """The names a walk plan's walks go by, as :func:`read_walk_plan` reads them: each
+    feature's ``walk_id`` (its trace id) and its sensor log's file name (the file it
+    resolves to), with and without ``.csv``; empty for a file that is no readable walk plan
+    (what the reader refuses is said when it reads the plan)."""
+    path = Path(path)
+    try:
+        data = json.loads(read_regular(path, MAX_PLAN_BYTES).decode("utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError):
+        return set()
+    if not isinstance(data, dict) or not isinstance(data.get("properties") or {}, dict):
+        return set()
+    defaults = data.get("properties") or {}
+    names: set[str] = set()
+    for f in data.get("features") or []:
+        own = f.get("properties") if isinstance(f, dict) else None
+        props = {**defaults, **(own if isinstance(own, dict) else {})}
+        walk_id = str(props.get("walk_id") or "").strip()
+        if walk_id:
+            names.add(walk_id)
+        if isinstance(props.get("sensor_log"), str):
+            try:
+                log = (path.parent / props["sensor_log"]).resolve().name
+            except (OSError, ValueError):  # a loop of links, a NUL byte
+                continue
+            names |= {log, log.removesuffix(".csv")}
+    return names
+
+
 def read_walk_plan(path: str | os.PathLike, *, strict: bool = False
                    ) -> list[tuple[Trace, str, bytes]]:
     """Read a walk plan and its sensor logs.
@@ -310,13 +339,17 @@ def parse_sensor_csv(data: bytes, *, reference_ms: float, path: str = "<input>",
                                     f"{sorted(set(cols) - set(present))}", path=path,
                                     reason="csv")
         values = np.column_stack([numeric[c] for c in cols])
+        # a row that leaves all of a stream's columns empty has no sample of it (streams
+        # logged at their own rates, one event per row); one that fills them in part is bad
+        absent = np.column_stack([_missing(table.column(c)) for c in cols]).all(axis=1)
         # stored as float32: a value beyond its range would become infinite
-        row_bad |= ~(np.abs(values) < _FLOAT32_LIMIT).all(axis=1)
-        implausible |= (np.abs(values) > sensor_limit(stream)[0]).any(axis=1)
-        parts.append((stream, values))
+        row_bad |= ~absent & ~(np.abs(values) < _FLOAT32_LIMIT).all(axis=1)
+        implausible |= ~absent & (np.abs(values) > sensor_limit(stream)[0]).any(axis=1)
+        parts.append((stream, values, ~absent))
     if not parts:
         raise SurveyFormatError("sensor log has no sensor columns (e.g. acc_x, acc_y, acc_z)",
                                 path=path, reason="csv")
+    row_bad |= ~np.column_stack([has for _, _, has in parts]).any(axis=1)  # no sample at all
     # An accuracy, when given, is a whole number (a missing one means 3). Out of range: a time
     # beyond 2^53 ms, an accuracy beyond int8.
     acc = numeric.get("accuracy")
@@ -364,12 +397,18 @@ def parse_sensor_csv(data: bytes, *, reference_ms: float, path: str = "<input>",
             report.bad["field_count"] = len(wrong_width)
         report.messages = [f"{path}:{at}: {message}" for at, message, _ in bad[:20]]
     good = ~any_bad
-    t_ms = t[good].astype(np.int64)
-    accuracy = acc[good] if acc is not None else np.full(good.sum(), 3.0)
-    accuracy = np.nan_to_num(accuracy, nan=3.0).astype(np.int8)
+    if not good.any():  # nothing to store: a walk without sensors, refused as an empty trace
+        why = (f"none of its {table.num_rows + len(wrong_width)} rows is usable ("
+               + ", ".join(f"{k} {v}" for k, v in report.bad.items())
+               + f"; the first: {report.messages[0]})" if report.messages else "no rows")
+        raise SurveyFormatError(f"sensor log has no sample: {why}", path=path, reason="empty")
+    accuracy_all = np.nan_to_num(acc if acc is not None else np.full(len(t), 3.0),
+                                 nan=3.0)
     frames = []
-    for stream, values in parts:
-        v = values[good]
+    for stream, values, has in parts:
+        rows = good & has
+        v, t_ms, accuracy = values[rows], t[rows].astype(np.int64), \
+            accuracy_all[rows].astype(np.int8)
         order = np.argsort(t_ms, kind="stable")
         keep = np.ones(len(order), dtype=bool)
         keep[1:] = t_ms[order][1:] != t_ms[order][:-1]

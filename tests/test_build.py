@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -10,6 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import shapely
+import shapely.affinity
 from click.testing import CliRunner
 
 from localize.bundle import load_bundle
@@ -49,6 +51,7 @@ def test_layers_and_manifest(store, tmp_path):
     assert all(len(w["sha256"]) == 64 for w in m["build"]["source_walks"])
     assert b.layer_unit("strength") == "uT" and m["layers"]["azimuth"]["kind"] == "angle"
     assert 0.5 < m["metrics"]["coverage"]["within_2m"] <= 1.0
+    assert m["metrics"]["samples_on_plan"] == 1.0  # the whole floor's plan: every sample on it
     assert m["metrics"]["bandwidth_m"] in (0.5, 0.75, 1.0, 1.5)  # accurate survey: sharp map
     s = b.layers["strength"]
     assert np.isnan(s[~b.mask]).all() and np.nanmin(s) > 20 and np.nanmax(s) < 80
@@ -166,13 +169,38 @@ def test_unknown_floor_is_a_clear_error(store):
         build_floor(store, read_floor_plan(SITE / "F1"), floor="F9")
 
 
+def _cropped(plan: FloorPlan, share: float) -> FloorPlan:
+    """``plan`` with its outline cut to the western ``share`` of its reachable area's width."""
+    x0, y0, x1, y1 = plan.reachable.bounds
+    return dataclasses.replace(plan, outline=plan.outline.intersection(
+        shapely.box(x0, y0, x0 + share * (x1 - x0), y1)))
+
+
 def test_a_plan_beside_the_walks_is_a_clear_error(store):
     """A plan that does not cover the walks (another frame) used to end in 'the manifest cannot
-    be written' (infinite cross-validation scores) naming a temporary folder."""
+    be written' (infinite cross-validation scores) naming a temporary folder. A plan that
+    covers a part of them (a wing's plan, 17 % of the samples) built, with good held-out
+    figures from the sliver inside, and its maps put a walk 97 m off (a review, session 43)."""
     plan = FloorPlan(shapely.box(100, 100, 140, 125), shapely.Polygon(), 140.0, 125.0)
-    with pytest.raises(BuildError, match="none of the .* samples of its 6 walks lies in the "
-                                         "plan's reachable area"):
+    with pytest.raises(BuildError, match="none of the .* samples of its 6 walks lie within 2 m "
+                                         "of the plan's reachable area"):
         build_floor(store, plan, floor="F1")
+    with pytest.raises(BuildError, match=r"only 17 % of the .* samples of its 6 walks lie "
+                                         r"within 2 m of the plan's reachable area \(is the "
+                                         "plan this floor's, whole, and in the walks' frame"):
+        build_floor(store, _cropped(read_floor_plan(SITE / "F1"), 0.3), floor="F1")
+
+
+def test_a_plan_covering_most_of_the_walks_builds_with_a_warning(tmp_path):
+    """Most of the samples on the plan (79 %): built, and the build says how many lie off it."""
+    _dxf_of(_cropped(read_floor_plan(SITE / "F1"), 0.8), tmp_path / "F1.dxf")
+    res = CliRunner().invoke(main, ["build", str(SITE / "F1" / "path_data_files"), "--plan",
+                                    str(tmp_path / "F1.dxf"), "-o", str(tmp_path / "out")])
+    assert res.exit_code == 0, res.output
+    on_plan = load_bundle(tmp_path / "out" / "F1").manifest["metrics"]["samples_on_plan"]
+    assert 0.7 < on_plan < 0.9  # built (above 0.5), warned (below 0.9)
+    assert (f"warning: F1: {100 * (1 - on_plan):.0f} % of the surveyed samples lie more than "
+            "2 m outside the plan's reachable area" in res.output)
 
 
 def test_a_build_with_no_readable_walk_says_so(tmp_path):
@@ -253,7 +281,8 @@ def test_build_cli_twice_identical_bytes(tmp_path):
     (["--cell", "0"], "Invalid value for '--cell'"),
     (["--cell", "nan"], "Invalid value for '--cell': nan is not a number"),
     (["--cell", "0.001"], "F2: a 40 x 25 m floor at 0.001 m cells is 1,000,000,000 cells, over "
-                          "the limit of 20,000,000; raise --cell"),
+                          "the limit of 20,000,000; check the plan's units (a floor drawn in "
+                          "mm without units reads 1000 times too large), or raise --cell"),
     (["--cell", "1e-320"], "F2: a 40 x 25 m floor at 9.99989e-321 m cells is inf cells, over "
                            "the limit"),
     (["--cell", "100"], "F2: no cell centre of a 100 m grid lies in the plan's reachable area"),
@@ -448,15 +477,16 @@ def test_sigterm_during_build_leaves_no_litter(tmp_path):
     assert not list(tmp.glob("indoormap-build-*")) and not (tmp_path / "out").exists()
 
 
-def _dxf_of(plan, path: Path) -> None:
-    """``plan`` (metres) drawn as a DXF: the outline on layer OUTLINE, obstacles on SHOPS."""
+def _dxf_of(plan, path: Path, layers: tuple[str, str] = ("OUTLINE", "SHOPS")) -> None:
+    """``plan`` (metres) drawn as a DXF: the outline on layer OUTLINE, obstacles on SHOPS
+    (or the two ``layers``)."""
     import ezdxf
     import shapely
 
     doc = ezdxf.new()
     doc.header["$INSUNITS"] = 6  # metres
     msp = doc.modelspace()
-    for layer, geom in (("OUTLINE", plan.outline), ("SHOPS", plan.obstacles)):
+    for layer, geom in zip(layers, (plan.outline, plan.obstacles)):
         for poly in shapely.get_parts(geom):
             msp.add_lwpolyline(list(poly.exterior.coords)[:-1], close=True,
                                dxfattribs={"layer": layer})
@@ -513,6 +543,49 @@ def test_build_cli_with_a_dxf_plan_and_a_folder_of_traces(tmp_path):
     res = runner.invoke(main, ["build", str(SITE / "F2"), "--floor", "F2",
                                "-o", str(tmp_path / "y")])
     assert res.exit_code == 2 and "--floor names the floor of a --plan build" in res.output
+
+
+def test_a_plan_far_from_the_origin_says_so(tmp_path):
+    """A plan in metres drawn at (3000, 3000) (a site grid's coordinates) makes a floor of
+    3040 x 3025 m; the error said to raise --cell, which builds a useless floor."""
+    plan = read_floor_plan(SITE / "F2")
+    far = dataclasses.replace(plan, outline=shapely.affinity.translate(plan.outline, 3000, 3000),
+                              obstacles=shapely.affinity.translate(plan.obstacles, 3000, 3000))
+    _dxf_of(far, tmp_path / "far.dxf")
+    res = CliRunner().invoke(main, ["build", str(SITE / "F2" / "path_data_files"), "--plan",
+                                    str(tmp_path / "far.dxf"), "-o", str(tmp_path / "out")])
+    assert res.exit_code == 2 and "its outline spans x 3000 to 3040 m and y 3000 to 3025 m, " \
+        "and the map frame runs from (0, 0): shift the plan and the walks near the origin" \
+        in res.output
+
+
+def test_dxf_layers_named_on_the_command_line(tmp_path):
+    """An architect's layer names (A-FLOR-OTLN, A-FURN) are given with --dxf-layer; without
+    them the error lists the drawing's layers and says how (only the Python API could)."""
+    _dxf_of(read_floor_plan(SITE / "F2"), tmp_path / "F2.dxf", ("A-FLOR-OTLN", "A-FURN"))
+    traces, runner = SITE / "F2" / "path_data_files", CliRunner()
+    res = runner.invoke(main, ["build", str(traces), "--plan", str(tmp_path / "F2.dxf"),
+                               "-o", str(tmp_path / "a")])
+    assert res.exit_code == 1 and "found nothing; the drawing's entities are on layers " \
+        "A-FLOR-OTLN, A-FURN (name yours: `indoormap build --dxf-layer outline=NAME`" \
+        in res.output
+    res = runner.invoke(main, ["build", str(traces), "--plan", str(tmp_path / "F2.dxf"),
+                               "--dxf-layer", "outline=A-FLOR-OTLN", "--dxf-layer",
+                               "obstacle=a-furn", "-o", str(tmp_path / "a")])
+    assert res.exit_code == 0, res.output
+    folder = runner.invoke(main, ["build", str(SITE / "F2"), "-o", str(tmp_path / "b")])
+    assert folder.exit_code == 0, folder.output
+    assert (load_bundle(tmp_path / "a" / "F2").bundle_id
+            == load_bundle(tmp_path / "b" / "F2").bundle_id)  # the same plan, the same bytes
+    for args, message in ((["--dxf-layer", "floor=X"], "is not ROLE=LAYER with ROLE one of "
+                            "outline, obstacle, wall"),
+                          (["--dxf-layer", "outline="], "is not ROLE=LAYER")):
+        res = runner.invoke(main, ["build", str(traces), "--plan", str(tmp_path / "F2.dxf"),
+                                   *args, "-o", str(tmp_path / "c")])
+        assert res.exit_code == 2 and message in res.output
+    res = runner.invoke(main, ["build", str(SITE / "F2"), "--dxf-layer", "outline=X", "-o",
+                               str(tmp_path / "c")])
+    assert res.exit_code == 2 and "--dxf-layer names the layers of a DXF --plan" in res.output
 
 
 def test_build_from_a_subset_of_walks_builds_that_subset(tmp_path):
@@ -580,6 +653,24 @@ def test_a_trace_of_another_site_in_a_floor_folder_is_refused(tmp_path):
                                     "--store", str(store), "--exclude", "000foreign"])
     assert res.exit_code == 0, res.output
     assert load_bundle(tmp_path / "out" / "F2").site_id == site_id
+
+
+def test_a_build_ends_by_naming_its_damaged_inputs(tmp_path):
+    """An unreadable file and a truncated one: the build goes on without the first and with
+    the readable part of the second, and its last lines name both (they were said above the
+    progress only, the truncated file not at all past the first five bad lines)."""
+    floor = tmp_path / "F2"
+    shutil.copytree(SITE / "F2", floor)
+    files = sorted((floor / "path_data_files").glob("*.txt.gz"))
+    data = files[0].read_bytes()
+    files[0].write_bytes(data[:len(data) * 2 // 3])  # a copy cut short
+    (floor / "path_data_files" / "noise.txt").write_bytes(b"\x00\xff garbage\n" * 10)
+    res = CliRunner().invoke(main, ["build", str(floor), "-o", str(tmp_path / "out")])
+    assert res.exit_code == 0, res.output
+    tail = res.output[res.output.index("site: bundle"):]
+    assert "warning: 1 input file(s) unreadable, left out of the maps: " \
+        f"{floor / 'path_data_files' / 'noise.txt'}" in tail
+    assert f"warning: 1 walk(s) built with bad lines skipped: {files[0]} (truncated 1)" in tail
 
 
 def test_a_build_covering_little_of_its_floor_warns(tmp_path):

@@ -532,7 +532,25 @@ def test_registry_command_line(tmp_path):
     assert listed()[0] == ["*", "site/F1", "#1", ids[0]]
     assert run(main, ["bundle", "use", reg, "site/F1", ids[1][:10]]).exit_code == 0
     assert listed()[1] == ["*", "site/F1", "#2", ids[1]]
+    # a bare SEQ, as `bundle list` prints it without its # (it was refused: "names 0
+    # versions"); one that also begins another version's id is refused as ambiguous
+    assert run(main, ["bundle", "use", reg, "site/F1", "1", "--rollback"]).exit_code == 0
+    assert listed()[0] == ["*", "site/F1", "#1", ids[0]]
+    assert run(main, ["bundle", "use", reg, "site/F1", "2"]).exit_code == 0
+    assert listed()[1] == ["*", "site/F1", "#2", ids[1]]
+    (tmp_path / "ids").mkdir()
+    for k in range(3, 12):  # more versions, until a SEQ digit begins another version's id
+        write_bundle(tmp_path / "ids" / str(k), _content(float(k)))
+        ids.append(load_bundle(tmp_path / "ids" / str(k)).bundle_id)
+        assert run(main, ["bundle", "publish", str(tmp_path / "ids" / str(k)), "--registry",
+                          reg]).exit_code == 0
+    seq, other = next((s, i) for s in range(1, 10) for i in ids
+                      if i.startswith(str(s)) and i != ids[s - 1])
+    res = run(main, ["bundle", "use", reg, "site/F1", str(seq), "--rollback"])
+    assert res.exit_code == 2 and (f"'{seq}' is #{seq} and begins bundle id {other[:12]}; "
+                                   f"say '#{seq}' or more of the id") in res.output
     for bad, message in ((["site/F1", "zz"], "names 0 versions"),
+                         (["site/F1", "999999"], "names 0 versions"),
                          (["site/F9", "#1"], "nothing published for site/F9"),
                          (["F1", "#1"], "expected SITE/FLOOR")):
         res = run(main, ["bundle", "use", reg, *bad])

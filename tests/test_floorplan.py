@@ -97,6 +97,107 @@ def test_dxf_plan_with_walls_and_obstacles(tmp_path):
         read_floor_plan(tmp_path / "bad.dxf")
 
 
+def test_dxf_curves_blocks_and_outlines_drawn_as_lines(tmp_path):
+    """What CAD drawings hold and the reader dropped (a review, session 43): a polyline's arc
+    segments (bulges), an obstacle placed as a block reference, an ARC wall, an outline whose
+    last point is its first without the closed flag, and one drawn as four LINEs."""
+    doc = ezdxf.new()
+    doc.header["$INSUNITS"] = 6
+    msp = doc.modelspace()
+    # a 20 x 10 m hall whose east side is a half circle (bulge 1 from (20, 0) to (20, 10))
+    msp.add_lwpolyline([(0, 0, 0, 0, 0), (20, 0, 0, 0, 1), (20, 10, 0, 0, 0), (0, 10, 0, 0, 0)],
+                       format="xyseb", close=True, dxfattribs={"layer": "OUTLINE"})
+    kiosk = doc.blocks.new("KIOSK")  # drawn on layer 0: takes the reference's layer
+    kiosk.add_lwpolyline([(0, 0), (2, 0), (2, 1), (0, 1)], close=True)
+    msp.add_blockref("KIOSK", (4, 4), dxfattribs={"layer": "OBSTACLES"})
+    msp.add_blockref("KIOSK", (8, 4), dxfattribs={"layer": "TEXT"})  # another layer: ignored
+    msp.add_arc((10, 0), 2, 0, 180, dxfattribs={"layer": "WALLS"})  # a curved wall
+    doc.saveas(tmp_path / "curved.dxf")
+    plan = read_floor_plan(tmp_path / "curved.dxf")
+    assert plan.outline.area == pytest.approx(200 + np.pi * 25 / 2, rel=1e-3)
+    assert plan.reachable.contains(shapely.Point(24.0, 5.0))  # inside the half circle
+    assert not plan.reachable.contains(shapely.Point(5.0, 4.5))  # the kiosk
+    assert plan.reachable.contains(shapely.Point(9.0, 4.5))  # the block on layer TEXT
+    assert not plan.reachable.contains(shapely.Point(10.0, 2.0))  # on the arc wall
+    assert plan.reachable.contains(shapely.Point(10.0, 1.0))  # within the arc, off the wall
+    wall_area = np.pi * 2 * 0.2  # half a circle of radius 2 m (pi * 2 m long), 0.2 m wide
+    assert plan.outline.area - plan.reachable.area == pytest.approx(2 + wall_area, rel=0.02)
+    # the same hall's outline, ending on its first point, and drawn as lines
+    # (and as a 3D polyline, with lines crossing it, overshooting or 0.1 mm short at corners)
+    for draw in ("ends_meet", "lines", "partition", "overshoot", "gap", "3d"):
+        doc = ezdxf.new()
+        msp = doc.modelspace()
+        corners = [(0, 0), (20, 0), (20, 10), (0, 10)]
+        on = {"layer": "OUTLINE"}
+        if draw == "ends_meet":
+            msp.add_lwpolyline(corners + [(0, 0)], dxfattribs=on)
+        elif draw == "3d":
+            msp.add_polyline3d([(x, y, 0) for x, y in corners], close=True, dxfattribs=on)
+        else:
+            for a, b in zip(corners, corners[1:] + corners[:1]):
+                d = np.subtract(b, a) / 20 if draw == "overshoot" else 0 * np.subtract(b, a)
+                end = np.add(b, d) - (1e-4 * np.subtract(b, a) / np.hypot(*np.subtract(b, a))
+                                      if draw == "gap" else 0)
+                msp.add_line(tuple(np.subtract(a, d)), tuple(end), dxfattribs=on)
+            if draw == "partition":  # a line across the hall, on the outline layer
+                msp.add_line((15, 0), (15, 10), dxfattribs=on)
+        doc.saveas(tmp_path / f"{draw}.dxf")
+        assert read_floor_plan(tmp_path / f"{draw}.dxf").outline.area == pytest.approx(200.0), \
+            draw
+    # lines that close no ring: the error says what it found and the drawing's layers
+    doc = ezdxf.new()
+    doc.layers.add("A-FLOR-OTLN")
+    doc.modelspace().add_line((0, 0), (5, 0), dxfattribs={"layer": "OUTLINE"})
+    doc.modelspace().add_line((0, 0), (5, 5), dxfattribs={"layer": "A-FLOR-OTLN"})
+    doc.saveas(tmp_path / "open.dxf")
+    with pytest.raises(FloorPlanError, match=r"no closed outline on layers \['BOUNDARY', "
+                       r"'FLOOR', 'OUTLINE'\]: found 1 LINE \(no closed shape, and their "
+                       r"lines close no ring\); the drawing's entities are on layers "
+                       r"A-FLOR-OTLN, OUTLINE \(name yours: .*--dxf-layer "
+                       r"outline=NAME`, read_dxf_floor_plan's outline_layers\)"):
+        read_floor_plan(tmp_path / "open.dxf")
+
+
+def test_dxf_block_references_are_bounded(tmp_path, monkeypatch):
+    """A MINSERT of more copies than a plan holds, or blocks nested too deep, are refused
+    before they are expanded."""
+    import mapping.floorplan_dxf as dxf
+
+    doc = ezdxf.new()
+    msp = doc.modelspace()
+    msp.add_lwpolyline([(0, 0), (20, 0), (20, 10), (0, 10)], close=True,
+                       dxfattribs={"layer": "OUTLINE"})
+    doc.blocks.new("POST").add_circle((0, 0), 0.2)
+    ref = msp.add_blockref("POST", (1, 1), dxfattribs={"layer": "PILLARS"})
+    ref.grid(size=(40, 40), spacing=(0.5, 0.5))  # 1,600 posts
+    doc.saveas(tmp_path / "posts.dxf")
+    assert read_floor_plan(tmp_path / "posts.dxf").obstacles.area > 100
+    monkeypatch.setattr(dxf, "MAX_ENTITIES", 1000)
+    with pytest.raises(FloorPlanError, match="more than 1,000 entities in its block "
+                       r"references \(1,600 copies of block 'POST'\)"):
+        read_floor_plan(tmp_path / "posts.dxf")
+    # the drawing's own entities do not count, nor blocks on layers the reader ignores
+    doc.blocks.new("CHAIR").add_circle((0, 0), 0.2)
+    chairs = doc.modelspace().add_blockref("CHAIR", (1, 1), dxfattribs={"layer": "FURNITURE"})
+    chairs.grid(size=(100, 100), spacing=(0.1, 0.1))
+    for i in range(2000):
+        doc.modelspace().add_text(f"{i}", dxfattribs={"layer": "TEXT"})
+    doc.modelspace().delete_entity(ref)
+    doc.saveas(tmp_path / "furnished.dxf")
+    assert read_floor_plan(tmp_path / "furnished.dxf").obstacles.is_empty
+    monkeypatch.setattr(dxf, "MAX_BLOCK_DEPTH", 1)
+    doc = ezdxf.new()
+    msp = doc.modelspace()
+    msp.add_lwpolyline([(0, 0), (20, 0), (20, 10), (0, 10)], close=True,
+                       dxfattribs={"layer": "OUTLINE"})
+    doc.blocks.new("INNER").add_circle((0, 0), 0.2)
+    doc.blocks.new("OUTER").add_blockref("INNER", (0, 0))
+    msp.add_blockref("OUTER", (5, 5), dxfattribs={"layer": "PILLARS"})
+    doc.saveas(tmp_path / "nested.dxf")
+    with pytest.raises(FloorPlanError, match="block references nested deeper than 1"):
+        read_floor_plan(tmp_path / "nested.dxf")
+
+
 def test_a_self_intersecting_outline_is_repaired_and_said(tmp_path):
     bow_tie = [[0, 0], [10, 4], [10, 0], [0, 4], [0, 0]]  # two triangles touching at (5, 2)
     fc = {"type": "FeatureCollection", "features": [
@@ -184,7 +285,7 @@ def test_dxf_entities_with_non_finite_numbers_or_unknown_units_are_named(tmp_pat
              "inf_wall": "LINE #.* on layer WALLS: .*non-finite",
              "nan_circle": "CIRCLE #.* on layer PILLARS: .*finite",
              "units": r"\$INSUNITS = 18",
-             "huge_hatch_arc": "HATCH #.* on layer COLUMNS: .*loop spans 2e\\+09 m"}[entity]
+             "huge_hatch_arc": "HATCH #.* on layer COLUMNS: .*curve spans 2e\\+09 m"}[entity]
     with pytest.raises(FloorPlanError, match=match):
         read_floor_plan(tmp_path / "plan.dxf")
 

@@ -114,6 +114,54 @@ def test_streaming_from_a_scan_equals_batch(f1_bundle, sim_walks):  # noqa: F811
     assert np.array_equal([e.y_m for e in est], batch.y_m)
 
 
+def test_a_refused_step_leaves_the_stream_going(f1_bundle, sim_walks, monkeypatch):  # noqa: F811
+    """A step without a compass heading (NaN, inf, text), or with a fix in other units, is
+    refused with a LocalizationError and not taken: the next steps give the track of a
+    stream that never saw it (a NaN compass used to poison the window, and every later step
+    of the user failed with an IndexError). So does a step whose alignment fails."""
+    from dataclasses import replace
+
+    import localize.align as align
+
+    w = _f1_with_scans(sim_walks)[0]
+    ref = WalkAligner(f1_bundle)
+    ref.start(*w.start_xy, t_ms=w.steps.t_ms[0] - 500.0)
+    want = [ref.step(s) for s in w.steps]
+    loc = WalkAligner(f1_bundle)
+    loc.start(*w.start_xy, t_ms=w.steps.t_ms[0] - 500.0)
+    got = [loc.step(w.steps[i]) for i in range(3)]
+    for compass in (np.nan, np.inf, "north"):
+        with pytest.raises(LocalizationError, match="no compass heading"):
+            loc.step(replace(w.steps[3], compass_deg=compass))
+    s = w.steps[3]
+    with pytest.raises(LocalizationError, match="more than 200 m off the floor's map"):
+        loc.step_values(s.t_ms, s.compass_deg, s.relative_heading_deg, s.delta_acc_ms2,
+                        fix=(1e6, 1e6, s.t_ms))
+    real = align.WalkAligner._align_window
+    monkeypatch.setattr(align.WalkAligner, "_align_window",
+                        lambda self, local: (_ for _ in ()).throw(MemoryError("no room")))
+    with pytest.raises(MemoryError):
+        loc.step(w.steps[3])
+    monkeypatch.setattr(align.WalkAligner, "_align_window", real)
+    got += [loc.step(w.steps[i]) for i in range(3, len(w.steps))]
+    assert [(e.x_m, e.y_m) for e in got] == [(e.x_m, e.y_m) for e in want]
+    pdr = make_localizer("pdr", f1_bundle)
+    pdr.start(*w.start_xy)
+    with pytest.raises(LocalizationError, match="no compass heading"):
+        pdr.step(replace(w.steps[0], compass_deg=np.nan))
+    assert np.isfinite(pdr.step(w.steps[0]).x_m)  # it went on NaN for ever, before
+
+
+def test_a_stream_from_a_scan_starts_at_its_time(f1_bundle, sim_walks):  # noqa: F811
+    """Without a start time, start(scan=...) starts at the scan's time (it started at 0)."""
+    w = _f1_with_scans(sim_walks)[0]
+    scan = next(s for s in w.steps.scans if s is not None)
+    for method in ("align", "indoormap", "pdr"):
+        loc = make_localizer(method, f1_bundle, radio=_BiasedRadio(w, 45), rng=0)
+        assert loc.start(scan=scan).t_ms == scan.t_ms
+        assert loc.start(*w.start_xy).t_ms == 0.0  # a given position: as before
+
+
 def test_real_time_forgets_what_no_window_reaches_and_keeps_the_track(
         f1_bundle, sim_walks, monkeypatch):  # noqa: F811
     """The steps and fixes behind the real-time window are dropped (memory and work per step

@@ -103,6 +103,17 @@ def test_bad_ticks_move_nobody(f1_bundle, sim_walks):  # noqa: F811
         eng.tick(ids, [t, t], _inputs([w], 0))
     with pytest.raises(LocalizationError, match="fix_xy_m has shape"):
         eng.tick(ids, [t, t], good, fix_xy_m=[[1.0, 2.0]])
+    # a fix in other units, for another floor or half missing would drag its user's track
+    # off the map (it was taken, and the user placed 500 km away with a 0.5 m spread)
+    for fix in ([1e6, 1e6], [w.start_xy[0] * 1000.0, w.start_xy[1] * 1000.0 + 1e4],
+                [np.inf, 5.0], [np.nan, 5.0]):
+        with pytest.raises(LocalizationError, match=rf"users \[{ids[1]}\]: fix_xy_m .* not "
+                           "two finite numbers within 200 m .*nobody was advanced"):
+            eng.tick(ids, [t, t], good, fix_xy_m=[[np.nan, np.nan], fix])
+    bad = StepInputs(**{**{c: getattr(good, c) for c in COLUMNS},
+                        "frequency_hz": np.array(["1.8", "x"])})
+    with pytest.raises(LocalizationError, match="frequency_hz is not numeric"):
+        eng.tick(ids, [t, t], bad)
     assert all(a.last_t_ms == w.steps.t_ms[0] - 500.0 for a in eng._aligners.values())
     out = eng.tick(None, [t, t], good)  # every user
     assert np.array_equal(out.x_m[:1], out.x_m[1:])  # the same walk, the same estimate

@@ -347,7 +347,15 @@ def test_a_bad_tick_moves_no_user(f1_bundle, sim_walks):  # noqa: F811
                         (lambda: eng.tick(ids, inputs(0, turn_deg=np.zeros(2))),
                          r"turn_deg has shape \(2,\)"),
                         (lambda: eng.tick([ids[0], ids[0]], inputs(0)),
-                         "appears twice")]:
+                         "appears twice"),
+                        (lambda: eng.tick([ids[0], 99], StepInputs(
+                            **{c: getattr(inputs(0), c)[:2] for c in cols})),
+                         r"unknown user ids in tick: \[99\]"),
+                        (lambda: eng.tick(None, inputs(0, frequency_hz=np.array(
+                            ["1.8", "x", "1.8"]))), "frequency_hz is not numeric"),
+                        (lambda: eng.tick(None, inputs(0), fix_xy_m=[
+                            [np.nan, np.nan], [1e6, 1e6], [np.nan, np.nan]]),
+                         rf"users \[{ids[1]}\]: fix_xy_m .* within 200 m")]:
         with pytest.raises(LocalizationError, match=match):
             call()
         np.testing.assert_array_equal(eng.state.x, before)

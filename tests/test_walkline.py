@@ -283,3 +283,78 @@ def test_the_simulators_route_file_is_named_as_such_and_its_path_said_once(tmp_p
     line = next(ln for ln in res.output.splitlines() if ln.startswith("FAILED"))
     assert line.count(str(path)) == 1
     assert "simulator's planned_routes.geojson" in line and "path_data_files/" in line
+
+
+def test_streams_logged_at_their_own_rates_one_event_per_row(tmp_path):
+    """A row may leave a whole stream's columns empty: it holds no sample of that stream
+    (phones log sensors at their own rates, one event per row). Before, every such row was a
+    bad line, the walk got no sensor row at all, and ingest still said it was stored."""
+    lines = ["t_ms,acc_x,acc_y,acc_z,mag_x,mag_y,mag_z"]
+    for i in range(50):
+        lines.append(f"{T0 + 20 * i},0.1,0.2,9.8,,,")           # accelerometer at 50 Hz
+        if i % 2:
+            lines.append(f"{T0 + 20 * i + 7},,,,20.5,-3,{-40 - i}")  # magnetometer at 25 Hz
+    lines.append(f"{T0 + 2000},0.1,,9.8,,,")   # a stream filled in part: a bad line
+    lines.append(f"{T0 + 2001},,,,,,")         # no sample of any stream: a bad line
+    (tmp_path / "a.csv").write_text("\n".join(lines) + "\n")
+    plan = _plan(tmp_path, [_feature("a", [[0, 0], [1, 0]], start_ms=T0, end_ms=T0 + 1980)])
+    (trace, _, _), = read_walk_plan(plan)
+    s = trace.sensors
+    acc, mag = s[s["stream"] == "accelerometer"], s[s["stream"] == "magnetic_field"]
+    assert len(acc) == 50 and len(mag) == 25
+    np.testing.assert_array_equal(mag["t_ms"], T0 + 20 * np.arange(1, 50, 2) + 7)
+    np.testing.assert_allclose(mag["z"], -40.0 - np.arange(1, 50, 2))
+    assert trace.report.bad == {"non_numeric": 2}
+    assert trace.report.records == {"SENSOR_ROW": 75}
+
+
+def test_a_log_without_a_usable_row_is_refused(tmp_path):
+    """Every row bad (or none): the walk has no sample, refused naming the log (it was stored
+    empty, ingest exiting 0, and the build failed later for want of processed walks)."""
+    plan = _plan(tmp_path, [_feature("a", [[0, 0], [1, 0]], start_ms=T0, end_ms=T0 + 1980)])
+    (tmp_path / "a.csv").write_text("t_ms,acc_x,acc_y,acc_z\n"
+                                    + "".join(f"{T0 + i},x,1,2\n" for i in range(3)))
+    with pytest.raises(SurveyFormatError, match=r"a.csv: sensor log has no sample: none of its "
+                       r"3 rows is usable \(non_numeric 3; the first: .*a.csv:2: "):
+        read_walk_plan(plan)
+    (tmp_path / "a.csv").write_text("t_ms,acc_x,acc_y,acc_z\n")
+    with pytest.raises(SurveyFormatError, match="sensor log has no sample: no rows"):
+        read_walk_plan(plan)
+    summary = ingest([plan], tmp_path / "store")
+    assert summary.status_counts() == {"failed": 1}
+    assert "sensor log has no sample" in summary.failed[0].detail
+
+
+def test_build_exclude_names_walk_plan_walks(tmp_path):
+    """`build --exclude` takes a walk plan's walk by its walk_id or its sensor log's name
+    (with or without .csv), before the work and after the ingest; it knew trace files only,
+    so a walk-line survey could not hold a walk out."""
+    import click
+
+    from mapping.cli_build import check_exclude_early, excluded_walks
+
+    src = tmp_path / "src"
+    src.mkdir()
+    for walk in ("w1", "w2"):
+        _csv(src / f"{walk}.csv")
+    _plan(src, [_feature(w, [[0, 0], [1, 0]], start_ms=T0, end_ms=T0 + 1980)
+                for w in ("w1", "w2")])
+    for name in ("w1", "w1.csv"):
+        check_exclude_early([name], [src])
+    with pytest.raises(click.BadParameter, match="'w3' is no walk of this build"):
+        check_exclude_early(["w3"], [src])
+    # named as the reader names them: a numeric or padded walk_id, the log a link leads to
+    from survey.walkline import plan_walk_names
+
+    other = tmp_path / "other"
+    other.mkdir()
+    _csv(other / "real.csv")
+    (other / "link.csv").symlink_to(other / "real.csv")
+    feats = [_feature("x", [[0, 0], [1, 0]], start_ms=T0, end_ms=T0 + 1980) for _ in range(2)]
+    feats[0]["properties"].update(walk_id=17, sensor_log="real.csv")
+    feats[1]["properties"].update(walk_id=" w8 ", sensor_log="link.csv")
+    assert plan_walk_names(_plan(other, feats)) == {"17", "w8", "real.csv", "real"}
+    summary = ingest([src], tmp_path / "store")
+    catalog = SurveyStore.open(tmp_path / "store").catalog()
+    for name in ("w1", "w1.csv"):
+        assert excluded_walks(catalog, summary, [src], [name], lambda msg: None) == {"w1"}
