@@ -42,8 +42,7 @@ from numpy.typing import NDArray
 
 from localize.bundle import Grid, MapBundle
 from localize.errors import LocalizationError
-from localize.filter import (MAX_START_OFF_MAP_M, BaseLocalizer, check_compass, check_step,
-                             check_step_time, within_reach)
+from localize.filter import BaseLocalizer, check_step, check_within_reach
 from localize.params import MAX_STEP_M
 from localize.radio import RadioModel
 from localize.steps import AttitudeCode, RadioScan, StepSummaries, StepSummary
@@ -375,11 +374,12 @@ class WalkAligner(BaseLocalizer):
         """Advance by one step (and its scan's fix, unless it is the start's scan) and return
         the new real-time estimate; see :meth:`step_values`."""
         check_step(s, self)
+        self._check_next(s.t_ms, s.compass_deg)  # before the radio is asked
         located = (self.radio.locate(s.scan) if s.scan is not None and self.radio is not None
                    and not self._is_start_scan(s.scan) else None)
         fix = None if located is None else (located[0], located[1], s.scan.time_or(s.t_ms))
-        return self.step_values(s.t_ms, s.compass_deg, s.relative_heading_deg,
-                                s.delta_acc_ms2, s.attitude == AttitudeCode.CARRIED, fix)
+        return self._advance(s.t_ms, s.compass_deg, s.relative_heading_deg, s.delta_acc_ms2,
+                             s.attitude == AttitudeCode.CARRIED, self._checked_fix(s.t_ms, fix))
 
     @property
     def last_t_ms(self) -> float:
@@ -395,20 +395,21 @@ class WalkAligner(BaseLocalizer):
         (:attr:`AttitudeCode.CARRIED`), and a radio fix ``(x_m, y_m, t_ms)`` located by the
         caller (its scan time). For serving many users
         (:class:`localize.align_engine.MultiUserAligner`)."""
-        if not self._fix_t:
-            raise LocalizationError("call start() (or run()) before step()")
-        check_compass(t_ms, compass_deg)
-        check_step_time(t_ms, self._t[-1])
-        located = None if fix is None else (float(fix[2]), (float(fix[0]), float(fix[1])))
-        if located is not None and not (np.isfinite(located[0])
-                                        and within_reach(self.bundle.grid, *located[1])):
-            given = ", ".join(f"{v:g}" for v in (*located[1], located[0]))
-            raise LocalizationError(f"step at {t_ms:g} ms: fix ({given}) (x, y m, t ms) is "
-                                    f"not finite or more than {MAX_START_OFF_MAP_M:g} m off "
-                                    "the floor's map: wrong floor or units?; the step was "
-                                    "not taken")
+        self._check_next(t_ms, compass_deg)
         return self._advance(t_ms, compass_deg, relative_heading_deg, delta_acc_ms2,
-                             bool(carried), located)
+                             bool(carried), self._checked_fix(t_ms, fix))
+
+    def _checked_fix(self, t_ms: float, fix: tuple[float, float, float] | None
+                     ) -> tuple[float, tuple[float, float]] | None:
+        """A step's fix ``(x_m, y_m, t_ms)`` as :meth:`_advance` takes it, ``(t_ms, (x, y))``;
+        a LocalizationError for one not finite or far off the map (not taken)."""
+        if fix is None:
+            return None
+        x, y, t = (float(v) for v in fix)
+        check_within_reach(self.bundle.grid, x if np.isfinite(t) else np.nan, y,
+                           f"step at {t_ms:g} ms: fix ({x:g}, {y:g}, {t:g}) (x, y m, t ms)",
+                           "; the step was not taken")
+        return t, (x, y)
 
     def _advance(self, t_ms, compass_deg, gyro_deg, swing, axis, fix) -> Estimate:
         """Take one step (and its fix ``(t_ms, (x, y, sigma))``, if any), then align again:

@@ -178,7 +178,8 @@ def advance_aligners(aligners: list[WalkAligner], t_ms: NDArray, columns: tuple[
     compass, gyro, swing, carried = columns
     out = np.empty((k, 3))
     for r, aligner in enumerate(aligners):
-        fix = (fix_xy[r, 0], fix_xy[r, 1], fix_t[r]) if has_fix[r] else None
-        est = aligner.step_values(t_ms[r], compass[r], gyro[r], swing[r], carried[r], fix)
+        fix = (float(fix_t[r]), (float(fix_xy[r, 0]), float(fix_xy[r, 1]))) \
+            if has_fix[r] else None  # checked with the tick, as every other input
+        est = aligner._advance(t_ms[r], compass[r], gyro[r], swing[r], bool(carried[r]), fix)
         out[r] = est.x_m, est.y_m, est.spread_m
     return StepOutputs(out[:, 0], out[:, 1], out[:, 2], np.ones(k), np.zeros(k, bool))

@@ -18,8 +18,7 @@ import numpy as np
 from localize.align import WalkAligner
 from localize.bundle import MapBundle
 from localize.errors import LocalizationError
-from localize.filter import (BUNDLE_HINT, BaseLocalizer, Localizer, check_compass, check_step,
-                             check_step_time)
+from localize.filter import BUNDLE_HINT, BaseLocalizer, Localizer, check_step
 from localize.maps import FilterMap
 from localize.methods import METHODS, PARTICLE_FILTERS, SMOOTHABLE, WEIGHT_MODE_OF, auto_method
 from localize.params import FilterParams
@@ -61,10 +60,7 @@ class PdrLocalizer(BaseLocalizer):
 
     def step(self, s: StepSummary) -> Estimate:
         check_step(s, self)
-        if self._last is None:
-            raise LocalizationError("call start() (or run()) before step()")
-        check_compass(s.t_ms, s.compass_deg)
-        check_step_time(s.t_ms, self._last.t_ms)
+        self._check_next(s.t_ms, s.compass_deg)
         h = np.radians(s.compass_deg - self.heading_offset_deg)
         x = self._last.x_m + self.step_length_m * np.sin(h)
         y = self._last.y_m + self.step_length_m * np.cos(h)
@@ -97,9 +93,7 @@ class RadioOnlyLocalizer(BaseLocalizer):
 
     def step(self, s: StepSummary) -> Estimate:
         check_step(s, self)
-        if self._last is None:
-            raise LocalizationError("call start() (or run()) before step()")
-        check_step_time(s.t_ms, self._last.t_ms)
+        self._check_next(s.t_ms)  # the radio alone: no compass needed
         x, y, spread = self._last.x_m, self._last.y_m, self._last.spread_m
         if s.scan is not None:
             fix = self.radio.locate(s.scan)

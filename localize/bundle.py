@@ -60,6 +60,14 @@ MAX_COORD_M = 1e8
 #: RSSI a table may hold (dBm): the values a phone reports, as the trace reader and the radio
 #: build (:mod:`mapping.radio_scans`) accept them.
 RSSI_RANGE_DBM = (-127.0, 0.0)
+
+
+def rssi_in_range(rssi_dbm: ArrayLike) -> NDArray[np.bool_]:
+    """Where RSSI values (dBm) are within :data:`RSSI_RANGE_DBM` (NaN is not)."""
+    rssi = np.asarray(rssi_dbm)
+    return (rssi >= RSSI_RANGE_DBM[0]) & (rssi <= RSSI_RANGE_DBM[1])
+
+
 #: The layers of a floor bundle by name: (unit, kinds it may have). The polar angle (0 to
 #: 180 deg, never wrapping) is an angle layer in built bundles and a scalar one in the
 #: simulator's truth bundles; the localizer compares it as a scalar. A layer of another name

@@ -196,11 +196,23 @@ class BaseLocalizer:
         except (TypeError, ValueError) as err:
             raise LocalizationError(f"start position {xy!r} is not two numbers (x, y m)") \
                 from err
-        if not within_reach(self.bundle.grid, x, y):
-            raise LocalizationError(f"start position ({x:g}, {y:g}) m is not finite or more "
-                                    f"than {MAX_START_OFF_MAP_M:g} m off the floor's map: "
-                                    "wrong floor or units?")
+        check_within_reach(self.bundle.grid, x, y, f"start position ({x:g}, {y:g}) m")
         return x, y
+
+    @property
+    def last_t_ms(self) -> float:
+        """Time (Unix ms) of the last step, or of the start."""
+        return self._last.t_ms
+
+    def _check_next(self, t_ms: float, compass_deg: float | None = None) -> None:
+        """What a streamed step must pass before it is taken (else a LocalizationError, and
+        the localizer carries on with the next): a start made, a finite compass heading
+        (unless None: a method that walks without it), a time not before the last step's."""
+        if self._last is None:
+            raise LocalizationError("call start() (or run()) before step()")
+        if compass_deg is not None:
+            check_compass(t_ms, compass_deg)
+        check_step_time(t_ms, self.last_t_ms)
 
     def _start_at(self, x: float, y: float, t_ms: float, sigma: float | None,
                   half_width_m: float | None) -> Estimate:
@@ -380,10 +392,7 @@ class Localizer(BaseLocalizer):
             Called before :meth:`start`, or a step without a finite compass heading.
         """
         check_step(s, self)
-        if self.state is None or self._last is None:
-            raise LocalizationError("call start() (or run()) before step()")
-        check_compass(s.t_ms, s.compass_deg)
-        check_step_time(s.t_ms, self._last.t_ms)
+        self._check_next(s.t_ms, s.compass_deg)
         st, p = self.state, self.params
         inp = StepInputs(np.array([s.compass_deg]), np.array([s.frequency_hz]),
                          np.array([s.turn_deg]), np.array([s.strength_ut]),
@@ -481,6 +490,15 @@ class Localizer(BaseLocalizer):
         if self.state is None:
             raise LocalizationError("not started")
         return self.state.x[0], self.state.y[0], self.state.w[0]
+
+
+def check_within_reach(grid: Grid, x: float, y: float, what: str, then: str = "") -> None:
+    """A LocalizationError naming ``what`` (a start, a fix) unless ``(x, y)`` (m) is
+    :func:`within_reach` of the floor's ``grid`` (``then``: what follows, e.g. that the step
+    was not taken)."""
+    if not within_reach(grid, x, y):
+        raise LocalizationError(f"{what} is not finite or more than {MAX_START_OFF_MAP_M:g} m "
+                                f"off the floor's map: wrong floor or units?{then}")
 
 
 def within_reach(grid: Grid, x: ArrayLike, y: ArrayLike) -> NDArray[np.bool_] | bool:

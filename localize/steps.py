@@ -19,7 +19,7 @@ from enum import IntEnum
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from localize.bundle import RSSI_RANGE_DBM
+from localize.bundle import RSSI_RANGE_DBM, rssi_in_range
 from localize.errors import LocalizationError
 
 __all__ = ["AttitudeCode", "RadioScan", "StepSummaries", "StepSummary", "attitude_codes",
@@ -117,9 +117,9 @@ class RadioScan:
         except (TypeError, ValueError) as err:
             raise LocalizationError(f"scan at {self.t_ms}: RSSI values are not numbers "
                                     f"({err})") from err
-        lo, hi = RSSI_RANGE_DBM
-        bad = ~((rssi >= lo) & (rssi <= hi))
+        bad = ~rssi_in_range(rssi)
         if bad.any():
+            lo, hi = RSSI_RANGE_DBM
             i = int(np.flatnonzero(bad)[0])
             raise LocalizationError(f"scan at {self.t_ms}: RSSI {rssi[i]:g} dBm of "
                                     f"{self.keys[i]} is not in [{lo:g}, {hi:g}] dBm (another "
@@ -139,8 +139,13 @@ class RadioScan:
         keep = ~(np.asarray(self.age_ms, dtype=np.float64) > max_age_ms)
         if keep.all():
             return self
-        return RadioScan(self.t_ms, np.asarray(self.keys)[keep],
-                         np.asarray(self.rssi_dbm)[keep], np.asarray(self.age_ms)[keep])
+        # rows of a checked scan: no need to check them again (this runs at every locate)
+        subset = object.__new__(RadioScan)
+        for name, value in (("t_ms", self.t_ms), ("keys", np.asarray(self.keys)[keep]),
+                            ("rssi_dbm", np.asarray(self.rssi_dbm)[keep]),
+                            ("age_ms", np.asarray(self.age_ms)[keep])):
+            object.__setattr__(subset, name, value)
+        return subset
 
 
 def attach_scans(step_t_ms: NDArray, scans: Sequence[RadioScan]) -> list[RadioScan | None]:

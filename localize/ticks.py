@@ -35,11 +35,7 @@ def checked_tick_fixes(fix_xy_m: ArrayLike, fix_sigma_m: ArrayLike | None, k: in
     :data:`~localize.filter.MAX_START_OFF_MAP_M` of the floor's ``grid``, as a start) or
     NaN, NaN (none); anything else names the users of ``ids`` it came from: a fix in other
     units or for another floor would drag their tracks off the map."""
-    try:
-        xy = np.array(fix_xy_m, dtype=np.float64)
-    except (TypeError, ValueError) as err:
-        raise LocalizationError(f"fix_xy_m is not numeric ({err}); nobody was advanced") \
-            from err
+    xy = _floats(fix_xy_m, "fix_xy_m")
     if xy.shape == (2,) and k == 1:
         xy = xy.reshape(1, 2)
     if xy.shape != (k, 2):
@@ -52,16 +48,22 @@ def checked_tick_fixes(fix_xy_m: ArrayLike, fix_sigma_m: ArrayLike | None, k: in
             f"users {ids[bad][:10].tolist()}: fix_xy_m {xy[bad][0].tolist()} is not two "
             f"finite numbers within {MAX_START_OFF_MAP_M:g} m of the floor's map (NaN, NaN "
             "for no fix; wrong floor or units?); nobody was advanced")
-    try:
-        sigma = (np.full(k, np.nan) if fix_sigma_m is None else
-                 np.asarray(fix_sigma_m, dtype=np.float64).reshape(-1))
-    except (TypeError, ValueError) as err:
-        raise LocalizationError(f"fix_sigma_m is not numeric ({err}); nobody was advanced") \
-            from err
+    sigma = (np.full(k, np.nan) if fix_sigma_m is None else
+             _floats(fix_sigma_m, "fix_sigma_m").reshape(-1))
     if sigma.shape != (k,):
         raise LocalizationError(f"fix_sigma_m has {sigma.size} values, expected {k}: one per "
                                 "user")
     return xy, np.fmax(sigma, floor_m)  # NaN: the floor
+
+
+def _floats(values: ArrayLike, name: str) -> NDArray[np.float64]:
+    """``values`` as a new float64 array; a LocalizationError naming ``name`` for text or
+    objects numpy cannot convert."""
+    try:
+        return np.array(values, dtype=np.float64)
+    except (TypeError, ValueError) as err:
+        raise LocalizationError(f"{name} is not numeric ({err}); nobody was advanced") \
+            from err
 
 
 def check_tick_inputs(inputs: StepInputs, ids: NDArray[np.int64]) -> None:
@@ -75,10 +77,10 @@ def check_tick_inputs(inputs: StepInputs, ids: NDArray[np.int64]) -> None:
         if np.shape(values) not in shapes:
             raise LocalizationError(f"tick input {f.name} has shape {np.shape(values)}, "
                                     f"expected ({len(ids)},): one value per user")
-        kind = np.asarray(values).dtype.kind
-        if kind not in "biuf":  # text ("1.8") or objects: numpy would convert some of them
-            raise LocalizationError(f"tick input {f.name} is not numeric (dtype "
-                                    f"{np.asarray(values).dtype}); nobody was advanced")
+        dtype = np.asarray(values).dtype
+        if dtype.kind not in "biuf":  # text ("1.8") or objects: numpy would convert some
+            raise LocalizationError(f"tick input {f.name} is not numeric (dtype {dtype}); "
+                                    "nobody was advanced")
     bad = ~np.isfinite(np.asarray(inputs.compass_deg, dtype=float).reshape(-1))
     if bad.any():
         raise LocalizationError(f"users {ids[bad][:10].tolist()}: no compass heading "

@@ -33,7 +33,7 @@ from survey.store import SurveyStore
 
 from .bundle_writer import BundleContent, Layer
 from .floorplan import FloorPlan
-from .grid import reachable_mask
+from .grid import distance_to_reachable_m, reachable_mask
 from .field_layers import FIELD_LAYERS, field_rasters, floor_steps, levelling_samples, \
     reduce_field
 from .holdout import BANDWIDTH_CANDIDATES_M, choose_smoothing, heldout_quality
@@ -100,13 +100,9 @@ def samples_on_plan(grid: Grid, mask: NDArray[np.bool_], x_m: NDArray, y_m: NDAr
     """Share of the positions ``(x_m, y_m)`` (m, shape (n,)) within ``within_m`` of a
     reachable cell (``mask``, the grid's shape); positions off the grid are off the plan. 1.0
     for no positions."""
-    from scipy import ndimage
-
     if len(x_m) == 0:
         return 1.0
-    near = ndimage.distance_transform_edt(~mask) * grid.cell_m <= within_m
-    row, col, inside = grid.cell_of(np.asarray(x_m, np.float64), np.asarray(y_m, np.float64))
-    return float((inside & near[row, col]).mean())
+    return float((distance_to_reachable_m(grid, mask, x_m, y_m) <= within_m).mean())
 
 
 def build_smoothing(samples: pd.DataFrame, field_enu: np.ndarray, grid: Grid,

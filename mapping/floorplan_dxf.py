@@ -88,10 +88,13 @@ def read_dxf_floor_plan(path: str | os.PathLike, *,
     seen: dict[str, int] = {}  # entity kinds on the outline layers, for the error
     repairs: list[str] = []
     used_layers: set[str] = set()
-    roles = set().union(*upper.values())
-    for e, layer in _expanded(doc.modelspace(), path, lambda name: name.upper() in roles):
+    role_of: dict[str, str] = {}  # upper-case layer name -> role (the first role naming it)
+    for role, names in upper.items():
+        for name in names:
+            role_of.setdefault(name, role)
+    for e, layer in _expanded(doc.modelspace(), path, lambda name: name.upper() in role_of):
         used_layers.add(layer)
-        role = next((r for r, names in upper.items() if layer.upper() in names), None)
+        role = role_of.get(layer.upper())
         if role is None:
             continue
         kind = e.dxftype()

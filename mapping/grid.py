@@ -36,6 +36,17 @@ _CROSSINGS_PER_CHUNK = 1 << 20
 _COLLECTION_TYPES = (4, 5, 6, 7)  # Multi* and GeometryCollection (shapely.get_type_id)
 
 
+def distance_to_reachable_m(grid: Grid, mask: NDArray[np.bool_], x_m: NDArray,
+                            y_m: NDArray) -> NDArray[np.float64]:
+    """Distance (m, in whole cells) from each position ``(x_m, y_m)`` (shape (n,)) to the
+    nearest reachable cell of ``mask`` (the grid's shape); inf off the grid, 0 on the mask."""
+    from scipy import ndimage
+
+    dist = ndimage.distance_transform_edt(~mask) * grid.cell_m
+    row, col, inside = grid.cell_of(x_m, y_m)
+    return np.where(inside, dist[row, col], np.inf)
+
+
 def reachable_mask(grid: Grid, reachable: shapely.Geometry) -> NDArray[np.bool_]:
     """Cells whose centre lies in the reachable area, shape (height, width); vectorized.
 

@@ -64,6 +64,7 @@ from survey.trace_format import bad_lines_summary
 
 from . import holdout
 from .build import BuildParams, heading_raster_for
+from .grid import distance_to_reachable_m
 from .interpolate import INTERPOLATORS, CellStats, RasterParams, cell_stats, walk_cell_means
 from .levelling import LevellingParams, apply_session_residuals
 
@@ -1242,13 +1243,10 @@ def data_quality_section(bundle: MapBundle, fd: FloorData, th: dict, params: Val
         1 for w in flagged if any(set(i["judged_flags"]) & fail_flags for i in w["legs"]))
     arrays["flagged_segments"] = seg_xy
     # waypoints outside the reachable area
-    g, mask = bundle.grid, np.asarray(bundle.mask, dtype=bool)
-    dist_to_reach = ndimage.distance_transform_edt(~mask) * g.cell_m
     wp = fd.waypoints
     tol = th.get("waypoint_outside_tolerance_m") or 0.0
     wx, wy = wp["x_m"].to_numpy(np.float64), wp["y_m"].to_numpy(np.float64)
-    r, c, inside = g.cell_of(wx, wy)
-    d = np.where(inside, dist_to_reach[r, c], np.inf)
+    d = distance_to_reachable_m(bundle.grid, np.asarray(bundle.mask, dtype=bool), wx, wy)
     outside = d > tol
     order = wp.groupby("trace_id").cumcount().to_numpy()
     out_rows = [{"trace_id": str(t), "waypoint": int(i), "t_ms": int(tm), "x_m": float(x),

@@ -42,7 +42,7 @@ import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 
 # one RSSI range (dBm) for the reader, the radio build and a bundle's radio tables
-from localize.bundle import RSSI_RANGE_DBM
+from localize.bundle import RSSI_RANGE_DBM, rssi_in_range
 
 from .errors import SurveyFormatError
 from .trace_bytes import MAX_TRACE_BYTES, not_regular, read_trace_bytes
@@ -632,7 +632,7 @@ class _Tables:
             return [empty_table(WIFI_COLUMNS, WIFI_DTYPES) for _ in range(self.n_files)]
         bssid, valid = normalize_bssids(cols["bssid"])
         lo, hi = RSSI_RANGE_DBM
-        rssi_ok = (cols["rssi_dbm"] >= lo) & (cols["rssi_dbm"] <= hi)
+        rssi_ok = rssi_in_range(cols["rssi_dbm"])
         freq_ok = (cols["freq_mhz"] >= 1) & (cols["freq_mhz"] <= 100_000)
         bad.add(cols["gline"][~valid], "bad_bssid", "TYPE_WIFI: bssid is not a MAC address")
         bad.add(cols["gline"][valid & ~rssi_ok], "out_of_range",
@@ -675,7 +675,7 @@ class _Tables:
         if cols is None:
             return [empty_table(BLE_COLUMNS, BLE_DTYPES) for _ in range(self.n_files)]
         lo, hi = RSSI_RANGE_DBM
-        ok = (cols["rssi_dbm"] >= lo) & (cols["rssi_dbm"] <= hi)
+        ok = rssi_in_range(cols["rssi_dbm"])
         ok_id = ((cols["major"] >= 0) & (cols["major"] < 2**16) & (cols["minor"] >= 0)
                  & (cols["minor"] < 2**16) & (np.abs(cols["tx_power_dbm"]) < 2**15))
         bad.add(cols["gline"][~ok], "out_of_range", f"TYPE_BEACON: rssi outside [{lo:g}, {hi:g}] dBm")

@@ -70,6 +70,16 @@ _HEADER_PROPS = {"site_id": "site_id", "site_name": "site_name", "floor_id": "fl
                  "floor_name": "floor_name", "device_brand": "brand", "device_model": "model"}
 
 
+def _plan_json(path: Path) -> object:
+    """A plan file's JSON; raises OSError, UnicodeDecodeError, ValueError (not JSON) or
+    RecursionError (deep nesting) as :data:`_PLAN_READ_ERRORS`."""
+    return json.loads(read_regular(path, MAX_PLAN_BYTES).decode("utf-8"))
+
+
+#: What reading a plan's JSON (:func:`_plan_json`) raises for a file that is none.
+_PLAN_READ_ERRORS = (OSError, UnicodeDecodeError, ValueError, RecursionError)
+
+
 def is_walk_plan(path: str | os.PathLike) -> bool:
     """True for a ``*.geojson`` FeatureCollection whose features name a ``sensor_log``
     (other GeoJSON, such as floor plans or a simulator's planned routes, is not a walk plan)."""
@@ -77,9 +87,13 @@ def is_walk_plan(path: str | os.PathLike) -> bool:
     if not path.name.endswith(".geojson"):
         return False
     try:
-        data = json.loads(read_regular(path, MAX_PLAN_BYTES).decode("utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError, RecursionError):  # deep nesting
+        return _is_walk_plan_data(_plan_json(path))
+    except _PLAN_READ_ERRORS:
         return False
+
+
+def _is_walk_plan_data(data: object) -> bool:
+    """Whether a plan file's JSON is a walk plan (:func:`is_walk_plan`)."""
     feats = data.get("features") if isinstance(data, dict) else None
     return isinstance(feats, list) and bool(feats) and all(
         isinstance(f, dict) and isinstance(f.get("properties"), dict)
@@ -89,20 +103,19 @@ def is_walk_plan(path: str | os.PathLike) -> bool:
 def plan_walk_names(path: str | os.PathLike) -> set[str]:
     """The names a walk plan's walks go by, as :func:`read_walk_plan` reads them: each
     feature's ``walk_id`` (its trace id) and its sensor log's file name (the file it
-    resolves to), with and without ``.csv``; empty for a file that is no readable walk plan
-    (what the reader refuses is said when it reads the plan)."""
+    resolves to), with and without ``.csv``; empty for a file that is no walk plan
+    (:func:`is_walk_plan`; what the reader refuses is said when it reads the plan)."""
     path = Path(path)
     try:
-        data = json.loads(read_regular(path, MAX_PLAN_BYTES).decode("utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError, RecursionError):
+        data = _plan_json(path)
+    except _PLAN_READ_ERRORS:
         return set()
-    if not isinstance(data, dict) or not isinstance(data.get("properties") or {}, dict):
+    if not _is_walk_plan_data(data) or not isinstance(data.get("properties") or {}, dict):
         return set()
     defaults = data.get("properties") or {}
     names: set[str] = set()
-    for f in data.get("features") or []:
-        own = f.get("properties") if isinstance(f, dict) else None
-        props = {**defaults, **(own if isinstance(own, dict) else {})}
+    for f in data["features"]:
+        props = {**defaults, **f["properties"]}
         walk_id = str(props.get("walk_id") or "").strip()
         if walk_id:
             names.add(walk_id)
@@ -133,8 +146,8 @@ def read_walk_plan(path: str | os.PathLike, *, strict: bool = False
     """
     path = Path(path)
     try:
-        plan = json.loads(read_regular(path, MAX_PLAN_BYTES).decode("utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as err:  # deep nesting
+        plan = _plan_json(path)
+    except _PLAN_READ_ERRORS as err:
         raise SurveyFormatError(f"not a readable GeoJSON walk plan ({err})", path=str(path),
                                 reason="plan") from err
     if not isinstance(plan, dict) or plan.get("type") != "FeatureCollection":
