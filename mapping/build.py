@@ -293,6 +293,8 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
         if radio is None:
             radio = build_site_radio(store, [floor], site=site, params=params.radio,
                                      exclude_walks=exclude_walks, progress=say)
+        radio = radio.on_plan(floor, lambda x, y: distance_to_reachable_m(grid, mask, x, y)
+                              <= ON_PLAN_M)
         tables.update(radio.floor_tables(floor))
         metrics["radio"] = radio.floor_metrics(floor)
     return BundleContent(
@@ -301,6 +303,8 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
         tables=tables,
         build={"params": params.to_dict(), "build_time": build_time,
                "data_end_time": _time_text(end_ms), "seed": params.seed,
+               "floor_plan": [{"file": name, "sha256": digest}
+                              for name, digest in plan.sources],
                "source_walks": [{"trace_id": t, "sha256": h}
                                 for t, h in zip(walks["trace_id"], walks["sha256"])]},
         metrics=metrics)

@@ -65,6 +65,17 @@ def metric_lines(manifest: dict) -> dict[str, str]:
     return lines
 
 
+def plan_text(manifest: dict) -> str:
+    """The floor plan a floor bundle was built on, as ``file (sha256 prefix)`` per file read
+    (``geojson_map.json (3f2a9c01b7e4), floor_info.json (...)``); ``not recorded`` for a
+    bundle built before plans were recorded or on a plan made in code."""
+    files = manifest.get("build", {}).get("floor_plan")
+    if not isinstance(files, list) or not files:
+        return "not recorded"
+    return ", ".join(f"{f.get('file')} ({str(f.get('sha256'))[:12]})" for f in files
+                     if isinstance(f, dict))
+
+
 def _is_number(value: object) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
@@ -88,7 +99,8 @@ def bundle_differences(a: MapBundle, b: MapBundle) -> list[str]:
     same bundle (same id).
 
     Covered: site, floor or kind (a warning line first), software version, build settings
-    (seed, build time, data end time, every build parameter), smoothing and coverage, source
+    (seed, build time, data end time, every build parameter), the floor plan's files (by
+    name and sha256), smoothing and coverage, source
     walks (shared, added, removed, and re-ingested: same trace id with other content),
     members, grid (size, cell and origin), layers (added, removed, unit, kind or description
     changed, and the mean and largest absolute change of their values cell by cell when the
@@ -105,8 +117,11 @@ def bundle_differences(a: MapBundle, b: MapBundle) -> list[str]:
     out += _changes("manifest", ma, mb, ("software_version", "floor_name"))
     pa_, pb = ma["build"].get("params", {}), mb["build"].get("params", {})
     out += _changes("build", ma["build"], mb["build"],  # a key that is a parameter: below
-                    (set(ma["build"]) | set(mb["build"])) - {"params", "source_walks"}
-                    - set(pa_) - set(pb))
+                    (set(ma["build"]) | set(mb["build"]))
+                    - {"params", "source_walks", "floor_plan"} - set(pa_) - set(pb))
+    plan_a, plan_b = plan_text(ma), plan_text(mb)
+    if plan_a != plan_b:
+        out.append(f"floor plan: {plan_a} -> {plan_b}")
     out += _changes("param", pa_, pb)
     la, lb = metric_lines(ma), metric_lines(mb)
     for key in sorted(set(la) | set(lb)):

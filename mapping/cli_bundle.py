@@ -15,7 +15,7 @@ import numpy as np
 from localize.bundle import MapBundle, bundle_dirs, load_bundle
 from survey.errors import IndoormapError, RegistryError, RollbackRefused, at_path
 
-from .bundle_report import bundle_differences, metric_lines
+from .bundle_report import bundle_differences, metric_lines, plan_text
 from .registry import Registry
 
 
@@ -87,7 +87,8 @@ def _say_bundle(b: MapBundle) -> None:
     for line in metric_lines(m).values():
         click.echo(f"  {line}")
     click.echo(f"  built {m['build'].get('build_time')} from "
-               f"{len(m['build'].get('source_walks', []))} walks")
+               f"{len(m['build'].get('source_walks', []))} walks"
+               + ("" if m.get("kind") == "site" else f" on floor plan {plan_text(m)}"))
 
 
 def _bundle_paths(paths: tuple[Path, ...]) -> list[Path]:

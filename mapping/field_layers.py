@@ -49,7 +49,12 @@ FIELD_LAYERS = {
     "strength": ("uT", "scalar", "field strength"),
     "horizontal": ("uT", "scalar", "horizontal component"),
     "vertical": ("uT", "scalar", "vertical component (up positive)"),
-    "azimuth": ("deg", "angle", "direction of the horizontal field, clockwise from map north"),
+    # the rotation vector takes north from the sensed field, so in its frame the field points
+    # north wherever the phone is (the sample site's layers: 5-95 % within -2..2 deg); the
+    # field's direction on the map is in heading_offset, with the opposite sign
+    "azimuth": ("deg", "angle", "direction of the horizontal field in the frame of the phone's "
+                "rotation vector, clockwise from its north (near 0: that frame's north is the "
+                "sensed field's; the direction on the map is -heading_offset)"),
     "polar": ("deg", "angle", "angle between the field and up"),
 }
 

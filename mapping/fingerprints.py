@@ -147,6 +147,14 @@ class FingerprintDB:
         keep = self.fp["ap"].isin(set(np.asarray(aps).astype(str).tolist()))
         return replace(self, fp=self.fp[keep].reset_index(drop=True))
 
+    def at_points(self, keep: NDArray[np.bool_]) -> FingerprintDB:
+        """The same database with only the reference points where ``keep`` (shape (R,), in
+        :attr:`rp`'s order) is true, and their rows."""
+        keep = np.asarray(keep, dtype=bool)
+        rp = self.rp[keep].reset_index(drop=True)
+        fp = self.fp[self.fp["rp_id"].isin(rp["rp_id"])].reset_index(drop=True)
+        return replace(self, rp=rp, fp=fp)
+
     def to_tables(self) -> dict[str, pd.DataFrame]:
         """``{"rp", "fp", "meta"}`` as plain DataFrames (for Parquet in a bundle)."""
         meta = pd.DataFrame({"kind": [self.kind], "cell_m": [float(self.cell_m)],

@@ -8,13 +8,18 @@ Two GeoJSON flavours are read:
 - plain GeoJSON already in metres (a FeatureCollection whose feature 0, or the feature with
   property ``role: "outline"``, is the outline).
 
-Reachable (walkable) area = outline minus obstacle polygons (by default every other polygon
-feature; ``obstacle_filter`` selects by properties). DXF drawings are read by
+Reachable (walkable) area = outline minus obstacles. A feature's ``role`` property says what
+it is (:data:`GEOJSON_ROLES`): a polygon without one is an obstacle (``obstacle_filter``
+selects among them by properties), ``role: "wall"`` lines are walls :data:`WALL_WIDTH_M`
+thick, ``role: "walkable"`` (or ``corridor``, ``open``, ``passage``) polygons are open floor
+cut out of the obstacles, and ``role: "ignore"`` features are left out. Lines without a wall
+role are left out too, said in :attr:`FloorPlan.repairs`. DXF drawings are read by
 :mod:`mapping.floorplan_dxf` (``read_floor_plan`` dispatches on the ``.dxf`` suffix).
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from collections.abc import Callable
@@ -41,6 +46,13 @@ class FloorPlanError(IndoormapError, ValueError):
 MAX_PLAN_FILE_BYTES = 512 * 2**20
 #: Largest floor side (m) a plan may have.
 MAX_FLOOR_SIDE_M = 20_000.0
+#: Thickness (m) of a wall drawn as a line (GeoJSON ``role: "wall"``, DXF wall layers).
+WALL_WIDTH_M = 0.2
+#: GeoJSON ``role`` property values (case-insensitive) -> what the feature is. Features
+#: without a role: polygons are obstacles, lines are left out (with a note), points ignored.
+GEOJSON_ROLES = {"outline": "outline", "obstacle": "obstacle", "wall": "wall",
+                 "walkable": "walkable", "corridor": "walkable", "open": "walkable",
+                 "passage": "walkable", "ignore": "ignore"}
 
 
 @dataclass(frozen=True)
@@ -56,9 +68,14 @@ class FloorPlan:
     width_m, height_m : float
         Extent of the map frame, from ``(x0_m, y0_m)``.
     repairs : tuple of str
-        What the reader mended: one line per invalid polygon (a self-intersecting outline, say)
-        that was made valid, naming the feature and GEOS's reason. Worth showing the user: a
+        What the reader mended or left out: one line per invalid polygon (a self-intersecting
+        outline, say) that was made valid, naming the feature and GEOS's reason, and one for
+        the GeoJSON lines left out for want of ``role: "wall"``. Worth showing the user: a
         bow-tie outline is built as the two triangles it encloses.
+    sources : tuple of (str, str)
+        The files the plan was read from, as ``(file name, sha256 hex)`` of the bytes read
+        (``geojson_map.json`` and ``floor_info.json``, or the DXF drawing); the build records
+        them in the bundle's manifest. Empty for a plan made in code.
     x0_m, y0_m : float
         Lower-left corner of the map frame: 0, or the plan's lowest coordinate where a plan in
         metres (GeoJSON, DXF) reaches below 0. Plans are never moved: walks are recorded in
@@ -72,6 +89,7 @@ class FloorPlan:
     repairs: tuple[str, ...] = ()
     x0_m: float = 0.0
     y0_m: float = 0.0
+    sources: tuple[tuple[str, str], ...] = ()
 
     def grid(self, cell_m: float) -> Grid:
         """The raster grid over the map frame with ``cell_m`` (m) cells."""
@@ -94,12 +112,24 @@ def made_valid(geom: shapely.Geometry, what: str, repairs: list[str]) -> shapely
     return shapely.make_valid(geom)
 
 
-def _read_json(path: Path, what: str) -> object:
+def read_plan_bytes(path: Path, what: str, sources: list[tuple[str, str]]) -> bytes:
+    """The bytes of a plan file (not a FIFO or device, at most :data:`MAX_PLAN_FILE_BYTES`),
+    with ``(file name, sha256)`` appended to ``sources``; a :class:`FloorPlanError` naming the
+    file when it cannot be read."""
+    try:
+        data = read_regular(path, MAX_PLAN_FILE_BYTES)
+    except OSError as err:
+        raise FloorPlanError(f"{path}: cannot read {what} ({err})") from err
+    sources.append((path.name, hashlib.sha256(data).hexdigest()))
+    return data
+
+
+def _read_json(path: Path, what: str, sources: list[tuple[str, str]]) -> object:
     """The content of a JSON file; a :class:`FloorPlanError` naming the file (and the line of
     a syntax error) when it cannot be read or parsed."""
     try:
-        text = read_regular(path, MAX_PLAN_FILE_BYTES).decode("utf-8")  # not a FIFO/device
-    except (OSError, UnicodeDecodeError) as err:
+        text = read_plan_bytes(path, what, sources).decode("utf-8")
+    except UnicodeDecodeError as err:
         raise FloorPlanError(f"{path}: cannot read {what} ({err})") from err
     try:
         return json.loads(text)
@@ -109,8 +139,8 @@ def _read_json(path: Path, what: str) -> object:
         raise FloorPlanError(f"{path}: not {what} (nested too deeply)") from err
 
 
-def _features(path: Path) -> list[dict]:
-    data = _read_json(path, "a GeoJSON floor plan")
+def _features(path: Path, sources: list[tuple[str, str]]) -> list[dict]:
+    data = _read_json(path, "a GeoJSON floor plan", sources)
     feats = data.get("features") if isinstance(data, dict) else None
     if not feats or not isinstance(feats, list):
         raise FloorPlanError(f"{path}: a floor plan needs a FeatureCollection with features")
@@ -153,7 +183,8 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
         or a GeoJSON file. With ``floor_info.json`` next to it the plan is taken to be in
         lon/lat; without, in metres.
     obstacle_filter : callable(properties) -> bool, optional
-        Which non-outline features are obstacles (default: all polygons).
+        Which polygons without a ``role`` (or with ``role: "obstacle"``) are obstacles
+        (default: all). Roles are in :data:`GEOJSON_ROLES`; an unknown role is refused.
     dxf_layers : dict, optional
         For a DXF drawing: role (``outline``, ``obstacle``, ``wall``) -> layer names, in
         place of that role's defaults (:func:`mapping.floorplan_dxf.read_dxf_floor_plan`).
@@ -166,9 +197,10 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
                                          for role, names in (dxf_layers or {}).items()})
     geo = p / "geojson_map.json" if p.is_dir() else p
     info = geo.parent / "floor_info.json"
-    feats = _features(geo)
-    outline_idx = next((i for i, f in enumerate(feats)
-                        if (f.get("properties") or {}).get("role") == "outline"), 0)
+    sources: list[tuple[str, str]] = []
+    feats = _features(geo, sources)
+    roles = [_role(f, geo, i) for i, f in enumerate(feats)]
+    outline_at = [i for i, r in enumerate(roles) if r == "outline"] or [0]  # union of them
     geoms = []
     for i, f in enumerate(feats):
         try:
@@ -180,13 +212,13 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
     for i, g in enumerate(geoms):
         if g is not None and not np.isfinite(shapely.get_coordinates(g)).all():
             raise FloorPlanError(f"{geo}: feature {i} has non-finite coordinates")
-    outline = geoms[outline_idx]
-    if outline is None or outline.geom_type not in ("Polygon", "MultiPolygon"):
-        raise FloorPlanError(f"{geo}: feature {outline_idx} (the outline) is not a polygon")
-    if outline.is_empty:
-        raise FloorPlanError(f"{geo}: feature {outline_idx} (the outline) is an empty polygon")
+    for i in outline_at:
+        if geoms[i] is None or geoms[i].geom_type not in ("Polygon", "MultiPolygon"):
+            raise FloorPlanError(f"{geo}: feature {i} (the outline) is not a polygon")
+        if geoms[i].is_empty:
+            raise FloorPlanError(f"{geo}: feature {i} (the outline) is an empty polygon")
     if info.exists():
-        meta = _read_json(info, "a floor_info file")
+        meta = _read_json(info, "a floor_info file", sources)
         try:
             meta = meta["map_info"]
             width, height = float(meta["width"]), float(meta["height"])
@@ -195,7 +227,7 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
                 from err
         width, height = checked_size(info, width, height)
         x0 = y0 = 0.0
-        lon0, lat0, lon1, lat1 = outline.bounds
+        lon0, lat0, lon1, lat1 = shapely.total_bounds([geoms[i] for i in outline_at])
         if lon1 <= lon0 or lat1 <= lat0:
             raise FloorPlanError(f"{geo}: degenerate outline bounds")
         if (max(abs(lon0), abs(lon1)) > 180 or max(abs(lat0), abs(lat1)) > 90
@@ -211,20 +243,51 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
             return np.column_stack([(coords[:, 0] - lon0) * sx, (coords[:, 1] - lat0) * sy])
 
         geoms = [None if g is None else shapely.transform(g, to_m) for g in geoms]
-        outline = geoms[outline_idx]
-    else:
+    repairs: list[str] = []
+    parts = [made_valid(geoms[i], f"{geo}: feature {i} (the outline)", repairs)
+             for i in outline_at]
+    outline = parts[0] if len(parts) == 1 else shapely.union_all(parts)
+    if not info.exists():
         x0, y0, width, height = metre_frame(geo, outline)
     keep = obstacle_filter or (lambda props: True)
-    repairs: list[str] = []
-    outline = made_valid(outline, f"{geo}: feature {outline_idx} (the outline)", repairs)
-    obstacles = [made_valid(g, f"{geo}: feature {i}", repairs)
-                 for i, (g, f) in enumerate(zip(geoms, feats))
-                 if i != outline_idx and g is not None
-                 and g.geom_type in ("Polygon", "MultiPolygon")
-                 and keep(f.get("properties") or {})]
+    obstacles, walkable, lines_left_out = [], [], []
+    for i, (g, f, role) in enumerate(zip(geoms, feats, roles)):
+        if i in outline_at or g is None or role == "ignore":
+            continue
+        if g.geom_type in ("LineString", "MultiLineString", "LinearRing"):
+            if role == "wall":
+                obstacles.append(shapely.buffer(g, WALL_WIDTH_M / 2, cap_style="flat"))
+            else:
+                lines_left_out.append(i)
+        elif g.geom_type in ("Polygon", "MultiPolygon"):
+            polygon = made_valid(g, f"{geo}: feature {i}", repairs)
+            if role == "walkable":
+                walkable.append(polygon)
+            elif role == "wall" or keep(f.get("properties") or {}):
+                obstacles.append(polygon)
+    if lines_left_out:
+        shown = ", ".join(map(str, lines_left_out[:5])) + (", ..." if len(lines_left_out) > 5
+                                                            else "")
+        repairs.append(f"{geo}: {len(lines_left_out)} line feature(s) left out (feature "
+                       f"{shown}): a line is a wall only with property \"role\": \"wall\"")
     obstacle_union = shapely.union_all(obstacles) if obstacles else shapely.Polygon()
+    if walkable:
+        obstacle_union = shapely.difference(obstacle_union, shapely.union_all(walkable))
     return checked_plan(FloorPlan(outline, obstacle_union, width, height, tuple(repairs),
-                                  x0, y0), geo)
+                                  x0, y0, tuple(sources)), geo)
+
+
+def _role(feature: dict, path: Path, index: int) -> str | None:
+    """The :data:`GEOJSON_ROLES` meaning of a feature's ``role`` property (None without one);
+    a :class:`FloorPlanError` naming the feature for a role indoormap does not know."""
+    role = (feature.get("properties") or {}).get("role")
+    if role is None:
+        return None
+    meaning = GEOJSON_ROLES.get(str(role).strip().lower())
+    if meaning is None:
+        raise FloorPlanError(f"{path}: feature {index} has role {role!r}, not one indoormap "
+                             f"knows ({', '.join(sorted(GEOJSON_ROLES))})")
+    return meaning
 
 
 def metre_frame(path: Path, outline: shapely.Geometry) -> tuple[float, float, float, float]:

@@ -28,10 +28,8 @@ import numpy as np
 import shapely
 import shapely.errors
 
-from survey.regular_files import read_regular
-
-from .floorplan import (MAX_FLOOR_SIDE_M, MAX_PLAN_FILE_BYTES, FloorPlan, FloorPlanError,
-                        checked_plan, made_valid, metre_frame)
+from .floorplan import (MAX_FLOOR_SIDE_M, WALL_WIDTH_M, FloorPlan, FloorPlanError, checked_plan,
+                        made_valid, metre_frame, read_plan_bytes)
 
 _UNIT_TO_M = {0: 1.0, 1: 0.0254, 2: 0.3048, 3: 1609.344, 4: 0.001, 5: 0.01, 6: 1.0,
               7: 1000.0, 10: 0.9144, 13: 1e-6, 14: 0.1, 15: 10.0, 16: 100.0,
@@ -54,7 +52,7 @@ def read_dxf_floor_plan(path: str | os.PathLike, *,
                         obstacle_layers: tuple[str, ...] = ("OBSTACLES", "SHOPS", "ROOMS",
                                                             "COLUMNS", "PILLARS"),
                         wall_layers: tuple[str, ...] = ("WALLS", "WALL"),
-                        wall_width_m: float = 0.2) -> FloorPlan:
+                        wall_width_m: float = WALL_WIDTH_M) -> FloorPlan:
     """Read a DXF floor plan; layer names are matched case-insensitively.
 
     Raises
@@ -66,9 +64,11 @@ def read_dxf_floor_plan(path: str | os.PathLike, *,
     from ezdxf import recover
 
     path = Path(path)
+    sources: list[tuple[str, str]] = []
+    data = read_plan_bytes(path, "a DXF drawing", sources)
     try:
-        doc, _auditor = recover.read(io.BytesIO(read_regular(path, MAX_PLAN_FILE_BYTES)))
-    except (OSError, ezdxf.DXFStructureError) as err:
+        doc, _auditor = recover.read(io.BytesIO(data))
+    except ezdxf.DXFStructureError as err:
         raise FloorPlanError(f"{path}: not a readable DXF file ({err})") from err
     units = doc.header.get("$INSUNITS", 0)
     try:  # an int, or a number stored as text or float by some writers
@@ -126,8 +126,8 @@ def read_dxf_floor_plan(path: str | os.PathLike, *,
     obstacles = shapely.union_all(shapes["obstacle"] + shapes["wall"]) \
         if shapes["obstacle"] or shapes["wall"] else shapely.Polygon()
     x0, y0, width, height = metre_frame(path, outline)
-    return checked_plan(FloorPlan(outline, obstacles, width, height, tuple(repairs), x0, y0),
-                        path)
+    return checked_plan(FloorPlan(outline, obstacles, width, height, tuple(repairs), x0, y0,
+                                  tuple(sources)), path)
 
 
 def _finite(points: list[tuple[float, float]]) -> list[tuple[float, float]]:

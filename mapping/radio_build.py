@@ -37,7 +37,7 @@ A floor without any row of a kind simply has no tables of that kind (reported in
 from __future__ import annotations
 
 from collections.abc import Callable, Collection, Iterator, Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 import pandas as pd
@@ -288,6 +288,25 @@ class SiteRadio:
     params: RadioParams
     notes: list[str] = field(default_factory=list)
     ble_floor_model: FloorModel | None = None
+    #: ``(floor, kind)`` -> reference points :meth:`on_plan` left out.
+    off_plan: dict[tuple[str, str], int] = field(default_factory=dict)
+
+    def on_plan(self, floor: str,
+                reachable: Callable[[NDArray[np.float64], NDArray[np.float64]],
+                                    NDArray[np.bool_]]) -> SiteRadio:
+        """A copy whose ``floor`` fingerprints keep only the reference points where
+        ``reachable(x_m, y_m)`` (shape (R,) each) is true: a fingerprint where the floor plan
+        says nobody can stand would pull a Wi-Fi/BLE fix off the map. The number left out per
+        kind is in :attr:`off_plan` and :meth:`floor_metrics`."""
+        fingerprints, off_plan = dict(self.fingerprints), dict(self.off_plan)
+        for kind in KINDS:
+            db = fingerprints.get((floor, kind))
+            if db is None:
+                continue
+            keep = reachable(db.rp["x_m"].to_numpy(np.float64), db.rp["y_m"].to_numpy(np.float64))
+            fingerprints[floor, kind] = db.at_points(keep)
+            off_plan[floor, kind] = int((~keep).sum())
+        return replace(self, fingerprints=fingerprints, off_plan=off_plan)
 
     def floor_tables(self, floor: str) -> dict[str, pa.Table]:
         """Tables for the floor bundle: ``<kind>_rp``, ``<kind>_fp``, ``<kind>_meta`` and
@@ -308,7 +327,8 @@ class SiteRadio:
             db = self.fingerprints.get((floor, kind))
             out[kind] = (None if db is None else
                          {"reference_points": len(db), "transmitters": int(len(db.aps)),
-                          "scans": int(db.rp["n_scans"].sum()), "cell_m": db.cell_m})
+                          "scans": int(db.rp["n_scans"].sum()), "cell_m": db.cell_m,
+                          "off_plan_reference_points": self.off_plan.get((floor, kind), 0)})
         return out
 
     def site_content(self, site_id: str, *, build: dict | None = None) -> BundleContent:

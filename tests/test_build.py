@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import shutil
 from pathlib import Path
@@ -16,6 +17,8 @@ from click.testing import CliRunner
 
 from localize.bundle import load_bundle
 from mapping.build import BuildError, BuildParams, build_floor
+from mapping.bundle_report import bundle_differences
+from mapping.grid import distance_to_reachable_m
 from mapping.cli_build import THIN_COVERAGE
 from mapping.bundle_writer import write_bundle
 from mapping.errors import FingerprintError
@@ -201,6 +204,14 @@ def test_a_plan_covering_most_of_the_walks_builds_with_a_warning(tmp_path):
     assert 0.7 < on_plan < 0.9  # built (above 0.5), warned (below 0.9)
     assert (f"warning: F1: {100 * (1 - on_plan):.0f} % of the surveyed samples lie more than "
             "2 m outside the plan's reachable area" in res.output)
+    # fingerprints where the plan says nobody can stand are left out, and counted
+    bundle = load_bundle(tmp_path / "out" / "F1")
+    for kind in ("wifi", "ble"):
+        rp = bundle.table(f"{kind}_rp")
+        off = distance_to_reachable_m(bundle.grid, bundle.mask, rp["x_m"].to_numpy(),
+                                      rp["y_m"].to_numpy())
+        left_out = bundle.manifest["metrics"]["radio"][kind]["off_plan_reference_points"]
+        assert (off <= 2.0).all() and 0.05 < left_out / (left_out + len(rp)) < 0.4
 
 
 def test_a_build_with_no_readable_walk_says_so(tmp_path):
@@ -235,6 +246,10 @@ def test_build_cli_twice_identical_bytes(tmp_path):
     assert info.exit_code == 0 and "layer strength" in info.output and "floor F2" in info.output
     assert "smoothing local_" in info.output and "bandwidth" in info.output  # what CV chose
     assert " % within 2 m" in info.output
+    plan_sha = hashlib.sha256((SITE / "F2" / "geojson_map.json").read_bytes()).hexdigest()
+    assert f"on floor plan geojson_map.json ({plan_sha[:12]}), floor_info.json (" in info.output
+    assert load_bundle(a).manifest["build"]["floor_plan"][0] == {"file": "geojson_map.json",
+                                                                 "sha256": plan_sha}
     diff = runner.invoke(main, ["bundle", "diff", str(a), str(tmp_path / "a" / "_site")])
     assert diff.exit_code == 0 and "of different sites, floors or kinds" in diff.output
     # from a registry, a floor's site bundle is the registry's current _site
@@ -507,7 +522,10 @@ def test_build_cli_with_a_dxf_plan_and_a_folder_of_traces(tmp_path):
     assert folder.exit_code == 0, folder.output
     a, b = load_bundle(tmp_path / "dxf" / "F2"), load_bundle(tmp_path / "folder" / "F2")
     assert a.manifest["floor_name"] == "F2"
-    assert a.manifest["bundle_id"] == b.manifest["bundle_id"]  # the same plan, the same bytes
+    # the same plan, the same maps; the manifests differ only by the plan files they name
+    assert a.manifest["members"] == b.manifest["members"]
+    assert [f["file"] for f in a.manifest["build"]["floor_plan"]] == ["F2.dxf"]
+    assert bundle_differences(b, a)[0].startswith("floor plan: geojson_map.json (")
     # traces of two floors: the floor must be named
     two = tmp_path / "two"
     two.mkdir()
@@ -575,8 +593,8 @@ def test_dxf_layers_named_on_the_command_line(tmp_path):
     assert res.exit_code == 0, res.output
     folder = runner.invoke(main, ["build", str(SITE / "F2"), "-o", str(tmp_path / "b")])
     assert folder.exit_code == 0, folder.output
-    assert (load_bundle(tmp_path / "a" / "F2").bundle_id
-            == load_bundle(tmp_path / "b" / "F2").bundle_id)  # the same plan, the same bytes
+    assert (load_bundle(tmp_path / "a" / "F2").manifest["members"]
+            == load_bundle(tmp_path / "b" / "F2").manifest["members"])  # the same maps
     for args, message in ((["--dxf-layer", "floor=X"], "is not ROLE=LAYER with ROLE one of "
                             "outline, obstacle, wall"),
                           (["--dxf-layer", "outline="], "is not ROLE=LAYER")):

@@ -406,9 +406,11 @@ def test_bundle_diff_names_every_kind_of_change(tmp_path):
     layer's values: each is a line of ``bundle diff`` (and of ``bundle_differences``)."""
     walks = [{"trace_id": "w1", "sha256": "a" * 64}, {"trace_id": "w2", "sha256": "b" * 64}]
     a = _content()
-    a.build = {**a.build, "seed": 1, "source_walks": walks}
+    a.build = {**a.build, "seed": 1, "source_walks": walks,
+               "floor_plan": [{"file": "plan.dxf", "sha256": "e" * 64}]}
     b = _content(offset=0.5)
     b.build = {**b.build, "seed": 2, "params": {"cell_m": 0.5, "seed": 2},
+               "floor_plan": [{"file": "plan.dxf", "sha256": "f" * 64}],
                "source_walks": [walks[0], {"trace_id": "w2", "sha256": "c" * 64},
                                 {"trace_id": "w3", "sha256": "d" * 64}]}
     # a layer of a name indoormap does not know may change unit (a known one may not)
@@ -424,6 +426,8 @@ def test_bundle_diff_names_every_kind_of_change(tmp_path):
     assert "walk w2: content changed (sha256 aaaaaaaaaaaa -> cccccccccccc)" not in lines
     assert "walk w2: content changed (sha256 bbbbbbbbbbbb -> cccccccccccc)" in lines
     assert "layer extra unit: m -> cm" in lines
+    assert "floor plan: plan.dxf (eeeeeeeeeeee) -> plan.dxf (ffffffffffff)" in lines
+    assert not any(line.startswith("build floor_plan") for line in lines)
     assert any(line.startswith("layer strength: mean abs change 0.500 uT") for line in lines)
     assert not any(line.startswith("warning") or line.startswith("grid") for line in lines)
     moved = bundle_differences(load_bundle(tmp_path / "a"), load_bundle(tmp_path / "c"))

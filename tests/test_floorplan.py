@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
@@ -23,6 +24,10 @@ def test_lonlat_plan_maps_onto_floor_info_metres():
     assert (minx, miny) == pytest.approx((0, 0), abs=1e-6)
     assert (maxx, maxy) == pytest.approx((info["width"], info["height"]), rel=1e-9)
     assert 0 < plan.reachable.area < plan.outline.area
+    # the files read, by name and the sha256 of their bytes, for the bundle's manifest
+    assert plan.sources == tuple(
+        (name, hashlib.sha256((SITE / "F1" / name).read_bytes()).hexdigest())
+        for name in ("geojson_map.json", "floor_info.json"))
 
 
 @pytest.mark.parametrize("corner, size", [((0.0, 0.0), (40.0, 25.0)),      # metres, near 0
@@ -85,6 +90,8 @@ def test_dxf_plan_with_walls_and_obstacles(tmp_path):
                                   is_closed=True)
     doc.saveas(tmp_path / "plan.dxf")
     plan = read_floor_plan(tmp_path / "plan.dxf")
+    assert plan.sources == (("plan.dxf", hashlib.sha256(
+        (tmp_path / "plan.dxf").read_bytes()).hexdigest()),)
     assert (plan.width_m, plan.height_m) == pytest.approx((20.0, 8.0))
     hatched = 2 * 1 + np.pi * 0.25 / 2 - 0.5 * 0.4
     expected = 160 - 12 - 0.2 * 6 - np.pi * 0.25 - hatched
@@ -354,3 +361,43 @@ def test_an_empty_outline_in_lonlat_is_refused_by_name(tmp_path):
     (tmp_path / "geojson_map.json").write_text(json.dumps(plan))
     with pytest.raises(FloorPlanError, match="the outline. is an empty polygon"):
         read_floor_plan(tmp_path)
+
+
+def _feature(geometry_type: str, coordinates, **properties) -> dict:
+    return {"type": "Feature", "properties": properties,
+            "geometry": {"type": geometry_type, "coordinates": coordinates}}
+
+
+def test_geojson_roles_walls_walkable_outlines_and_lines_left_out(tmp_path):
+    """``role``: a wall line is a 0.2 m wall, a walkable polygon is cut out of the obstacles
+    (a passage through a block), two outlines are one floor, an ignored polygon is no
+    obstacle; a line without the wall role is left out, and said. Before, a corridor
+    polygon was an obstacle and every line vanished without a word."""
+    ring = lambda x0, y0, x1, y1: [[[x0, y0], [x1, y0], [x1, y1], [x0, y1], [x0, y0]]]  # noqa
+    fc = {"type": "FeatureCollection", "features": [
+        _feature("Polygon", ring(0, 0, 20, 10), role="outline"),
+        _feature("Polygon", ring(30, 0, 40, 10), role="Outline"),        # a second wing
+        _feature("LineString", [[10, 0], [10, 10]], role="wall"),
+        _feature("Polygon", ring(2, 2, 8, 8), kind="block"),             # an obstacle ...
+        _feature("Polygon", ring(4, 2, 5, 8), role="corridor"),          # ... passage through
+        _feature("Polygon", ring(32, 2, 34, 4), role="ignore"),
+        _feature("LineString", [[30, 5], [40, 5]], name="route"),        # no role: left out
+        _feature("Point", [1, 1], name="label")]}
+    (tmp_path / "plan.geojson").write_text(json.dumps(fc))
+    plan = read_floor_plan(tmp_path / "plan.geojson")
+    assert plan.outline.area == pytest.approx(300)
+    wall = 0.2 * 10
+    assert plan.reachable.area == pytest.approx(300 - wall - (36 - 6))
+    assert not plan.reachable.contains(shapely.Point(10.0, 5.0))       # the wall
+    assert plan.reachable.contains(shapely.Point(4.5, 5.0))            # the passage
+    assert not plan.reachable.contains(shapely.Point(3.0, 5.0))        # the block
+    assert plan.reachable.contains(shapely.Point(33.0, 3.0))           # ignored
+    assert plan.reachable.contains(shapely.Point(35.0, 5.0))           # the route is no wall
+    assert plan.repairs == (f"{tmp_path / 'plan.geojson'}: 1 line feature(s) left out "
+                            "(feature 6): a line is a wall only with property \"role\": "
+                            "\"wall\"",)
+    fc["features"][3]["properties"]["role"] = "shop"
+    (tmp_path / "plan.geojson").write_text(json.dumps(fc))
+    with pytest.raises(FloorPlanError, match=r"plan.geojson: feature 3 has role 'shop', not "
+                       r"one indoormap knows \(corridor, ignore, "):
+        read_floor_plan(tmp_path / "plan.geojson")
