@@ -386,6 +386,11 @@ class WalkAligner(BaseLocalizer):
         """Time (Unix ms) of the last step, or of the start."""
         return self._t[-1]
 
+    @property
+    def stepped(self) -> bool:
+        """Whether a step was taken since the start."""
+        return len(getattr(self, "_t", ())) > 1
+
     def step_values(self, t_ms: float, compass_deg: float, relative_heading_deg: float,
                     delta_acc_ms2: float, carried: bool = False,
                     fix: tuple[float, float, float] | None = None) -> Estimate:

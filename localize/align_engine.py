@@ -162,7 +162,7 @@ def check_step_times(aligners: list[WalkAligner], t_ms: NDArray, names: NDArray)
     names the user (``names``: the ids the caller knows the users by)."""
     for name, aligner, t in zip(names.tolist(), aligners, t_ms):
         try:
-            check_step_time(t, aligner.last_t_ms)
+            check_step_time(t, aligner.last_t_ms, after_step=aligner.stepped)
         except LocalizationError as err:
             raise LocalizationError(f"user {name}: {err}; nobody was advanced") from err
 

@@ -107,19 +107,25 @@ class RadioOnlyLocalizer(BaseLocalizer):
 def make_localizer(method: str, bundle: MapBundle, params: FilterParams | None = None, *,
                    radio: RadioModel | None = None,
                    rng: np.random.Generator | int | None = None,
-                   fmap: FilterMap | None = None) -> BaseLocalizer:
+                   fmap: FilterMap | None = None, magnetometer: bool = True
+                   ) -> BaseLocalizer:
     """Build a localizer of the named method (see :data:`METHODS`).
 
     For the particle-filter methods ``params`` gives everything but the weight mode, which
     the method fixes. ``auto`` builds the one :func:`~localize.methods.auto_method` picks
     for the bundle (its ``method`` attribute names it; ``params.radio_guide`` is set by the
-    choice: ``"align"`` where it guides the filter, else ``"fixes"``).
+    choice: ``"align"`` where it guides the filter, else ``"fixes"``); pass
+    ``magnetometer=steps.has_magnetometer`` so that it takes ``align`` for a walk without
+    magnetometer values. ``params`` only concerns the particle filters (``pdr``, ``radio`` and
+    ``align`` have none); ``rng`` is a seed or generator for their random draws, None meaning
+    seed 0 (the same track every run).
     """
     if method not in METHODS:
         raise LocalizationError(f"unknown method {method!r}; expected one of {sorted(METHODS)}")
     require_type(bundle, MapBundle, "make_localizer(bundle)", BUNDLE_HINT)
     if method == "auto":  # by the floor map's measured quality (localize.methods)
-        method, guided, _ = auto_method(bundle.manifest.get("metrics") or {})
+        method, guided, _ = auto_method(bundle.manifest.get("metrics") or {},
+                                        magnetometer=magnetometer)
         params = replace(params or FilterParams(), radio_guide="align" if guided else "fixes")
     if method == "pdr":
         return PdrLocalizer(bundle, radio=radio)

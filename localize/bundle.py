@@ -319,7 +319,10 @@ class MapBundle:
 
         NaN where the point's own cell is off the mask or has no data. Neighbour cells without
         data are left out of the interpolation (weights renormalised), so values next to walls
-        stay defined. Angle layers (``kind == "angle"``, deg) are interpolated as unit vectors.
+        stay defined. Angle layers (``kind == "angle"``, deg) are interpolated as unit vectors
+        and come back in [0, 360) (the filter's :class:`localize.maps.LayerSampler` gives
+        [-180, 180]). ``x_m`` and ``y_m`` broadcast against each other as numpy arrays do (one
+        x with many y samples a column); the result has their broadcast shape.
 
         Examples
         --------

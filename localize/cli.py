@@ -14,7 +14,8 @@ Start position (``--start``): ``auto`` (the first radio fix of the walk, Wi-Fi e
 above, else the walk's first waypoint), ``waypoint`` (first waypoint, as the ILC PDR
 baseline), ``radio`` (first radio fix, an error without one), or ``X,Y`` in metres.
 
-A walk that cannot be read or localized is reported (file and reason) and the others go on;
+Walks are trace files, or the walks of walk plans (``.geojson``, :mod:`survey.walkline`). A
+walk that cannot be read or localized is reported (file and reason) and the others go on;
 the command then exits with status 1.
 """
 
@@ -23,15 +24,19 @@ from __future__ import annotations
 import math
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 import numpy as np
 
 from localize.cli_common import (AliasedOption, FloorChoices, SeenWalks, TraceIds,
-                                  WalkFailures, read_walk, refuse_output_inside_data,
+                                  WalkFailures, each_walk, refuse_output_inside_data,
                                   trace_files, waypoint_errors_quietly)
 from localize.methods import METHODS, SMOOTHABLE, auto_method, method_label
 from survey.publish import refuse_to_replace
+
+if TYPE_CHECKING:
+    from survey.trace_format import Trace
 
 START_HELP = ("auto (the walk's first Wi-Fi fix; for a walk without one, its first BLE fix; "
               "else its first waypoint), waypoint, radio, or X,Y (m).")
@@ -229,9 +234,8 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
 
     seen = TraceIds()
 
-    def one(f: Path) -> None:
-        trace = read_walk(f)
-        seen.claim(trace.trace_id, f)
+    def one(where: str, trace: Trace) -> None:
+        seen.claim(trace.trace_id, where)
         name = f"{trace.trace_id}.smoothed" if smooth else trace.trace_id
         target = out / f"{name}.{fmt}"
         png = out / f"{name}.png"
@@ -239,7 +243,8 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
             refuse_to_replace(existing, overwrite)  # before the work, not after
         t_wp, xy_wp = waypoints_of(trace)
         wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp, floors_said)
-        loc = make_localizer(method, bundle, _params(particles), radio=wr.radio, rng=seed)
+        loc = make_localizer(method, bundle, _params(particles), radio=wr.radio, rng=seed,
+                             magnetometer=wr.steps.has_magnetometer)
         track = loc.run(wr.steps, start_xy=start_xy, smooth=smooth)
         err = waypoint_errors_quietly(track, t_wp, xy_wp) if len(t_wp) else np.empty(0)
         err = err[np.isfinite(err)]  # the walk's recorded waypoints, where it has them
@@ -249,7 +254,8 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
         ran = method_label(loc.method, guided)
         used = method
         if method == "auto":  # what ran (the guide needs a radio fix to start from)
-            choice = auto_method(bundle.manifest.get("metrics") or {})
+            choice = auto_method(bundle.manifest.get("metrics") or {},
+                                 magnetometer=wr.steps.has_magnetometer)
             used = f"auto: {ran}, as {choice.why}"
             if choice.guided and not guided:
                 used += (" (not guided: a given start)" if start_xy is not None
@@ -279,13 +285,12 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
         click.echo(msg)
 
     try:
-        for f in files:
-            failures.run(f, lambda f=f: one(f))
+        total = each_walk(files, failures, one)
     finally:
         if created and out.is_dir() and not any(out.iterdir()):
             out.rmdir()  # nothing was written: leave no empty folder behind
     in_build.finish()
-    failures.exit_if_any(len(files))
+    failures.exit_if_any(total)
 
 
 @click.command("evaluate")
@@ -356,12 +361,11 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
 
     seen = TraceIds()
 
-    def one(f: Path) -> None:
-        trace = read_walk(f)
-        seen.claim(trace.trace_id, f)
+    def one(where: str, trace: Trace) -> None:
+        seen.claim(trace.trace_id, where)
         t_wp, xy_wp = waypoints_of(trace)
         if len(t_wp) == 0:
-            click.echo(f"{f}: no waypoints, skipped", err=True)
+            click.echo(f"{where}: no waypoints, skipped", err=True)
             return
         wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp, floors_said)
         _warn_if_outside_map(bundle, trace.trace_id, xy_wp)
@@ -369,7 +373,8 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
             click.echo(f"{trace.trace_id}: start {how}", err=True)
         for m, sm in rows:  # a method failing on this walk leaves the others' rows alone
             def run(m=m, sm=sm):
-                loc = make_localizer(m, bundle, _params(particles), radio=wr.radio, rng=seed)
+                loc = make_localizer(m, bundle, _params(particles), radio=wr.radio, rng=seed,
+                                     magnetometer=wr.steps.has_magnetometer)
                 track = loc.run(wr.steps, start_xy=start_xy, smooth=sm)
                 err = waypoint_errors_quietly(track, t_wp, xy_wp)
                 errors[_row_name(m, sm)].append(err)
@@ -384,16 +389,15 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
                                   "y_m": xy_wp[i, 1], "est_x_m": est[i, 0],
                                   "est_y_m": est[i, 1], "error_m": err[i]}
                                  for i in range(len(err)))
-            failures.run(f"{f} ({_row_name(m, sm)})", run)
+            failures.run(f"{where} ({_row_name(m, sm)})", run)
         if trace.trace_id in evaluated:  # scored by some method: its scores are in-sample
             in_build.check(bundle, trace.trace_id)
 
-    for f in files:
-        failures.run(f, lambda f=f: one(f))
+    total = each_walk(files, failures, one)
     in_build.finish()
     if not evaluated:
         click.echo("no walk was evaluated", err=True)
-        failures.exit_if_any(len(files))
+        failures.exit_if_any(total)
         sys.exit(1)  # every walk lacked waypoints
     n_walks = len(evaluated)
     # auto is labelled with what it ran ("auto (align)"): its rows and curve equal that
@@ -423,7 +427,7 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
             click.echo(f"plot: {plot_path}", err=True)
         else:
             click.echo("(no plot: matplotlib not installed)", err=True)
-    failures.exit_if_any(len(files))
+    failures.exit_if_any(total)
 
 
 def main() -> None:  # pragma: no cover - convenience entry for python -m localize.cli

@@ -1,5 +1,5 @@
 """What the localizer's commands (``localize``, ``evaluate``, ``floor``, ``wifi-locate``)
-share: finding trace files, reading a walk with its warnings, reporting walks that fail while
+share: finding trace files and walk plans, reading a walk with its warnings, reporting walks that fail while
 the others go on, and options renamed for consistency whose old spellings still work
 (:class:`AliasedOption`)."""
 
@@ -24,8 +24,8 @@ if TYPE_CHECKING:
     from localize.track import Track
     from survey.trace_format import Trace
 
-__all__ = ["AliasedOption", "FloorChoices", "SeenWalks", "WalkFailures", "read_walk",
-           "trace_files"]
+__all__ = ["AliasedOption", "FloorChoices", "SeenWalks", "WalkFailures", "each_walk",
+           "read_walk", "read_walks", "trace_files"]
 
 T = TypeVar("T")
 
@@ -71,15 +71,17 @@ class AliasedOption(click.Option):
 
 
 def trace_files(paths: tuple[str, ...], failures: WalkFailures) -> list[Path]:
-    """The trace files (``.txt``, ``.txt.gz``) given or inside the given folders. A path that
-    does not exist is reported to ``failures`` as a walk that failed, and the others go on.
+    """The trace files (``.txt``, ``.txt.gz``) and walk plans (``.geojson``, indoormap's
+    walk-line format) given or inside the given folders, as ``indoormap ingest`` finds them.
+    A path that does not exist is reported to ``failures`` as a walk that failed, and the
+    others go on.
 
     Raises
     ------
     click.UsageError
         None found, and no path was missing.
     """
-    from survey.trace_reader import find_trace_files
+    from survey.ingest import find_inputs
 
     present = []
     for p in paths:
@@ -87,13 +89,31 @@ def trace_files(paths: tuple[str, ...], failures: WalkFailures) -> list[Path]:
             present.append(p)
         else:
             failures.missing(p)
-    files = find_trace_files(present)
+    traces, plans = find_inputs(present)
+    files = sorted(traces + plans)
     if not files and not failures.count:
-        raise click.UsageError("no trace files (.txt, .txt.gz) found in the given paths")
+        raise click.UsageError("no trace files (.txt, .txt.gz) or walk plans (.geojson) "
+                               "found in the given paths")
     unique: dict[Path, Path] = {}
     for f in files:  # one file named twice (relative and absolute, or a folder and a file)
         unique.setdefault(f.resolve(), f)
     return list(unique.values())
+
+
+def each_walk(files: list[Path], failures: WalkFailures,
+              fn: Callable[[str, Trace], None]) -> int:
+    """``fn(where, trace)`` for every walk of ``files`` (:func:`trace_files`): a trace file's
+    walk (``where`` the file), or each walk of a walk plan (``where`` the plan and the walk's
+    id). A file that cannot be read, and a walk ``fn`` fails on, are reported to
+    ``failures`` and the others go on. Returns the number of walks (an unreadable file
+    counts as one), for :meth:`WalkFailures.exit_if_any`."""
+    total = 0
+    for f in files:
+        walks = failures.run(f, lambda f=f: read_walks(f))
+        total += 1 if walks is None else len(walks)
+        for where, trace in walks or []:
+            failures.run(where, lambda where=where, trace=trace: fn(where, trace))
+    return total
 
 
 def _indoormap_data(folder: Path) -> str | None:
@@ -135,6 +155,18 @@ def refuse_output_inside_data(out: Path, param_hint: str = "-o") -> None:
                                      param_hint=param_hint)
 
 
+def read_walks(path: Path) -> list[tuple[str, Trace]]:
+    """``(where, trace)`` of each walk in ``path``: a trace file's one walk (:func:`read_walk`,
+    ``where`` the file) or a walk plan's walks (``where``: ``plan.geojson (walk ID)``), their
+    sensor logs read and checked as :func:`read_walk` checks a trace."""
+    if not path.name.endswith(".geojson"):
+        return [(str(path), read_walk(path))]
+    from survey.walkline import read_walk_plan
+
+    return [(f"{path} (walk {trace.trace_id})", _checked_walk(trace, Path(log)))
+            for trace, log, _identity in read_walk_plan(path)]
+
+
 def read_walk(path: Path) -> Trace:
     """The trace at ``path``; a warning names the file when lines had to be skipped (bad
     lines, a damaged compressed stream), as ``indoormap ingest`` reports them.
@@ -145,11 +177,17 @@ def read_walk(path: Path) -> Trace:
         The file holds no sensor sample, waypoint or scan (empty, or not a trace file), or
         its scans or waypoints lie outside its samples' time span (clocks that differ).
     """
-    from survey.errors import SurveyFormatError
-    from survey.trace_format import bad_lines_summary
     from survey.trace_reader import read_trace
 
-    trace = read_trace(path)
+    return _checked_walk(read_trace(path), path)
+
+
+def _checked_walk(trace: Trace, path: Path) -> Trace:
+    """``trace`` (read from ``path``) unless its clocks differ; a warning names the file
+    when lines had to be skipped."""
+    from survey.errors import SurveyFormatError
+    from survey.trace_format import bad_lines_summary
+
     mismatch = trace.clock_mismatch()
     if mismatch:
         raise SurveyFormatError(mismatch, path=str(path), reason="clock")
@@ -168,11 +206,12 @@ class TraceIds:
     print its rows under the same id; ``why`` says which (the end of the error)."""
 
     def __init__(self, why: str = "its outputs would replace the other's") -> None:
-        self._first: dict[str, Path] = {}
+        self._first: dict[str, str | Path] = {}
         self._why = why
 
-    def claim(self, trace_id: str, path: Path) -> None:
-        """Note ``trace_id`` as ``path``'s; a LocalizationError if another file had it."""
+    def claim(self, trace_id: str, path: str | Path) -> None:
+        """Note ``trace_id`` as ``path``'s (a file, or a walk of a walk plan); a
+        LocalizationError if another file had it."""
         first = self._first.setdefault(trace_id, path)
         if first != path:  # another file: trace_files named each file once
             raise LocalizationError(f"{path}: trace id {trace_id} is also {first}'s in this "
@@ -255,14 +294,18 @@ class SeenWalks:
 def waypoint_errors_quietly(track: Track, t_ms: ArrayLike, xy_m: ArrayLike
                             ) -> NDArray[np.float64]:
     """:func:`localize.evaluate.waypoint_errors` without its :class:`SeenWalkWarning`: the
-    commands' :class:`SeenWalks` says that in its own words, once per walk."""
+    commands' :class:`SeenWalks` says that in its own words, once per walk. Waypoints it
+    refuses (none near the track's time span) are the walk's failure, reported with it."""
     import warnings
 
     from localize.evaluate import SeenWalkWarning, waypoint_errors
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SeenWalkWarning)
-        return waypoint_errors(track, t_ms, xy_m)
+        try:
+            return waypoint_errors(track, t_ms, xy_m)
+        except ValueError as err:
+            raise LocalizationError(f"{track.trace_id}: {err}") from err
 
 
 class FloorChoices:

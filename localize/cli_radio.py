@@ -3,7 +3,8 @@
 Both print CSV on standard output, each walk's rows as soon as the walk is through (progress
 and notes on standard error); a walk that fails (unreadable, of another site, or without a
 result: no scan of the kind, or none that hears a transmitter the maps know) prints no rows and
-is reported with its file and reason, the others go on, and the exit code is then 1:
+is reported with its file and reason, the others go on, and the exit code is then 1. Walks
+are trace files, or the walks of walk plans (``.geojson``):
 
 - ``floor SITE_BUNDLE WALK...``: per scan ``level=scan`` rows (floor of the scan alone and of the
   last ``--window`` scans) and one ``level=walk`` row per walk (all its scans), with the floor
@@ -21,15 +22,19 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 import numpy as np
 
 from localize.cli_common import (FloorChoices, SeenWalks, TraceIds, WalkFailures,
-                                  read_walk, trace_files)
+                                  each_walk, trace_files)
 from localize.errors import LocalizationError
 from localize.floors import ble_window_ms, device_table
 from localize.rssi_calibration import checked_rssi_calibration
+
+if TYPE_CHECKING:
+    from survey.trace_format import Trace
 
 
 def _scans(trace, kind: str, ble_window_ms: int):
@@ -137,9 +142,8 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
 
     seen = TraceIds("its rows would be printed under the other's id")
 
-    def one(f: Path) -> None:
-        trace = read_walk(f)
-        seen.claim(trace.trace_id, f)
+    def one(where: str, trace: Trace) -> None:
+        seen.claim(trace.trace_id, where)
         if trace.header.site_id and site.site_id and trace.header.site_id != site.site_id:
             raise LocalizationError(f"{trace.trace_id}: recorded at site "
                                     f"{trace.header.site_id}, but the site bundle {site.path} "
@@ -204,9 +208,7 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
             click.echo(f"{trace.trace_id}: floor {walk_floor} from {int(ok.sum())} BLE windows "
                        f"({why})", err=True)
 
-    files = trace_files(walks, failures)
-    for f in files:
-        failures.run(f, lambda f=f: one(f))
+    total = each_walk(trace_files(walks, failures), failures, one)
     if scan_rows:
         right = sum(bool(r["recorded_floor"]) and r["floor"] == r["recorded_floor"]
                     for r in scan_rows)
@@ -214,7 +216,7 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
         click.echo(f"{len(scan_rows)} scans" + (f" ({ble} of them BLE windows)" if ble else "")
                    + f"; {100 * right / len(scan_rows):.2f} % on the floor the trace files name",
                    err=True)
-    failures.exit_if_any(len(files))
+    failures.exit_if_any(total)
 
 
 @click.command("wifi-locate")
@@ -270,9 +272,8 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
     out = _CsvRows(["trace_id", "floor", "t_ms", "n_known", "x_m", "y_m", "sigma_m", "error_m"])
     seen = TraceIds("its rows would be printed under the other's id")
 
-    def one(f: Path) -> None:
-        trace = read_walk(f)
-        seen.claim(trace.trace_id, f)
+    def one(where: str, trace: Trace) -> None:
+        seen.claim(trace.trace_id, where)
         scans = _scans(trace, kind, maps.ble_window_ms)
         if not scans:
             other = "ble" if kind == "wifi" else "wifi"
@@ -330,7 +331,6 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
                    + (f"; error vs waypoint track median {np.median(e):.2f} m" if len(e) else ""),
                    err=True)
 
-    for f in files:
-        failures.run(f, lambda f=f: one(f))
+    total = each_walk(files, failures, one)
     in_build.finish()
-    failures.exit_if_any(len(files))
+    failures.exit_if_any(total)

@@ -76,12 +76,23 @@ def first_radio_fix(radio: RadioModel | None, steps: StepSummaries) -> RadioFix 
     return None
 
 
-def check_step_time(t_ms: float, last_t_ms: float) -> None:
-    """A streaming step's time (ms) must be finite and not before the last step (or the
-    start); else a LocalizationError (estimates would go back in time)."""
-    if not (np.isfinite(t_ms) and t_ms >= last_t_ms):
-        raise LocalizationError(f"step at {t_ms} ms comes before the last one ({last_t_ms} ms) "
-                                "or has no time")
+def check_step_time(t_ms: float, last_t_ms: float, *, after_step: bool = True) -> None:
+    """A streaming step's time (ms) must be finite and after the last step's, or not before
+    the start's (``after_step`` false: no step yet); else a LocalizationError (estimates
+    would go back in time; a step sent twice would be walked twice, where :meth:`run`
+    refuses steps that are not strictly increasing)."""
+    if np.isfinite(t_ms) and after_step and t_ms == last_t_ms:
+        raise LocalizationError(f"step at {t_ms} ms has the last step's time: the same step "
+                                "sent twice? (steps must be strictly increasing in time)")
+    if not np.isfinite(t_ms):
+        raise LocalizationError(f"step at {t_ms} ms has no time")
+    if t_ms < last_t_ms and not after_step:  # begin(scan=...) starts at the scan's time
+        raise LocalizationError(
+            f"step at {t_ms} ms comes before the start ({last_t_ms} ms, a scan's start takes "
+            "the scan's time): skip the steps before it, or start earlier "
+            "(start(..., t_ms=) at most the first step's time)")
+    if t_ms < last_t_ms:
+        raise LocalizationError(f"step at {t_ms} ms comes before the last one ({last_t_ms} ms)")
 
 
 def check_compass(t_ms: float, compass_deg: float) -> None:
@@ -137,6 +148,7 @@ class BaseLocalizer:
         self.bundle = bundle
         self.radio = radio
         self._last: Estimate | None = None
+        self._start_estimate: Estimate | None = None  # _last until the first step
         self._keep_genealogy = False  # set by run(smooth=True) for the start to see
 
     # -- start ---------------------------------------------------------------------------
@@ -185,7 +197,8 @@ class BaseLocalizer:
               half_width_m: float | None = None) -> Estimate:
         """Start at ``(x_m, y_m)`` (m) known to ``sigma`` (m; None: exactly, a given start),
         unchecked, as :meth:`start` and :meth:`run` do; for a localizer run inside another."""
-        self._last = self._start_at(x_m, y_m, float(t_ms), sigma, half_width_m)
+        self._last = self._start_estimate = self._start_at(x_m, y_m, float(t_ms), sigma,
+                                                           half_width_m)
         return self._last
 
     def _checked_start(self, xy) -> tuple[float, float]:
@@ -204,15 +217,21 @@ class BaseLocalizer:
         """Time (Unix ms) of the last step, or of the start."""
         return self._last.t_ms
 
+    @property
+    def stepped(self) -> bool:
+        """Whether a step was taken since the start."""
+        return self._last is not None and self._last is not self._start_estimate
+
     def _check_next(self, t_ms: float, compass_deg: float | None = None) -> None:
         """What a streamed step must pass before it is taken (else a LocalizationError, and
         the localizer carries on with the next): a start made, a finite compass heading
-        (unless None: a method that walks without it), a time not before the last step's."""
+        (unless None: a method that walks without it), a time after the last step's (not
+        before the start's)."""
         if self._last is None:
             raise LocalizationError("call start() (or run()) before step()")
         if compass_deg is not None:
             check_compass(t_ms, compass_deg)
-        check_step_time(t_ms, self.last_t_ms)
+        check_step_time(t_ms, self.last_t_ms, after_step=self.stepped)
 
     def _start_at(self, x: float, y: float, t_ms: float, sigma: float | None,
                   half_width_m: float | None) -> Estimate:
@@ -234,7 +253,10 @@ class BaseLocalizer:
         check_walk_fits(self.bundle, steps)
         if self.needs_magnetometer and not steps.has_magnetometer:
             raise LocalizationError(f"{steps.trace_id or 'walk'}: no magnetometer values; "
-                                    f"method {self.method} needs the magnetic field")
+                                    f"method {self.method} needs the magnetic field "
+                                    "(align, pf_no_mag, pdr and radio do without; "
+                                    "make_localizer('auto', ..., magnetometer=False) takes "
+                                    "align)")
 
     def first_fix(self, steps: StepSummaries) -> RadioFix | None:
         """The fix of the first scan of the walk the radio model can locate."""
@@ -280,7 +302,7 @@ class BaseLocalizer:
             self._started_from(fix.scan, fix.t_ms)
         else:
             start = self._start_at(*self._checked_start(start_xy), t0, None, half_width_m)
-        self._last = start
+        self._last = self._start_estimate = start
         est = [self.step(s) for s in steps]
         track = Track.from_estimates(start, est, method=self.method, trace_id=steps.trace_id,
                                      floor_id=self.bundle.floor_id)
@@ -310,7 +332,8 @@ class Localizer(BaseLocalizer):
         Wi-Fi/BLE positioner for the start fix (and weight updates when
         ``params.radio_update``).
     rng : numpy.random.Generator or int, optional
-        Randomness (same seed and input: same trajectory).
+        Randomness (same seed and input: same trajectory); None is seed 0, not fresh
+        entropy, so that two runs agree unless told otherwise.
     method : str, optional
         Name reported in tracks.
     fmap : FilterMap, optional

@@ -145,6 +145,10 @@ class FingerprintPositioner:
     age_decay_ms: float = AGE_DECAY_MS
     min_strongest_dbm: float = float("-inf")
 
+    def __repr__(self) -> str:  # its size and settings, not its (R, A) tables
+        return (f"FingerprintPositioner({len(self.xy_m)} reference points, {len(self.aps)} "
+                f"emitters, k={self.k}, rssi_k={self.rssi_k:g}, rssi_b={self.rssi_b:+g} dB)")
+
     def __post_init__(self) -> None:
         shape = (len(self.xy_m), len(self.aps))
         for name in ("mean_dbm", "var_db2", "detection_rate"):

@@ -59,15 +59,19 @@ def method_label(method: str, guided: bool) -> str:
     return f"{method} guided by align" if guided else method
 
 
-def auto_method(metrics: Mapping) -> AutoChoice:
-    """What ``auto`` runs on a floor bundle with these manifest ``metrics``.
+def auto_method(metrics: Mapping, *, magnetometer: bool = True) -> AutoChoice:
+    """What ``auto`` runs on a floor bundle with these manifest ``metrics``, for a walk with
+    (``magnetometer``) or without magnetometer values.
 
     The particle filter guided by the walk alignment (``FilterParams.radio_guide="align"``)
     when the strength map's held-out 5 m change correlation is :data:`AUTO_MIN_CORR_5M` or
     more; ``align`` when it is less; the filter on the fixes, as before the measure existed,
     when the bundle does not record it (built before, or from fewer than 3 walks) or records
-    no 5 m correlation (no held-out walk spans 5 m).
+    no 5 m correlation (no held-out walk spans 5 m). A walk without magnetometer values
+    gets ``align`` whatever the map (the filter's magnetic update has nothing to weigh).
     """
+    if not magnetometer:
+        return AutoChoice("align", False, "the walk has no magnetometer values")
     quality = metrics.get("heldout_strength") or {}
     if not isinstance(quality, Mapping) or not quality:
         return AutoChoice("indoormap", False, "the bundle records no held-out map quality")

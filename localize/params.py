@@ -16,7 +16,9 @@ measured azimuth hardly varies), radio weight updates and re-injection around fa
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field, replace
+import math
+import numbers
+from dataclasses import asdict, dataclass, field, fields, replace
 
 from localize.errors import LocalizationError
 
@@ -29,6 +31,27 @@ WEIGHT_MODES = ("mass_centered", "gaussian", "dtw", "none")
 #: Longest step a walker takes (m): longer modelled steps come from sensor glitches (one
 #: accelerometer value of 1e30) and are cut to it, by the filter and the alignment.
 MAX_STEP_M = 1.5
+#: FilterParams numbers that may be infinite (a spread or distance never reached).
+UNBOUNDED_OK = frozenset({"mode_spread_m", "radio_inject_distance_m", "guide_inject_distance_m",
+                          "shrink_spread_m", "recovery_max_half_width_m"})
+#: FilterParams numbers that are noise, drifts or distances: none may be negative (a negative
+#: standard deviation was taken as its absolute value, or crashed deep in the filter).
+NOT_NEGATIVE = ("n_particles_start", "shrink_spread_m", "shrink_after_steps",
+                "init_from_fix_scale", "weinberg_nominal", "step_length_nominal_m",
+                "genome_a_sd", "genome_b_sd", "genome_drift_a", "genome_drift_b",
+                "step_length_noise_m", "heading_noise_deg", "heading_bias_sd_deg",
+                "heading_bias_drift_deg", "gaussian_window", "neff_fraction",
+                "radio_inject_distance_m", "mode_spread_m", "recovery_max_half_width_m")
+
+
+def _is_number(v) -> bool:
+    """A real number (numpy's too), not a bool."""
+    return isinstance(v, numbers.Real) and not isinstance(v, bool)
+
+
+def _plain(v):
+    """A numpy number as the Python number it holds; anything else as is."""
+    return v.item() if _is_number(v) and hasattr(v, "item") else v
 
 
 @dataclass(frozen=True)
@@ -255,9 +278,35 @@ class FilterParams:
 
     def __post_init__(self) -> None:
         self.validate()
+        for f in fields(self):  # numpy numbers as Python's: to_json writes them
+            value = getattr(self, f.name)
+            plain = tuple(map(_plain, value)) if isinstance(value, tuple) else _plain(value)
+            object.__setattr__(self, f.name, plain)
 
     def validate(self) -> None:
-        """Raise :class:`LocalizationError` on inconsistent values."""
+        """Raise :class:`LocalizationError` on inconsistent values: every number a number
+        (NaN nowhere; infinite only where :data:`UNBOUNDED_OK` allows), noise and drift not
+        negative, ranges increasing."""
+        for f in fields(self):  # the numbers: those whose default is a number or numbers
+            default = f.default if isinstance(f.default, tuple) else (f.default,)
+            if not all(_is_number(v) for v in default):
+                continue
+            value = getattr(self, f.name)
+            values = tuple(value) if isinstance(value, (tuple, list)) else (value,)
+            if len(values) != len(default) or not all(
+                    _is_number(v) and not math.isnan(v)
+                    and (f.name in UNBOUNDED_OK or not math.isinf(v)) for v in values):
+                what = "a finite number" if len(default) == 1 else \
+                    f"{len(default)} finite numbers"
+                raise LocalizationError(f"{f.name} must be {what}, got {value!r}")
+        for name in NOT_NEGATIVE:
+            if getattr(self, name) < 0:
+                raise LocalizationError(f"{name} must be >= 0, got {getattr(self, name)}")
+        for name in ("genome_a_range", "genome_b_range", "step_length_range_m"):
+            lo, hi = getattr(self, name)
+            if not lo < hi:
+                raise LocalizationError(f"{name} must be (low, high) with low < high, got "
+                                        f"{getattr(self, name)}")
         if int(self.n_particles) < 1:
             raise LocalizationError(f"n_particles must be >= 1, got {self.n_particles}")
         if self.step_model not in ("frequency", "weinberg"):
@@ -274,8 +323,11 @@ class FilterParams:
             f = getattr(self, name)
             if f.window < 1 or f.span < 1 or f.smooth < 1:
                 raise LocalizationError(f"{name}: window, span and smooth must be >= 1")
-            if not (f.award > 0 and f.threshold > 0):
-                raise LocalizationError(f"{name}: award K and threshold T must be positive")
+            if not (0 < f.award < math.inf and 0 < f.threshold < math.inf):
+                raise LocalizationError(f"{name}: award K and threshold T must be positive "
+                                        "finite numbers")
+            if not 0 <= f.std_scale < math.inf:
+                raise LocalizationError(f"{name}: std_scale must be a finite number >= 0")
         if not 0 <= self.radio_inject_fraction <= 1:
             raise LocalizationError("radio_inject_fraction must be in [0, 1]")
         if self.radio_inject_rule not in ("distance", "fit"):

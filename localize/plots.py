@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from localize.bundle import MapBundle
+from localize.evaluate import xy_rows
 from localize.track import Track
 from survey.publish import atomic_write_bytes
 
@@ -53,7 +54,7 @@ def plot_track(path: str | Path, bundle: MapBundle, tracks: Mapping[str, Track],
              for name, tr in tracks.items()}  # each track from its start
     pts = [np.column_stack(xy) for xy in lines.values()]
     if waypoints_xy is not None:
-        waypoints_xy = np.asarray(waypoints_xy, dtype=float).reshape(-1, 2)
+        waypoints_xy = xy_rows(waypoints_xy, None, "plot_track waypoints_xy")
         pts.append(waypoints_xy)
     pts = np.concatenate(pts) if pts else np.empty((0, 2))
     pts = pts[np.isfinite(pts).all(axis=1)]

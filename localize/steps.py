@@ -174,13 +174,15 @@ class StepSummary:
     compass_deg : float
         Compass heading of the phone over the step (deg clockwise from map north).
     turn_deg : float
-        Heading change over the step (deg, signed; gyroscope when available).
+        Heading change over the step (deg), clockwise positive (a right turn), as the
+        compass counts; from the gyroscope when available, else the compass.
     strength_ut, azimuth_deg, polar_deg : float
         Earth-frame field features averaged over the step cycle; NaN when not measured.
     attitude : int
         :class:`AttitudeCode` of the step.
     relative_heading_deg : float
-        Gyroscope heading (deg, unwrapped, arbitrary origin); NaN without a gyroscope.
+        Gyroscope heading (deg clockwise, unwrapped, arbitrary origin); NaN without a
+        gyroscope.
     mag_strength_ut : ndarray or None
         Raw magnetometer strength samples of the step cycle (uT), for DTW matching.
     scan : RadioScan or None
@@ -248,6 +250,14 @@ class StepSummaries:
     floor_name: str = ""
     extra: dict = field(default_factory=dict, compare=False)
 
+    def __repr__(self) -> str:  # what the walk is, not its arrays
+        scans = sum(s is not None for s in self.scans or ())
+        span = f", {(self.t_ms[-1] - self.t_ms[0]) / 1000:.0f} s" if len(self.t_ms) else ""
+        floor = self.floor_name or self.floor_id
+        return (f"StepSummaries(trace_id={self.trace_id!r}, floor={floor!r}, "
+                f"{len(self.t_ms)} steps{span}, {scans} scans, "
+                f"magnetometer={self.has_magnetometer})")
+
     def __post_init__(self) -> None:
         m = len(np.asarray(self.t_ms))
         obj = object.__setattr__
@@ -286,6 +296,28 @@ class StepSummaries:
                 raise LocalizationError(f"step summaries: {len(self.scans)} scan slots for {m} "
                                         "steps")
             obj(self, "scans", tuple(self.scans))
+
+    @classmethod
+    def from_table(cls, table, **meta: str) -> StepSummaries:
+        """Step summaries from a table of their columns (a pandas DataFrame, a pyarrow Table
+        or a dict of arrays), as :func:`survey.step_summaries.summaries_table` writes them;
+        ``meta``: ``trace_id``, ``site_id``, ``floor_id``, ``floor_name``. Scans and raw
+        magnetometer samples are not in a table (:meth:`with_scans` adds scans).
+
+        Raises
+        ------
+        LocalizationError
+            A column missing. ``relative_heading_deg`` is required too: without the
+            gyroscope's heading the alignment walks on the compass alone, and its error on
+            the real traces grew by a third (a notebook round trip lost it silently).
+        """
+        names = ("t_ms", *_FLOAT_COLUMNS, "attitude")
+        have = set(table.column_names if hasattr(table, "column_names") else table.keys())
+        missing = [n for n in names if n not in have]
+        if missing:
+            raise LocalizationError(f"step summaries: the table lacks column(s) "
+                                    f"{', '.join(missing)}")
+        return cls(**{name: np.asarray(table[name]) for name in names}, **meta)
 
     def __len__(self) -> int:
         return len(self.t_ms)

@@ -8,7 +8,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike, DTypeLike, NDArray
 
-if TYPE_CHECKING:  # an annotation: pyarrow is imported when a track is written
+if TYPE_CHECKING:  # annotations: pyarrow and pandas are imported when a track is written
+    import pandas as pd
     import pyarrow as pa
 
 __all__ = ["Estimate", "Track"]
@@ -114,6 +115,18 @@ class Track:
                 "t_ms": self.t_ms.astype(np.int64), "x_m": self.x_m, "y_m": self.y_m,
                 "spread_m": self.spread_m, "alive_fraction": self.alive_fraction,
                 "recovered": self.recovered}
+
+    def to_frame(self) -> pd.DataFrame:
+        """The track as a pandas DataFrame, one row per step (the columns of
+        :meth:`to_columns`; the metadata of :meth:`to_arrow` in ``attrs``), for a notebook."""
+        import pandas as pd
+
+        frame = pd.DataFrame(self.to_columns())
+        frame.attrs.update(method=self.method, trace_id=self.trace_id, floor_id=self.floor_id,
+                           smoothed=bool(self.info.get("smoothed")),
+                           start_xy_m=(self.start.x_m, self.start.y_m),
+                           n_recoveries=self.n_recoveries)
+        return frame
 
     def to_arrow(self) -> pa.Table:
         """The track as a pyarrow Table (metadata: method, smoothed (``true`` for an offline

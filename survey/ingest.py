@@ -44,6 +44,11 @@ class IngestSummary:
     def status_counts(self) -> dict[str, int]:
         return dict(Counter(o.status for o in self.outcomes))
 
+    def __repr__(self) -> str:  # the totals, not every outcome and message
+        return (f"IngestSummary(files={self.status_counts()}, rows={dict(self.rows)}, "
+                f"bad={sum(self.bad.values())}, skipped={sum(self.skipped.values())}, "
+                f"dropped={sum(self.dropped.values())})")
+
     def add_row(self, row: dict, max_messages: int = 20) -> None:
         import json
 

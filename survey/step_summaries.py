@@ -162,7 +162,8 @@ def step_summaries(trace: Trace, params: StepSummaryParams = StepSummaryParams()
     Raises
     ------
     ProcessingError
-        No accelerometer, no rotation vector, no magnetometer, or no steps.
+        No accelerometer, no rotation vector, or no steps. A walk without a magnetometer
+        stream has steps whose field features are NaN (``has_magnetometer`` false).
     TypeError
         ``trace`` is not a :class:`Trace` (a path, say).
     """
@@ -178,10 +179,11 @@ def step_summaries(trace: Trace, params: StepSummaryParams = StepSummaryParams()
     acc_xyz = acc[["x", "y", "z"]].to_numpy(np.float64)
     rot_t = rv["t_ms"].to_numpy(np.float64)
     rot = rv[["x", "y", "z"]].to_numpy(np.float64)
-    try:
+    if len(_stream(trace.sensors, "magnetic_field")) or \
+            len(_stream(trace.sensors, "magnetic_field_uncalibrated")):
         mag_t, mag_dev, decision, _ = calibrated_field(trace.sensors)
-    except ProcessingError as err:
-        raise ProcessingError(f"{tid}: {err}") from err
+    else:  # the steps' field is NaN: methods without the magnetic update still localize it
+        mag_t, mag_dev, decision = np.empty(0), np.empty((0, 3)), "no-magnetometer"
 
     steps = detect_steps(acc_t, acc_xyz)
     st = steps.t_ms
@@ -275,11 +277,14 @@ def waypoints_of(trace: Trace) -> tuple[NDArray[np.float64], NDArray[np.float64]
 
 
 def summaries_table(steps: StepSummaries) -> pd.DataFrame:
-    """The scalar columns of step summaries as a table (inspection, CSV)."""
+    """The scalar columns of step summaries as a table (inspection, CSV); every column
+    :meth:`~localize.steps.StepSummaries.from_table` reads back (the scans and the raw
+    magnetometer samples are not in it: ``has_scan`` says which steps had a scan)."""
     return pd.DataFrame({
-        "t_ms": steps.t_ms.astype(np.int64), "frequency_hz": steps.frequency_hz,
+        "t_ms": steps.t_ms, "frequency_hz": steps.frequency_hz,  # fractions of a ms kept
         "delta_acc_ms2": steps.delta_acc_ms2, "compass_deg": steps.compass_deg,
-        "turn_deg": steps.turn_deg, "strength_ut": steps.strength_ut,
+        "turn_deg": steps.turn_deg, "relative_heading_deg": steps.relative_heading_deg,
+        "strength_ut": steps.strength_ut,
         "azimuth_deg": steps.azimuth_deg, "polar_deg": steps.polar_deg,
         "attitude": steps.attitude,
         "has_scan": [s is not None for s in (steps.scans or [None] * len(steps))]})

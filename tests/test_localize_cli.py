@@ -403,3 +403,96 @@ def test_localize_refuses_to_write_into_a_bundle_or_a_store(truth_bundles, tmp_p
     res = CliRunner().invoke(main, ["localize", str(truth_bundles["F1"]), str(walk), "-o",
                                     str(tmp_path / "web" / "tracks"), "--no-plot"])
     assert res.exit_code == 0, res.output
+
+
+def _as_walk_plan(trace_path, folder):
+    """A trace file written as indoormap's walk-line format: its sensor events one per CSV row
+    (float32 values written exactly), its waypoints as the plan's vertices at their times."""
+    import json
+
+    from survey.walkline import STREAM_COLUMNS
+
+    trace = read_trace(trace_path)
+    groups = [(stream, [f"{v}_{a}" for v in (value, bias) if v for a in "xyz"])
+              for stream, (value, bias) in STREAM_COLUMNS.items()]
+    header = ["t_ms", *(c for _, cols in groups for c in cols), "accuracy"]
+    lines = [",".join(header)]
+    for row in trace.sensors.itertuples(index=False):
+        cells = dict.fromkeys(header, "")
+        cells["t_ms"], cells["accuracy"] = str(row.t_ms), str(row.accuracy)
+        cols = dict(groups)[row.stream]
+        for c, v in zip(cols, (row.x, row.y, row.z, row.bx, row.by, row.bz)):
+            cells[c] = repr(float(v))
+        lines.append(",".join(cells[c] for c in header))
+    (folder / "walk.csv").write_text("\n".join(lines) + "\n")
+    h, wp = trace.header, trace.waypoints
+    plan = {"type": "FeatureCollection",
+            "properties": {"site_id": h.site_id, "floor_id": h.floor_id,
+                           "floor_name": h.floor_name, "device_model": h.model},
+            "features": [{"type": "Feature", "geometry": {
+                "type": "LineString", "coordinates": wp[["x_m", "y_m"]].to_numpy().tolist()},
+                "properties": {"walk_id": trace.trace_id, "sensor_log": "walk.csv",
+                               "vertex_times_ms": wp["t_ms"].tolist()}}]}
+    (folder / "plan.geojson").write_text(json.dumps(plan))
+    return folder / "plan.geojson"
+
+
+def test_walk_plans_are_walks_to_localize_and_evaluate(truth_bundles, tmp_path):  # noqa: F811
+    """A walk of a walk plan (indoormap's walk-line format, which ``ingest`` and ``build``
+    take) is localized and scored like the trace it was written from; before, ``localize``
+    and ``evaluate`` found no trace file in it."""
+    walk = min(F1_WALKS.glob("*.txt.gz"))
+    (tmp_path / "plan").mkdir()
+    plan = _as_walk_plan(walk, tmp_path / "plan")
+    bundles = str(truth_bundles["F1"].parent)
+    tracks = {}
+    for name, path in (("trace", walk), ("plan", plan)):
+        res = CliRunner().invoke(main, ["localize", bundles, str(path), "-o",
+                                        str(tmp_path / name), "--no-plot", "--method", "pdr",
+                                        "--start", "waypoint"])
+        assert res.exit_code == 0, res.output
+        assert "steps on" in res.output and "(F1) by pdr" in res.output
+        tracks[name] = pq.read_table(tmp_path / name / f"{walk.name.split('.')[0]}.parquet")
+    for column in ("t_ms", "x_m", "y_m"):  # the same walk, the same track
+        np.testing.assert_array_equal(tracks["plan"].column(column).to_numpy(),
+                                      tracks["trace"].column(column).to_numpy())
+    scored = CliRunner().invoke(main, ["evaluate", bundles, str(tmp_path / "plan"),
+                                       "--method", "pdr"])
+    assert scored.exit_code == 0, scored.output
+    assert "at the waypoints of 1 walk(s)" in scored.output
+    # a walk plan that cannot be read is one failed walk, named, and the others go on
+    (tmp_path / "bad.geojson").write_text('{"type": "FeatureCollection", "features": []}')
+    both = CliRunner().invoke(main, ["evaluate", bundles, str(tmp_path / "bad.geojson"),
+                                     str(walk), "--method", "pdr"])
+    assert both.exit_code == 1 and "bad.geojson: walk plan has no features" in both.output
+    assert "1 failure(s) in 2 walk(s)" in both.output
+
+
+def test_a_walk_without_magnetometer_is_localized_by_auto_with_the_alignment(
+        truth_bundles, tmp_path):  # noqa: F811
+    """A phone that logged no magnetometer: the steps' summary refused the walk ("no
+    magnetometer stream"), and ``auto`` would have picked the filter, which needs the field;
+    ``auto`` runs the alignment and says why, and the magnetic methods fail alone."""
+    import gzip
+
+    walk = min(F1_WALKS.glob("*.txt.gz"))
+    with gzip.open(walk, "rt") as f:
+        kept = [line for line in f if "TYPE_MAGNETIC_FIELD" not in line]
+    no_mag = tmp_path / "walks" / "nomag.txt"
+    no_mag.parent.mkdir()
+    no_mag.write_text("".join(kept))
+    bundles = str(truth_bundles["F1"].parent)
+    res = CliRunner().invoke(main, ["localize", bundles, str(no_mag), "-o", str(tmp_path / "o"),
+                                    "--no-plot", "--start", "waypoint"])
+    assert res.exit_code == 0, res.output
+    assert "by auto: align, as the walk has no magnetometer values" in res.output
+    scored = CliRunner().invoke(main, ["evaluate", bundles, str(no_mag), "--start", "waypoint",
+                                       "--method", "auto,indoormap,pf_no_mag"])
+    assert scored.exit_code == 1  # indoormap cannot run it, and says what can
+    assert "method indoormap needs the magnetic field (align, pf_no_mag" in scored.output
+    rows = {line.split()[0] + (" " + line.split()[1] if line.startswith("auto") else ""):
+            line.split() for line in scored.output.splitlines()
+            if line.startswith(("auto", "indoormap", "pf_no_mag"))}
+    n = str(len(waypoints_of(read_trace(no_mag))[0]))
+    assert rows["auto (align)"][2] == n and float(rows["auto (align)"][3]) < 3.0  # median, m
+    assert rows["indoormap"][1] == "0" and rows["pf_no_mag"][1] == n

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from dataclasses import replace
@@ -59,6 +60,11 @@ def test_same_seed_same_trajectory(f1_bundle, sim_walks):  # noqa: F811
     a = Localizer(f1_bundle, rng=g1).run(w.steps, start_xy=w.start_xy)
     b = Localizer(f1_bundle, rng=g2).run(w.steps, start_xy=w.start_xy)
     assert np.array_equal(a.x_m, b.x_m)
+    # the track as a table for a notebook: the written columns, with where it came from
+    frame = runs[0].to_frame()
+    assert list(frame.columns) == runs[0].to_arrow().column_names and len(frame) == len(w.steps)
+    assert np.array_equal(frame["x_m"].to_numpy(), runs[0].x_m)
+    assert frame.attrs["trace_id"] == w.steps.trace_id and frame.attrs["method"] == "indoormap"
 
 
 def test_streaming_equals_batch(f1_bundle, sim_walks):  # noqa: F811
@@ -173,6 +179,33 @@ def test_walk_without_magnetometer(f1_bundle, sim_walks):  # noqa: F811
         Localizer(f1_bundle).run(no_mag, start_xy=w.start_xy)
     # methods without magnetic update still run
     make_localizer("pf_no_mag", f1_bundle).run(no_mag, start_xy=w.start_xy)
+    # auto picks the filter on this floor's map, which cannot run such a walk; told the walk
+    # has no magnetometer it takes the alignment (the command line tells it per walk)
+    assert auto_method(f1_bundle.manifest["metrics"]).method == "indoormap"
+    with pytest.raises(LocalizationError, match=r"needs the magnetic field \(align, pf_no_mag"):
+        make_localizer("auto", f1_bundle).run(no_mag, start_xy=w.start_xy)
+    choice = auto_method(f1_bundle.manifest["metrics"], magnetometer=False)
+    assert choice.method == "align" and "no magnetometer" in choice.why
+    loc = make_localizer("auto", f1_bundle, magnetometer=False)
+    assert loc.method == "align"
+    track = loc.run(no_mag, start_xy=w.start_xy)
+    assert len(track) == len(no_mag)
+
+
+def test_plot_track_refuses_transposed_waypoints(f1_bundle, sim_walks, tmp_path):  # noqa: F811
+    """plot_track reshaped (2, k) waypoints row-major, drawing x and y mixed up."""
+    pytest.importorskip("matplotlib")
+    from localize.plots import plot_track
+
+    w = _f1(sim_walks)[0]
+    track = make_localizer("pdr", f1_bundle).run(w.steps, start_xy=w.start_xy)
+    xy = np.array([[10.0, 5.0], [20.0, 5.0], [30.0, 6.0]])
+    with pytest.raises(ValueError, match=r"plot_track waypoints_xy: .* got \(2, 3\) "
+                                         r"\(transposed\? one row per point\)"):
+        plot_track(tmp_path / "t.png", f1_bundle, {"pdr": track}, xy.T)
+    assert not (tmp_path / "t.png").exists()
+    assert plot_track(tmp_path / "t.png", f1_bundle, {"pdr": track}, xy)
+    assert (tmp_path / "t.png").stat().st_size > 1000
 
 
 def test_bundle_of_another_floor_or_site(truth_bundles, sim_walks):  # noqa: F811
@@ -217,6 +250,22 @@ def test_other_bad_calls(f1_bundle, sim_walks):  # noqa: F811
         FilterParams(weight_mode="magic")
     with pytest.raises(LocalizationError):
         make_localizer("nope", f1_bundle)
+    # a NaN noise passed validation and crashed steps later with an IndexError deep in the
+    # resampling; every number is checked, and noise may not be negative
+    for bad, match in [(dict(heading_noise_deg=float("nan")), "heading_noise_deg must be a "
+                                                             "finite number, got nan"),
+                       (dict(step_length_noise_m=-0.1), "step_length_noise_m must be >= 0"),
+                       (dict(genome_a_range=(1.0, 0.5)), "genome_a_range must be .* low < high"),
+                       (dict(genome_b_range=(0.1,)), "genome_b_range must be 2 finite numbers"),
+                       (dict(heading_bias_sd_deg="3"), "heading_bias_sd_deg must be a finite"),
+                       (dict(n_particles=True), "n_particles must be a finite number"),
+                       (dict(step_length_nominal_m=float("inf")), "must be a finite number")]:
+        with pytest.raises(LocalizationError, match=match):
+            FilterParams(**bad)
+    # numpy numbers are numbers; a spread may be unbounded; JSON round-trips
+    p = FilterParams(n_particles=np.int64(50), heading_noise_deg=np.float32(6.0),
+                     mode_spread_m=float("inf"))
+    assert FilterParams.from_dict(json.loads(p.to_json())) == p
 
 
 @pytest.mark.parametrize("method", sorted(METHODS))
@@ -296,11 +345,23 @@ def test_bad_starts_and_steps_are_localization_errors(tmp_path, f1_bundle, sim_w
             with pytest.raises(LocalizationError, match="half-width"):
                 loc.run(w.steps, start_xy=w.start_xy, half_width_m=half_width)
     for streaming in (loc, make_localizer("pdr", f1_bundle)):
+        # a start after the first step (a scan's start takes the scan's time): the refusal
+        # says what to do
+        streaming.start(*w.start_xy, t_ms=float(w.steps.t_ms[1]))
+        with pytest.raises(LocalizationError, match=r"comes before the start .* skip the steps "
+                                                    r"before it, or start earlier"):
+            streaming.step(w.steps[0])
         streaming.start(*w.start_xy, t_ms=float(w.steps.t_ms[0]))
         streaming.step(w.steps[0])  # at the start time: allowed
-        for t_ms in (float(w.steps.t_ms[0]) - 1, float("nan")):
-            with pytest.raises(LocalizationError, match="comes before the last one"):
+        for t_ms, match in ((float(w.steps.t_ms[0]) - 1, "comes before the last one"),
+                            (float("nan"), "has no time")):
+            with pytest.raises(LocalizationError, match=match):
                 streaming.step(replace(w.steps[1], t_ms=t_ms))
+        # a step sent twice is refused, as run() refuses equal times; it was walked twice
+        with pytest.raises(LocalizationError, match="has the last step's time: the same step "
+                                                    "sent twice"):
+            streaming.step(w.steps[0])
+        assert streaming.step(w.steps[1]).t_ms == w.steps.t_ms[1]  # the stream goes on
     write_bundle(tmp_path / "_site", BundleContent("site", "", "", kind="site",
                                                    tables={"t": pa.table({"a": [1]})}))
     with pytest.raises(LocalizationError, match="site-level bundle"):
@@ -387,6 +448,17 @@ def test_step_errors_needs_one_true_position_per_step():
     np.testing.assert_allclose(waypoint_errors(timed, 1.0, (1.0, 3.0)), [3.0])
     with pytest.raises(ValueError, match=r"shape \(2, 2\) expected"):
         waypoint_errors(timed, [0.0, 1.0], (1.0, 3.0))  # two times, one point: ambiguous
+    # times in seconds, or another walk's: every waypoint was scored at the track's end
+    walk = Track(1.7e12 + np.array([0.0, 1e3, 2e3]), np.array([0.0, 1.0, 2.0]), z, z,
+                 np.ones(3), np.zeros(3, bool), Estimate(1.7e12 - 500, 0.0, 0.0))
+    for t_wp in ((1.7e12 + np.array([0, 2e3])) / 1000, 1.7e12 + 3.6e6 + np.array([0, 2e3])):
+        with pytest.raises(ValueError, match="lies within 60 s of the track's 1699999999500 "
+                                             "to 1700000002000 .* in seconds, or another "):
+            waypoint_errors(walk, t_wp, [[0.0, 0.0], [2.0, 0.0]])
+    # standing still a while before the first step or after the last: scored at its ends
+    np.testing.assert_allclose(
+        waypoint_errors(walk, 1.7e12 + np.array([-50e3, 1e3, 59e3]), [[0, 0], [1, 0], [2, 0]]),
+        [0, 0, 0])
 
 
 def test_engine_radio_fixes_bring_wrongly_started_users_back(f1_bundle, sim_walks):  # noqa: F811
