@@ -32,6 +32,7 @@ import numpy as np
 from localize.cli_common import (AliasedOption, FloorChoices, SeenWalks, TraceIds,
                                   WalkFailures, each_walk, refuse_output_inside_data,
                                   trace_files, waypoint_errors_quietly)
+from localize.errors import LocalizationError
 from localize.methods import METHODS, SMOOTHABLE, auto_method, method_label
 from survey.publish import refuse_to_replace
 
@@ -81,7 +82,6 @@ def _start_of(start_opt: str | tuple[float, float], wr, waypoints_xy
     """:func:`localize.start.start_position` for the walk's radio ``wr``
     (:class:`localize.walk_radio.WalkRadio`), its errors naming the option to change, and a
     start at a BLE fix saying why BLE."""
-    from localize.errors import LocalizationError
     from localize.start import start_position
 
     try:
@@ -208,8 +208,8 @@ def _params(particles: int | None):
 def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, method: str,
                      start: str, particles: int | None, seed: int, fmt: str,
                      plot: bool, smooth: bool, overwrite: bool) -> None:
-    """Localize survey walks (trace files or folders) on BUNDLE (a floor bundle or a folder
-    of floor bundles): positions per step as Parquet/CSV and a trajectory plot.
+    """Localize survey walks (trace files, walk plans or folders) on BUNDLE (a floor bundle
+    or a folder of floor bundles): positions per step as Parquet/CSV and a trajectory plot.
 
     A walk that fails (unreadable, no start, another site) is reported with its file and the
     others go on; the exit status is then 1."""
@@ -246,7 +246,11 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
         loc = make_localizer(method, bundle, _params(particles), radio=wr.radio, rng=seed,
                              magnetometer=wr.steps.has_magnetometer)
         track = loc.run(wr.steps, start_xy=start_xy, smooth=smooth)
-        err = waypoint_errors_quietly(track, t_wp, xy_wp) if len(t_wp) else np.empty(0)
+        try:  # scoring is a by-product here: the track is written whatever its waypoints
+            err = waypoint_errors_quietly(track, t_wp, xy_wp) if len(t_wp) else np.empty(0)
+        except LocalizationError as refused:
+            click.echo(f"warning: {where}: track not scored: {refused}", err=True)
+            err = np.empty(0)
         err = err[np.isfinite(err)]  # the walk's recorded waypoints, where it has them
         scored = (f"error at its {len(err)} waypoints median {np.median(err):.1f} m, max "
                   f"{err.max():.1f} m" if len(err) else "")
@@ -322,8 +326,9 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
 def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[str, ...],
                      start: str, particles: int | None, seed: int, plot_path: Path | None,
                      csv_path: Path | None, smooth: bool, overwrite: bool) -> None:
-    """Error at the waypoints of walks (median, p80, mean per method). The bundles should be
-    built without these walks (a warning names walks the bundle was built from).
+    """Error at the waypoints of WALKS (trace files, walk plans or folders) on BUNDLE (a
+    floor bundle or a folder of floor bundles), median, p80 and mean per method. The bundles
+    should be built without these walks (a warning names walks the bundle was built from).
 
     A walk that cannot be read, or a method that fails on a walk, is reported with the file
     (and method) and the rest goes on; the exit status is then 1."""

@@ -70,16 +70,18 @@ class AliasedOption(click.Option):
         return self._current_only(super().get_error_hint, ctx)
 
 
-def trace_files(paths: tuple[str, ...], failures: WalkFailures) -> list[Path]:
+def trace_files(paths: tuple[str, ...], failures: WalkFailures, *,
+                walk_plans: bool = True) -> list[Path]:
     """The trace files (``.txt``, ``.txt.gz``) and walk plans (``.geojson``, indoormap's
     walk-line format) given or inside the given folders, as ``indoormap ingest`` finds them.
     A path that does not exist is reported to ``failures`` as a walk that failed, and the
-    others go on.
+    others go on. Without ``walk_plans`` (commands that need a walk's radio scans, which
+    walk-line logs do not carry) the plans found in folders are left out with a note.
 
     Raises
     ------
     click.UsageError
-        None found, and no path was missing.
+        None found, and no path was missing; a walk plan named when ``walk_plans`` is false.
     """
     from survey.ingest import find_inputs
 
@@ -90,10 +92,19 @@ def trace_files(paths: tuple[str, ...], failures: WalkFailures) -> list[Path]:
         else:
             failures.missing(p)
     traces, plans = find_inputs(present)
+    if plans and not walk_plans:
+        named = [p for p in present if Path(p).is_file() and str(p).endswith(".geojson")]
+        if named:
+            raise click.UsageError(f"{named[0]}: a walk plan's logs carry no Wi-Fi or BLE "
+                                   "scans; this command takes trace files (.txt, .txt.gz)")
+        click.echo(f"note: {len(plans)} walk plan(s) in the folders left out: their logs "
+                   "carry no Wi-Fi or BLE scans", err=True)
+        plans = []
     files = sorted(traces + plans)
     if not files and not failures.count:
-        raise click.UsageError("no trace files (.txt, .txt.gz) or walk plans (.geojson) "
-                               "found in the given paths")
+        raise click.UsageError("no trace files (.txt, .txt.gz)"
+                               + (" or walk plans (.geojson)" if walk_plans else "")
+                               + " found in the given paths")
     unique: dict[Path, Path] = {}
     for f in files:  # one file named twice (relative and absolute, or a folder and a file)
         unique.setdefault(f.resolve(), f)
@@ -111,8 +122,8 @@ def each_walk(files: list[Path], failures: WalkFailures,
     for f in files:
         walks = failures.run(f, lambda f=f: read_walks(f))
         total += 1 if walks is None else len(walks)
-        for where, trace in walks or []:
-            failures.run(where, lambda where=where, trace=trace: fn(where, trace))
+        for where, walk in walks or []:  # a plan's walk that fails its checks fails alone
+            failures.run(where, lambda where=where, walk=walk: fn(where, walk()))
     return total
 
 
@@ -155,15 +166,18 @@ def refuse_output_inside_data(out: Path, param_hint: str = "-o") -> None:
                                      param_hint=param_hint)
 
 
-def read_walks(path: Path) -> list[tuple[str, Trace]]:
-    """``(where, trace)`` of each walk in ``path``: a trace file's one walk (:func:`read_walk`,
-    ``where`` the file) or a walk plan's walks (``where``: ``plan.geojson (walk ID)``), their
-    sensor logs read and checked as :func:`read_walk` checks a trace."""
+def read_walks(path: Path) -> list[tuple[str, Callable[[], Trace]]]:
+    """``(where, walk)`` of each walk in ``path``, ``walk()`` giving its checked trace: a trace
+    file's one walk (:func:`read_walk`, ``where`` the file, read when asked) or a walk plan's
+    walks (``where``: ``plan.geojson (walk ID)``), the plan and its sensor logs read here and
+    each walk checked as :func:`read_walk` checks a trace when asked, so that one walk's
+    failure leaves the plan's others to run."""
     if not path.name.endswith(".geojson"):
-        return [(str(path), read_walk(path))]
+        return [(str(path), lambda: read_walk(path))]
     from survey.walkline import read_walk_plan
 
-    return [(f"{path} (walk {trace.trace_id})", _checked_walk(trace, Path(log)))
+    return [(f"{path} (walk {trace.trace_id})",
+             lambda trace=trace, log=log: _checked_walk(trace, Path(log)))
             for trace, log, _identity in read_walk_plan(path)]
 
 

@@ -70,6 +70,9 @@ REFERENCE_TIME_SLACK_MS = 60_000.0
 def _check_reference_times(track: Track, t: NDArray[np.float64]) -> None:
     if len(t) == 0:
         return
+    if not np.isfinite(t).all():
+        raise ValueError(f"waypoint_errors: {int((~np.isfinite(t)).sum())} of the {len(t)} "
+                         "reference time(s) are not finite numbers (Unix ms)")
     t0 = track.start.t_ms
     t1 = float(track.t_ms[-1]) if len(track) else t0
     near = (t >= t0 - REFERENCE_TIME_SLACK_MS) & (t <= t1 + REFERENCE_TIME_SLACK_MS)
@@ -87,13 +90,15 @@ def xy_rows(xy_m: ArrayLike, n: int | None, where: str) -> NDArray[np.float64]:
     was read row-major, its x and y mixed)."""
     ref = np.asarray(xy_m, dtype=np.float64)
     rows = "k" if n is None else str(n)
+    transposed = ref.ndim == 2 and ref.shape[0] == 2 and ref.shape[1] != 2 and (
+        n is None or ref.shape[1] == n)
     if n is None:
-        n = 1 if ref.shape == (2,) else (ref.shape[0] if ref.ndim == 2 else -1)
+        n = 0 if ref.size == 0 else 1 if ref.shape == (2,) else \
+            ref.shape[0] if ref.ndim == 2 else -1
     if (ref.size == 0 and n == 0) or (ref.shape == (2,) and n == 1):
         return ref.reshape(n, 2)
     if ref.shape != (n, 2):
-        hint = " (transposed? one row per point)" \
-            if ref.ndim == 2 and ref.shape[0] == 2 and ref.shape[1] != 2 else ""
+        hint = " (transposed? one row per point)" if transposed else ""
         raise ValueError(f"{where}: positions of shape ({rows}, 2) expected, one row per "
                          f"point, got {ref.shape}{hint}")
     return ref

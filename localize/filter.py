@@ -88,9 +88,9 @@ def check_step_time(t_ms: float, last_t_ms: float, *, after_step: bool = True) -
         raise LocalizationError(f"step at {t_ms} ms has no time")
     if t_ms < last_t_ms and not after_step:  # begin(scan=...) starts at the scan's time
         raise LocalizationError(
-            f"step at {t_ms} ms comes before the start ({last_t_ms} ms, a scan's start takes "
-            "the scan's time): skip the steps before it, or start earlier "
-            "(start(..., t_ms=) at most the first step's time)")
+            f"step at {t_ms} ms comes before the start ({last_t_ms} ms; a start from a scan "
+            "takes the scan's time): skip the steps before it, or start earlier (a start "
+            "time, start(..., t_ms=), at most the first step's)")
     if t_ms < last_t_ms:
         raise LocalizationError(f"step at {t_ms} ms comes before the last one ({last_t_ms} ms)")
 
@@ -196,7 +196,14 @@ class BaseLocalizer:
     def begin(self, x_m: float, y_m: float, t_ms: float, sigma: float | None,
               half_width_m: float | None = None) -> Estimate:
         """Start at ``(x_m, y_m)`` (m) known to ``sigma`` (m; None: exactly, a given start),
-        unchecked, as :meth:`start` and :meth:`run` do; for a localizer run inside another."""
+        unchecked but for its time, as :meth:`start` and :meth:`run` do; for a localizer run
+        inside another."""
+        try:
+            finite = bool(np.isfinite(float(t_ms)))
+        except (TypeError, ValueError):
+            finite = False
+        if not finite:  # every step after it passed its time check, or crashed
+            raise LocalizationError(f"start time {t_ms!r} is not a finite number (Unix ms)")
         self._last = self._start_estimate = self._start_at(x_m, y_m, float(t_ms), sigma,
                                                            half_width_m)
         return self._last
@@ -254,9 +261,9 @@ class BaseLocalizer:
         if self.needs_magnetometer and not steps.has_magnetometer:
             raise LocalizationError(f"{steps.trace_id or 'walk'}: no magnetometer values; "
                                     f"method {self.method} needs the magnetic field "
-                                    "(align, pf_no_mag, pdr and radio do without; "
-                                    "make_localizer('auto', ..., magnetometer=False) takes "
-                                    "align)")
+                                    "(align, pf_no_mag, pdr and radio do without; auto runs "
+                                    "align on such a walk, in Python given "
+                                    "make_localizer(..., magnetometer=False))")
 
     def first_fix(self, steps: StepSummaries) -> RadioFix | None:
         """The fix of the first scan of the walk the radio model can locate."""

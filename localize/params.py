@@ -49,9 +49,31 @@ def _is_number(v) -> bool:
     return isinstance(v, numbers.Real) and not isinstance(v, bool)
 
 
-def _plain(v):
-    """A numpy number as the Python number it holds; anything else as is."""
-    return v.item() if _is_number(v) and hasattr(v, "item") else v
+def _set_numbers(obj, unbounded: frozenset[str] = frozenset(), prefix: str = "") -> None:
+    """Check and store the number fields of a frozen dataclass ``obj`` (those whose default
+    is a number or a tuple of numbers) as Python numbers of their default's type, tuples as
+    tuples (a list or array given for a range, numpy numbers: ``to_json`` writes them, and
+    the parameters stay hashable); a LocalizationError for NaN, an infinity (unless the
+    field is in ``unbounded``), a fraction where a count is expected, or no number."""
+    for f in fields(obj):
+        default = f.default if isinstance(f.default, tuple) else (f.default,)
+        if not all(_is_number(v) for v in default):
+            continue
+        value = getattr(obj, f.name)
+        try:
+            values = tuple(value) if isinstance(f.default, tuple) else (value,)
+        except TypeError:
+            values = ()
+        ok = len(values) == len(default) and all(
+            _is_number(v) and not math.isnan(v) and (f.name in unbounded or not math.isinf(v))
+            and (not isinstance(d, int) or float(v).is_integer())
+            for v, d in zip(values, default))
+        if not ok:
+            what = ("a whole number" if isinstance(default[0], int) else "a finite number") \
+                if len(default) == 1 else f"{len(default)} finite numbers"
+            raise LocalizationError(f"{prefix}{f.name} must be {what}, got {value!r}")
+        plain = tuple(type(d)(v) for v, d in zip(values, default))
+        object.__setattr__(obj, f.name, plain if isinstance(f.default, tuple) else plain[0])
 
 
 @dataclass(frozen=True)
@@ -86,6 +108,9 @@ class FeatureParams:
     span: int = 1
     smooth: int = 1
     std_scale: float = 0.0
+
+    def __post_init__(self) -> None:
+        _set_numbers(self, prefix="FeatureParams.")
 
     @property
     def history(self) -> int:
@@ -277,28 +302,14 @@ class FilterParams:
     recovery_max_half_width_m: float = 30.0
 
     def __post_init__(self) -> None:
+        _set_numbers(self, UNBOUNDED_OK)
         self.validate()
-        for f in fields(self):  # numpy numbers as Python's: to_json writes them
-            value = getattr(self, f.name)
-            plain = tuple(map(_plain, value)) if isinstance(value, tuple) else _plain(value)
-            object.__setattr__(self, f.name, plain)
 
     def validate(self) -> None:
-        """Raise :class:`LocalizationError` on inconsistent values: every number a number
-        (NaN nowhere; infinite only where :data:`UNBOUNDED_OK` allows), noise and drift not
-        negative, ranges increasing."""
-        for f in fields(self):  # the numbers: those whose default is a number or numbers
-            default = f.default if isinstance(f.default, tuple) else (f.default,)
-            if not all(_is_number(v) for v in default):
-                continue
-            value = getattr(self, f.name)
-            values = tuple(value) if isinstance(value, (tuple, list)) else (value,)
-            if len(values) != len(default) or not all(
-                    _is_number(v) and not math.isnan(v)
-                    and (f.name in UNBOUNDED_OK or not math.isinf(v)) for v in values):
-                what = "a finite number" if len(default) == 1 else \
-                    f"{len(default)} finite numbers"
-                raise LocalizationError(f"{f.name} must be {what}, got {value!r}")
+        """Raise :class:`LocalizationError` on inconsistent values: noise and drift not
+        negative, ranges increasing, counts and scales positive. (Every number was checked a
+        number on construction: NaN nowhere, infinite only where :data:`UNBOUNDED_OK`
+        allows, whole where a count is expected.)"""
         for name in NOT_NEGATIVE:
             if getattr(self, name) < 0:
                 raise LocalizationError(f"{name} must be >= 0, got {getattr(self, name)}")

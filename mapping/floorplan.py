@@ -5,8 +5,9 @@ Two GeoJSON flavours are read:
 - the ``../shared/ilc`` kind: ``geojson_map.json`` in longitude/latitude whose feature 0 is the
   floor outline; its lon/lat bounding box maps linearly onto [0, width] x [0, height] metres
   given by ``floor_info.json`` (x east, y north);
-- plain GeoJSON already in metres (a FeatureCollection whose feature 0, or the feature with
-  property ``role: "outline"``, is the outline).
+- plain GeoJSON already in metres (a FeatureCollection whose features with property
+  ``role: "outline"`` are the outline, united; without any, feature 0, which then has no
+  role).
 
 Reachable (walkable) area = outline minus obstacles. A feature's ``role`` property says what
 it is (:data:`GEOJSON_ROLES`): a polygon without one is an obstacle (``obstacle_filter``
@@ -201,6 +202,9 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
     feats = _features(geo, sources)
     roles = [_role(f, geo, i) for i, f in enumerate(feats)]
     outline_at = [i for i, r in enumerate(roles) if r == "outline"] or [0]  # union of them
+    if roles and "outline" not in roles and roles[0] is not None:
+        raise FloorPlanError(f"{geo}: no feature has role 'outline', and feature 0 (the "
+                             f"outline of a plan without roles) has role {roles[0]!r}")
     geoms = []
     for i, f in enumerate(feats):
         try:
@@ -265,11 +269,14 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
                 walkable.append(polygon)
             elif role == "wall" or keep(f.get("properties") or {}):
                 obstacles.append(polygon)
+        elif role is not None:  # a point or a collection said to be part of the plan
+            lines_left_out.append(i)
     if lines_left_out:
         shown = ", ".join(map(str, lines_left_out[:5])) + (", ..." if len(lines_left_out) > 5
                                                             else "")
-        repairs.append(f"{geo}: {len(lines_left_out)} line feature(s) left out (feature "
-                       f"{shown}): a line is a wall only with property \"role\": \"wall\"")
+        repairs.append(f"{geo}: {len(lines_left_out)} feature(s) left out (feature {shown}): "
+                       "a line is a wall only with property \"role\": \"wall\", and points "
+                       "and geometry collections are not read")
     obstacle_union = shapely.union_all(obstacles) if obstacles else shapely.Polygon()
     if walkable:
         obstacle_union = shapely.difference(obstacle_union, shapely.union_all(walkable))

@@ -7,8 +7,11 @@ earth-frame (ENU: east, north, up) field samples in uT, e.g. from
 
 Angle conventions
 -----------------
-* azimuth: direction of the horizontal field, degrees clockwise from map north (+y) towards east
-  (+x), in [0, 360) -- the compass convention of :func:`survey.rotation.heading_deg`;
+* azimuth: direction of the horizontal field, degrees clockwise from the frame's north (+y)
+  towards east (+x), in [0, 360) -- the compass convention of
+  :func:`survey.rotation.heading_deg`. In the frame of Android's rotation vector, whose north
+  is the sensed field's, it is near 0 wherever the phone is (the field's direction on the map
+  is the heading offset's, negated: ``mapping.field_layers``);
 * polar angle: angle between the field vector and earth up, in [0, 180]; the ILC traces (vertical
   about -29 uT of 42 uT) give about 133 deg.
 """
@@ -96,7 +99,7 @@ def vertical_ut(b_earth: ArrayLike) -> NDArray[np.float64]:
 
 
 def azimuth_deg(b_earth: ArrayLike) -> NDArray[np.float64]:
-    """Direction of the horizontal field, clockwise from map north.
+    """Direction of the horizontal field, clockwise from the frame's north (+y).
 
     Parameters
     ----------
@@ -145,7 +148,7 @@ class FieldFeatures:
     strength_ut, horizontal_ut, vertical_ut : ndarray
         ``|B|``, horizontal strength, up component (uT).
     azimuth_deg : ndarray
-        Horizontal-field direction, clockwise from map north, [0, 360).
+        Horizontal-field direction, clockwise from the frame's north (+y), [0, 360).
     polar_deg : ndarray
         Angle between field and up, [0, 180].
     """

@@ -358,11 +358,11 @@ def parse_sensor_csv(data: bytes, *, reference_ms: float, path: str = "<input>",
         # stored as float32: a value beyond its range would become infinite
         row_bad |= ~absent & ~(np.abs(values) < _FLOAT32_LIMIT).all(axis=1)
         implausible |= ~absent & (np.abs(values) > sensor_limit(stream)[0]).any(axis=1)
-        parts.append((stream, values, ~absent))
+        parts.append((stream, values, ~absent, cols))
     if not parts:
         raise SurveyFormatError("sensor log has no sensor columns (e.g. acc_x, acc_y, acc_z)",
                                 path=path, reason="csv")
-    row_bad |= ~np.column_stack([has for _, _, has in parts]).any(axis=1)  # no sample at all
+    row_bad |= ~np.column_stack([has for _, _, has, _ in parts]).any(axis=1)  # no sample at all
     # An accuracy, when given, is a whole number (a missing one means 3). Out of range: a time
     # beyond 2^53 ms, an accuracy beyond int8.
     acc = numeric.get("accuracy")
@@ -390,14 +390,34 @@ def parse_sensor_csv(data: bytes, *, reference_ms: float, path: str = "<input>",
                                                "the walk's time (a wrong clock or a stray "
                                                "row)")}
     any_bad = row_bad | out_of_range | time_outlier
+
+    def _bad_column(i: int) -> str:
+        """The first column that makes row ``i`` bad, with its value, for its message."""
+        def named(c: str) -> str:
+            v = table.column(c)[i].as_py()
+            return f"column {c} ({'empty' if v in (None, '') else repr(v)})"
+
+        if bad_t[i] or t[i] >= MAX_TIME_MS or time_outlier[i]:
+            return named("t_ms")
+        for stream, values, has, cols in parts:
+            limit = sensor_limit(stream)[0]
+            for j, c in enumerate(cols):
+                v = values[i, j]
+                if has[i] and not (abs(v) < _FLOAT32_LIMIT and abs(v) <= limit):
+                    return named(c)
+        if acc is not None and not _missing(table.column("accuracy"))[i] and not (
+                np.isfinite(acc[i]) and acc[i] == round(acc[i]) and abs(acc[i]) <= 127):
+            return named("accuracy")
+        return "no sensor column filled"
+
     if any_bad.any() or wrong_width:
         line, skipped_line = _row_lines(data, table.num_rows,
                                         [n or 0 for n, _, _ in wrong_width])
         reason = np.select([row_bad, out_of_range], ["non_numeric", "out_of_range"],
                            "time_outlier")
         # the first 20 bad lines (for the messages) are among the first 20 of either kind
-        bad = sorted([(int(line[i]), problems[reason[i]][1], str(reason[i]))
-                      for i in np.flatnonzero(any_bad)[:20]]
+        bad = sorted([(int(line[i]), f"{problems[reason[i]][1]}: {_bad_column(i)}",
+                       str(reason[i])) for i in np.flatnonzero(any_bad)[:20]]
                      + [(int(at), f"{got} fields, the header has {want}", "field_count")
                         for at, (_, got, want) in zip(skipped_line[:20], wrong_width)])
         if strict:
@@ -418,7 +438,7 @@ def parse_sensor_csv(data: bytes, *, reference_ms: float, path: str = "<input>",
     accuracy_all = np.nan_to_num(acc if acc is not None else np.full(len(t), 3.0),
                                  nan=3.0)
     frames = []
-    for stream, values, has in parts:
+    for stream, values, has, _ in parts:
         rows = good & has
         v, t_ms, accuracy = values[rows], t[rows].astype(np.int64), \
             accuracy_all[rows].astype(np.int8)

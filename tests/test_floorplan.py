@@ -382,7 +382,8 @@ def test_geojson_roles_walls_walkable_outlines_and_lines_left_out(tmp_path):
         _feature("Polygon", ring(4, 2, 5, 8), role="corridor"),          # ... passage through
         _feature("Polygon", ring(32, 2, 34, 4), role="ignore"),
         _feature("LineString", [[30, 5], [40, 5]], name="route"),        # no role: left out
-        _feature("Point", [1, 1], name="label")]}
+        _feature("Point", [1, 1], name="label"),                         # a label: quiet
+        _feature("Point", [2, 1], role="wall")]}                         # said left out
     (tmp_path / "plan.geojson").write_text(json.dumps(fc))
     plan = read_floor_plan(tmp_path / "plan.geojson")
     assert plan.outline.area == pytest.approx(300)
@@ -393,9 +394,16 @@ def test_geojson_roles_walls_walkable_outlines_and_lines_left_out(tmp_path):
     assert not plan.reachable.contains(shapely.Point(3.0, 5.0))        # the block
     assert plan.reachable.contains(shapely.Point(33.0, 3.0))           # ignored
     assert plan.reachable.contains(shapely.Point(35.0, 5.0))           # the route is no wall
-    assert plan.repairs == (f"{tmp_path / 'plan.geojson'}: 1 line feature(s) left out "
-                            "(feature 6): a line is a wall only with property \"role\": "
-                            "\"wall\"",)
+    assert plan.repairs == (f"{tmp_path / 'plan.geojson'}: 2 feature(s) left out "
+                            "(feature 6, 8): a line is a wall only with property \"role\": "
+                            "\"wall\", and points and geometry collections are not read",)
+    # without an outline role feature 0 is the outline, unless its role says otherwise
+    no_outline = {"type": "FeatureCollection", "features": fc["features"][2:]}
+    (tmp_path / "no_outline.geojson").write_text(json.dumps(no_outline))
+    with pytest.raises(FloorPlanError, match="no feature has role 'outline', and feature 0 "
+                                             r"\(the outline of a plan without roles\) has "
+                                             "role 'wall'"):
+        read_floor_plan(tmp_path / "no_outline.geojson")
     fc["features"][3]["properties"]["role"] = "shop"
     (tmp_path / "plan.geojson").write_text(json.dumps(fc))
     with pytest.raises(FloorPlanError, match=r"plan.geojson: feature 3 has role 'shop', not "

@@ -95,7 +95,7 @@ def test_bad_ticks_move_nobody(f1_bundle, sim_walks):  # noqa: F811
     with pytest.raises(LocalizationError, match=r"unknown user ids in tick: \[99\]"):
         eng.tick([ids[0], 99], [t, t], good)
     with pytest.raises(LocalizationError, match=f"user {ids[1]}: step at .* comes before the "
-                       "last one .*; nobody was advanced"):
+                       "start .* skip the steps before it.*; nobody was advanced"):
         eng.tick(ids, [t, w.steps.t_ms[0] - 1000.0], good)  # the second is back in time
     with pytest.raises(LocalizationError, match="fix_t_ms has shape"):
         eng.tick(ids, [t, t], good, fix_xy_m=[[1.0, 2.0], [1.0, 2.0]], fix_t_ms=[1.0, 2.0, 3.0])

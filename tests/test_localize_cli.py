@@ -466,6 +466,30 @@ def test_walk_plans_are_walks_to_localize_and_evaluate(truth_bundles, tmp_path):
                                      str(walk), "--method", "pdr"])
     assert both.exit_code == 1 and "bad.geojson: walk plan has no features" in both.output
     assert "1 failure(s) in 2 walk(s)" in both.output
+    # one walk of a plan failing its checks (its vertex times an hour off its log's) fails
+    # alone, named; before, the plan's other walks were lost with it
+    import json
+
+    doc = json.loads(plan.read_text())
+    bad = json.loads(json.dumps(doc["features"][0]))
+    bad["properties"].update(walk_id="shifted", vertex_times_ms=[
+        t + 3_600_000 for t in bad["properties"]["vertex_times_ms"]])
+    doc["features"].append(bad)
+    plan.write_text(json.dumps(doc))
+    two = CliRunner().invoke(main, ["localize", bundles, str(plan), "-o", str(tmp_path / "two"),
+                                    "--no-plot", "--method", "pdr", "--start", "waypoint"])
+    assert two.exit_code == 1 and "1 failure(s) in 2 walk(s)" in two.output
+    assert f"{plan} (walk shifted)" in two.output
+    assert (tmp_path / "two" / f"{walk.name.split('.')[0]}.parquet").is_file()
+    # wifi-locate and floor need scans, which walk-line logs do not carry: plans in a folder
+    # are left out with a note (each walk failed, "no wifi scans"), one named is a usage
+    # error
+    named = CliRunner().invoke(main, ["wifi-locate", bundles, str(plan)])
+    assert named.exit_code == 2 and "a walk plan's logs carry no Wi-Fi or BLE" in named.output
+    (tmp_path / "plan" / "trace.txt.gz").write_bytes(walk.read_bytes())
+    folder = CliRunner().invoke(main, ["wifi-locate", bundles, str(tmp_path / "plan")])
+    assert "note: 1 walk plan(s) in the folders left out" in folder.output
+    assert "1 failure(s) in 1 walk(s)" in folder.output  # the trace: no fingerprints here
 
 
 def test_a_walk_without_magnetometer_is_localized_by_auto_with_the_alignment(

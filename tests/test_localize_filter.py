@@ -19,7 +19,7 @@ from localize.errors import LocalizationError
 from localize.evaluate import step_errors, summarize, waypoint_errors
 from localize.filter import Localizer
 from localize.floors import SiteMaps
-from localize.params import FilterParams
+from localize.params import FeatureParams, FilterParams
 from localize.radio import KnnRadioPositioner
 from localize.stepper import StepInputs
 
@@ -206,6 +206,7 @@ def test_plot_track_refuses_transposed_waypoints(f1_bundle, sim_walks, tmp_path)
     assert not (tmp_path / "t.png").exists()
     assert plot_track(tmp_path / "t.png", f1_bundle, {"pdr": track}, xy)
     assert (tmp_path / "t.png").stat().st_size > 1000
+    assert plot_track(tmp_path / "none.png", f1_bundle, {"pdr": track}, [])  # no waypoints
 
 
 def test_bundle_of_another_floor_or_site(truth_bundles, sim_walks):  # noqa: F811
@@ -258,14 +259,27 @@ def test_other_bad_calls(f1_bundle, sim_walks):  # noqa: F811
                        (dict(genome_a_range=(1.0, 0.5)), "genome_a_range must be .* low < high"),
                        (dict(genome_b_range=(0.1,)), "genome_b_range must be 2 finite numbers"),
                        (dict(heading_bias_sd_deg="3"), "heading_bias_sd_deg must be a finite"),
-                       (dict(n_particles=True), "n_particles must be a finite number"),
+                       (dict(n_particles=True), "n_particles must be a whole number"),
                        (dict(step_length_nominal_m=float("inf")), "must be a finite number")]:
         with pytest.raises(LocalizationError, match=match):
             FilterParams(**bad)
-    # numpy numbers are numbers; a spread may be unbounded; JSON round-trips
+    with pytest.raises(LocalizationError, match="n_particles must be a whole number"):
+        FilterParams(n_particles=2.5)
+    # the nested feature parameters: a NaN window crashed run() with a TypeError
+    for bad, match in [(dict(window=float("nan")), "FeatureParams.window must be a whole"),
+                       (dict(smooth=2.5), "FeatureParams.smooth must be a whole number"),
+                       (dict(award=float("inf")), "FeatureParams.award must be a finite")]:
+        with pytest.raises(LocalizationError, match=match):
+            FeatureParams(**bad)
+    # numpy numbers are numbers, a range may be a list or an array, a spread may be
+    # unbounded: stored as Python numbers and tuples, so hashable and JSON round-tripping
     p = FilterParams(n_particles=np.int64(50), heading_noise_deg=np.float32(6.0),
-                     mode_spread_m=float("inf"))
-    assert FilterParams.from_dict(json.loads(p.to_json())) == p
+                     mode_spread_m=float("inf"), genome_a_range=np.array([0.1, 0.9]),
+                     genome_b_range=[-0.5, 0.5],
+                     strength=FeatureParams(window=np.int64(4), award=np.float32(50.0)))
+    assert p.genome_a_range == (0.1, 0.9) and p.genome_b_range == (-0.5, 0.5)
+    assert type(p.n_particles) is int and type(p.strength.window) is int
+    assert FilterParams.from_dict(json.loads(p.to_json())) == p and hash(p)
 
 
 @pytest.mark.parametrize("method", sorted(METHODS))
@@ -351,6 +365,9 @@ def test_bad_starts_and_steps_are_localization_errors(tmp_path, f1_bundle, sim_w
         with pytest.raises(LocalizationError, match=r"comes before the start .* skip the steps "
                                                     r"before it, or start earlier"):
             streaming.step(w.steps[0])
+        for t_start in (float("nan"), "soon"):  # every step after it passed, or crashed
+            with pytest.raises(LocalizationError, match="start time .* is not a finite"):
+                streaming.start(*w.start_xy, t_ms=t_start)
         streaming.start(*w.start_xy, t_ms=float(w.steps.t_ms[0]))
         streaming.step(w.steps[0])  # at the start time: allowed
         for t_ms, match in ((float(w.steps.t_ms[0]) - 1, "comes before the last one"),

@@ -32,6 +32,8 @@ def test_ingest_then_read_tables(tmp_path):
     _walks(tmp_path / "in")
     s = ingest([tmp_path / "in"], tmp_path / "store")
     assert s.status_counts() == {"new": 3}
+    # in a notebook the totals, not every outcome and message
+    assert repr(s).startswith("IngestSummary(files={'new': 3}, rows={'traces': 3, ")
     store = SurveyStore.open(tmp_path / "store")
     cat = store.catalog()
     assert list(cat["trace_id"]) == ["w0", "w1", "w2"]

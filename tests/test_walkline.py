@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import sys
 
 import numpy as np
@@ -83,9 +84,32 @@ def test_bad_csv_row_lenient_and_strict(tmp_path):
     plan = _plan(tmp_path, [_feature("a", [[0, 0], [1, 0]], start_ms=T0, end_ms=T0 + 1980)])
     (trace, _, _), = read_walk_plan(plan)
     assert trace.report.bad == {"non_numeric": 1}
-    assert trace.report.messages[0].endswith("a.csv:6: non-numeric, missing or non-finite value")
+    # the line and the column (a log has a dozen): before, the line alone
+    assert trace.report.messages[0].endswith("a.csv:6: non-numeric, missing or non-finite "
+                                             "value: column acc_x ('oops')")
     with pytest.raises(SurveyFormatError, match=r"a.csv:6: non-numeric"):
         read_walk_plan(plan, strict=True)
+
+
+@pytest.mark.parametrize("row,message", [
+    ("1,,3,", "non-numeric, missing or non-finite value: column acc_y (empty)"),
+    ("1,2,inf,", "non-numeric, missing or non-finite value: column acc_z (inf)"),
+    (",,,", "non-numeric, missing or non-finite value: no sensor column filled"),
+    ("1,2,3,2.5", "non-numeric, missing or non-finite value: column accuracy (2.5)"),
+    ("1,5000,3,", "a sensor value no phone reports (e.g. beyond 2000 m/s^2): column acc_y "
+                  "(5000)"),
+    ("1,2,3,300", "beyond 127 .*: column accuracy (300)")])
+def test_a_bad_row_is_named_by_line_and_column(tmp_path, row, message):
+    """A walk-line log has a dozen columns: its bad-line messages named the line alone."""
+    good = "".join(f"{T0 + 20 * i},1,2,3,\n" for i in range(30))
+    (tmp_path / "a.csv").write_text(f"t_ms,acc_x,acc_y,acc_z,accuracy\n{good}{T0 + 601},"
+                                    f"{row}\n")
+    plan = _plan(tmp_path, [_feature("a", [[0, 0], [1, 0]], start_ms=T0, end_ms=T0 + 580)])
+    (trace, _, _), = read_walk_plan(plan)
+    assert len(trace.report.messages) == 1, trace.report.messages
+    assert re.search(re.escape("a.csv:32: ") + ".*" + re.escape(message.split(".*")[-1])
+                     + "$", trace.report.messages[0]), trace.report.messages[0]
+    assert message.split(".*")[0] in trace.report.messages[0]
 
 
 @pytest.mark.parametrize("feature,message", [
@@ -211,7 +235,8 @@ def test_a_row_far_in_time_is_a_time_outlier(tmp_path):
     assert trace.sensors["t_ms"].min() == t0 and len(trace.sensors) == 50
     assert trace.report.bad == {"time_outlier": 1}
     assert trace.report.messages == [f"{tmp_path / 'a.csv'}:6: t_ms is over 12 h from the "
-                                     "walk's time (a wrong clock or a stray row)"]
+                                     "walk's time (a wrong clock or a stray row): column t_ms "
+                                     "(0)"]
     with pytest.raises(SurveyFormatError, match=r"a.csv:6: t_ms is over 12 h"):
         read_walk_plan(tmp_path / "plan.geojson", strict=True)
     # measured from the plan's times: of two rows, the one at time 0 is the stray
