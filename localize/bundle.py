@@ -520,7 +520,7 @@ HELDOUT_FIELDS = {"shape_rmse_ut": False, "constant_shape_rmse_ut": False, "skil
                   "folds": True}
 
 
-def _is_real(value: object) -> bool:
+def is_json_number(value: object) -> bool:
     """A JSON number (int or float, not a bool)."""
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
@@ -577,7 +577,7 @@ def check_manifest_layout(manifest: dict, mpath: Path) -> None:
     if manifest["kind"] == "site":
         return
     need(isinstance(manifest["grid"], dict) and all(
-        _is_real(manifest["grid"].get(k)) for k in ("x0_m", "y0_m", "cell_m")), "grid")
+        is_json_number(manifest["grid"].get(k)) for k in ("x0_m", "y0_m", "cell_m")), "grid")
     try:
         grid = Grid.from_dict(manifest["grid"])  # finite, positive, whole numbers of cells
     except BundleError as err:
@@ -606,7 +606,7 @@ def check_heldout_strength(metrics: dict, where: object) -> None:
     bad = [""] if not isinstance(held, dict) else [
         f".{key}" for key, count in HELDOUT_FIELDS.items()
         if key not in held or not (type(held[key]) is int if count
-                                   else held[key] is None or _is_real(held[key]))]
+                                   else held[key] is None or is_json_number(held[key]))]
     if bad:
         raise BundleIntegrityError(f"{where}: field 'metrics.heldout_strength{bad[0]}' is "
                                    "missing or malformed")

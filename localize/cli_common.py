@@ -1,7 +1,7 @@
 """What the localizer's commands (``localize``, ``evaluate``, ``floor``, ``wifi-locate``)
-share: finding trace files and walk plans, reading a walk with its warnings, reporting walks that fail while
-the others go on, and options renamed for consistency whose old spellings still work
-(:class:`AliasedOption`)."""
+share: finding trace files and walk plans, reading a walk with its warnings, reporting walks
+that fail while the others go on, and options renamed for consistency whose old spellings
+still work (:class:`AliasedOption`)."""
 
 from __future__ import annotations
 

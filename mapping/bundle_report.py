@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from localize.bundle import is_json_number
 from localize.methods import auto_method
 
 if TYPE_CHECKING:
@@ -26,21 +27,21 @@ def metric_lines(manifest: dict) -> dict[str, str]:
     lines = {}
     if isinstance(mt.get("interpolator"), str):
         scores = mt.get("smoothing_cv_shape_rmse_ut")
-        numbers = [v for v in scores.values() if _is_number(v)] \
+        numbers = [v for v in scores.values() if is_json_number(v)] \
             if isinstance(scores, dict) else []
         best = min(numbers) if numbers else None
         parts = [mt["interpolator"]] + [
             f"{label} {mt[key]:g}{unit}" for key, label, unit in (
                 ("bandwidth_m", "bandwidth", " m"), ("prior_walks", "shrinkage", " walks"),
                 ("slope_ridge", "slope ridge", ""), ("curvature_ridge", "curvature ridge", ""))
-            if _is_number(mt.get(key))]
+            if is_json_number(mt.get(key))]
         lines["smoothing"] = ("smoothing " + ", ".join(parts)
                               + (f" (cross-validated shape RMSE {best:.2f} uT)" if best else ""))
     held = mt.get("heldout_strength")
-    if isinstance(held, dict) and _is_number(held.get("skill")):
+    if isinstance(held, dict) and is_json_number(held.get("skill")):
         corr = [f"{span} {held[k]:.2f}" for k, span in (("corr_0.7m", "0.7 m"),
                                                          ("corr_5m", "5 m"))
-                if _is_number(held.get(k))]
+                if is_json_number(held.get(k))]
         lines["heldout"] = (f"strength on walks the map did not see ({held.get('folds', '?')} "
                             f"folds of {held.get('n_walks', '?')} walks): skill "
                             f"{held['skill']:.2f}"
@@ -50,7 +51,7 @@ def metric_lines(manifest: dict) -> dict[str, str]:
     if isinstance(cov, dict) and cov:
         lines["coverage"] = "reachable area near a sample: " + ", ".join(
             f"{100 * v:.0f} % within {k.removeprefix('within_').removesuffix('m')} m"
-            for k, v in cov.items() if _is_number(v))
+            for k, v in cov.items() if is_json_number(v))
     for key in ("floor_model", "ble_floor_model"):
         fm = mt.get(key)
         if isinstance(fm, dict) and isinstance(fm.get("floors"), list):
@@ -58,7 +59,8 @@ def metric_lines(manifest: dict) -> dict[str, str]:
                 else str(fm.get("kind", "?"))
             unit = "scan" if kind == "Wi-Fi" else "window"
             cv = [f"{100 * fm[k]:.1f} % per {what}" for k, what in (
-                ("cv_scan_accuracy", unit), ("cv_walk_accuracy", "walk")) if _is_number(fm.get(k))]
+                ("cv_scan_accuracy", unit), ("cv_walk_accuracy", "walk"))
+                if is_json_number(fm.get(k))]
             lines[key] = (f"floor model ({kind}, {fm.get('transmitters', '?')} transmitters): "
                           f"floors {', '.join(map(str, fm['floors']))}"
                           + (f"; cross-validated {', '.join(cv)}" if cv else ""))
@@ -74,10 +76,6 @@ def plan_text(manifest: dict) -> str:
         return "not recorded"
     return ", ".join(f"{f.get('file')} ({str(f.get('sha256'))[:12]})" for f in files
                      if isinstance(f, dict))
-
-
-def _is_number(value: object) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
 def _grid_text(grid: Grid | None) -> str:

@@ -151,6 +151,10 @@ def session_device(session: str) -> str:
     return str(session).rsplit("|", 1)[0]
 
 
+#: The streams :func:`calibrated_field` takes the field from (a walk without either has none).
+MAGNETOMETER_STREAMS = ("magnetic_field", "magnetic_field_uncalibrated")
+
+
 def calibrated_field(sensors: pd.DataFrame, session_fit: MagCalResult | None = None,
                      strength_range_ut: tuple[float, float] = (15.0, 120.0)
                      ) -> tuple[NDArray, NDArray, str, str]:
@@ -165,8 +169,7 @@ def calibrated_field(sensors: pd.DataFrame, session_fit: MagCalResult | None = N
     (t_ms (n,), field_ut (n, 3) device frame, decision, detail)
     """
     lo, hi = strength_range_ut
-    cal = _stream(sensors, "magnetic_field")
-    unc = _stream(sensors, "magnetic_field_uncalibrated")
+    cal, unc = (_stream(sensors, name) for name in MAGNETOMETER_STREAMS)
 
     def plausible(m: NDArray[np.float64]) -> tuple[np.bool_, np.float64]:
         s = np.median(np.linalg.norm(m, axis=1))

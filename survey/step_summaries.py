@@ -37,8 +37,8 @@ from survey.attitude import AttitudeParams, classify_attitude
 from survey.carried_heading import CarriedHeadingParams, carried_heading_deg
 from survey.errors import ProcessingError, require_type
 from survey.field_features import field_features
-from survey.process import _stream, accelerometer_stream, calibrated_field, compass_track_deg, \
-    gyro_heading_deg, waypoints_off_sensors
+from survey.process import MAGNETOMETER_STREAMS, _stream, accelerometer_stream, calibrated_field, \
+    compass_track_deg, gyro_heading_deg, waypoints_off_sensors
 from survey.rotation import interpolate_rotation_vector, rotation_matrices
 from survey.steps import detect_steps
 from survey.trace_format import Trace
@@ -179,8 +179,7 @@ def step_summaries(trace: Trace, params: StepSummaryParams = StepSummaryParams()
     acc_xyz = acc[["x", "y", "z"]].to_numpy(np.float64)
     rot_t = rv["t_ms"].to_numpy(np.float64)
     rot = rv[["x", "y", "z"]].to_numpy(np.float64)
-    if len(_stream(trace.sensors, "magnetic_field")) or \
-            len(_stream(trace.sensors, "magnetic_field_uncalibrated")):
+    if any(len(_stream(trace.sensors, name)) for name in MAGNETOMETER_STREAMS):
         mag_t, mag_dev, decision, _ = calibrated_field(trace.sensors)
     else:  # the steps' field is NaN: methods without the magnetic update still localize it
         mag_t, mag_dev, decision = np.empty(0), np.empty((0, 3)), "no-magnetometer"
