@@ -389,7 +389,7 @@ class WalkAligner(BaseLocalizer):
     @property
     def stepped(self) -> bool:
         """Whether a step was taken since the start."""
-        return len(getattr(self, "_t", ())) > 1
+        return len(self._t) > 1
 
     def step_values(self, t_ms: float, compass_deg: float, relative_heading_deg: float,
                     delta_acc_ms2: float, carried: bool = False,

@@ -81,18 +81,18 @@ def check_step_time(t_ms: float, last_t_ms: float, *, after_step: bool = True) -
     the start's (``after_step`` false: no step yet); else a LocalizationError (estimates
     would go back in time; a step sent twice would be walked twice, where :meth:`run`
     refuses steps that are not strictly increasing)."""
-    if np.isfinite(t_ms) and after_step and t_ms == last_t_ms:
-        raise LocalizationError(f"step at {t_ms} ms has the last step's time: the same step "
-                                "sent twice? (steps must be strictly increasing in time)")
     if not np.isfinite(t_ms):
         raise LocalizationError(f"step at {t_ms} ms has no time")
-    if t_ms < last_t_ms and not after_step:  # begin(scan=...) starts at the scan's time
+    if after_step and t_ms == last_t_ms:
+        raise LocalizationError(f"step at {t_ms} ms has the last step's time: the same step "
+                                "sent twice? (steps must be strictly increasing in time)")
+    if t_ms < last_t_ms and after_step:
+        raise LocalizationError(f"step at {t_ms} ms comes before the last one ({last_t_ms} ms)")
+    if t_ms < last_t_ms:  # begin(scan=...) starts at the scan's time
         raise LocalizationError(
             f"step at {t_ms} ms comes before the start ({last_t_ms} ms; a start from a scan "
             "takes the scan's time): skip the steps before it, or start earlier (a start "
             "time, start(..., t_ms=), at most the first step's)")
-    if t_ms < last_t_ms:
-        raise LocalizationError(f"step at {t_ms} ms comes before the last one ({last_t_ms} ms)")
 
 
 def check_compass(t_ms: float, compass_deg: float) -> None:

@@ -41,7 +41,8 @@ NOT_NEGATIVE = ("n_particles_start", "shrink_spread_m", "shrink_after_steps",
                 "genome_a_sd", "genome_b_sd", "genome_drift_a", "genome_drift_b",
                 "step_length_noise_m", "heading_noise_deg", "heading_bias_sd_deg",
                 "heading_bias_drift_deg", "gaussian_window", "neff_fraction",
-                "radio_inject_distance_m", "mode_spread_m", "recovery_max_half_width_m")
+                "radio_inject_distance_m", "guide_inject_distance_m", "mode_spread_m",
+                "recovery_max_half_width_m")
 
 
 def _is_number(v) -> bool:
@@ -318,7 +319,7 @@ class FilterParams:
             if not lo < hi:
                 raise LocalizationError(f"{name} must be (low, high) with low < high, got "
                                         f"{getattr(self, name)}")
-        if int(self.n_particles) < 1:
+        if self.n_particles < 1:
             raise LocalizationError(f"n_particles must be >= 1, got {self.n_particles}")
         if self.step_model not in ("frequency", "weinberg"):
             raise LocalizationError(f"step_model must be 'frequency' or 'weinberg', got "
@@ -334,11 +335,10 @@ class FilterParams:
             f = getattr(self, name)
             if f.window < 1 or f.span < 1 or f.smooth < 1:
                 raise LocalizationError(f"{name}: window, span and smooth must be >= 1")
-            if not (0 < f.award < math.inf and 0 < f.threshold < math.inf):
-                raise LocalizationError(f"{name}: award K and threshold T must be positive "
-                                        "finite numbers")
-            if not 0 <= f.std_scale < math.inf:
-                raise LocalizationError(f"{name}: std_scale must be a finite number >= 0")
+            if not (f.award > 0 and f.threshold > 0):
+                raise LocalizationError(f"{name}: award K and threshold T must be positive")
+            if f.std_scale < 0:
+                raise LocalizationError(f"{name}: std_scale must be >= 0")
         if not 0 <= self.radio_inject_fraction <= 1:
             raise LocalizationError("radio_inject_fraction must be in [0, 1]")
         if self.radio_inject_rule not in ("distance", "fit"):
@@ -351,8 +351,6 @@ class FilterParams:
         if self.radio_guide not in ("align", "fixes"):
             raise LocalizationError(f"radio_guide must be 'fixes' or 'align', got "
                                     f"{self.radio_guide!r}")
-        if not self.guide_inject_distance_m >= 0:
-            raise LocalizationError("guide_inject_distance_m must be >= 0")
 
     @property
     def step_feature_nominal(self) -> float:

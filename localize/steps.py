@@ -205,6 +205,9 @@ class StepSummary:
 
 _FLOAT_COLUMNS = ("frequency_hz", "delta_acc_ms2", "compass_deg", "turn_deg", "strength_ut",
                   "azimuth_deg", "polar_deg", "relative_heading_deg")
+#: The per-step columns a table of step summaries holds
+#: (:func:`survey.step_summaries.summaries_table`, :meth:`StepSummaries.from_table`).
+TABLE_COLUMNS = ("t_ms", *_FLOAT_COLUMNS, "attitude")
 
 
 @dataclass(frozen=True)
@@ -311,13 +314,12 @@ class StepSummaries:
             gyroscope's heading the alignment walks on the compass alone, and its error on
             the real traces grew by a third (a notebook round trip lost it silently).
         """
-        names = ("t_ms", *_FLOAT_COLUMNS, "attitude")
         have = set(table.column_names if hasattr(table, "column_names") else table.keys())
-        missing = [n for n in names if n not in have]
+        missing = [n for n in TABLE_COLUMNS if n not in have]
         if missing:
             raise LocalizationError(f"step summaries: the table lacks column(s) "
                                     f"{', '.join(missing)}")
-        return cls(**{name: np.asarray(table[name]) for name in names}, **meta)
+        return cls(**{name: np.asarray(table[name]) for name in TABLE_COLUMNS}, **meta)
 
     def __len__(self) -> int:
         return len(self.t_ms)

@@ -31,8 +31,8 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from localize.steps import AttitudeCode, RadioScan, StepSummaries, attach_scans, \
-    attitude_codes, ble_transmitter_ids
+from localize.steps import TABLE_COLUMNS, AttitudeCode, RadioScan, StepSummaries, \
+    attach_scans, attitude_codes, ble_transmitter_ids
 from survey.attitude import AttitudeParams, classify_attitude
 from survey.carried_heading import CarriedHeadingParams, carried_heading_deg
 from survey.errors import ProcessingError, require_type
@@ -179,7 +179,7 @@ def step_summaries(trace: Trace, params: StepSummaryParams = StepSummaryParams()
     acc_xyz = acc[["x", "y", "z"]].to_numpy(np.float64)
     rot_t = rv["t_ms"].to_numpy(np.float64)
     rot = rv[["x", "y", "z"]].to_numpy(np.float64)
-    if any(len(_stream(trace.sensors, name)) for name in MAGNETOMETER_STREAMS):
+    if trace.sensors["stream"].isin(MAGNETOMETER_STREAMS).any():
         mag_t, mag_dev, decision, _ = calibrated_field(trace.sensors)
     else:  # the steps' field is NaN: methods without the magnetic update still localize it
         mag_t, mag_dev, decision = np.empty(0), np.empty((0, 3)), "no-magnetometer"
@@ -279,11 +279,6 @@ def summaries_table(steps: StepSummaries) -> pd.DataFrame:
     """The scalar columns of step summaries as a table (inspection, CSV); every column
     :meth:`~localize.steps.StepSummaries.from_table` reads back (the scans and the raw
     magnetometer samples are not in it: ``has_scan`` says which steps had a scan)."""
-    return pd.DataFrame({
-        "t_ms": steps.t_ms, "frequency_hz": steps.frequency_hz,  # fractions of a ms kept
-        "delta_acc_ms2": steps.delta_acc_ms2, "compass_deg": steps.compass_deg,
-        "turn_deg": steps.turn_deg, "relative_heading_deg": steps.relative_heading_deg,
-        "strength_ut": steps.strength_ut,
-        "azimuth_deg": steps.azimuth_deg, "polar_deg": steps.polar_deg,
-        "attitude": steps.attitude,
+    return pd.DataFrame({  # t_ms as float: fractions of a ms kept
+        **{name: getattr(steps, name) for name in TABLE_COLUMNS},
         "has_scan": [s is not None for s in (steps.scans or [None] * len(steps))]})

@@ -30,6 +30,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.csv as pacsv
+from numpy.typing import NDArray
 
 from .errors import SurveyFormatError
 from .regular_files import read_regular
@@ -342,6 +343,7 @@ def parse_sensor_csv(data: bytes, *, reference_ms: float, path: str = "<input>",
     parts = []
     row_bad = bad_t.copy()
     implausible = np.zeros(len(t), dtype=bool)
+    column_bad: list[tuple[str, NDArray[np.bool_]]] = []  # rows each sensor column makes bad
     for stream, (prefix, bias) in STREAM_COLUMNS.items():
         cols = [f"{prefix}_{a}" for a in _AXES] + ([f"{bias}_{a}" for a in _AXES] if bias else [])
         present = [c for c in cols if c in columns]
@@ -356,19 +358,24 @@ def parse_sensor_csv(data: bytes, *, reference_ms: float, path: str = "<input>",
         # logged at their own rates, one event per row); one that fills them in part is bad
         absent = np.column_stack([_missing(table.column(c)) for c in cols]).all(axis=1)
         # stored as float32: a value beyond its range would become infinite
-        row_bad |= ~absent & ~(np.abs(values) < _FLOAT32_LIMIT).all(axis=1)
-        implausible |= ~absent & (np.abs(values) > sensor_limit(stream)[0]).any(axis=1)
-        parts.append((stream, values, ~absent, cols))
+        unstorable = ~absent[:, None] & ~(np.abs(values) < _FLOAT32_LIMIT)
+        unphysical = ~absent[:, None] & (np.abs(values) > sensor_limit(stream)[0])
+        row_bad |= unstorable.any(axis=1)
+        implausible |= unphysical.any(axis=1)
+        column_bad.extend(zip(cols, (unstorable | unphysical).T))
+        parts.append((stream, values, ~absent))
     if not parts:
         raise SurveyFormatError("sensor log has no sensor columns (e.g. acc_x, acc_y, acc_z)",
                                 path=path, reason="csv")
-    row_bad |= ~np.column_stack([has for _, _, has, _ in parts]).any(axis=1)  # no sample at all
+    row_bad |= ~np.column_stack([has for _, _, has in parts]).any(axis=1)  # no sample at all
     # An accuracy, when given, is a whole number (a missing one means 3). Out of range: a time
     # beyond 2^53 ms, an accuracy beyond int8.
     acc = numeric.get("accuracy")
     if acc is not None:
-        row_bad |= ~_missing(table.column("accuracy")) & ~(np.isfinite(acc)
-                                                           & (acc == np.round(acc)))
+        not_whole = ~_missing(table.column("accuracy")) & ~(np.isfinite(acc)
+                                                            & (acc == np.round(acc)))
+        row_bad |= not_whole
+        column_bad.append(("accuracy", not_whole | (np.abs(acc) > 127)))
     out_of_range = ~row_bad & ((t >= MAX_TIME_MS) | implausible)
     if acc is not None:
         out_of_range |= ~row_bad & (np.abs(acc) > 127)
@@ -390,24 +397,14 @@ def parse_sensor_csv(data: bytes, *, reference_ms: float, path: str = "<input>",
                                                "the walk's time (a wrong clock or a stray "
                                                "row)")}
     any_bad = row_bad | out_of_range | time_outlier
+    column_bad.insert(0, ("t_ms", bad_t | (t >= MAX_TIME_MS) | time_outlier))
 
     def _bad_column(i: int) -> str:
         """The first column that makes row ``i`` bad, with its value, for its message."""
-        def named(c: str) -> str:
-            v = table.column(c)[i].as_py()
-            return f"column {c} ({'empty' if v in (None, '') else repr(v)})"
-
-        if bad_t[i] or t[i] >= MAX_TIME_MS or time_outlier[i]:
-            return named("t_ms")
-        for stream, values, has, cols in parts:
-            limit = sensor_limit(stream)[0]
-            for j, c in enumerate(cols):
-                v = values[i, j]
-                if has[i] and not (abs(v) < _FLOAT32_LIMIT and abs(v) <= limit):
-                    return named(c)
-        if acc is not None and not _missing(table.column("accuracy"))[i] and not (
-                np.isfinite(acc[i]) and acc[i] == round(acc[i]) and abs(acc[i]) <= 127):
-            return named("accuracy")
+        for c, bad_rows in column_bad:
+            if bad_rows[i]:
+                v = table.column(c)[i].as_py()
+                return f"column {c} ({'empty' if v in (None, '') else repr(v)})"
         return "no sensor column filled"
 
     if any_bad.any() or wrong_width:
@@ -438,7 +435,7 @@ def parse_sensor_csv(data: bytes, *, reference_ms: float, path: str = "<input>",
     accuracy_all = np.nan_to_num(acc if acc is not None else np.full(len(t), 3.0),
                                  nan=3.0)
     frames = []
-    for stream, values, has, _ in parts:
+    for stream, values, has in parts:
         rows = good & has
         v, t_ms, accuracy = values[rows], t[rows].astype(np.int64), \
             accuracy_all[rows].astype(np.int8)
