@@ -466,7 +466,8 @@ def run_fold(walks: list[EvalWalk], test_ids: list[str], bundle: MapBundle, meth
                     loc = make_localizer(name, bundle, p, radio=walk_radio, rng=seed,
                                          fmap=fmaps[m])
                 else:
-                    loc = make_localizer(name, bundle, p, radio=walk_radio, rng=seed)
+                    loc = make_localizer(name, bundle, p, radio=walk_radio, rng=seed,
+                                         magnetometer=w.steps.has_magnetometer)
                 t = time.process_time()
                 track = loc.run(w.steps, start_xy=s_xy,
                                 start_t_ms=t0 if t0 is not None and t0 < w.steps.t_ms[0]

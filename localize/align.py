@@ -374,22 +374,12 @@ class WalkAligner(BaseLocalizer):
         """Advance by one step (and its scan's fix, unless it is the start's scan) and return
         the new real-time estimate; see :meth:`step_values`."""
         check_step(s, self)
-        self._check_next(s.t_ms, s.compass_deg)  # before the radio is asked
+        self.check_next(s.t_ms, s.compass_deg)  # before the radio is asked
         located = (self.radio.locate(s.scan) if s.scan is not None and self.radio is not None
                    and not self._is_start_scan(s.scan) else None)
         fix = None if located is None else (located[0], located[1], s.scan.time_or(s.t_ms))
         return self._advance(s.t_ms, s.compass_deg, s.relative_heading_deg, s.delta_acc_ms2,
                              s.attitude == AttitudeCode.CARRIED, self._checked_fix(s.t_ms, fix))
-
-    @property
-    def last_t_ms(self) -> float:
-        """Time (Unix ms) of the last step, or of the start."""
-        return self._t[-1]
-
-    @property
-    def stepped(self) -> bool:
-        """Whether a step was taken since the start."""
-        return len(self._t) > 1
 
     def step_values(self, t_ms: float, compass_deg: float, relative_heading_deg: float,
                     delta_acc_ms2: float, carried: bool = False,
@@ -399,8 +389,9 @@ class WalkAligner(BaseLocalizer):
         acceleration swing (m/s^2; NaN: the nominal step), whether the phone is carried
         (:attr:`AttitudeCode.CARRIED`), and a radio fix ``(x_m, y_m, t_ms)`` located by the
         caller (its scan time). For serving many users
-        (:class:`localize.align_engine.MultiUserAligner`)."""
-        self._check_next(t_ms, compass_deg)
+        (:class:`localize.align_engine.MultiUserAligner`, which checks a tick's steps with
+        :meth:`check_next` before any user moves)."""
+        self.check_next(t_ms, compass_deg)
         return self._advance(t_ms, compass_deg, relative_heading_deg, delta_acc_ms2,
                              bool(carried), self._checked_fix(t_ms, fix))
 
@@ -441,8 +432,9 @@ class WalkAligner(BaseLocalizer):
             raise
         if first >= _FORGET_STEPS:
             self._forget(first)
-        return Estimate(self._t[-1], float(self._pos.real), float(self._pos.imag),
-                        self._spread, 1.0, False, self.bundle.floor_id)
+        self._last = Estimate(self._t[-1], float(self._pos.real), float(self._pos.imag),
+                              self._spread, 1.0, False, self.bundle.floor_id)
+        return self._last
 
     def _align_window(self, local: bool) -> int:
         """Align the last ``window_s`` of the walk (its steps and fixes) and place the walker

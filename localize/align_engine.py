@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 from localize.align import AlignParams, WalkAligner
 from localize.bundle import MapBundle
 from localize.errors import LocalizationError
-from localize.filter import BUNDLE_HINT, check_step_time
+from localize.filter import BUNDLE_HINT
 from localize.steps import AttitudeCode
 from localize.stepper import StepInputs, StepOutputs
 from localize.ticks import check_tick_inputs, checked_tick_fixes, per_user, tick_ids
@@ -162,24 +162,23 @@ def check_step_times(aligners: list[WalkAligner], t_ms: NDArray, names: NDArray)
     names the user (``names``: the ids the caller knows the users by)."""
     for name, aligner, t in zip(names.tolist(), aligners, t_ms):
         try:
-            check_step_time(t, aligner.last_t_ms, after_step=aligner.stepped)
+            aligner.check_next(t)
         except LocalizationError as err:
             raise LocalizationError(f"user {name}: {err}; nobody was advanced") from err
 
 
 def advance_aligners(aligners: list[WalkAligner], t_ms: NDArray, columns: tuple[NDArray, ...],
                      fix_xy: NDArray | None, fix_t_ms: NDArray | None) -> StepOutputs:
-    """One step of each aligner (inputs checked): its time (Unix ms), its
-    :func:`step_columns`, its fix (k, 2) (m; NaN rows or None: none) and the fix's scan time
-    (NaN or None: the step's)."""
+    """One step of each aligner (inputs checked with the tick, before anyone moves): its
+    time (Unix ms), its :func:`step_columns`, its fix (k, 2) (m; NaN rows or None: none) and
+    the fix's scan time (NaN or None: the step's)."""
     k = len(aligners)
     fix_t = t_ms if fix_t_ms is None else np.where(np.isfinite(fix_t_ms), fix_t_ms, t_ms)
     has_fix = np.zeros(k, bool) if fix_xy is None else np.isfinite(fix_xy).all(axis=1)
     compass, gyro, swing, carried = columns
     out = np.empty((k, 3))
     for r, aligner in enumerate(aligners):
-        fix = (float(fix_t[r]), (float(fix_xy[r, 0]), float(fix_xy[r, 1]))) \
-            if has_fix[r] else None  # checked with the tick, as every other input
-        est = aligner._advance(t_ms[r], compass[r], gyro[r], swing[r], bool(carried[r]), fix)
+        fix = (fix_xy[r, 0], fix_xy[r, 1], fix_t[r]) if has_fix[r] else None
+        est = aligner.step_values(t_ms[r], compass[r], gyro[r], swing[r], carried[r], fix)
         out[r] = est.x_m, est.y_m, est.spread_m
     return StepOutputs(out[:, 0], out[:, 1], out[:, 2], np.ones(k), np.zeros(k, bool))

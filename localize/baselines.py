@@ -60,7 +60,7 @@ class PdrLocalizer(BaseLocalizer):
 
     def step(self, s: StepSummary) -> Estimate:
         check_step(s, self)
-        self._check_next(s.t_ms, s.compass_deg)
+        self.check_next(s.t_ms, s.compass_deg)
         h = np.radians(s.compass_deg - self.heading_offset_deg)
         x = self._last.x_m + self.step_length_m * np.sin(h)
         y = self._last.y_m + self.step_length_m * np.cos(h)
@@ -93,7 +93,7 @@ class RadioOnlyLocalizer(BaseLocalizer):
 
     def step(self, s: StepSummary) -> Estimate:
         check_step(s, self)
-        self._check_next(s.t_ms)  # the radio alone: no compass needed
+        self.check_next(s.t_ms)  # the radio alone: no compass needed
         x, y, spread = self._last.x_m, self._last.y_m, self._last.spread_m
         if s.scan is not None:
             fix = self.radio.locate(s.scan)
@@ -113,8 +113,9 @@ def make_localizer(method: str, bundle: MapBundle, params: FilterParams | None =
 
     For the particle-filter methods ``params`` gives everything but the weight mode, which
     the method fixes. ``auto`` builds the one :func:`~localize.methods.auto_method` picks
-    for the bundle (its ``method`` attribute names it; ``params.radio_guide`` is set by the
-    choice: ``"align"`` where it guides the filter, else ``"fixes"``); pass
+    for the bundle (its ``method`` attribute names it and ``auto_choice`` says why;
+    ``params.radio_guide`` is set by the choice: ``"align"`` where it guides the filter, else
+    ``"fixes"``); pass
     ``magnetometer=steps.has_magnetometer`` so that it takes ``align`` for a walk without
     magnetometer values. ``params`` only concerns the particle filters (``pdr``, ``radio`` and
     ``align`` have none); ``rng`` is a seed or generator for their random draws, None meaning
@@ -124,9 +125,12 @@ def make_localizer(method: str, bundle: MapBundle, params: FilterParams | None =
         raise LocalizationError(f"unknown method {method!r}; expected one of {sorted(METHODS)}")
     require_type(bundle, MapBundle, "make_localizer(bundle)", BUNDLE_HINT)
     if method == "auto":  # by the floor map's measured quality (localize.methods)
-        method, guided, _ = auto_method(bundle.manifest.get("metrics") or {},
-                                        magnetometer=magnetometer)
-        params = replace(params or FilterParams(), radio_guide="align" if guided else "fixes")
+        choice = auto_method(bundle.manifest.get("metrics") or {}, magnetometer=magnetometer)
+        params = replace(params or FilterParams(),
+                         radio_guide="align" if choice.guided else "fixes")
+        loc = make_localizer(choice.method, bundle, params, radio=radio, rng=rng, fmap=fmap)
+        loc.auto_choice = choice
+        return loc
     if method == "pdr":
         return PdrLocalizer(bundle, radio=radio)
     if method == "radio":

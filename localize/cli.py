@@ -33,7 +33,7 @@ from localize.cli_common import (AliasedOption, FloorChoices, SeenWalks, TraceId
                                   WalkFailures, each_walk, refuse_output_inside_data,
                                   trace_files, waypoint_errors_quietly)
 from localize.errors import LocalizationError
-from localize.methods import METHODS, SMOOTHABLE, auto_method, method_label
+from localize.methods import METHODS, SMOOTHABLE
 from survey.publish import refuse_to_replace
 
 if TYPE_CHECKING:
@@ -254,14 +254,10 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
         err = err[np.isfinite(err)]  # the walk's recorded waypoints, where it has them
         scored = (f"error at its {len(err)} waypoints median {np.median(err):.1f} m, max "
                   f"{err.max():.1f} m" if len(err) else "")
-        guided = getattr(loc, "guided", False)
-        ran = method_label(loc.method, guided)
-        used = method
-        if method == "auto":  # what ran (the guide needs a radio fix to start from)
-            choice = auto_method(bundle.manifest.get("metrics") or {},
-                                 magnetometer=wr.steps.has_magnetometer)
+        ran, used, choice = loc.label, method, loc.auto_choice
+        if choice is not None:  # what ran (the guide needs a radio fix to start from)
             used = f"auto: {ran}, as {choice.why}"
-            if choice.guided and not guided:
+            if choice.guided and not loc.guided:
                 used += (" (not guided: a given start)" if start_xy is not None
                          else " (not guided: no radio model)")
         table = track.to_arrow()
@@ -383,7 +379,7 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
                 track = loc.run(wr.steps, start_xy=start_xy, smooth=sm)
                 err = waypoint_errors_quietly(track, t_wp, xy_wp)
                 errors[_row_name(m, sm)].append(err)
-                label = method_label(loc.method, getattr(loc, "guided", False))
+                label = loc.label
                 ran.setdefault(_row_name(m, sm), set()).add(label)
                 evaluated.add(trace.trace_id)
                 if csv_path is not None:

@@ -22,6 +22,7 @@ from localize.bundle import Grid, MapBundle
 from localize.errors import LocalizationError
 from localize.floors import check_walk_fits
 from localize.maps import FilterMap
+from localize.methods import method_label
 from localize.params import FilterParams
 from localize.particles import (
     ParticleState,
@@ -139,6 +140,10 @@ class BaseLocalizer:
     needs_magnetometer = False
     #: Whether :meth:`run` can smooth offline (particle filters).
     can_smooth = False
+    #: What ``auto`` chose, and why, when :func:`~localize.baselines.make_localizer` built
+    #: this localizer for ``method="auto"`` (a :class:`~localize.methods.AutoChoice`); else
+    #: None.
+    auto_choice = None
 
     def __init__(self, bundle: MapBundle, *, radio: RadioModel | None = None) -> None:
         require_type(bundle, MapBundle, f"{type(self).__name__}(bundle)", BUNDLE_HINT)
@@ -220,6 +225,17 @@ class BaseLocalizer:
         return x, y
 
     @property
+    def guided(self) -> bool:
+        """Whether this run takes its radio evidence from the walk alignment (only a
+        guided particle filter does)."""
+        return False
+
+    @property
+    def label(self) -> str:
+        """How this run is named: the method, and whether the walk alignment guided it."""
+        return method_label(self.method, self.guided)
+
+    @property
     def last_t_ms(self) -> float:
         """Time (Unix ms) of the last step, or of the start."""
         return self._last.t_ms
@@ -229,7 +245,7 @@ class BaseLocalizer:
         """Whether a step was taken since the start."""
         return self._last is not None and self._last is not self._start_estimate
 
-    def _check_next(self, t_ms: float, compass_deg: float | None = None) -> None:
+    def check_next(self, t_ms: float, compass_deg: float | None = None) -> None:
         """What a streamed step must pass before it is taken (else a LocalizationError, and
         the localizer carries on with the next): a start made, a finite compass heading
         (unless None: a method that walks without it), a time after the last step's (not
@@ -422,7 +438,7 @@ class Localizer(BaseLocalizer):
             Called before :meth:`start`, or a step without a finite compass heading.
         """
         check_step(s, self)
-        self._check_next(s.t_ms, s.compass_deg)
+        self.check_next(s.t_ms, s.compass_deg)
         st, p = self.state, self.params
         inp = StepInputs(np.array([s.compass_deg]), np.array([s.frequency_hz]),
                          np.array([s.turn_deg]), np.array([s.strength_ut]),

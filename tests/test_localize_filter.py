@@ -187,7 +187,7 @@ def test_walk_without_magnetometer(f1_bundle, sim_walks):  # noqa: F811
     choice = auto_method(f1_bundle.manifest["metrics"], magnetometer=False)
     assert choice.method == "align" and "no magnetometer" in choice.why
     loc = make_localizer("auto", f1_bundle, magnetometer=False)
-    assert loc.method == "align"
+    assert loc.method == "align" and loc.auto_choice == choice  # kept for the CLI to say why
     track = loc.run(no_mag, start_xy=w.start_xy)
     assert len(track) == len(no_mag)
 

@@ -111,6 +111,8 @@ def test_auto_builds_the_chosen_localizer(f1_bundle):  # noqa: F811
     assert guided.params.n_particles == 50 and type(guided.guide) is WalkAligner
     loc = make_localizer("auto", with_corr(0.3))
     assert type(loc) is WalkAligner and loc.method == "align"
+    assert loc.auto_choice.method == "align" and "0.30 < 0.5" in loc.auto_choice.why
+    assert make_localizer("align", f1_bundle).auto_choice is None  # chosen by the caller
     asked = FilterParams(radio_guide="align")  # the choice decides, whatever was asked
     assert make_localizer("auto", f1_bundle, asked, radio=object()).guide is None
 
