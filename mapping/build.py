@@ -33,7 +33,7 @@ from survey.store import SurveyStore
 
 from .bundle_writer import BundleContent, Layer
 from .floorplan import FloorPlan
-from .grid import distance_to_reachable_m, reachable_mask
+from .grid import reachable_distance_lookup, reachable_mask
 from .field_layers import FIELD_LAYERS, field_rasters, floor_steps, levelling_samples, \
     reduce_field
 from .holdout import BANDWIDTH_CANDIDATES_M, choose_smoothing, heldout_quality
@@ -95,14 +95,13 @@ MIN_SAMPLES_ON_PLAN = 0.5
 ON_PLAN_M = 2.0
 
 
-def samples_on_plan(grid: Grid, mask: NDArray[np.bool_], x_m: NDArray, y_m: NDArray,
-                    within_m: float = ON_PLAN_M) -> float:
-    """Share of the positions ``(x_m, y_m)`` (m, shape (n,)) within ``within_m`` of a
-    reachable cell (``mask``, the grid's shape); positions off the grid are off the plan. 1.0
-    for no positions."""
+def samples_on_plan(near_plan: Callable[[NDArray, NDArray], NDArray[np.bool_]], x_m: NDArray,
+                    y_m: NDArray) -> float:
+    """Share of the positions ``(x_m, y_m)`` (m, shape (n,)) for which ``near_plan`` is true
+    (within :data:`ON_PLAN_M` of a reachable cell, say); 1.0 for no positions."""
     if len(x_m) == 0:
         return 1.0
-    return float((distance_to_reachable_m(grid, mask, x_m, y_m) <= within_m).mean())
+    return float(near_plan(x_m, y_m).mean())
 
 
 def build_smoothing(samples: pd.DataFrame, field_enu: np.ndarray, grid: Grid,
@@ -205,7 +204,12 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
                          if i == n or i % 100 == 0 else None)
     release_free_memory()  # the walks' freed buffers
     say(f"{floor}: {reduction.n_samples} samples")
-    on_plan = samples_on_plan(grid, mask, reduction.cv_x_m, reduction.cv_y_m)
+    distance_m = reachable_distance_lookup(grid, mask)  # one distance transform per floor
+
+    def near_plan(x_m: NDArray, y_m: NDArray) -> NDArray[np.bool_]:  # off the grid: False
+        return distance_m(x_m, y_m) <= ON_PLAN_M
+
+    on_plan = samples_on_plan(near_plan, reduction.cv_x_m, reduction.cv_y_m)
     if not (reduction.support & mask).any() or on_plan < MIN_SAMPLES_ON_PLAN:
         raise BuildError(
             f"floor {floor}: {'none' if on_plan == 0 else f'only {100 * on_plan:.0f} %'} of "
@@ -293,8 +297,7 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
         if radio is None:
             radio = build_site_radio(store, [floor], site=site, params=params.radio,
                                      exclude_walks=exclude_walks, progress=say)
-        radio = radio.on_plan(floor, lambda x, y: distance_to_reachable_m(grid, mask, x, y)
-                              <= ON_PLAN_M)
+        radio = radio.on_plan(floor, near_plan)
         tables.update(radio.floor_tables(floor))
         metrics["radio"] = radio.floor_metrics(floor)
     return BundleContent(

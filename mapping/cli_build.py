@@ -228,15 +228,15 @@ def check_exclude_early(names: list[str], inputs: list[Path]) -> None:
     name without ``.txt``/``.txt.gz``; a walk plan's walk by its ``walk_id`` or its sensor
     log's name, with or without ``.csv``), rather than after the whole ingest
     (:func:`excluded_walks` checks again on the ingested walks)."""
-    from survey.trace_reader import find_trace_files, trace_id_from_path
+    from survey.ingest import find_inputs
+    from survey.trace_reader import trace_id_from_path
     from survey.walkline import plan_walk_names
 
     if not names:
         return
-    folders = [p for p in inputs if p.exists()]
-    files = find_trace_files(folders)
+    files, plans = find_inputs(p for p in inputs if p.exists())
     known = {f.name for f in files} | {trace_id_from_path(f) for f in files}
-    for plan in (q for p in folders for q in sorted(p.rglob("*.geojson"))):
+    for plan in plans:
         known |= plan_walk_names(plan)  # nothing for GeoJSON that is no walk plan
     unknown = [n for n in names if n not in known]
     if unknown:
