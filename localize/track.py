@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -116,27 +117,28 @@ class Track:
                 "spread_m": self.spread_m, "alive_fraction": self.alive_fraction,
                 "recovered": self.recovered}
 
+    def metadata(self) -> dict:
+        """What a written track carries beside its columns: method, smoothed (True for an
+        offline smoothed track), trace id, floor id, start position (m) and recoveries."""
+        return {"method": self.method, "smoothed": bool(self.info.get("smoothed")),
+                "trace_id": self.trace_id, "floor_id": self.floor_id,
+                "start_x_m": self.start.x_m, "start_y_m": self.start.y_m,
+                "n_recoveries": self.n_recoveries}
+
     def to_frame(self) -> pd.DataFrame:
         """The track as a pandas DataFrame, one row per step (the columns of
-        :meth:`to_columns`; the metadata of :meth:`to_arrow` in ``attrs``), for a notebook."""
+        :meth:`to_columns`; :meth:`metadata` in ``attrs``), for a notebook."""
         import pandas as pd
 
         frame = pd.DataFrame(self.to_columns())
-        frame.attrs.update(method=self.method, trace_id=self.trace_id, floor_id=self.floor_id,
-                           smoothed=bool(self.info.get("smoothed")),
-                           start_xy_m=(self.start.x_m, self.start.y_m),
-                           n_recoveries=self.n_recoveries)
+        frame.attrs.update(self.metadata())
         return frame
 
     def to_arrow(self) -> pa.Table:
-        """The track as a pyarrow Table (metadata: method, smoothed (``true`` for an offline
-        smoothed track), trace id, floor id, start, recoveries)."""
+        """The track as a pyarrow Table (:meth:`metadata` as the schema's: text as it is,
+        other values as JSON, e.g. smoothed ``true``/``false``)."""
         import pyarrow as pa
 
-        table = pa.table(self.to_columns())
-        meta = {"method": self.method,
-                "smoothed": "true" if self.info.get("smoothed") else "false",
-                "trace_id": self.trace_id, "floor_id": self.floor_id,
-                "start_x_m": repr(self.start.x_m), "start_y_m": repr(self.start.y_m),
-                "n_recoveries": str(self.n_recoveries)}
-        return table.replace_schema_metadata({k: str(v) for k, v in meta.items()})
+        text = {k: v if isinstance(v, str) else json.dumps(v)
+                for k, v in self.metadata().items()}
+        return pa.table(self.to_columns()).replace_schema_metadata(text)

@@ -65,6 +65,12 @@ def test_same_seed_same_trajectory(f1_bundle, sim_walks):  # noqa: F811
     assert list(frame.columns) == runs[0].to_arrow().column_names and len(frame) == len(w.steps)
     assert np.array_equal(frame["x_m"].to_numpy(), runs[0].x_m)
     assert frame.attrs["trace_id"] == w.steps.trace_id and frame.attrs["method"] == "indoormap"
+    # the table's metadata is the frame's, as text (a written track says where it started)
+    meta = runs[0].to_arrow().schema.metadata
+    assert {k.decode() for k in meta} == set(frame.attrs)
+    assert float(meta[b"start_x_m"]) == frame.attrs["start_x_m"] == runs[0].start.x_m
+    assert meta[b"n_recoveries"] == str(runs[0].n_recoveries).encode()
+    assert meta[b"trace_id"] == w.steps.trace_id.encode()
 
 
 def test_streaming_equals_batch(f1_bundle, sim_walks):  # noqa: F811
