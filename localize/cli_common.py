@@ -167,18 +167,21 @@ def refuse_output_inside_data(out: Path, param_hint: str = "-o") -> None:
 
 
 def read_walks(path: Path) -> list[tuple[str, Callable[[], Trace]]]:
-    """``(where, walk)`` of each walk in ``path``, ``walk()`` giving its checked trace: a trace
-    file's one walk (:func:`read_walk`, ``where`` the file, read when asked) or a walk plan's
-    walks (``where``: ``plan.geojson (walk ID)``), the plan and its sensor logs read here and
-    each walk checked as :func:`read_walk` checks a trace when asked, so that one walk's
-    failure leaves the plan's others to run."""
+    """``(where, walk)`` of each walk in ``path``, ``walk()`` reading and checking its
+    trace: a trace file's one walk (:func:`read_walk`, ``where`` the file) or a walk plan's
+    walks (``where``: ``plan.geojson (walk ID)``), the plan read here, each walk's sensor log
+    when asked and checked as :func:`read_walk` checks a trace, so that one walk's failure
+    leaves the plan's others to run (and one walk's log is in memory at a time)."""
     if not path.name.endswith(".geojson"):
         return [(str(path), lambda: read_walk(path))]
-    from survey.walkline import read_walk_plan
+    from survey.walkline import plan_walks
 
-    return [(f"{path} (walk {trace.trace_id})",
-             lambda trace=trace, log=log: _checked_walk(trace, Path(log)))
-            for trace, log, _identity in read_walk_plan(path)]
+    def read(walk) -> Trace:
+        trace, log, _identity = walk.read()
+        return _checked_walk(trace, Path(log))
+
+    return [(f"{path} (walk {walk.walk_id})", lambda walk=walk: read(walk))
+            for walk in plan_walks(path)]
 
 
 def read_walk(path: Path) -> Trace:

@@ -23,6 +23,7 @@ import hashlib
 import io
 import json
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -129,9 +130,58 @@ def plan_walk_names(path: str | os.PathLike) -> set[str]:
     return names
 
 
+@dataclass(frozen=True, eq=False)
+class PlanWalk:
+    """One walk of a walk plan, its feature checked (:func:`plan_walks`) and its sensor log
+    not yet read (:meth:`read`)."""
+
+    walk_id: str
+    sensor_log: str  #: as the plan gives it, relative to the plan's folder
+    where: str  #: ``plan (feature k)``, for messages
+    folder: Path  #: the plan's folder
+    props: dict  #: the feature's properties over the collection's defaults
+    feature: dict
+    xy_m: NDArray[np.float64]  #: vertices (n, 2+) (m)
+    times_ms: NDArray[np.float64]  #: vertex times (n,) (Unix ms, whole)
+
+    def read(self, *, strict: bool = False) -> tuple[Trace, str, bytes]:
+        """Read the walk's sensor log: ``(trace, source path of the sensor CSV, identity
+        bytes)`` (the canonical feature JSON plus the CSV content, what the store hashes to
+        detect changes).
+
+        Raises
+        ------
+        SurveyFormatError
+            A missing or malformed sensor CSV (strict mode: also any bad CSV row).
+        """
+        log, where, times, xy = self.sensor_log, self.where, self.times_ms, self.xy_m
+        try:
+            csv_path = (self.folder / log).resolve()
+            csv_bytes = read_regular(csv_path, MAX_TRACE_BYTES)  # not a FIFO or device
+        except (OSError, ValueError) as err:  # ValueError: a NUL byte in the path
+            raise SurveyFormatError(f"sensor log {log!r} not readable "
+                                    f"({getattr(err, 'strerror', None) or err})",
+                                    path=where, reason="io") from err
+        trace = parse_sensor_csv(csv_bytes, reference_ms=float(np.median(times)),
+                                 path=str(csv_path), strict=strict)
+        trace.trace_id = self.walk_id
+        for prop, attr in _HEADER_PROPS.items():
+            if self.props.get(prop) is not None:
+                setattr(trace.header, attr, str(self.props[prop]))
+        trace.header.start_ms, trace.header.end_ms = int(times[0]), int(times[-1])
+        trace.waypoints = pd.DataFrame({"t_ms": times.astype(np.int64), "x_m": xy[:, 0],
+                                        "y_m": xy[:, 1]})
+        # the feature with the collection's defaults it inherits: a change in either is a
+        # change of the walk
+        feature = {**self.feature, "properties": self.props}
+        identity = json.dumps(feature, sort_keys=True).encode() + b"\n" + csv_bytes
+        return trace, str(csv_path), identity
+
+
 def read_walk_plan(path: str | os.PathLike, *, strict: bool = False
                    ) -> list[tuple[Trace, str, bytes]]:
-    """Read a walk plan and its sensor logs.
+    """Read a walk plan and its sensor logs: :func:`plan_walks`, each walk read
+    (:meth:`PlanWalk.read`).
 
     Returns
     -------
@@ -144,6 +194,17 @@ def read_walk_plan(path: str | os.PathLike, *, strict: bool = False
     SurveyFormatError
         Invalid JSON, a feature without the required properties, vertex times out of order,
         a missing or malformed sensor CSV (strict mode: also any bad CSV row).
+    """
+    return [walk.read(strict=strict) for walk in plan_walks(path)]
+
+
+def plan_walks(path: str | os.PathLike) -> list[PlanWalk]:
+    """A walk plan's walks, every feature checked, their sensor logs not read.
+
+    Raises
+    ------
+    SurveyFormatError
+        Invalid JSON, a feature without the required properties, vertex times out of order.
     """
     path = Path(path)
     try:
@@ -197,27 +258,7 @@ def read_walk_plan(path: str | os.PathLike, *, strict: bool = False
             raise SurveyFormatError("'sensor_log' must be a path (a string)", path=where,
                                     reason="plan")
         times = _vertex_times(xy[:, :2], props, where)
-        try:
-            csv_path = (path.parent / log).resolve()
-            csv_bytes = read_regular(csv_path, MAX_TRACE_BYTES)  # not a FIFO or device
-        except (OSError, ValueError) as err:  # ValueError: a NUL byte in the path
-            raise SurveyFormatError(f"sensor log {log!r} not readable "
-                                    f"({getattr(err, 'strerror', None) or err})",
-                                    path=where, reason="io") from err
-        trace = parse_sensor_csv(csv_bytes, reference_ms=float(np.median(times)),
-                                 path=str(csv_path), strict=strict)
-        trace.trace_id = walk_id
-        for prop, attr in _HEADER_PROPS.items():
-            if props.get(prop) is not None:
-                setattr(trace.header, attr, str(props[prop]))
-        trace.header.start_ms, trace.header.end_ms = int(times[0]), int(times[-1])
-        trace.waypoints = pd.DataFrame({"t_ms": times.astype(np.int64), "x_m": xy[:, 0],
-                                        "y_m": xy[:, 1]})
-        # the feature with the collection's defaults it inherits: a change in either is a
-        # change of the walk
-        identity = (json.dumps({**feature, "properties": props}, sort_keys=True).encode()
-                    + b"\n" + csv_bytes)
-        walks.append((trace, str(csv_path), identity))
+        walks.append(PlanWalk(walk_id, log, where, path.parent, props, feature, xy, times))
     if not walks:
         raise SurveyFormatError("walk plan has no features", path=str(path), reason="plan")
     return walks

@@ -474,12 +474,16 @@ def test_walk_plans_are_walks_to_localize_and_evaluate(truth_bundles, tmp_path):
     bad = json.loads(json.dumps(doc["features"][0]))
     bad["properties"].update(walk_id="shifted", vertex_times_ms=[
         t + 3_600_000 for t in bad["properties"]["vertex_times_ms"]])
-    doc["features"].append(bad)
+    # and so does one whose sensor log is missing (the logs are read walk by walk)
+    lost = json.loads(json.dumps(doc["features"][0]))
+    lost["properties"].update(walk_id="lost", sensor_log="gone.csv")
+    doc["features"] += [bad, lost]
     plan.write_text(json.dumps(doc))
     two = CliRunner().invoke(main, ["localize", bundles, str(plan), "-o", str(tmp_path / "two"),
                                     "--no-plot", "--method", "pdr", "--start", "waypoint"])
-    assert two.exit_code == 1 and "1 failure(s) in 2 walk(s)" in two.output
+    assert two.exit_code == 1 and "2 failure(s) in 3 walk(s)" in two.output
     assert f"{plan} (walk shifted)" in two.output
+    assert f"{plan} (walk lost)" in two.output and "sensor log 'gone.csv' not" in two.output
     assert (tmp_path / "two" / f"{walk.name.split('.')[0]}.parquet").is_file()
     # wifi-locate and floor need scans, which walk-line logs do not carry: plans in a folder
     # are left out with a note (each walk failed, "no wifi scans"), one named is a usage
