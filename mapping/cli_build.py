@@ -24,6 +24,7 @@ from survey.publish import (
     replace_together,
     tmp_prefix,
 )
+from survey.cli_process import plan_floor_name
 from survey.process_store import walks_per_site
 from survey.regular_files import read_regular
 from survey.trace_format import bad_lines_summary
@@ -389,12 +390,14 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
                                    "is named by itself")
         floors = floors_of(source)
         inputs = [f / "path_data_files" for f in floors]
+        floor_names = {folder: f.name for f, folder in zip(floors, inputs)}
         read_from = {f: read_floor_plan(f) for f in floors}  # a bad plan fails before the work
         plans = {f.name: plan for f, plan in read_from.items()}
     else:
         if floor_name is not None:
             check_floor_bundle_name(floor_name, "--floor")
         inputs = [source]
+        floor_names = {source: floor_name or plan_floor_name(plan_file)}
         plan = read_floor_plan(plan_file, dxf_layers=layers)
         read_from = {plan_file: plan}
         plans = {floor_name: plan} if floor_name is not None else {}
@@ -433,7 +436,8 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
 
         say(f"ingest {', '.join(map(str, inputs))} into {store_path}")
         with progress("ingest", unit="files") as update:
-            summary = ingest(inputs, store_path, progress=update)
+            # walks that record no floor are the folder's (the plan's) floor
+            summary = ingest(inputs, store_path, progress=update, floor_names=floor_names)
         for o in summary.failed:
             say(f"  unreadable: {at_path(o.path, str(o.detail))}")
         if summary.bad:
@@ -446,6 +450,12 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
         if cat.empty:
             raise BuildError(f"{', '.join(map(str, inputs))}: no readable walk to build from "
                              f"({len(summary.failed)} unreadable)")
+        for folder, name in floor_names.items():
+            unnamed = ingested_from(cat, summary, folder)
+            unnamed = unnamed[(unnamed["floor_name"] == "") & (unnamed["floor_id"] == "")]
+            if len(unnamed):
+                say(f"  {len(unnamed)} walk(s) in {folder} record no floor: taken as "
+                    f"{unnamed['floor'].iloc[0]}")
         if not plans:  # --plan without --floor: the floor of SOURCE's traces
             plans = {floor_of_traces(cat, summary, source): plan}
             check_targets()

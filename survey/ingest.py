@@ -11,7 +11,7 @@ import multiprocessing
 import os
 import shutil
 from collections import Counter
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
@@ -84,20 +84,22 @@ def find_inputs(paths: Iterable[str | os.PathLike]) -> tuple[list[Path], list[Pa
 
 
 def _parse_and_write(root: str, paths: list[str], shas: list[str], sizes: list[int],
-                     strict: bool, batch_bytes: int,
+                     floors: list[str | None], strict: bool, batch_bytes: int,
                      on_file: Callable[[], None] | None = None
                      ) -> list[tuple[str, dict | None, str]]:
     """Worker: parse traces, write their part files; returns (path, catalog row, error).
-    ``on_file`` is called as each file is through (in this process only: progress)."""
+    ``floors`` are the files' floor defaults (:func:`ingest`'s ``floor_names``). ``on_file``
+    is called as each file is through (in this process only: progress)."""
     crash_point("ingest:worker")
     out = []
-    info = {p: (s, n) for p, s, n in zip(paths, shas, sizes)}
+    info = {p: (s, n, f) for p, s, n, f in zip(paths, shas, sizes, floors)}
     for item in iter_traces(paths, strict=strict, batch_bytes=batch_bytes):
         if isinstance(item, ReadFailure):
             out.append((item.path, None, str(item.error)))
         else:
-            sha, size = info[item.report.path]
-            row = catalog_row(item, source_path=item.report.path, sha256=sha, size_bytes=size)
+            sha, size, floor = info[item.report.path]
+            row = catalog_row(item, source_path=item.report.path, sha256=sha, size_bytes=size,
+                              floor_default=floor)
             write_parts(Path(root), item, row)
             out.append((item.report.path, row, ""))
         if on_file:
@@ -107,7 +109,8 @@ def _parse_and_write(root: str, paths: list[str], shas: list[str], sizes: list[i
 
 def ingest(paths: Iterable[str | os.PathLike], store: str | os.PathLike | SurveyStore, *,
            strict: bool = False, workers: int = 1, batch_bytes: int = BATCH_BYTES,
-           progress: Callable[[int, int], None] | None = None) -> IngestSummary:
+           progress: Callable[[int, int], None] | None = None,
+           floor_names: Mapping[str | os.PathLike, str] | None = None) -> IngestSummary:
     """Ingest trace files, folders and walk plans into ``store`` (created if missing).
 
     Parameters
@@ -126,6 +129,11 @@ def ingest(paths: Iterable[str | os.PathLike], store: str | os.PathLike | Survey
         Worker processes parsing in parallel (1 = in this process).
     progress : callable(done, total), optional
         Called after each file.
+    floor_names : mapping, optional
+        Input (one of ``paths``) -> the floor of its walks whose header names none (neither a
+        floor name nor an id), e.g. the name of the floor folder they are in; such walks are
+        otherwise stored under the floor ``unknown_floor``. A walk the store already holds
+        keeps the floor it was stored under.
 
     Returns
     -------
@@ -155,7 +163,7 @@ def ingest(paths: Iterable[str | os.PathLike], store: str | os.PathLike | Survey
 
     try:
         summary = _ingest_files(store, trace_files, plans, strict, workers, batch_bytes,
-                                progress)
+                                progress, _floor_defaults(floor_names or {}))
     except BaseException:
         remove_if_unused()
         raise
@@ -163,9 +171,23 @@ def ingest(paths: Iterable[str | os.PathLike], store: str | os.PathLike | Survey
     return summary
 
 
+def _floor_defaults(floor_names: Mapping[str | os.PathLike, str]
+                    ) -> Callable[[Path], str | None]:
+    """A file's floor default: that of the input in ``floor_names`` it is, or lies under
+    (paths compared absolute, links not followed, as :func:`find_inputs` finds them)."""
+    roots = [(Path(os.path.abspath(p)), name) for p, name in floor_names.items()]
+
+    def floor_of(path: Path) -> str | None:
+        path = Path(os.path.abspath(path))
+        return next((name for root, name in roots if path.is_relative_to(root)), None)
+
+    return floor_of
+
+
 def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path], strict: bool,
                   workers: int, batch_bytes: int,
-                  progress: Callable[[int, int], None] | None) -> IngestSummary:
+                  progress: Callable[[int, int], None] | None,
+                  floor_of: Callable[[Path], str | None]) -> IngestSummary:
     summary = IngestSummary()
     total = len(trace_files) + len(plans)
     done = 0
@@ -193,7 +215,7 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
         return True
 
     with store.writer() as w:
-        todo: list[tuple[str, str, int]] = []
+        todo: list[tuple[str, str, int, str | None]] = []  # path, sha, size, floor default
         todo_sha: dict[str, str] = {}   # content hash -> trace id, of this run's files
         # duplicates, checked again before the commit: what they duplicate may be replaced
         # by this run (a file renamed, another put in its place); then they are ingested
@@ -218,12 +240,12 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
                 known.path = str(p)
                 if known.status == "duplicate":
                     deferred.append((len(summary.outcomes), tid, sha,
-                                     ("trace", str(p), size)))
+                                     ("trace", str(p), size, floor_of(p))))
                 summary.outcomes.append(known)
                 tick()
             else:
                 todo_sha[sha] = tid
-                todo.append((str(p), sha, size))
+                todo.append((str(p), sha, size, floor_of(p)))
         chunks = _chunks(todo, batch_bytes, max(1, workers))
         results = []
         if workers > 1 and len(chunks) > 1:
@@ -261,6 +283,7 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
                 summary.outcomes.append(IngestOutcome(str(plan), plan.stem, "failed", str(err)))
                 tick()
                 continue
+            floor = floor_of(plan)
             for trace, source, identity in walks:
                 if second_input(source, trace.trace_id):
                     continue
@@ -270,11 +293,11 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
                     known.path = source
                     if known.status == "duplicate":
                         deferred.append((len(summary.outcomes), trace.trace_id, sha,
-                                         ("plan", trace, source, len(identity))))
+                                         ("plan", trace, source, len(identity), floor)))
                     summary.outcomes.append(known)
                     continue
                 summary.outcomes.append(_add_walk(w, summary, trace, source, sha,
-                                                  len(identity)))
+                                                  len(identity), floor))
             tick()
         # to a fixed point: ingesting one can make another's original go (walks renumbered:
         # w2 -> w1, w3 -> w2, ...)
@@ -282,11 +305,11 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
             index, tid, sha, item = ready[0]
             deferred.remove(ready[0])
             if item[0] == "trace":  # parse it after all (rare: no progress tick)
-                res = _parse_and_write(str(store.root), [item[1]], [sha], [item[2]], strict,
-                                       batch_bytes)
+                res = _parse_and_write(str(store.root), [item[1]], [sha], [item[2]],
+                                       [item[3]], strict, batch_bytes)
                 summary.outcomes[index] = _add_results(w, summary, res)[0]
             else:
-                summary.outcomes[index] = _add_walk(w, summary, *item[1:3], sha, item[3])
+                summary.outcomes[index] = _add_walk(w, summary, *item[1:3], sha, *item[3:])
         for index, tid, sha, _ in deferred:  # what each duplicates in the end
             summary.outcomes[index].detail = w.known(tid, sha).detail
     return summary
@@ -306,19 +329,19 @@ def _add_results(w, summary: IngestSummary, results: list[tuple[str, dict | None
     return out
 
 
-def _add_walk(w, summary: IngestSummary, trace, source: str, sha: str, size: int
-              ) -> IngestOutcome:
+def _add_walk(w, summary: IngestSummary, trace, source: str, sha: str, size: int,
+              floor_default: str | None) -> IngestOutcome:
     """Store one walk of a walk plan with the writer ``w``; its row is added to ``summary``,
     its outcome returned."""
     status = w.add(trace, source_path=source, sha256=sha, size_bytes=size,
-                   source_format="walkline")
+                   source_format="walkline", floor_default=floor_default)
     summary.add_row(w.pending[trace.trace_id])
     return IngestOutcome(source, trace.trace_id, status)
 
 
-def _chunks(todo: list[tuple[str, str, int]], batch_bytes: int, workers: int
-            ) -> list[list[tuple[str, str, int]]]:
-    """Split files into about ``2 * workers`` chunks (by compressed size) for the pool."""
+def _chunks(todo: list[tuple], batch_bytes: int, workers: int) -> list[list[tuple]]:
+    """Split files ``(path, sha, size, ...)`` into about ``2 * workers`` chunks (by compressed
+    size) for the pool."""
     if not todo:
         return []
     if workers == 1:

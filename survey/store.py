@@ -84,8 +84,10 @@ def part_path(table: str, site: str, floor: str, trace_id: str, sha256: str) -> 
 
 
 def catalog_row(trace: Trace, *, source_path: str, sha256: str, size_bytes: int,
-                source_format: str = "trace") -> dict:
-    """The catalog row describing one parsed trace."""
+                source_format: str = "trace", floor_default: str | None = None) -> dict:
+    """The catalog row describing one parsed trace; its ``floor`` key is the header's floor
+    name or id, else ``floor_default`` (the floor of the folder it came from, say), else
+    ``unknown_floor``. The row's ``floor_name`` and ``floor_id`` are the header's."""
     h, r = trace.header, trace.report
     header = {k: v for k, v in vars(h).items() if k not in ("sensors",)}
     header["sensors"] = [vars(s) for s in h.sensors]
@@ -93,7 +95,7 @@ def catalog_row(trace: Trace, *, source_path: str, sha256: str, size_bytes: int,
         "trace_id": trace.trace_id, "source_path": source_path, "sha256": sha256,
         "size_bytes": size_bytes, "source_format": source_format,
         "site": _safe_component(h.site_id, "unknown_site"),
-        "floor": _safe_component(h.floor_name or h.floor_id, "unknown_floor"),
+        "floor": _safe_component(h.floor_name or h.floor_id or floor_default, "unknown_floor"),
         "site_id": h.site_id or "", "site_name": h.site_name or "",
         "floor_id": h.floor_id or "", "floor_name": h.floor_name or "",
         "device_brand": h.brand or "", "device_model": h.model or "",
@@ -583,9 +585,9 @@ class _StoreWriter:
         return "changed" if existed else "new"
 
     def add(self, trace: Trace, *, source_path: str, sha256: str, size_bytes: int,
-            source_format: str = "trace") -> str:
+            source_format: str = "trace", floor_default: str | None = None) -> str:
         row = catalog_row(trace, source_path=source_path, sha256=sha256, size_bytes=size_bytes,
-                          source_format=source_format)
+                          source_format=source_format, floor_default=floor_default)
         write_parts(self.root, trace, row)
         return self.add_row(row)
 

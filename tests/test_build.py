@@ -707,3 +707,31 @@ def test_a_build_covering_little_of_its_floor_warns(tmp_path):
             in res.output and "indoormap validate" in res.output)
     whole = CliRunner().invoke(main, ["build", str(SITE / "F2"), "-o", str(tmp_path / "all")])
     assert whole.exit_code == 0 and "warning: F2: only" not in whole.output
+
+
+def test_traces_that_record_no_floor_are_their_folders_floor(tmp_path):
+    """Walks whose headers name no floor were built as floor `unknown_floor`: a floor folder
+    of them was refused ("recorded as floor unknown_floor, not F1") and `build --plan` named
+    the bundle `unknown_floor`. Now they are the folder's floor, or the plan's (--floor, else
+    the plan's folder's name), and the build says so."""
+    import gzip
+
+    traces = tmp_path / "F1" / "path_data_files"
+    traces.mkdir(parents=True)
+    for f in ("floor_info.json", "geojson_map.json"):
+        shutil.copy(SITE / "F1" / f, tmp_path / "F1" / f)
+    for src in sorted((SITE / "F1" / "path_data_files").glob("*.txt.gz"))[:6]:
+        lines = gzip.decompress(src.read_bytes()).decode().splitlines(keepends=True)
+        lines = [line.replace("\tFloorId:", "\tX:").replace("\tFloorName:", "\tY:")
+                 if line.startswith("#") else line for line in lines]
+        (traces / src.name.removesuffix(".gz")).write_text("".join(lines))
+    runner = CliRunner()
+    res = runner.invoke(main, ["build", str(tmp_path / "F1"), "-o", str(tmp_path / "out")])
+    assert res.exit_code == 0, res.output
+    assert f"6 walk(s) in {traces} record no floor: taken as F1" in res.output
+    assert load_bundle(tmp_path / "out" / "F1").manifest["floor_name"] == "F1"
+    plan = str(SITE / "F1" / "geojson_map.json")
+    res = runner.invoke(main, ["build", str(traces), "--plan", plan, "--floor", "G",
+                               "-o", str(tmp_path / "named")])
+    assert res.exit_code == 0, res.output
+    assert load_bundle(tmp_path / "named" / "G").manifest["floor_name"] == "G"

@@ -350,6 +350,33 @@ def test_a_log_without_a_usable_row_is_refused(tmp_path):
     assert "sensor log has no sample" in summary.failed[0].detail
 
 
+def test_walks_that_record_no_floor_take_their_folders(tmp_path):
+    """A walk plan need not name its floor (the floor properties are optional): its walks
+    were stored under `unknown_floor`, so `build --plan` named the bundle so and `--floor F1`
+    was refused. `ingest(floor_names=)` gives such walks the floor of the input they are in;
+    walks that name theirs keep it, and the catalog keeps what the plan said."""
+    src = tmp_path / "src"
+    src.mkdir()
+    for walk in ("u1", "n1"):
+        _csv(src / f"{walk}.csv")
+    plan = _plan(src, [_feature("u1", [[0, 0], [1, 0]], start_ms=T0, end_ms=T0 + 1980),
+                       _feature("n1", [[0, 0], [1, 0]], start_ms=T0, end_ms=T0 + 1980,
+                                floor_name="B2")])
+    doc = json.loads(plan.read_text())
+    del doc["properties"]["floor_name"]
+    plan.write_text(json.dumps(doc))
+    ingest([src], tmp_path / "plain")
+    cat = SurveyStore.open(tmp_path / "plain").catalog().set_index("trace_id")
+    assert cat.loc["u1", "floor"] == "unknown_floor" and cat.loc["n1", "floor"] == "B2"
+    ingest([src], tmp_path / "named", floor_names={src: "F3"})
+    cat = SurveyStore.open(tmp_path / "named").catalog().set_index("trace_id")
+    assert cat.loc["u1", "floor"] == "F3" and cat.loc["u1", "floor_name"] == ""
+    assert cat.loc["n1", "floor"] == "B2"
+    ingest([src], tmp_path / "other", floor_names={tmp_path / "elsewhere": "F3"})
+    assert SurveyStore.open(tmp_path / "other").catalog().set_index(
+        "trace_id").loc["u1", "floor"] == "unknown_floor"  # only under the input named
+
+
 def test_build_exclude_names_walk_plan_walks(tmp_path):
     """`build --exclude` takes a walk plan's walk by its walk_id or its sensor log's name
     (with or without .csv), before the work and after the ingest; it knew trace files only,
