@@ -66,6 +66,10 @@ def test_round_trip_and_lookup(bundle_dir):
     assert abs(((a[0] - 359.6) + 180) % 360 - 180) < 1e-3 and abs(a[1] - 0.4) < 1e-3
     assert b.sample("strength", 15.0, 25.0, std=True) == pytest.approx(1.0)
     assert b.reachable([10.5, 15.0], [20.5, 25.0]).tolist() == [False, True]
+    # a table read after the load (one no schema describes) whose file went since: named
+    (bundle_dir / b.manifest["tables"]["walks"]["file"]).unlink()
+    with pytest.raises(BundleIntegrityError, match=r"table 'walks' is not a readable Parquet"):
+        b.table("walks")
 
 
 def test_sample_grid_next_to_missing_cells_renormalises():
