@@ -63,11 +63,32 @@ def read_trace_bytes(path: str | os.PathLike, *, strict: bool = False,
     path = Path(path)
     raw = _read_capped(path, max_bytes)
     if raw[:2] != b"\x1f\x8b":
+        check_not_utf16(raw, path)
         return raw, None
     chunks, note = _inflate(raw, path, max_bytes)
     if note and strict:
         raise SurveyFormatError(note, path=str(path), reason="gzip")
+    check_not_utf16(chunks[0] if chunks else b"", path)
     return b"".join(chunks), note  # one chunk (the usual case) is returned without a copy
+
+
+def check_not_utf16(text: bytes, path: str | os.PathLike) -> None:
+    """A SurveyFormatError naming ``path`` when ``text`` (its start is enough) is UTF-16: a
+    byte-order mark, or a NUL byte beside each of the first 64 characters (Windows tools
+    save "Unicode" text so). Read as UTF-8 every line of it was a bad line, and the message
+    ("timestamp is not an integer of milliseconds") did not say why."""
+    head = text[:128]
+    order = ("little" if head[:2] == b"\xff\xfe" else "big" if head[:2] == b"\xfe\xff"
+             else None)
+    if order is None and len(head) >= 16:
+        if not any(head[1::2]) and all(head[0::2]):
+            order = "little"
+        elif not any(head[0::2]) and all(head[1::2]):
+            order = "big"
+    if order is not None:
+        raise SurveyFormatError(f"UTF-16 text ({order}-endian); indoormap reads UTF-8: convert "
+                                "it (e.g. iconv -f UTF-16 -t UTF-8)", path=str(path),
+                                reason="encoding")
 
 
 def not_regular(path: str | os.PathLike) -> SurveyFormatError:

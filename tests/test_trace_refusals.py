@@ -438,3 +438,23 @@ def test_a_file_name_that_is_not_utf8_is_refused_by_name(tmp_path):
     bad.rename(folder / src.name)
     with pytest.raises(SurveyFormatError, match=r"walks\\xff/.*: the path is not valid"):
         find_trace_files([tmp_path])
+
+
+@pytest.mark.parametrize("encoding, order", [("utf-16", "little"), ("utf-16-le", "little"),
+                                             ("utf-16-be", "big")])
+def test_a_utf16_trace_is_named_as_such(tmp_path, encoding, order):
+    """A trace saved as UTF-16 (Windows "Unicode" text; with or without a byte-order mark,
+    gzipped or not) was read as UTF-8: every line a bad line, and the reason given was the
+    first line's ("timestamp is not an integer of milliseconds"). The reason is the
+    encoding, said in both modes; UTF-8 text (with its own mark) still reads."""
+    text = render_trace(small_trace())
+    for name, data in (("a.txt", text.encode(encoding)),
+                       ("b.txt.gz", gzip.compress(text.encode(encoding)))):
+        (tmp_path / name).write_bytes(data)
+        for strict in (False, True):
+            with pytest.raises(SurveyFormatError, match=f"UTF-16 text \\({order}-endian\\); "
+                               "indoormap reads UTF-8") as err:
+                read_trace_bytes(tmp_path / name, strict=strict)
+            assert err.value.reason == "encoding" and name in str(err.value)
+    (tmp_path / "c.txt").write_bytes(b"\xef\xbb\xbf" + text.encode())
+    assert len(read_trace(tmp_path / "c.txt").sensors) == len(small_trace().sensors)

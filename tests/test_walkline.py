@@ -290,6 +290,10 @@ def test_bytes_that_are_not_utf8_make_their_row_a_bad_line(tmp_path, monkeypatch
     assert trace.report.accounted_lines() == trace.report.lines_total == 5
     with pytest.raises(SurveyFormatError, match=r"a.csv:3: 5 fields, the header has 4"):
         read_walk_plan(tmp_path / "plan.geojson", strict=True)
+    # a whole log saved as UTF-16 is said to be so, not read as a file of bad lines
+    (tmp_path / "a.csv").write_bytes("t_ms,acc_x,acc_y,acc_z\n1000,1,2,3\n".encode("utf-16"))
+    with pytest.raises(SurveyFormatError, match=r"a.csv: UTF-16 text \(little-endian\)"):
+        read_walk_plan(tmp_path / "plan.geojson")
 
 
 def test_the_simulators_route_file_is_named_as_such_and_its_path_said_once(tmp_path):
