@@ -122,8 +122,8 @@ class Track:
         offline smoothed track), trace id, floor id, start position (m) and recoveries."""
         return {"method": self.method, "smoothed": bool(self.info.get("smoothed")),
                 "trace_id": self.trace_id, "floor_id": self.floor_id,
-                "start_x_m": self.start.x_m, "start_y_m": self.start.y_m,
-                "n_recoveries": self.n_recoveries}
+                "start_x_m": float(self.start.x_m), "start_y_m": float(self.start.y_m),
+                "n_recoveries": int(self.n_recoveries)}
 
     def to_frame(self) -> pd.DataFrame:
         """The track as a pandas DataFrame, one row per step (the columns of

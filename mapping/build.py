@@ -33,7 +33,7 @@ from survey.store import SurveyStore
 
 from .bundle_writer import BundleContent, Layer
 from .floorplan import FloorPlan
-from .grid import reachable_distance_lookup, reachable_mask
+from .grid import reachable_distance_raster_m, reachable_mask
 from .field_layers import FIELD_LAYERS, field_rasters, floor_steps, levelling_samples, \
     reduce_field
 from .holdout import BANDWIDTH_CANDIDATES_M, choose_smoothing, heldout_quality
@@ -93,6 +93,20 @@ MIN_SAMPLES_ON_PLAN = 0.5
 #: How far (m) outside the reachable area a sample still counts as on the plan (the walks'
 #: positions stray 1-2 m from the lines walked).
 ON_PLAN_M = 2.0
+
+
+def near_plan_of(grid: Grid, mask: NDArray[np.bool_]
+                 ) -> Callable[[NDArray, NDArray], NDArray[np.bool_]]:
+    """A function of positions ``(x_m, y_m)`` (m, shape (n,) each) telling which lie within
+    :data:`ON_PLAN_M` of a reachable cell of ``mask`` (the grid's shape; off the grid: not);
+    the distance transform is made once, for every call."""
+    near_cells = reachable_distance_raster_m(grid, mask) <= ON_PLAN_M
+
+    def near_plan(x_m: NDArray, y_m: NDArray) -> NDArray[np.bool_]:
+        row, col, inside = grid.cell_of(x_m, y_m)
+        return inside & near_cells[row, col]
+
+    return near_plan
 
 
 def samples_on_plan(near_plan: Callable[[NDArray, NDArray], NDArray[np.bool_]], x_m: NDArray,
@@ -204,12 +218,7 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
                          if i == n or i % 100 == 0 else None)
     release_free_memory()  # the walks' freed buffers
     say(f"{floor}: {reduction.n_samples} samples")
-    distance_m = reachable_distance_lookup(grid, mask)  # one distance transform per floor
-
-    def near_plan(x_m: NDArray, y_m: NDArray) -> NDArray[np.bool_]:  # off the grid: False
-        return distance_m(x_m, y_m) <= ON_PLAN_M
-
-    on_plan = samples_on_plan(near_plan, reduction.cv_x_m, reduction.cv_y_m)
+    on_plan = samples_on_plan(near_plan_of(grid, mask), reduction.cv_x_m, reduction.cv_y_m)
     if not (reduction.support & mask).any() or on_plan < MIN_SAMPLES_ON_PLAN:
         raise BuildError(
             f"floor {floor}: {'none' if on_plan == 0 else f'only {100 * on_plan:.0f} %'} of "
@@ -297,7 +306,7 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
         if radio is None:
             radio = build_site_radio(store, [floor], site=site, params=params.radio,
                                      exclude_walks=exclude_walks, progress=say)
-        radio = radio.on_plan(floor, near_plan)
+        radio = radio.on_plan(floor, near_plan_of(grid, mask))  # the grid rastered on
         tables.update(radio.floor_tables(floor))
         metrics["radio"] = radio.floor_metrics(floor)
     return BundleContent(

@@ -352,7 +352,9 @@ def staging_folder(out: Path) -> Iterator[Path]:
                    "Repeatable.")
 @click.option("--floor", "floor_name", default=None,
               help="With --plan: the floor's name as its traces give it (default: the one "
-                   "floor of SOURCE's traces).")
+                   "floor of SOURCE's traces); walks that record no floor are this one "
+                   "(default: the plan's, its folder's name for a geojson_map.json, else its "
+                   "file name).")
 @click.option("--exclude", multiple=True, metavar="WALK",
               help="Leave this walk out of the maps: a trace id or a trace file's name (a "
                    "walk plan's walk_id or sensor log), or @FILE with one per line (walks "
@@ -450,7 +452,7 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
         if cat.empty:
             raise BuildError(f"{', '.join(map(str, inputs))}: no readable walk to build from "
                              f"({len(summary.failed)} unreadable)")
-        for folder, name in floor_names.items():
+        for folder in floor_names:
             unnamed = ingested_from(cat, summary, folder)
             unnamed = unnamed[(unnamed["floor_name"] == "") & (unnamed["floor_id"] == "")]
             if len(unnamed):

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import numpy as np
 import shapely
 from numpy.typing import NDArray
@@ -38,28 +36,22 @@ _CROSSINGS_PER_CHUNK = 1 << 20
 _COLLECTION_TYPES = (4, 5, 6, 7)  # Multi* and GeometryCollection (shapely.get_type_id)
 
 
-def reachable_distance_lookup(grid: Grid, mask: NDArray[np.bool_]
-                              ) -> Callable[[NDArray, NDArray], NDArray[np.float64]]:
-    """A function of positions ``(x_m, y_m)`` (shape (n,) each) giving their distance (m, in
-    whole cells) to the nearest reachable cell of ``mask`` (the grid's shape): inf off the
-    grid, 0 on the mask. The distance transform is made once, for every call."""
+def reachable_distance_raster_m(grid: Grid, mask: NDArray[np.bool_]) -> NDArray[np.float64]:
+    """Distance (m, in whole cells) from each cell to the nearest reachable cell of ``mask``,
+    the grid's shape (0 on the mask)."""
     from scipy import ndimage
 
-    dist = ndimage.distance_transform_edt(~mask) * grid.cell_m
-
-    def distance_m(x_m: NDArray, y_m: NDArray) -> NDArray[np.float64]:
-        row, col, inside = grid.cell_of(x_m, y_m)
-        return np.where(inside, dist[row, col], np.inf)
-
-    return distance_m
+    return ndimage.distance_transform_edt(~mask) * grid.cell_m
 
 
 def distance_to_reachable_m(grid: Grid, mask: NDArray[np.bool_], x_m: NDArray,
                             y_m: NDArray) -> NDArray[np.float64]:
     """Distance (m, in whole cells) from each position ``(x_m, y_m)`` (shape (n,)) to the
     nearest reachable cell of ``mask`` (the grid's shape); inf off the grid, 0 on the mask.
-    For several lookups on one mask, :func:`reachable_distance_lookup`."""
-    return reachable_distance_lookup(grid, mask)(x_m, y_m)
+    For several lookups on one mask, :func:`reachable_distance_raster_m` once."""
+    dist = reachable_distance_raster_m(grid, mask)
+    row, col, inside = grid.cell_of(x_m, y_m)
+    return np.where(inside, dist[row, col], np.inf)
 
 
 def reachable_mask(grid: Grid, reachable: shapely.Geometry) -> NDArray[np.bool_]:

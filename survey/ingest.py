@@ -174,8 +174,10 @@ def ingest(paths: Iterable[str | os.PathLike], store: str | os.PathLike | Survey
 def _floor_defaults(floor_names: Mapping[str | os.PathLike, str]
                     ) -> Callable[[Path], str | None]:
     """A file's floor default: that of the input in ``floor_names`` it is, or lies under
-    (paths compared absolute, links not followed, as :func:`find_inputs` finds them)."""
-    roots = [(Path(os.path.abspath(p)), name) for p, name in floor_names.items()]
+    (the deepest such input; paths compared absolute, links not followed, as
+    :func:`find_inputs` finds them)."""
+    roots = sorted(((Path(os.path.abspath(p)), name) for p, name in floor_names.items()),
+                   key=lambda item: -len(item[0].parts))
 
     def floor_of(path: Path) -> str | None:
         path = Path(os.path.abspath(path))
@@ -233,7 +235,7 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
                 summary.outcomes.append(IngestOutcome(str(p), tid, "failed", str(err)))
                 tick()
                 continue
-            known = w.known(tid, sha)
+            known = w.known(tid, sha, floor_of(p))
             if not known and sha in todo_sha:   # the same content twice in this run
                 known = IngestOutcome("", tid, "duplicate", f"same content as {todo_sha[sha]}")
             if known:
@@ -288,7 +290,7 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
                 if second_input(source, trace.trace_id):
                     continue
                 sha = identity_sha256(identity)
-                known = w.known(trace.trace_id, sha)
+                known = w.known(trace.trace_id, sha, floor)
                 if known:
                     known.path = source
                     if known.status == "duplicate":

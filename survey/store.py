@@ -74,6 +74,12 @@ def _safe_component(value: str | None, fallback: str) -> str:
     return (("_" + text[1:]) if text.startswith(".") else text)[:80]
 
 
+def floor_key(floor: str | None) -> str:
+    """The store's ``floor`` key of a walk of this floor name or id (None or empty:
+    ``unknown_floor``)."""
+    return _safe_component(floor, "unknown_floor")
+
+
 def part_path(table: str, site: str, floor: str, trace_id: str, sha256: str) -> str:
     """Relative path of one trace's part file of ``table``. The trace id is made a safe file
     name (``[A-Za-z0-9_.-]``, at most 80 characters; the content hash keeps it apart from
@@ -95,7 +101,7 @@ def catalog_row(trace: Trace, *, source_path: str, sha256: str, size_bytes: int,
         "trace_id": trace.trace_id, "source_path": source_path, "sha256": sha256,
         "size_bytes": size_bytes, "source_format": source_format,
         "site": _safe_component(h.site_id, "unknown_site"),
-        "floor": _safe_component(h.floor_name or h.floor_id or floor_default, "unknown_floor"),
+        "floor": floor_key(h.floor_name or h.floor_id or floor_default),
         "site_id": h.site_id or "", "site_name": h.site_name or "",
         "floor_id": h.floor_id or "", "floor_name": h.floor_name or "",
         "device_brand": h.brand or "", "device_model": h.model or "",
@@ -527,19 +533,26 @@ class _StoreWriter:
         self.hashed: dict[str, str] = {}  # schema-1 rows checked now: trace id -> parts_json
         self._whole: dict[tuple[str, str], bool] = {}  # (trace id, sha256) -> parts whole
 
-    def known(self, trace_id: str, sha256: str) -> IngestOutcome | None:
+    def known(self, trace_id: str, sha256: str, floor_default: str | None = None
+              ) -> IngestOutcome | None:
         """The outcome for a file that needs no work (same content already stored, whole),
         or None. Stored content that this run replaces (its trace id is pending with other
         content) does not count: a file is never a "duplicate" of content about to go, nor of
         a trace whose part files are damaged. A stored trace whose part files are missing or
         changed needs work (it is ``repaired``); one stored without part hashes (schema 1)
-        gets them once its parts pass the read checks."""
+        gets them once its parts pass the read checks. A walk that records no floor, stored
+        under another floor than ``floor_default`` (given: the floor its input is now said to
+        be, :func:`catalog_row`), needs work too: it is stored again under that floor."""
         cat = self.cat
         leaving = [t for t, r in self.pending.items() if r["sha256"] != sha256]
         hit = cat[(cat["sha256"] == sha256) & ~cat["trace_id"].isin(leaving)]
         same = hit[hit["trace_id"] == trace_id]
         if len(same):
-            if self._parts_whole(same.iloc[0]):
+            row = same.iloc[0]
+            if (floor_default is not None and not row["floor_name"] and not row["floor_id"]
+                    and row["floor"] != floor_key(floor_default)):
+                return None  # add_row: "changed"; its old parts are collected at the commit
+            if self._parts_whole(row):
                 return IngestOutcome("", trace_id, "unchanged")
             self.repairing.add(trace_id)
             return None

@@ -18,6 +18,8 @@ refused as soon as the running total passes ``max_bytes``. A stream that inflate
 traces inflate about 6 times) is first only measured, its text thrown away step by step, and
 inflated again to be kept only if it is within the limit: a bomb costs about
 ``_SUSPECT_BYTES`` of memory, not ``max_bytes``, before it is refused.
+
+Text saved as UTF-16 is refused whole (:func:`check_not_utf16`), in both modes.
 """
 
 from __future__ import annotations
@@ -57,8 +59,8 @@ def read_trace_bytes(path: str | os.PathLike, *, strict: bool = False,
 
     A truncated gzip stream raises in strict mode; in lenient mode the readable prefix is
     returned with a note (its last, partial line is then reported as bad). A damaged stream
-    raises in both modes, and so do a file that is not a regular file and one whose size on
-    disk or text is over ``max_bytes`` (module docstring).
+    raises in both modes, and so do a file that is not a regular file, one whose size on
+    disk or text is over ``max_bytes`` (module docstring) and UTF-16 text.
     """
     path = Path(path)
     raw = _read_capped(path, max_bytes)

@@ -735,3 +735,13 @@ def test_traces_that_record_no_floor_are_their_folders_floor(tmp_path):
                                "-o", str(tmp_path / "named")])
     assert res.exit_code == 0, res.output
     assert load_bundle(tmp_path / "named" / "G").manifest["floor_name"] == "G"
+    # without --floor: the plan's floor (a geojson_map.json: its folder's name)
+    (tmp_path / "L3").mkdir()
+    for f in ("floor_info.json", "geojson_map.json"):
+        shutil.copy(SITE / "F1" / f, tmp_path / "L3" / f)
+    res = runner.invoke(main, ["build", str(traces), "--plan",
+                               str(tmp_path / "L3" / "geojson_map.json"),
+                               "-o", str(tmp_path / "plan")])
+    assert res.exit_code == 0, res.output
+    assert "record no floor: taken as L3" in res.output
+    assert load_bundle(tmp_path / "plan" / "L3").manifest["floor_name"] == "L3"

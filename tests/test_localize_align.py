@@ -145,6 +145,15 @@ def test_a_refused_step_leaves_the_stream_going(f1_bundle, sim_walks, monkeypatc
     monkeypatch.setattr(align.WalkAligner, "_align_window", real)
     got += [loc.step(w.steps[i]) for i in range(3, len(w.steps))]
     assert [(e.x_m, e.y_m) for e in got] == [(e.x_m, e.y_m) for e in want]
+    # a run (either kind) starts the stream anew: its steps are checked against its start,
+    # not against the last step streamed before it
+    assert loc.stepped and loc.last_t_ms == w.steps.t_ms[-1]
+    for smooth in (True, False):
+        loc.run(w.steps, start_xy=w.start_xy, smooth=smooth)
+        assert loc.last_t_ms == (w.steps.t_ms[0] - 500.0 if smooth else w.steps.t_ms[-1])
+    fresh = WalkAligner(f1_bundle)
+    fresh.run(w.steps, start_xy=w.start_xy, smooth=True)
+    assert not fresh.stepped and np.isfinite(fresh.step(w.steps[0]).x_m)
     pdr = make_localizer("pdr", f1_bundle)
     pdr.start(*w.start_xy)
     with pytest.raises(LocalizationError, match="no compass heading"):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import json
 import subprocess
 import sys
@@ -71,6 +73,9 @@ def test_same_seed_same_trajectory(f1_bundle, sim_walks):  # noqa: F811
     assert float(meta[b"start_x_m"]) == frame.attrs["start_x_m"] == runs[0].start.x_m
     assert meta[b"n_recoveries"] == str(runs[0].n_recoveries).encode()
     assert meta[b"trace_id"] == w.steps.trace_id.encode()
+    numpy_start = dataclasses.replace(runs[0], start=dataclasses.replace(
+        runs[0].start, x_m=np.float32(1.5), y_m=np.int64(2)))  # a caller's radio model's
+    assert numpy_start.to_arrow().schema.metadata[b"start_x_m"] == b"1.5"
 
 
 def test_streaming_equals_batch(f1_bundle, sim_walks):  # noqa: F811

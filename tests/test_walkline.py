@@ -379,6 +379,22 @@ def test_walks_that_record_no_floor_take_their_folders(tmp_path):
     ingest([src], tmp_path / "other", floor_names={tmp_path / "elsewhere": "F3"})
     assert SurveyStore.open(tmp_path / "other").catalog().set_index(
         "trace_id").loc["u1", "floor"] == "unknown_floor"  # only under the input named
+    # the deepest input named gives the floor (a site folder and its floor folder)
+    ingest([src], tmp_path / "nested", floor_names={tmp_path: "SITE", src: "F4"})
+    assert SurveyStore.open(tmp_path / "nested").catalog().set_index(
+        "trace_id").loc["u1", "floor"] == "F4"
+    # a kept store: the walk that records no floor moves to the floor it is now said to be
+    # (it kept the first one, and a build then said its walks were of that floor); one
+    # ingest without floor_names leaves it where it is
+    for names, status, floor in (({src: "F5"}, "changed", "F5"), (None, "unchanged", "F5"),
+                                 ({src: "F5"}, "unchanged", "F5")):
+        summary = ingest([src], tmp_path / "plain", floor_names=names)
+        assert {o.trace_id: o.status for o in summary.outcomes} == {"u1": status,
+                                                                   "n1": "unchanged"}
+        store = SurveyStore.open(tmp_path / "plain")
+        assert store.catalog().set_index("trace_id").loc["u1", "floor"] == floor
+    assert len(store.table("sensors", trace_ids=["u1"])) == 4 * 100  # old parts collected
+    assert not list((tmp_path / "plain").rglob("floor=unknown_floor"))
 
 
 def test_build_exclude_names_walk_plan_walks(tmp_path):
