@@ -25,6 +25,7 @@ does not read their magnetometer columns again.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import inspect
@@ -453,7 +454,8 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
                     "floor": row.floor, "session": key, "parts_json": "",
                     "inputs_sha256": with_fit}
             d = old_of.loc[row.trace_id] if row.trace_id in old_of.index else None
-            if d is not None and d["sha256"] == row.sha256 and row.trace_id not in unreadable:
+            if (d is not None and d["sha256"] == row.sha256 and row.trace_id not in unreadable
+                    and (d["site"], d["floor"]) == (row.site, row.floor)):  # not moved
                 fit_free = d["status"] == "ok" and json.loads(d["summary_json"]).get(
                     "calibration") in FIT_FREE_DECISIONS
                 same = d["inputs_sha256"] == (inputs_sha256(psha, plan_sha, None) if fit_free
@@ -592,6 +594,9 @@ def _remove_unreferenced(root, pcat: pd.DataFrame) -> None:
             for p in base.rglob("*.parquet"):
                 if str(p.relative_to(root)) not in live:
                     p.unlink()
+            for d in sorted((q for q in base.rglob("*") if q.is_dir()), reverse=True):
+                with contextlib.suppress(OSError):
+                    d.rmdir()  # only emptied partitions go (a walk moved to another floor)
 
 
 def processed_catalog(store: SurveyStore | str) -> pd.DataFrame:

@@ -731,10 +731,16 @@ def test_traces_that_record_no_floor_are_their_folders_floor(tmp_path):
     assert f"6 walk(s) in {traces} record no floor: taken as F1" in res.output
     assert load_bundle(tmp_path / "out" / "F1").manifest["floor_name"] == "F1"
     plan = str(SITE / "F1" / "geojson_map.json")
-    res = runner.invoke(main, ["build", str(traces), "--plan", plan, "--floor", "G",
-                               "-o", str(tmp_path / "named")])
-    assert res.exit_code == 0, res.output
-    assert load_bundle(tmp_path / "named" / "G").manifest["floor_name"] == "G"
+    # into a kept store, then again as another floor: the walks move (they kept the first
+    # floor, raw and processed, and the second build said its walks were recorded as G)
+    for floor in ("G", "H"):
+        res = runner.invoke(main, ["build", str(traces), "--plan", plan, "--floor", floor,
+                                   "--store", str(tmp_path / "store"),
+                                   "-o", str(tmp_path / f"named{floor}")])
+        assert res.exit_code == 0, res.output
+        assert f"6 walk(s) in {traces} record no floor: taken as {floor}" in res.output
+        assert load_bundle(tmp_path / f"named{floor}" / floor).manifest["floor_name"] == floor
+    assert not list((tmp_path / "store").rglob("floor=G"))  # nothing left of the first
     # without --floor: the plan's floor (a geojson_map.json: its folder's name)
     (tmp_path / "L3").mkdir()
     for f in ("floor_info.json", "geojson_map.json"):
