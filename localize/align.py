@@ -518,7 +518,7 @@ class WalkAligner(BaseLocalizer):
             start = self._start_at(f[0], f[1], t0, f[2], None)
             self._started_from(None, t_fix)  # its scan is not among the later fixes
         later = fixes if start_xy is not None else fixes[1:]  # the start fix is in already
-        self._last = self._start_estimate = start  # what the step checks compare with
+        self._set_start(start)  # what the step checks compare with
         track = (self._offline(steps, start, later) if smooth
                  else self._real_time(steps, start, later))
         track.info["seen_by_map"] = self.seen_by_map(steps)

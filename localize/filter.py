@@ -77,7 +77,7 @@ def first_radio_fix(radio: RadioModel | None, steps: StepSummaries) -> RadioFix 
     return None
 
 
-def check_step_time(t_ms: float, last_t_ms: float, *, after_step: bool = True) -> None:
+def check_step_time(t_ms: float, last_t_ms: float, *, after_step: bool) -> None:
     """A streaming step's time (ms) must be finite and after the last step's, or not before
     the start's (``after_step`` false: no step yet); else a LocalizationError (estimates
     would go back in time; a step sent twice would be walked twice, where :meth:`run`
@@ -87,9 +87,9 @@ def check_step_time(t_ms: float, last_t_ms: float, *, after_step: bool = True) -
     if after_step and t_ms == last_t_ms:
         raise LocalizationError(f"step at {t_ms} ms has the last step's time: the same step "
                                 "sent twice? (steps must be strictly increasing in time)")
-    if t_ms < last_t_ms and after_step:
+    if after_step and t_ms < last_t_ms:
         raise LocalizationError(f"step at {t_ms} ms comes before the last one ({last_t_ms} ms)")
-    if t_ms < last_t_ms:  # begin(scan=...) starts at the scan's time
+    if t_ms < last_t_ms:  # the first step; begin(scan=...) starts at the scan's time
         raise LocalizationError(
             f"step at {t_ms} ms comes before the start ({last_t_ms} ms; a start from a scan "
             "takes the scan's time): skip the steps before it, or start earlier (a start "
@@ -209,9 +209,13 @@ class BaseLocalizer:
             finite = False
         if not finite:  # every step after it passed its time check, or crashed
             raise LocalizationError(f"start time {t_ms!r} is not a finite number (Unix ms)")
-        self._last = self._start_estimate = self._start_at(x_m, y_m, float(t_ms), sigma,
-                                                           half_width_m)
-        return self._last
+        return self._set_start(self._start_at(x_m, y_m, float(t_ms), sigma, half_width_m))
+
+    def _set_start(self, start: Estimate) -> Estimate:
+        """Record ``start`` as the last estimate and the start (:attr:`stepped` is false
+        until the next step); returns it."""
+        self._last = self._start_estimate = start
+        return start
 
     def _checked_start(self, xy) -> tuple[float, float]:
         """``xy`` as two finite floats within :data:`MAX_START_OFF_MAP_M` of the floor's grid;
@@ -325,7 +329,7 @@ class BaseLocalizer:
             self._started_from(fix.scan, fix.t_ms)
         else:
             start = self._start_at(*self._checked_start(start_xy), t0, None, half_width_m)
-        self._last = self._start_estimate = start
+        self._set_start(start)
         est = [self.step(s) for s in steps]
         track = Track.from_estimates(start, est, method=self.method, trace_id=steps.trace_id,
                                      floor_id=self.bundle.floor_id)

@@ -218,7 +218,8 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
                          if i == n or i % 100 == 0 else None)
     release_free_memory()  # the walks' freed buffers
     say(f"{floor}: {reduction.n_samples} samples")
-    on_plan = samples_on_plan(near_plan_of(grid, mask), reduction.cv_x_m, reduction.cv_y_m)
+    near_plan = near_plan_of(grid, mask)  # made again only if the grid is refined
+    on_plan = samples_on_plan(near_plan, reduction.cv_x_m, reduction.cv_y_m)
     if not (reduction.support & mask).any() or on_plan < MIN_SAMPLES_ON_PLAN:
         raise BuildError(
             f"floor {floor}: {'none' if on_plan == 0 else f'only {100 * on_plan:.0f} %'} of "
@@ -248,6 +249,7 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
                 "cross-validating again there")
             grid = fine
             mask = reachable_mask(grid, plan.reachable)
+            near_plan = None
             reduction = reduce_field(store, pcat, grid, residuals)
             release_free_memory()
             raster_params, smoothing_scores = choose_smoothing(
@@ -306,7 +308,7 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
         if radio is None:
             radio = build_site_radio(store, [floor], site=site, params=params.radio,
                                      exclude_walks=exclude_walks, progress=say)
-        radio = radio.on_plan(floor, near_plan_of(grid, mask))  # the grid rastered on
+        radio = radio.on_plan(floor, near_plan or near_plan_of(grid, mask))
         tables.update(radio.floor_tables(floor))
         metrics["radio"] = radio.floor_metrics(floor)
     return BundleContent(

@@ -235,19 +235,20 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
                 summary.outcomes.append(IngestOutcome(str(p), tid, "failed", str(err)))
                 tick()
                 continue
-            known = w.known(tid, sha, floor_of(p))
+            floor = floor_of(p)
+            known = w.known(tid, sha, floor)
             if not known and sha in todo_sha:   # the same content twice in this run
                 known = IngestOutcome("", tid, "duplicate", f"same content as {todo_sha[sha]}")
             if known:
                 known.path = str(p)
                 if known.status == "duplicate":
                     deferred.append((len(summary.outcomes), tid, sha,
-                                     ("trace", str(p), size, floor_of(p))))
+                                     ("trace", str(p), size, floor)))
                 summary.outcomes.append(known)
                 tick()
             else:
                 todo_sha[sha] = tid
-                todo.append((str(p), sha, size, floor_of(p)))
+                todo.append((str(p), sha, size, floor))
         chunks = _chunks(todo, batch_bytes, max(1, workers))
         results = []
         if workers > 1 and len(chunks) > 1:

@@ -25,7 +25,6 @@ does not read their magnetometer columns again.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import hashlib
 import inspect
@@ -48,7 +47,7 @@ from .publish import TMP_PREFIX, atomic_write_bytes, crash_point, fsync_dir, \
     remove_stale_temporaries
 from .regular_files import read_regular
 from .store import (SurveyStore, _arrow_column, _parquet_bytes, check_columns, files_match,
-                    part_path, part_record, read_parquet_checked)
+                    part_path, part_record, read_parquet_checked, remove_empty_folders)
 
 _MAG_COLUMNS = ["stream", "t_ms", "x", "y", "z", "bx", "by", "bz"]
 PROCESSED_TABLES = ("samples", "steps", "legs", "wifi", "ble")
@@ -594,9 +593,7 @@ def _remove_unreferenced(root, pcat: pd.DataFrame) -> None:
             for p in base.rglob("*.parquet"):
                 if str(p.relative_to(root)) not in live:
                     p.unlink()
-            for d in sorted((q for q in base.rglob("*") if q.is_dir()), reverse=True):
-                with contextlib.suppress(OSError):
-                    d.rmdir()  # only emptied partitions go (a walk moved to another floor)
+            remove_empty_folders(base)  # a walk moved to another floor empties its old one
 
 
 def processed_catalog(store: SurveyStore | str) -> pd.DataFrame:

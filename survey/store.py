@@ -80,6 +80,14 @@ def floor_key(floor: str | None) -> str:
     return _safe_component(floor, "unknown_floor")
 
 
+def remove_empty_folders(base: Path) -> None:
+    """Remove the folders under ``base`` left empty (partitions whose part files went),
+    deepest first; a folder that still holds anything stays."""
+    for d in sorted((q for q in base.rglob("*") if q.is_dir()), reverse=True):
+        with contextlib.suppress(OSError):
+            d.rmdir()
+
+
 def part_path(table: str, site: str, floor: str, trace_id: str, sha256: str) -> str:
     """Relative path of one trace's part file of ``table``. The trace id is made a safe file
     name (``[A-Za-z0-9_.-]``, at most 80 characters; the content hash keeps it apart from
@@ -636,8 +644,6 @@ class _StoreWriter:
             base = self.root / table
             if not base.exists():
                 continue
-            for d in sorted((q for q in base.rglob("*") if q.is_dir()), reverse=True):
-                with contextlib.suppress(OSError):
-                    d.rmdir()  # only empty partitions go
+            remove_empty_folders(base)
         fsync_dir(self.root)
         return removed
