@@ -23,7 +23,7 @@ from .store import IngestOutcome, SurveyStore, catalog_row, write_parts
 from .trace_bytes import trace_file_sha256
 from .trace_reader import BATCH_BYTES, ReadFailure, find_trace_files, iter_traces, \
     trace_id_from_path
-from .walkline import identity_sha256, is_walk_plan, read_walk_plan
+from .walkline import identity_sha256, is_walk_plan, plan_walks
 
 
 @dataclass
@@ -279,7 +279,7 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
         summary.outcomes.extend(_add_results(w, summary, results))
         for plan in plans:
             try:
-                walks = read_walk_plan(plan, strict=strict)
+                walks = plan_walks(plan)
             except SurveyFormatError as err:
                 if strict:
                     raise
@@ -287,7 +287,15 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
                 tick()
                 continue
             floor = floor_of(plan)
-            for trace, source, identity in walks:
+            for walk in walks:
+                try:  # one walk at a time: a missing or bad log fails its walk alone
+                    trace, source, identity = walk.read(strict=strict)
+                except SurveyFormatError as err:
+                    if strict:
+                        raise
+                    summary.outcomes.append(IngestOutcome(walk.where, walk.walk_id, "failed",
+                                                          str(err)))
+                    continue
                 if second_input(source, trace.trace_id):
                     continue
                 sha = identity_sha256(identity)

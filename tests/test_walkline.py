@@ -79,6 +79,26 @@ def test_plan_with_both_time_styles_lands_in_store(tmp_path):
     assert len(store.table("sensors", trace_ids=["b"])) == 4 * 50
 
 
+def test_a_walk_whose_log_is_missing_fails_alone(tmp_path):
+    """Ingest read a plan's every log before storing any: one missing log failed the plan's
+    every walk. Now that walk fails, named by its feature, and the others are stored; a
+    strict ingest still stops at it."""
+    _csv(tmp_path / "a.csv")
+    _csv(tmp_path / "c.csv")
+    plan = _plan(tmp_path, [_feature(w, [[0, 0], [1, 0]], start_ms=T0, end_ms=T0 + 1980)
+                            for w in ("a", "b", "c")])
+    summary = ingest([plan], tmp_path / "store")
+    assert {o.trace_id: o.status for o in summary.outcomes} == {"a": "new", "b": "failed",
+                                                               "c": "new"}
+    failed, = summary.failed
+    assert failed.path == f"{plan} (feature 1)" and "sensor log 'b.csv' not readable" in \
+        failed.detail
+    assert set(SurveyStore.open(tmp_path / "store").catalog()["trace_id"]) == {"a", "c"}
+    with pytest.raises(SurveyFormatError, match=r"feature 1.*'b.csv' not readable"):
+        ingest([plan], tmp_path / "strict", strict=True)
+    assert not (tmp_path / "strict" / "catalog.parquet").exists()
+
+
 def test_bad_csv_row_lenient_and_strict(tmp_path):
     _csv(tmp_path / "a.csv", extra_bad_row=True)
     plan = _plan(tmp_path, [_feature("a", [[0, 0], [1, 0]], start_ms=T0, end_ms=T0 + 1980)])
