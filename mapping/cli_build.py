@@ -24,7 +24,6 @@ from survey.publish import (
     replace_together,
     tmp_prefix,
 )
-from survey.cli_process import plan_floor_name
 from survey.process_store import walks_per_site
 from survey.regular_files import read_regular
 from survey.trace_format import bad_lines_summary
@@ -32,7 +31,7 @@ from survey.trace_format import bad_lines_summary
 from .build import ON_PLAN_M, BuildError, BuildParams, build_floor
 from .bundle_writer import write_bundle
 from .cli_bundle import already_published_text
-from .floorplan import FloorPlan, read_floor_plan
+from .floorplan import FloorPlan, plan_floor_name, read_floor_plan
 from .floorplan_dxf import DXF_ROLES
 from .grid import reachable_mask
 from .radio_build import build_site_radio, format_share, n_floors_text

@@ -172,6 +172,16 @@ def checked_size(path: Path, width_m: float, height_m: float) -> tuple[float, fl
 MAX_LONLAT_SPAN_DEG = 0.5
 
 
+def plan_floor_name(path: str | os.PathLike) -> str:
+    """The floor a floor plan (`process --floor-plan`, `build --plan`) is for: a folder's name, the
+    name of the folder holding a ``geojson_map.json``, else the file's name without its suffix
+    (``plans/F2.dxf``: F2)."""
+    path = Path(path)
+    if path.is_dir() or path.name == "geojson_map.json":
+        return (path if path.is_dir() else path.parent).resolve().name
+    return path.stem
+
+
 def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
                     obstacle_filter: Callable[[dict], bool] | None = None,
                     dxf_layers: dict[str, tuple[str, ...]] | None = None) -> FloorPlan:

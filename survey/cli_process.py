@@ -23,14 +23,6 @@ def _require_walks(selected, everything, site: str | None, floor: str | None) ->
         param_hint="--site/--floor")
 
 
-def plan_floor_name(path: Path) -> str:
-    """The floor a ``--floor-plan`` is for: a folder's name, the name of the folder holding a
-    ``geojson_map.json``, else the file's name without its suffix (``plans/F2.dxf``: F2)."""
-    if path.is_dir() or path.name == "geojson_map.json":
-        return (path if path.is_dir() else path.parent).resolve().name
-    return path.stem
-
-
 @click.command("process")
 @click.option("--store", "store_dir", required=True, type=click.Path(file_okay=False,
                                                                      exists=True))
@@ -45,7 +37,7 @@ def process_command(store_dir: str, site: str | None, floor: str | None,
                     floor_plans: tuple[str, ...]) -> None:
     """Position every sample, scan and beacon row along its walk, calibrate the magnetometer,
     rotate the field into the map frame, and store the results (new or changed walks only)."""
-    from mapping.floorplan import read_floor_plan
+    from mapping.floorplan import plan_floor_name, read_floor_plan
 
     store = SurveyStore.open(store_dir)
     reachable = {}

@@ -12,7 +12,7 @@ import pytest
 from click.testing import CliRunner
 
 from survey.cli import main
-from survey.cli_process import plan_floor_name
+from mapping.floorplan import plan_floor_name
 from survey.errors import ProcessingError, StoreError
 from survey.ingest import ingest
 from survey.process_store import process_store, processed_catalog, processed_table
