@@ -19,7 +19,7 @@ traces inflate about 6 times) is first only measured, its text thrown away step 
 inflated again to be kept only if it is within the limit: a bomb costs about
 ``_SUSPECT_BYTES`` of memory, not ``max_bytes``, before it is refused.
 
-Text saved as UTF-16 is refused whole (:func:`check_not_utf16`), in both modes.
+Text saved as UTF-16 or UTF-32 is refused whole (:func:`check_not_utf16_or_32`), in both modes.
 """
 
 from __future__ import annotations
@@ -60,37 +60,72 @@ def read_trace_bytes(path: str | os.PathLike, *, strict: bool = False,
     A truncated gzip stream raises in strict mode; in lenient mode the readable prefix is
     returned with a note (its last, partial line is then reported as bad). A damaged stream
     raises in both modes, and so do a file that is not a regular file, one whose size on
-    disk or text is over ``max_bytes`` (module docstring) and UTF-16 text.
+    disk or text is over ``max_bytes`` (module docstring) and UTF-16 or UTF-32 text.
     """
     path = Path(path)
     raw = _read_capped(path, max_bytes)
     if raw[:2] != b"\x1f\x8b":
-        check_not_utf16(raw, path)
+        check_not_utf16_or_32(raw, path)
         return raw, None
     chunks, note = _inflate(raw, path, max_bytes)
     if note and strict:
         raise SurveyFormatError(note, path=str(path), reason="gzip")
-    check_not_utf16(chunks[0] if chunks else b"", path)
+    check_not_utf16_or_32(chunks[0] if chunks else b"", path)
     return b"".join(chunks), note  # one chunk (the usual case) is returned without a copy
 
 
-def check_not_utf16(text: bytes, path: str | os.PathLike) -> None:
-    """A SurveyFormatError naming ``path`` when ``text`` (its start is enough) is UTF-16: a
-    byte-order mark, or a NUL byte beside each of the first 64 characters (Windows tools
-    save "Unicode" text so). Read as UTF-8 every line of it was a bad line, and the message
-    ("timestamp is not an integer of milliseconds") did not say why."""
-    head = text[:128]
-    order = ("little" if head[:2] == b"\xff\xfe" else "big" if head[:2] == b"\xfe\xff"
-             else None)
-    if order is None and len(head) >= 16:
-        if not any(head[1::2]) and all(head[0::2]):
-            order = "little"
-        elif not any(head[0::2]) and all(head[1::2]):
-            order = "big"
-    if order is not None:
-        raise SurveyFormatError(f"UTF-16 text ({order}-endian); indoormap reads UTF-8: convert "
-                                "it (e.g. iconv -f UTF-16 -t UTF-8)", path=str(path),
-                                reason="encoding")
+#: Byte-order marks of the text encodings refused (UTF-32's first: UTF-32LE's begins with
+#: UTF-16LE's).
+_WIDE_MARKS = ((b"\xff\xfe\x00\x00", "UTF-32", "little"), (b"\x00\x00\xfe\xff", "UTF-32", "big"),
+               (b"\xff\xfe", "UTF-16", "little"), (b"\xfe\xff", "UTF-16", "big"))
+#: Bytes of a text's start looked at for a wide encoding without a byte-order mark.
+_WIDE_HEAD_BYTES = 4096
+
+
+def wide_encoding(head: bytes) -> tuple[str, str] | None:
+    """``(encoding, byte order)`` when ``head`` (a text, of which the first 4 KiB are read) is
+    UTF-16 or UTF-32, else None.
+
+    A byte-order mark says so; without one, the NUL bytes do. UTF-8 text has none, while in
+    UTF-16 each ASCII character (a trace's every character but those of its names) has a NUL
+    high byte and no character a NUL low byte; in UTF-32 the two high bytes of each character
+    are NUL (characters below U+10000 have both so) and no low byte is. Shares, not every
+    character, decide: a site name in Chinese at the start still reads as UTF-16."""
+    for mark, encoding, order in _WIDE_MARKS:
+        if head.startswith(mark):
+            return encoding, order
+    head = head[:min(len(head), _WIDE_HEAD_BYTES) // 4 * 4]
+    if len(head) < 32:
+        return None
+
+    def nul_share(offset: int, step: int) -> float:
+        part = head[offset::step]
+        return part.count(0) / len(part)
+
+    q = [nul_share(i, 4) for i in range(4)]  # by byte of a 4-byte character
+    h = [nul_share(i, 2) for i in range(2)]  # by byte of a 2-byte character
+    if q[2] == q[3] == 1 and q[0] < 0.05:
+        return "UTF-32", "little"
+    if q[0] == q[1] == 1 and q[3] < 0.05:
+        return "UTF-32", "big"
+    if h[1] >= 0.5 and h[0] < 0.05:  # at least half the characters ASCII
+        return "UTF-16", "little"
+    if h[0] >= 0.5 and h[1] < 0.05:
+        return "UTF-16", "big"
+    return None
+
+
+def check_not_utf16_or_32(text: bytes, path: str | os.PathLike) -> None:
+    """A SurveyFormatError naming ``path`` when ``text`` (its start is enough) is UTF-16 or
+    UTF-32 (:func:`wide_encoding`; Windows tools save "Unicode" text as UTF-16). Read as UTF-8
+    every line of it was a bad line, and the message ("timestamp is not an integer of
+    milliseconds") did not say why."""
+    found = wide_encoding(text)
+    if found is not None:
+        encoding, order = found
+        raise SurveyFormatError(f"{encoding} text ({order}-endian); indoormap reads UTF-8: "
+                                f"convert it (e.g. iconv -f {encoding} -t UTF-8)",
+                                path=str(path), reason="encoding")
 
 
 def not_regular(path: str | os.PathLike) -> SurveyFormatError:

@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 
 from .errors import SurveyFormatError
 from .regular_files import read_regular
-from .trace_bytes import MAX_TRACE_BYTES, check_not_utf16
+from .trace_bytes import MAX_TRACE_BYTES, check_not_utf16_or_32
 from .trace_format import (
     BLE_COLUMNS,
     BLE_DTYPES,
@@ -162,7 +162,7 @@ class PlanWalk:
             raise SurveyFormatError(f"sensor log {log!r} not readable "
                                     f"({getattr(err, 'strerror', None) or err})",
                                     path=where, reason="io") from err
-        check_not_utf16(csv_bytes, csv_path)
+        check_not_utf16_or_32(csv_bytes, csv_path)
         trace = parse_sensor_csv(csv_bytes, reference_ms=float(np.median(times)),
                                  path=str(csv_path), strict=strict)
         trace.trace_id = self.walk_id

@@ -16,6 +16,7 @@ import tracemalloc
 import zlib
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 from click.testing import CliRunner
@@ -23,7 +24,7 @@ from click.testing import CliRunner
 import survey.trace_bytes as trace_bytes
 from survey.cli import main
 from survey.errors import SurveyFormatError
-from survey.trace_bytes import read_trace_bytes
+from survey.trace_bytes import read_trace_bytes, wide_encoding
 from survey.trace_header import parse_header
 from survey.trace_reader import ReadFailure, find_trace_files, iter_traces, read_trace
 from survey.trace_writer import render_trace, write_trace
@@ -440,21 +441,50 @@ def test_a_file_name_that_is_not_utf8_is_refused_by_name(tmp_path):
         find_trace_files([tmp_path])
 
 
-@pytest.mark.parametrize("encoding, order", [("utf-16", "little"), ("utf-16-le", "little"),
-                                             ("utf-16-be", "big")])
-def test_a_utf16_trace_is_named_as_such(tmp_path, encoding, order):
-    """A trace saved as UTF-16 (Windows "Unicode" text; with or without a byte-order mark,
-    gzipped or not) was read as UTF-8: every line a bad line, and the reason given was the
-    first line's ("timestamp is not an integer of milliseconds"). The reason is the
-    encoding, said in both modes; UTF-8 text (with its own mark) still reads."""
-    text = render_trace(small_trace())
-    for name, data in (("a.txt", text.encode(encoding)),
-                       ("b.txt.gz", gzip.compress(text.encode(encoding)))):
-        (tmp_path / name).write_bytes(data)
-        for strict in (False, True):
-            with pytest.raises(SurveyFormatError, match=f"UTF-16 text \\({order}-endian\\); "
-                               "indoormap reads UTF-8") as err:
-                read_trace_bytes(tmp_path / name, strict=strict)
-            assert err.value.reason == "encoding" and name in str(err.value)
-    (tmp_path / "c.txt").write_bytes(b"\xef\xbb\xbf" + text.encode())
-    assert len(read_trace(tmp_path / "c.txt").sensors) == len(small_trace().sensors)
+def _chinese_named_trace_text() -> str:
+    """A small trace's text whose first header line is the site's name in Chinese (as the
+    real mall traces' second line is)."""
+    trace = small_trace()
+    trace.header.site_name = "杭州西溪银泰城"
+    text = render_trace(trace)
+    lines = text.splitlines(keepends=True)
+    at = next(i for i, line in enumerate(lines) if "SiteName:" in line)
+    return lines[at] + "".join(lines[:at] + lines[at + 1:])
+
+
+@pytest.mark.parametrize("encoding, name, order", [
+    ("utf-16", "UTF-16", "little"), ("utf-16-le", "UTF-16", "little"),
+    ("utf-16-be", "UTF-16", "big"), ("utf-32", "UTF-32", "little"),
+    ("utf-32-le", "UTF-32", "little"), ("utf-32-be", "UTF-32", "big")])
+def test_a_utf16_or_32_trace_is_named_as_such(tmp_path, encoding, name, order):
+    """A trace saved as UTF-16 (Windows "Unicode" text) or UTF-32, with or without a
+    byte-order mark, gzipped or not, was read as UTF-8: every line a bad line, and the
+    reason given was the first line's ("timestamp is not an integer of milliseconds"). The
+    reason is the encoding, said in both modes, also when the text starts with a name in
+    Chinese (no NUL beside those characters: a check of every one of the first 64 characters
+    missed it) and for UTF-32 (its mark was said to be UTF-16's); UTF-8 text (with its own
+    mark, or with the Chinese name first) still reads."""
+    for text in (render_trace(small_trace()), _chinese_named_trace_text()):
+        for file, data in (("a.txt", text.encode(encoding)),
+                           ("b.txt.gz", gzip.compress(text.encode(encoding)))):
+            (tmp_path / file).write_bytes(data)
+            for strict in (False, True):
+                with pytest.raises(SurveyFormatError, match=f"{name} text \\({order}-endian\\); "
+                                   f"indoormap reads UTF-8: convert it \\(e.g. iconv -f {name} "
+                                   "-t UTF-8\\)") as err:
+                    read_trace_bytes(tmp_path / file, strict=strict)
+                assert err.value.reason == "encoding" and file in str(err.value)
+    (tmp_path / "c.txt").write_bytes(b"\xef\xbb\xbf" + render_trace(small_trace()).encode())
+    (tmp_path / "d.txt").write_text(_chinese_named_trace_text(), encoding="utf-8")
+    for file in ("c.txt", "d.txt"):
+        assert len(read_trace(tmp_path / file).sensors) == len(small_trace().sensors)
+    assert read_trace(tmp_path / "d.txt").header.site_name == "杭州西溪银泰城"
+
+
+def test_bytes_with_nuls_that_are_no_wide_text_are_not_called_so():
+    """Only the NUL pattern of UTF-16 or UTF-32 names an encoding: NUL bytes alone (a file
+    zero-filled by a crash), random bytes and short texts are left to the trace reader."""
+    rng = np.random.default_rng(0)
+    for data in (bytes(4096), rng.bytes(4096), "ab".encode("utf-16-le"),
+                 b"1\x00" * 10 + b"\x00" * 200):
+        assert wide_encoding(data) is None
