@@ -450,6 +450,16 @@ def read_manifest(path: Path) -> dict:
     except FileNotFoundError as err:
         if not path.exists():
             raise BundleError(f"{path}: no such file or folder") from err
+        members = [name for name in _BUNDLE_MEMBERS if (path / name).exists()]
+        if members:
+            raise BundleIntegrityError(f"{path}: manifest.json is missing, but the folder holds "
+                                       f"a bundle's {', '.join(members)}: a damaged bundle "
+                                       "(build or publish it again)") from err
+        if (path / "history.json").exists() or (path / "versions").is_dir():
+            raise BundleError(f"{path}: a registry floor folder with no current version "
+                              "(published with --no-current, or its CURRENT deleted): make one "
+                              "current with indoormap bundle use REGISTRY SITE/FLOOR VERSION "
+                              "(indoormap bundle list REGISTRY lists them)") from err
         try:  # a hint only: a folder that cannot be listed is no bundle all the same
             inner = sorted(q.name for q in path.iterdir() if is_bundle_dir(q)) \
                 if path.is_dir() else []
@@ -722,6 +732,27 @@ def read_registry_history(floor_dir: str | os.PathLike) -> list[dict]:
     return history
 
 
+def read_registry_pointer(floor_dir: str | os.PathLike) -> dict | None:
+    """A registry floor folder's ``CURRENT`` pointer as written, ``{"bundle_id", "seq"}``,
+    not yet checked against the history (:func:`registry_current` does); None when the folder
+    has none.
+
+    Raises
+    ------
+    RegistryError
+        A damaged pointer: not an object with a bundle id and a whole sequence number.
+    """
+    path = Path(floor_dir) / "CURRENT"
+    if not path.exists():
+        return None
+    cur = read_registry_record(path)
+    if not isinstance(cur, dict) or not isinstance(cur.get("bundle_id"), str) \
+            or type(cur.get("seq")) is not int:
+        raise RegistryError(f"{path}: not a registry pointer (an object with bundle_id and "
+                            "seq)")
+    return cur
+
+
 def registry_current(floor_dir: str | os.PathLike, history: list[dict] | None = None
                      ) -> tuple[Path, dict] | None:
     """The current version of a registry's floor folder (``REG/<site>/<floor>``, which holds
@@ -738,13 +769,9 @@ def registry_current(floor_dir: str | os.PathLike, history: list[dict] | None = 
         version the registry does not hold.
     """
     path = Path(floor_dir) / "CURRENT"
-    if not path.exists():
+    cur = read_registry_pointer(floor_dir)
+    if cur is None:
         return None
-    cur = read_registry_record(path)
-    if not isinstance(cur, dict) or not isinstance(cur.get("bundle_id"), str) \
-            or type(cur.get("seq")) is not int:
-        raise RegistryError(f"{path}: not a registry pointer (an object with bundle_id and "
-                            "seq)")
     bundle_id, seq = cur["bundle_id"], cur["seq"]
     version = path.parent / "versions" / safe_name(bundle_id)
     if history is None:
@@ -752,6 +779,9 @@ def registry_current(floor_dir: str | os.PathLike, history: list[dict] | None = 
     by_seq = {h["seq"]: h["bundle_id"] for h in history}
     by_id = {h["bundle_id"]: h["seq"] for h in history}
     if by_seq.get(seq) != bundle_id:
+        lost = history_lost(path.parent, history, cur)
+        if lost:
+            raise RegistryError(lost)
         if bundle_id not in by_id and seq not in by_seq:
             raise RegistryError(f"{path}: points at version {bundle_id[:16]}, which the "
                                 f"registry does not hold (history.json has neither #{seq} "
@@ -767,6 +797,29 @@ def registry_current(floor_dir: str | os.PathLike, history: list[dict] | None = 
         raise RegistryError(f"{path}: points at version {bundle_id[:16]}, which the "
                             "registry does not hold (its folder is missing)")
     return version, cur
+
+
+def history_lost(floor_dir: str | os.PathLike, history: list[dict], pointer: dict | None
+                 ) -> str | None:
+    """What is wrong when a registry floor's ``history.json`` (read as ``history``) has lost
+    versions, else None: its ``CURRENT`` (read as ``pointer``) names a version the history
+    does not list, whose folder is there, by a newer sequence number than the history's newest
+    (the file deleted, emptied or cut). Publishing then would number a new version as an old
+    one and move the pointer back, and ``bundle use`` would take the newest listed for the
+    newest published."""
+    if pointer is None or any(h["seq"] >= pointer["seq"] or h["bundle_id"] == pointer["bundle_id"]
+                              for h in history):
+        return None
+    floor_dir = Path(floor_dir)
+    if not (floor_dir / "versions" / safe_name(pointer["bundle_id"])).is_dir():
+        return None  # a pointer at no version: said as such
+    path = floor_dir / "history.json"
+    said = ("is missing" if not path.exists() else "lists no version" if not history
+            else f"ends at #{max(h['seq'] for h in history)}")
+    return (f"{path}: {said}, but CURRENT names version {pointer['bundle_id'][:16]} as "
+            f"#{pointer['seq']} and versions/ holds it: the history lost versions. Restore "
+            "history.json (a list of {seq, bundle_id} in publishing order); until then the "
+            "registry refuses to publish to this floor or move its pointer")
 
 
 def finish_publication(folder: Path) -> None:
@@ -785,10 +838,18 @@ def finish_publication(folder: Path) -> None:
                           f"be finished: {exc}") from exc
 
 
+#: Members of a bundle folder besides its manifest: a folder holding one but no manifest is
+#: a damaged bundle, named as one (it was passed over as no bundle at all).
+_BUNDLE_MEMBERS = ("mask.npy", "layers", "tables")
+
+
 def is_bundle_dir(path: str | os.PathLike) -> bool:
-    """Whether ``path`` is a bundle folder or a registry floor folder (with ``CURRENT``)."""
+    """Whether ``path`` is a bundle folder (with ``manifest.json``, or without it but with
+    another member of a bundle: a damaged one, for the loader to refuse) or a registry floor
+    folder (with ``CURRENT``)."""
     path = Path(path)
-    return (path / "manifest.json").exists() or (path / "CURRENT").exists()
+    return any((path / name).exists() for name in ("manifest.json", "CURRENT")
+               + _BUNDLE_MEMBERS)
 
 
 def bundle_dirs(path: str | os.PathLike) -> list[Path]:

@@ -101,6 +101,12 @@ def _bundle_paths(paths: tuple[Path, ...]) -> list[Path]:
         found = bundle_dirs(p) or ([q for site in sorted(p.iterdir()) if site.is_dir()
                                     for q in bundle_dirs(site)] if registry_root else [])
         out += found or [p]
+        if found != [p]:  # registry floors with none current are no bundle, but are said
+            for floor in sorted(p.glob("*/history.json") if not registry_root else
+                                p.glob("*/*/history.json")):
+                if not (floor.parent / "CURRENT").exists():
+                    click.echo(f"note: {floor.parent}: no current version (indoormap bundle "
+                               "use makes one current)", err=True)
     return out
 
 
@@ -198,7 +204,7 @@ def bundle_use(registry: Path, site_floor: str, version: str, rollback: bool) ->
         raise click.BadParameter(f"expected SITE/FLOOR, got {site_floor!r}",
                                  param_hint="SITE/FLOOR")
     reg = Registry(registry)
-    history = reg.history(site, floor)
+    history = reg.writable_history(site, floor)
     if not history:
         raise click.BadParameter(f"{registry}: nothing published for {site_floor}",
                                  param_hint="SITE/FLOOR")

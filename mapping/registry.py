@@ -33,8 +33,10 @@ from pathlib import Path
 
 from localize.bundle import (
     MapBundle,
+    history_lost,
     load_bundle,
     read_registry_history,
+    read_registry_pointer,
     registry_current,
     safe_name,
 )
@@ -76,6 +78,21 @@ class Registry:
         :func:`localize.bundle.read_registry_history`)."""
         return read_registry_history(self._floor(site, floor))
 
+    def writable_history(self, site: str, floor: str) -> list[dict]:
+        """:meth:`history`, refused when it has lost versions (a RegistryError, see
+        :func:`localize.bundle.history_lost`): a writer would number a new version as an old
+        one, or move the pointer back, taking the newest listed for the newest published."""
+        base = self._floor(site, floor)
+        history = read_registry_history(base)
+        try:
+            pointer = read_registry_pointer(base)
+        except RegistryError:
+            pointer = None  # a damaged pointer: repaired by pointing it at a version
+        lost = history_lost(base, history, pointer)
+        if lost:
+            raise RegistryError(lost)
+        return history
+
     def current(self, site: str, floor: str, history: list[dict] | None = None
                 ) -> dict | None:
         """The current version's pointer ``{"bundle_id", "seq"}``, None before any; a
@@ -100,27 +117,25 @@ class Registry:
     def list(self) -> list[dict]:
         """Every (site, floor, version): ``{"site", "floor", "seq", "bundle_id", "current",
         "problem"}``. A floor whose pointer cannot be trusted lists its versions with none
-        current and the reason in ``problem``; one whose ``history.json`` cannot be read is
-        one row with ``seq`` and ``bundle_id`` None and the reason. The other floors list as
+        current and the reason in ``problem``; one whose ``history.json`` cannot be read, or
+        lists no version while the floor has a pointer, is one row with ``seq`` and
+        ``bundle_id`` None and the reason. The other floors list as
         usual (``problem`` None)."""
         out = []
         for site_dir in sorted(p for p in self.root.iterdir() if p.is_dir()) \
                 if self.root.exists() else []:
             for floor_dir in sorted(p for p in site_dir.iterdir() if p.is_dir()):
                 where = {"site": site_dir.name, "floor": floor_dir.name}
+                history, cur, problem = [], {}, None
                 try:
                     history = self.history(site_dir.name, floor_dir.name)
+                    cur = self.current(site_dir.name, floor_dir.name, history) or {}
                 except RegistryError as err:
-                    out.append({**where, "seq": None, "bundle_id": None, "current": False,
-                                "problem": str(err)})
-                    continue
-                try:
-                    cur, problem = self.current(site_dir.name, floor_dir.name,
-                                                history) or {}, None
-                except RegistryError as err:
-                    cur, problem = {}, str(err)
+                    problem = str(err)
                 out += [{**where, **h, "current": h["bundle_id"] == cur.get("bundle_id"),
-                         "problem": problem} for h in history]
+                         "problem": problem} for h in history] or (
+                    [{**where, "seq": None, "bundle_id": None, "current": False,
+                      "problem": problem}] if problem else [])
         return out
 
     def publish(self, bundle_dir: str | os.PathLike, *, make_current: bool = True) -> dict:
@@ -131,6 +146,7 @@ class Registry:
         site = bundle.site_id  # strings: load_bundle checked them
         floor = SITE_BUNDLE if bundle.manifest["kind"] == "site" else bundle.manifest["floor_name"]
         with self._writing(site, floor) as base:
+            history = self.writable_history(site, floor)  # writers hold the lock: it stays so
             target = base / "versions" / bundle.bundle_id
             if not target.exists():
                 with atomic_directory(target, crash_prefix="registry") as tmp:
@@ -143,7 +159,6 @@ class Registry:
                             shutil.copyfile(src, tmp / rel)
             load_bundle(target)  # the copy, or the version already there, is intact
             crash_point("registry:after-copy")
-            history = self.history(site, floor)
             entry = next((h for h in history if h["bundle_id"] == bundle.bundle_id), None)
             if entry is None:
                 entry = {"seq": (history[-1]["seq"] + 1) if history else 1,
@@ -171,7 +186,7 @@ class Registry:
         """``set_current`` under the writer lock; ``verify=False`` for the version ``publish``
         has just verified, and its ``history`` as it has just written it (None: read it)."""
         if history is None:
-            history = self.history(site, floor)
+            history = self.writable_history(site, floor)
         entry = next((h for h in history if h["bundle_id"] == bundle_id), None)
         if entry is None:
             raise RegistryError(f"{site}/{floor}: version {bundle_id} is not published")

@@ -488,3 +488,65 @@ def test_the_writer_refuses_a_site_id_the_reader_would(tmp_path):
     with pytest.raises(BundleError, match="bundle site_id 'site.x01' holds a control character"):
         write_bundle(tmp_path / "b", content)
     assert not (tmp_path / "b").exists()
+
+
+@pytest.mark.parametrize("damage", ["deleted", "emptied", "cut"])
+def test_a_history_that_lost_versions_is_refused_by_writers(registry, tmp_path, damage):
+    """A floor whose history.json was deleted, emptied or cut while CURRENT and versions/
+    kept the newer version: publishing took the floor for a new one, numbered the older
+    bundle #1 again and moved CURRENT back to it (exit 0, and verify then said ok). Every
+    writer now refuses, naming the file; list and verify name it too, and nothing moves."""
+    reg, e1, e2 = registry
+    floor = reg.root / "site" / "F1"
+    hist = floor / "history.json"
+    if damage == "deleted":
+        hist.unlink()
+    else:
+        hist.write_text(json.dumps([] if damage == "emptied" else [e1]))
+    said = {"deleted": "is missing", "emptied": "lists no version", "cut": "ends at #1"}[damage]
+    message = f"history.json: {said}, but CURRENT names version {e2['bundle_id'][:16]} as #2"
+    write_bundle(tmp_path / "v3", _content(2))
+    for bundle in ("v1", "v3"):
+        with pytest.raises(RegistryError, match=message):
+            reg.publish(tmp_path / bundle)
+    for seq in ("#1", "#2"):
+        res = CliRunner().invoke(main, ["bundle", "use", str(reg.root), "site/F1", seq])
+        assert res.exit_code == 1 and said in res.output, res.output
+    with pytest.raises(RegistryError, match=message):
+        load_bundle(floor)
+    res = CliRunner().invoke(main, ["bundle", "list", str(reg.root)])
+    assert res.exit_code == 1 and message in res.output, res.output
+    res = CliRunner().invoke(main, ["bundle", "verify", str(floor)])
+    assert res.exit_code == 1 and said in res.output
+    assert json.loads((floor / "CURRENT").read_text()) == e2
+    assert sorted(p.name for p in (floor / "versions").iterdir()) == sorted(
+        [e1["bundle_id"], e2["bundle_id"]])
+
+
+def test_a_bundle_without_its_manifest_is_named_not_passed_over(tmp_path):
+    """Deleting one file, a bundle's manifest.json, made the bundle vanish from a folder of
+    bundles: `bundle verify`/`info` on the folder exited 0 without it and `localize` said the
+    bundles held no such floor. It is now a damaged bundle, refused by name; a registry floor
+    with no current version (published with --no-current) is said, not failed."""
+    from localize.floors import SiteMaps
+
+    out = tmp_path / "out"
+    write_bundle(out / "F1", _content(0))
+    content = _content(1)
+    content.floor_id, content.floor_name = "f2", "F2"
+    write_bundle(out / "F2", content)
+    (out / "F1" / "manifest.json").unlink()
+    run = CliRunner().invoke
+    for args in (["bundle", "verify", str(out)], ["bundle", "info", str(out)]):
+        res = run(main, args)
+        assert res.exit_code == 1 and f"{out / 'F1'}: manifest.json is missing, but the " \
+            "folder holds a bundle's mask.npy, layers" in res.output, res.output
+    with pytest.raises(BundleIntegrityError, match="F1: manifest.json is missing"):
+        SiteMaps.open(out)
+    reg = Registry(tmp_path / "reg")
+    reg.publish(out / "F2", make_current=False)
+    floor = reg.root / "site" / "F2"
+    with pytest.raises(BundleError, match="a registry floor folder with no current version"):
+        load_bundle(floor)
+    res = run(main, ["bundle", "verify", str(reg.root / "site")])
+    assert f"note: {floor}: no current version" in res.output
