@@ -140,6 +140,15 @@ def floors_of(path: Path) -> list[Path]:
                     f"each, e.g. {sites[0]}")
         raise click.UsageError(f"{path}: neither a floor folder (with geojson_map.json) nor a "
                                f"site folder of floors; {hint}")
+    if floors != [path]:  # a site: a floor folder without its plan was passed over
+        planless = [p.name for p in sorted(path.iterdir()) if p.is_dir() and p not in floors
+                    and any((p / n).exists() for n in ("path_data_files", "floor_info.json"))]
+        if planless:
+            raise click.UsageError(
+                f"{path}: the floor folder{'s' if len(planless) > 1 else ''} "
+                f"{', '.join(planless)} of this site {'have' if len(planless) > 1 else 'has'} "
+                "no geojson_map.json: add the plan, or move the folder out of the site folder "
+                "(the site's floor model would be made without its walks)")
     for floor in floors:  # before the work, not when publishing
         check_floor_bundle_name(floor.name, f"{floor}: the folder name")
     return floors
