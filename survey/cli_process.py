@@ -23,6 +23,12 @@ def _require_walks(selected, everything, site: str | None, floor: str | None) ->
         param_hint="--site/--floor")
 
 
+def _plan_file(floor_plan: str) -> Path:
+    """The file a ``--floor-plan`` names: a floor folder's ``geojson_map.json``, resolved."""
+    path = Path(floor_plan).resolve()
+    return path / "geojson_map.json" if path.is_dir() else path
+
+
 @click.command("process")
 @click.option("--store", "store_dir", required=True, type=click.Path(file_okay=False,
                                                                      exists=True))
@@ -32,7 +38,7 @@ def _require_walks(selected, everything, site: str | None, floor: str | None) ->
               help="A floor plan whose reachable area flags legs leaving it: a floor folder "
                    "(geojson_map.json [+ floor_info.json]; the folder's name is the floor) or "
                    "a plan file (GeoJSON, DXF; the file's name without suffix is the floor). "
-                   "Repeatable.")
+                   "Repeatable; two plans of one floor are refused.")
 def process_command(store_dir: str, site: str | None, floor: str | None,
                     floor_plans: tuple[str, ...]) -> None:
     """Position every sample, scan and beacon row along its walk, calibrate the magnetometer,
@@ -48,11 +54,12 @@ def process_command(store_dir: str, site: str | None, floor: str | None,
                                    f"into it first (indoormap ingest PATH --store "
                                    f"{store_dir})")
     _require_walks(cat, everything, site, floor)
+    plan_of: dict[tuple[str, str], str] = {}  # (site, floor) -> the plan given for it
     for fp in floor_plans:
         plan = read_floor_plan(fp)
         for repair in plan.repairs:
             click.echo(f"warning: {repair}", err=True)
-        name = plan_floor_name(Path(fp))
+        name = plan_floor_name(fp)
         sites = cat.loc[cat["floor"] == name, "site"].unique()
         if not len(sites):
             click.echo(f"warning: {fp}: no walks of floor {name!r} to check against this plan "
@@ -67,6 +74,11 @@ def process_command(store_dir: str, site: str | None, floor: str | None,
                 click.echo(f"warning: {fp}: used for floor {name!r} of every site that has one "
                            f"({', '.join(sorted(sites))}); give --site to pick one", err=True)
         for s in sites:
+            other = plan_of.setdefault((s, name), fp)
+            if _plan_file(other) != _plan_file(fp):  # the last one won, unsaid
+                raise click.BadParameter(f"{other} and {fp} are both plans of floor {name!r} "
+                                         f"of site {s} (by their names); give one",
+                                         param_hint="--floor-plan")
             reachable[(s, name)] = plan.reachable
     with progress("process", len(cat), unit="walks") as update:
         report = process_store(store, site=site, floor=floor, reachable=reachable,

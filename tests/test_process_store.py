@@ -124,6 +124,16 @@ def test_floor_plan_files_name_their_floor(tmp_path):
     assert "F7.dxf: no walks of floor 'F7' to check against this plan (floors: F1)" in res.output
     legs = processed_table(tmp_path / "store", "legs")
     assert legs["flags"].str.contains("off_floor").all()
+    # two plans of one floor: the last one was used, unsaid; the same one twice is one
+    res = CliRunner().invoke(main, ["process", "--store", str(tmp_path / "store"),
+                                    "--floor-plan", str(tmp_path / "plans" / "F1.dxf"),
+                                    "--floor-plan", str(SITE / "F1")])
+    assert res.exit_code == 2 and "F1.dxf and " in res.output and "are both plans of floor " \
+        "'F1'" in " ".join(res.output.split()), res.output
+    res = CliRunner().invoke(main, ["process", "--store", str(tmp_path / "store"),
+                                    "--floor-plan", str(SITE / "F1"),
+                                    "--floor-plan", str(SITE / "F1" / "geojson_map.json")])
+    assert res.exit_code == 0, res.output
 
 
 PROCESS_OTHER_PARAMS = """
