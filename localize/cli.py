@@ -346,8 +346,6 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
         if target is not None:
             refuse_output_inside_data(target, option)  # a file there damaged a bundle
             refuse_to_replace(target, overwrite, suffixes=(suffix,))  # before the work
-            if target.parent.exists() and not target.parent.is_dir():
-                raise click.BadParameter(f"{target.parent} is a file, not a folder")
     start_opt = _parse_start(start)
     failures = WalkFailures()
     files = trace_files(walks, failures)  # a mistyped path is said before the bundles load

@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from survey.errors import PublishError
-from survey.publish import atomic_directory, refuse_to_replace
+from survey.publish import atomic_directory, check_parent_is_a_folder, refuse_to_replace
 
 
 @click.command("validate")
@@ -59,6 +59,7 @@ def validate_command(bundle: Path, store_dir: Path | None, out_dir: Path,
     )
 
     refuse_output_inside_data(out_dir)  # files there made a bundle fail its checks
+    check_parent_is_a_folder(out_dir)
     if out_dir.exists() and any(out_dir.iterdir()):  # said before minutes of work
         refuse_to_replace(out_dir, overwrite)
         if not (out_dir / "metrics.json").is_file():

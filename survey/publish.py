@@ -164,13 +164,27 @@ def remove_stale_temporaries(parent: str | os.PathLike, prefix: str = TMP_PREFIX
     return n
 
 
+def check_parent_is_a_folder(path: str | os.PathLike) -> None:
+    """A :class:`PublishError` when the nearest existing folder above an output ``path`` is a
+    file: the command found out only when it wrote, after its work, and said "File exists"
+    (read as "pass --overwrite")."""
+    for parent in Path(path).absolute().parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise PublishError(f"{parent} is a file, not a folder: {path} cannot be made "
+                                   "under it")
+            return
+
+
 def refuse_to_replace(path: str | os.PathLike, overwrite: bool, *,
                       suffixes: tuple[str, ...] = ()) -> None:
     """A :class:`PublishError` when a command's output ``path`` exists and ``--overwrite``
     was not given, or (``suffixes``, lower case) when it was but the existing file's name
     does not end with one of them: ``--csv st/catalog.parquet --overwrite`` would have
-    replaced the command's own input. Commands call it before any work."""
+    replaced the command's own input; or when a folder it would be made in is a file
+    (:func:`check_parent_is_a_folder`). Commands call it before any work."""
     path = Path(path)
+    check_parent_is_a_folder(path)
     if not path.exists():
         return
     if not overwrite:

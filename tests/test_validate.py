@@ -357,6 +357,21 @@ def test_a_report_is_replaced_whole_and_only_when_asked(sites, tmp_path):
     assert not (bundle / "report").exists()
 
 
+def test_an_output_under_a_file_is_refused_before_the_work(tmp_path, sites):
+    """validate, simulate and survey-report ran their work (validate 37 s on a real floor),
+    then said only "FILE: File exists" (read as: pass --overwrite) when a folder on the
+    output's path was a file. It is said first, naming the file."""
+    (tmp_path / "FILE").write_text("keep me")
+    under = str(tmp_path / "FILE" / "sub")
+    _, bundle, store = sites["clean"]
+    for args in (["validate", str(bundle), "-o", under], ["simulate", under],
+                 ["survey-report", "--store", str(store), "--csv", f"{under}.csv"]):
+        res = CliRunner().invoke(main, args)
+        assert res.exit_code in (1, 2) and f"{tmp_path / 'FILE'} is a file, not a folder: " \
+            in " ".join(res.output.split()), (args, res.output)
+    assert (tmp_path / "FILE").read_text() == "keep me"
+
+
 def test_usage_errors_exit_2(tmp_path):
     res = CliRunner().invoke(main, ["validate", str(tmp_path / "missing"), "-o",
                                     str(tmp_path / "o")])
