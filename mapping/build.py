@@ -175,7 +175,7 @@ def floor_walks(store: SurveyStore, site: str | None, floor: str,
                          f"{processed_floors_text(store)}")
     pcat = pcat[~pcat["trace_id"].isin(list(exclude_walks))]
     if not len(pcat):
-        raise BuildError(f"{store.root}: all {where}'s processed walks are excluded")
+        raise BuildError(f"{store.root}: every processed walk of {where} is excluded")
     if site is None and pcat["site"].nunique() > 1:  # one map would merge two buildings
         raise BuildError(f"{store.root}: {where} has walks of several sites ("
                          f"{walks_per_site(pcat)}); give the site to build")

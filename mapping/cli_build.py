@@ -474,6 +474,12 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
                 check_floor_names(cat, summary, name, folder, say,
                                   planned=plan_file is not None)
         left_out = excluded_walks(cat, summary, inputs, excluding, say)
+        for name in plans:  # said here, not by the build with its temporary store's path
+            walks = cat.loc[cat["floor"] == name, "trace_id"]
+            if excluding and len(walks) and walks.isin(list(left_out)).all():
+                raise click.BadParameter(f"it leaves floor {name!r} no walk to build from "
+                                         f"(its {len(walks)} are left out)",
+                                         param_hint="--exclude")
         site = one_site(cat[~cat["trace_id"].isin(list(left_out))], inputs)
         reachable = {(s, fl): plans[fl].reachable for s, fl in
                      cat[["site", "floor"]].drop_duplicates().itertuples(index=False)

@@ -149,7 +149,7 @@ def test_excluded_walks_stay_out_of_the_map(store):
                               equal_nan=True)
     # the radio maps leave them out too
     assert 0 < part.tables["wifi_rp"].num_rows < full.tables["wifi_rp"].num_rows
-    with pytest.raises(BuildError, match="processed walks are excluded"):
+    with pytest.raises(BuildError, match="every processed walk of floor .F1. is excluded"):
         build_floor(store, plan, floor="F1", exclude_walks=set(walks))
     with pytest.raises(TypeError, match="collection of trace ids"):
         build_floor(store, plan, floor="F1", exclude_walks=walks[0])
@@ -650,6 +650,15 @@ def test_build_from_a_subset_of_walks_builds_that_subset(tmp_path):
     assert res.exit_code == 2 and "'nosuch' is no walk of this build" in res.output
     assert "1 more" in res.output  # the walk left out of the folder is none of its walks
     assert "ingest" not in res.output  # refused before the work
+    assert not (tmp_path / "other").exists()
+    # every walk excluded: said by floor, not by the build naming its temporary store
+    (tmp_path / "all.txt").write_text("\n".join(f.name for f in files[:-1]))
+    res = CliRunner().invoke(main, [
+        "build", str(train), "--plan", str(SITE / "F1" / "geojson_map.json"),
+        "--exclude", f"@{tmp_path / 'all.txt'}", "-o", str(tmp_path / "other")])
+    assert res.exit_code == 2 and f"it leaves floor 'F1' no walk to build from (its " \
+        f"{len(files) - 1} are left out)" in " ".join(res.output.split()), res.output
+    assert "indoormap-build-" not in res.output.split("Error:")[-1]
     assert not (tmp_path / "other").exists()
 
 
