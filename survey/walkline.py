@@ -376,7 +376,13 @@ def parse_sensor_csv(data: bytes, *, reference_ms: float, path: str = "<input>",
         raise SurveyFormatError("sensor log has duplicate column names", path=path, reason="csv")
     columns = set(names)
     if "t_ms" not in columns:
-        raise SurveyFormatError("sensor log needs a 't_ms' column", path=path, reason="csv")
+        sep = next((sep for sep in (";", "\t", "|") if len(names) == 1 and sep in names[0]),
+                   None)
+        said = (f": its header is one column, {names[0][:40]!r}; the log must be "
+                f"comma-separated, not {'tab' if sep == chr(9) else repr(sep)}-separated"
+                if sep else "")
+        raise SurveyFormatError(f"sensor log needs a 't_ms' column{said}", path=path,
+                                reason="csv")
     report.lines_total = table.num_rows + 1 + len(wrong_width)
     report.header_lines = 1
     numeric = {c: _numeric(table.column(c)) for c in names}

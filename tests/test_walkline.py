@@ -158,6 +158,13 @@ def test_csv_errors(tmp_path):
     plan = _plan(tmp_path, [_feature("a", [[0, 0], [1, 0]], start_ms=T0, end_ms=T0 + 1980)])
     with pytest.raises(SurveyFormatError, match="needs a 't_ms' column"):
         read_walk_plan(plan)
+    # a semicolon or tab for a comma: the header is one column named as the whole line
+    for sep, said in ((";", "';'"), ("\t", "tab")):
+        (tmp_path / "a.csv").write_text(sep.join(["t_ms", "acc_x", "acc_y", "acc_z"])
+                                        + "\n" + sep.join("1234") + "\n")
+        with pytest.raises(SurveyFormatError, match=f"its header is one column, .*must be "
+                           f"comma-separated, not {said}-separated"):
+            read_walk_plan(plan)
     (tmp_path / "a.csv").write_text("t_ms,acc_x,acc_y\n1,2,3\n")
     with pytest.raises(SurveyFormatError, match="missing \\['acc_z'\\]"):
         read_walk_plan(plan)
