@@ -335,19 +335,29 @@ def _add_results(w, summary: IngestSummary, results: list[tuple[str, dict | None
         if row is None:
             out.append(IngestOutcome(path, trace_id_from_path(path), "failed", error))
         else:
-            out.append(IngestOutcome(path, row["trace_id"], w.add_row(row)))
+            out.append(_outcome(w, path, row))
             summary.add_row(row)
     return out
+
+
+def _outcome(w, path: str, row: dict) -> IngestOutcome:
+    """Register a parsed walk's catalog ``row`` with the writer ``w``: its outcome, saying
+    what it replaced when it replaced a stored walk (``changed``)."""
+    was = w.stored_text(row["trace_id"])
+    status = w.add_row(row)
+    return IngestOutcome(path, row["trace_id"], status,
+                         f"replaced {was}" if status == "changed" and was else "")
 
 
 def _add_walk(w, summary: IngestSummary, trace, source: str, sha: str, size: int,
               floor_default: str | None) -> IngestOutcome:
     """Store one walk of a walk plan with the writer ``w``; its row is added to ``summary``,
     its outcome returned."""
-    status = w.add(trace, source_path=source, sha256=sha, size_bytes=size,
-                   source_format="walkline", floor_default=floor_default)
-    summary.add_row(w.pending[trace.trace_id])
-    return IngestOutcome(source, trace.trace_id, status)
+    row = catalog_row(trace, source_path=source, sha256=sha, size_bytes=size,
+                      source_format="walkline", floor_default=floor_default)
+    write_parts(w.root, trace, row)
+    summary.add_row(row)
+    return _outcome(w, source, row)
 
 
 def _chunks(todo: list[tuple], batch_bytes: int, workers: int) -> list[list[tuple]]:

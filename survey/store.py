@@ -605,12 +605,14 @@ class _StoreWriter:
             return "repaired"
         return "changed" if existed else "new"
 
-    def add(self, trace: Trace, *, source_path: str, sha256: str, size_bytes: int,
-            source_format: str = "trace", floor_default: str | None = None) -> str:
-        row = catalog_row(trace, source_path=source_path, sha256=sha256, size_bytes=size_bytes,
-                          source_format=source_format, floor_default=floor_default)
-        write_parts(self.root, trace, row)
-        return self.add_row(row)
+    def stored_text(self, trace_id: str) -> str:
+        """What the catalog holds for ``trace_id`` as committed: its source file and lines,
+        for an outcome that replaces it (empty when it holds none)."""
+        old = self.cat[self.cat["trace_id"] == trace_id]
+        if not len(old):
+            return ""
+        row = old.iloc[0]
+        return f"{row['source_path']}, {row['n_lines']} lines"
 
     def commit(self) -> None:
         if not self.pending and not self.hashed:

@@ -38,6 +38,16 @@ def test_ingest_prints_summary_and_is_idempotent(tmp_path):
     again = runner.invoke(main, ["ingest", str(tmp_path / "in"), "--store",
                                  str(tmp_path / "store")])
     assert again.exit_code == 0 and "unchanged 2" in again.output
+    # another file of w1's name (a cut copy elsewhere) replaces the stored walk: said, with
+    # what it replaced (it was only counted as "changed 1")
+    write_trace(tmp_path / "copy" / "w1.txt.gz", small_trace(n=20, trace_id="w1"))
+    cut = runner.invoke(main, ["ingest", str(tmp_path / "copy"), "--store",
+                               str(tmp_path / "store")])
+    lines = SurveyStore.open(tmp_path / "store").catalog().set_index("trace_id")
+    assert cut.exit_code == 0 and "changed 1" in cut.output
+    assert (f"changed w1: now {tmp_path / 'copy' / 'w1.txt.gz'}; replaced "
+            f"{tmp_path / 'in' / 'w1.txt.gz'}, ") in cut.output, cut.output
+    assert lines.loc["w1", "source_path"] == str(tmp_path / "copy" / "w1.txt.gz")
 
 
 def test_strict_exits_1_with_file_and_line(tmp_path):
