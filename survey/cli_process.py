@@ -142,6 +142,7 @@ def survey_report_command(store_dir: str, site: str | None, floor: str | None,
 
         refuse_output_inside_data(Path(csv_path), "--csv")  # a file there damaged a bundle
         refuse_to_replace(csv_path, overwrite, suffixes=(".csv",))
+    SurveyStore.open(store_dir).catalog()  # a damaged store is said, as by every command
     everything = cat = processed_catalog(store_dir)
     if site is not None:
         cat = cat[cat["site"] == site]

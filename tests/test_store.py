@@ -329,6 +329,10 @@ def test_a_processed_store_whose_catalog_is_lost_is_refused(tmp_path):
         SurveyStore.open(store.root).catalog()
     res = CliRunner().invoke(main, ["store", "verify", str(store.root)])
     assert res.exit_code == 1 and "damaged store" in res.output
+    # survey-report read the processed catalog alone and printed its report, exit 0
+    res = CliRunner().invoke(main, ["survey-report", "--store", str(store.root)])
+    assert res.exit_code == 1 and "catalog.parquet: missing, but the store has processed " \
+        "walks" in " ".join(res.output.split()), res.output
 
 
 def test_a_file_renamed_and_replaced_in_one_run_loses_nothing(tmp_path):
