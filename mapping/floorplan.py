@@ -135,7 +135,8 @@ def _read_json(path: Path, what: str, sources: list[tuple[str, str]]) -> object:
     try:
         return json.loads(text)
     except json.JSONDecodeError as err:
-        raise FloorPlanError(f"{path}:{err.lineno}: not valid JSON ({err.msg})") from err
+        raise FloorPlanError(f"{path}:{err.lineno}: not valid JSON ({err.msg}: column "
+                             f"{err.colno})") from err
     except RecursionError as err:  # absurdly deep nesting
         raise FloorPlanError(f"{path}: not {what} (nested too deeply)") from err
 

@@ -352,7 +352,8 @@ def test_a_broken_floor_info_is_named_with_its_line(tmp_path):
     (floor / "floor_info.json").write_text('{"map_info":\n  {"width": 40,, "height": 25}}')
     res = CliRunner().invoke(main, ["build", str(floor), "-o", str(tmp_path / "out")])
     assert res.exit_code == 1
-    assert f"{floor / 'floor_info.json'}:2: not valid JSON" in res.output
+    assert f"{floor / 'floor_info.json'}:2: not valid JSON (Expecting property name enclosed " \
+        "in double quotes: column 16)" in res.output
 
 
 @pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")  # the NaN
