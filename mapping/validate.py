@@ -506,6 +506,20 @@ def load_floor_data(store: SurveyStore | str | Path, bundle: MapBundle) -> Floor
                      tuple(not_in_bundle))
 
 
+def floor_dir_problem(floor_dir: Path, floor_name: str) -> str | None:
+    """Why a floor folder given for the figures (``--floor-dir``) cannot be the bundle's
+    floor ``floor_name``, else None: it holds neither ``floor_image.png`` nor
+    ``floor_info.json``, or a floor plan of another floor by its folder's name."""
+    if not any((floor_dir / n).exists() for n in ("floor_image.png", "floor_info.json")):
+        return (f"--floor-dir {floor_dir} holds neither floor_image.png nor floor_info.json: "
+                "the figures have no floor image")
+    name = floor_dir.resolve().name
+    if floor_name and (floor_dir / "geojson_map.json").exists() and name != floor_name:
+        return (f"--floor-dir {floor_dir} is the folder of floor {name!r}, the bundle's floor "
+                f"is {floor_name!r}: the figures are drawn over another floor's image")
+    return None
+
+
 def floor_dir_of(fd: FloorData | None) -> Path | None:
     """The floor folder the walks were ingested from (``<floor>/path_data_files/<trace>``),
     when it still exists and holds a plan."""
@@ -1384,6 +1398,10 @@ def validate_bundle(bundle: MapBundle | str | Path,
                                 "bundle itself was checked; held-out accuracy, consistency and "
                                 "data quality need the store", "summary"))
     fdir = Path(floor_dir) if floor_dir else floor_dir_of(fd)
+    if floor_dir:  # a folder given by hand: said when it cannot be this floor's
+        problem = floor_dir_problem(fdir, b.manifest.get("floor_name", ""))
+        if problem:
+            findings.append(Finding("floor_dir", "warn", problem, "summary"))
     say("coverage")
     metrics["coverage"] = timed("coverage", lambda: coverage_section(b, fd, th, params, findings,
                                                                     arrays))
@@ -1588,8 +1606,9 @@ def summary_lines(result: ValidationResult) -> list[str]:
     if left_out:
         lines.append(f"{len(left_out)} walk(s) of the store not in the bundle left out")
     warns = [f for f in result.findings if f.severity == "warn"]
-    lines += [f"warning: {f.message}" for f in warns if f.check == "no_store"]
-    others = sum(f.check != "no_store" for f in warns)
+    said = ("no_store", "floor_dir")  # said here, not only in the report
+    lines += [f"warning: {f.message}" for f in warns if f.check in said]
+    others = sum(f.check not in said for f in warns)
     if others:
         lines.append(f"{others} warning(s) in the report")
     fails = result.failed

@@ -372,6 +372,27 @@ def test_an_output_under_a_file_is_refused_before_the_work(tmp_path, sites):
     assert (tmp_path / "FILE").read_text() == "keep me"
 
 
+def test_a_floor_dir_that_cannot_be_the_bundles_floor_is_said(sites, tmp_path):
+    """--floor-dir was taken as given: an empty folder, or another floor's, drew the
+    figures over nothing or over the other floor's image without a word."""
+    site, bundle, _ = sites["clean"]
+    (tmp_path / "empty").mkdir()
+    other = tmp_path / "F9"
+    shutil.copytree(site / "F1", other, ignore=shutil.ignore_patterns("path_data_files"))
+    for folder, said in ((tmp_path / "empty", "holds neither floor_image.png nor "
+                                              "floor_info.json"),
+                         (other, "is the folder of floor 'F9', the bundle's floor is 'F1'"),
+                         (site / "F1", None)):
+        res, metrics = _validate(bundle, None, tmp_path / f"r-{folder.name}", "--floor-dir",
+                                 str(folder))
+        found = [f for f in metrics["findings"] if f["check"] == "floor_dir"]
+        if said is None:
+            assert not found and "--floor-dir" not in res.output, res.output
+        else:
+            assert said in found[0]["message"] and f"warning: --floor-dir {folder} " in \
+                res.output and said in " ".join(res.output.split()), res.output
+
+
 def test_usage_errors_exit_2(tmp_path):
     res = CliRunner().invoke(main, ["validate", str(tmp_path / "missing"), "-o",
                                     str(tmp_path / "o")])
