@@ -461,8 +461,8 @@ def read_manifest(path: Path) -> dict:
                               "current with indoormap bundle use REGISTRY SITE/FLOOR VERSION "
                               "(indoormap bundle list REGISTRY lists them)") from err
         try:  # a hint only: a folder that cannot be listed is no bundle all the same
-            inner = sorted(q.name for q in path.iterdir() if is_bundle_dir(q)) \
-                if path.is_dir() else []
+            inner = sorted(q.name for q in path.iterdir() if not q.name.startswith(".")
+                           and is_bundle_dir(q)) if path.is_dir() else []
         except OSError:
             inner = []
         floors = [n for n in inner if n != "_site"]  # the site bundle is no floor's
@@ -855,14 +855,16 @@ def is_bundle_dir(path: str | os.PathLike) -> bool:
 def bundle_dirs(path: str | os.PathLike) -> list[Path]:
     """The bundles ``path`` names: itself when it is one (:func:`is_bundle_dir`), else the
     bundle folders directly in it (a build's output, a registry's site folder), sorted;
-    empty when there are none."""
+    empty when there are none. Hidden folders (``.tmp-*``: a bundle being written, or one
+    whose writer was killed) are none of them."""
     path = Path(path)
     if not path.exists():  # a bundle a killed build left between two renames (no swap)
         finish_publication(path.parent)
     if is_bundle_dir(path):
         return [path]
     finish_publication(path)
-    return sorted(q for q in path.iterdir() if is_bundle_dir(q)) if path.is_dir() else []
+    return sorted(q for q in path.iterdir() if not q.name.startswith(".") and is_bundle_dir(q)
+                  ) if path.is_dir() else []
 
 
 def load_bundle(path: str | os.PathLike) -> MapBundle:

@@ -130,8 +130,9 @@ class SiteMaps:
         from localize.floor_classifier import site_floor_models
 
         path = Path(path)
-        subs = [load_bundle(path)] if is_bundle_dir(path) else [
-            load_bundle(p) for p in bundle_dirs(path)]
+        # a registry floor with no current version: load_bundle says so and what to do
+        subs = [load_bundle(path)] if is_bundle_dir(path) or (path / "history.json").exists() \
+            else [load_bundle(p) for p in bundle_dirs(path)]
         if not subs:
             raise LocalizationError(f"{path}: neither a bundle nor a folder of bundles (nor a "
                                     "registry's site folder)")

@@ -275,10 +275,13 @@ def one_site(catalog: pd.DataFrame, inputs: list[Path]) -> str | None:
 
 
 def excluded_walks(catalog: pd.DataFrame, summary: IngestSummary, inputs: list[Path],
-                   names: list[str], say: Callable[[str], None]) -> set[str]:
+                   names: list[str], say: Callable[[str], None], *, floors: list[str]
+                   ) -> set[str]:
     """Trace ids a build leaves out: the walks of a ``--store`` that are not under its input
     folders (said), and those ``--exclude`` names (:func:`exclude_names`) by trace id or
-    file name; a usage error names one that matches no walk."""
+    file name; a usage error names one that matches no walk, or a floor of ``floors`` (those
+    built) whose every walk of the inputs it names (the build said so naming its temporary
+    store)."""
     used = set().union(*(set(ingested_from(catalog, summary, f)["trace_id"]) for f in inputs))
     outside = set(catalog["trace_id"]) - used
     if outside:
@@ -295,6 +298,11 @@ def excluded_walks(catalog: pd.DataFrame, summary: IngestSummary, inputs: list[P
                                      "trace file's name or a walk plan's sensor log)",
                                      param_hint="--exclude")
         dropped |= set(mine.loc[hit, "trace_id"])
+    for floor in floors:
+        walks = mine.loc[mine["floor"] == floor, "trace_id"]
+        if dropped and len(walks) and walks.isin(list(dropped)).all():
+            raise click.BadParameter(f"it leaves floor {floor!r} no walk to build from (it "
+                                     f"names all {len(walks)})", param_hint="--exclude")
     if dropped:
         say(f"  excluded: {len(dropped)} walk(s) (--exclude)")
     return outside | dropped
@@ -473,13 +481,7 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
             for name, folder in zip(plans, inputs):
                 check_floor_names(cat, summary, name, folder, say,
                                   planned=plan_file is not None)
-        left_out = excluded_walks(cat, summary, inputs, excluding, say)
-        for name in plans:  # said here, not by the build with its temporary store's path
-            walks = cat.loc[cat["floor"] == name, "trace_id"]
-            if excluding and len(walks) and walks.isin(list(left_out)).all():
-                raise click.BadParameter(f"it leaves floor {name!r} no walk to build from "
-                                         f"(its {len(walks)} are left out)",
-                                         param_hint="--exclude")
+        left_out = excluded_walks(cat, summary, inputs, excluding, say, floors=list(plans))
         site = one_site(cat[~cat["trace_id"].isin(list(left_out))], inputs)
         reachable = {(s, fl): plans[fl].reachable for s, fl in
                      cat[["site", "floor"]].drop_duplicates().itertuples(index=False)

@@ -127,11 +127,15 @@ class Registry:
             for floor_dir in sorted(p for p in site_dir.iterdir() if p.is_dir()):
                 where = {"site": site_dir.name, "floor": floor_dir.name}
                 history, cur, problem = [], {}, None
-                try:
-                    history = self.history(site_dir.name, floor_dir.name)
-                    cur = self.current(site_dir.name, floor_dir.name, history) or {}
+                try:  # the pointer before the history, as a publish writes them in the
+                    # other order: one landing between the two reads is not taken for damage
+                    cur = self.current(site_dir.name, floor_dir.name) or {}
                 except RegistryError as err:
                     problem = str(err)
+                try:
+                    history = self.history(site_dir.name, floor_dir.name)
+                except RegistryError as err:  # said by current() too when there is a pointer
+                    problem = problem or str(err)
                 out += [{**where, **h, "current": h["bundle_id"] == cur.get("bundle_id"),
                          "problem": problem} for h in history] or (
                     [{**where, "seq": None, "bundle_id": None, "current": False,

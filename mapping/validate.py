@@ -60,6 +60,7 @@ from scipy.sparse import csgraph
 from localize.bundle import Grid, MapBundle, load_bundle
 from survey.errors import IndoormapError
 from survey.field_features import circular_median_deg, wrap_deg
+from survey.publish import file_sha256
 from survey.trace_format import bad_lines_summary
 
 from . import holdout
@@ -506,17 +507,21 @@ def load_floor_data(store: SurveyStore | str | Path, bundle: MapBundle) -> Floor
                      tuple(not_in_bundle))
 
 
-def floor_dir_problem(floor_dir: Path, floor_name: str) -> str | None:
-    """Why a floor folder given for the figures (``--floor-dir``) cannot be the bundle's
-    floor ``floor_name``, else None: it holds neither ``floor_image.png`` nor
-    ``floor_info.json``, or a floor plan of another floor by its folder's name."""
+def floor_dir_problem(floor_dir: Path, manifest: dict) -> str | None:
+    """Why a floor folder given for the figures (``--floor-dir``) cannot be the floor of the
+    bundle whose ``manifest`` is given, else None: it holds neither ``floor_image.png`` nor
+    ``floor_info.json``, or a ``geojson_map.json`` other than the one the bundle was built on
+    (the build recorded its sha256; a bundle built on a DXF drawing is not compared)."""
     if not any((floor_dir / n).exists() for n in ("floor_image.png", "floor_info.json")):
         return (f"--floor-dir {floor_dir} holds neither floor_image.png nor floor_info.json: "
                 "the figures have no floor image")
-    name = floor_dir.resolve().name
-    if floor_name and (floor_dir / "geojson_map.json").exists() and name != floor_name:
-        return (f"--floor-dir {floor_dir} is the folder of floor {name!r}, the bundle's floor "
-                f"is {floor_name!r}: the figures are drawn over another floor's image")
+    built_on = {f.get("sha256") for f in manifest.get("build", {}).get("floor_plan", [])
+                if isinstance(f, dict) and f.get("file") == "geojson_map.json"}
+    plan = floor_dir / "geojson_map.json"
+    if built_on and plan.is_file() and file_sha256(plan) not in built_on:
+        return (f"--floor-dir {floor_dir}: its geojson_map.json is not the plan the bundle "
+                f"was built on (floor {manifest.get('floor_name', '')!r}): the figures are "
+                "drawn over another floor's image")
     return None
 
 
@@ -1399,7 +1404,7 @@ def validate_bundle(bundle: MapBundle | str | Path,
                                 "data quality need the store", "summary"))
     fdir = Path(floor_dir) if floor_dir else floor_dir_of(fd)
     if floor_dir:  # a folder given by hand: said when it cannot be this floor's
-        problem = floor_dir_problem(fdir, b.manifest.get("floor_name", ""))
+        problem = floor_dir_problem(fdir, b.manifest)
         if problem:
             findings.append(Finding("floor_dir", "warn", problem, "summary"))
     say("coverage")

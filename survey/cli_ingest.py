@@ -47,7 +47,7 @@ def format_summary(s: IngestSummary) -> str:
     for o in s.failed:
         lines.append(f"FAILED {at_path(o.path, str(o.detail))}")
     replaced = [o for o in s.outcomes if o.status == "changed" and o.detail]
-    for o in replaced[:20]:  # a stored walk replaced, maybe by another file of its name
+    for o in replaced[:20]:  # a stored walk replaced by another file of its name
         lines.append(f"changed {o.trace_id}: now {o.path}; {o.detail}")
     if len(replaced) > 20:
         lines.append(f"changed: {len(replaced) - 20} more")

@@ -342,11 +342,13 @@ def _add_results(w, summary: IngestSummary, results: list[tuple[str, dict | None
 
 def _outcome(w, path: str, row: dict) -> IngestOutcome:
     """Register a parsed walk's catalog ``row`` with the writer ``w``: its outcome, saying
-    what it replaced when it replaced a stored walk (``changed``)."""
-    was = w.stored_text(row["trace_id"])
+    what it replaced when it replaced a stored walk of another file (``changed``: another
+    file of the walk's name, maybe a cut copy)."""
+    was = w.stored_source(row["trace_id"])
     status = w.add_row(row)
+    other = status == "changed" and was is not None and was[0] != path
     return IngestOutcome(path, row["trace_id"], status,
-                         f"replaced {was}" if status == "changed" and was else "")
+                         f"replaced {was[0]}, {was[1]} lines" if other else "")
 
 
 def _add_walk(w, summary: IngestSummary, trace, source: str, sha: str, size: int,

@@ -605,14 +605,13 @@ class _StoreWriter:
             return "repaired"
         return "changed" if existed else "new"
 
-    def stored_text(self, trace_id: str) -> str:
-        """What the catalog holds for ``trace_id`` as committed: its source file and lines,
-        for an outcome that replaces it (empty when it holds none)."""
+    def stored_source(self, trace_id: str) -> tuple[str, int] | None:
+        """The source file and line count the catalog holds for ``trace_id`` as committed,
+        for an outcome that replaces it; None when it holds none."""
         old = self.cat[self.cat["trace_id"] == trace_id]
         if not len(old):
-            return ""
-        row = old.iloc[0]
-        return f"{row['source_path']}, {row['n_lines']} lines"
+            return None
+        return str(old["source_path"].iloc[0]), int(old["n_lines"].iloc[0])
 
     def commit(self) -> None:
         if not self.pending and not self.hashed:

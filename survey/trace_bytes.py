@@ -70,8 +70,9 @@ def read_trace_bytes(path: str | os.PathLike, *, strict: bool = False,
     chunks, note = _inflate(raw, path, max_bytes)
     if note and strict:
         raise SurveyFormatError(note, path=str(path), reason="gzip")
-    check_not_utf16_or_32(chunks[0] if chunks else b"", path)
-    return b"".join(chunks), note  # one chunk (the usual case) is returned without a copy
+    text = b"".join(chunks)  # one chunk (the usual case) is returned without a copy
+    check_not_utf16_or_32(text, path)  # its start: of every member, not the first's alone
+    return text, note
 
 
 #: Byte-order marks of the text encodings refused (UTF-32's first: UTF-32LE's begins with
@@ -88,14 +89,14 @@ def wide_encoding(head: bytes) -> tuple[str, str] | None:
 
     A byte-order mark says so; without one, the NUL bytes do. UTF-8 text has none, while in
     UTF-16 each ASCII character (a trace's every character but those of its names) has a NUL
-    high byte and no character a NUL low byte; in UTF-32 the two high bytes of each character
-    are NUL (characters below U+10000 have both so) and no low byte is. Shares, not every
+    high byte and few characters a NUL low byte; in UTF-32 the two high bytes of each character
+    are NUL (the top one always, the next below U+10000) and few low bytes are. Shares, not every
     character, decide: a site name in Chinese at the start still reads as UTF-16."""
     for mark, encoding, order in _WIDE_MARKS:
         if head.startswith(mark):
             return encoding, order
     head = head[:min(len(head), _WIDE_HEAD_BYTES) // 4 * 4]
-    if len(head) < 32:
+    if len(head) < 16:
         return None
 
     def nul_share(offset: int, step: int) -> float:
@@ -104,9 +105,11 @@ def wide_encoding(head: bytes) -> tuple[str, str] | None:
 
     q = [nul_share(i, 4) for i in range(4)]  # by byte of a 4-byte character
     h = [nul_share(i, 2) for i in range(2)]  # by byte of a 2-byte character
-    if q[2] == q[3] == 1 and q[0] < 0.05:
+    # UTF-32: the top byte always NUL, the next for all but the rare characters beyond
+    # U+FFFF (an emoji in a name)
+    if q[3] == 1 and q[2] >= 0.9 and q[0] < 0.05:
         return "UTF-32", "little"
-    if q[0] == q[1] == 1 and q[3] < 0.05:
+    if q[0] == 1 and q[1] >= 0.9 and q[3] < 0.05:
         return "UTF-32", "big"
     if h[1] >= 0.5 and h[0] < 0.05:  # at least half the characters ASCII
         return "UTF-16", "little"

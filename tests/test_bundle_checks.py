@@ -548,5 +548,54 @@ def test_a_bundle_without_its_manifest_is_named_not_passed_over(tmp_path):
     floor = reg.root / "site" / "F2"
     with pytest.raises(BundleError, match="a registry floor folder with no current version"):
         load_bundle(floor)
+    with pytest.raises(BundleError, match="no current version .* indoormap bundle use"):
+        SiteMaps.open(floor)  # localize said "neither a bundle nor a folder of bundles"
     res = run(main, ["bundle", "verify", str(reg.root / "site")])
     assert f"note: {floor}: no current version" in res.output
+
+
+def test_list_takes_a_publish_between_its_reads_for_no_damage(registry, tmp_path,
+                                                               monkeypatch):
+    """A publish writes history.json, then CURRENT; list read them in that order too, so a
+    publish landing between its two reads showed a pointer beyond the history: "the history
+    lost versions. Restore history.json", on a healthy registry. It reads the pointer first."""
+    reg, e1, e2 = registry
+    write_bundle(tmp_path / "v3", _content(2))
+    current = Registry.current
+    landed = []
+
+    def current_then_a_publish(self, *args, **kwargs):
+        found = current(self, *args, **kwargs)
+        if not landed:  # (the publish asks for the pointer too)
+            landed.append(True)
+            Registry(self.root).publish(tmp_path / "v3")
+        return found
+
+    monkeypatch.setattr(Registry, "current", current_then_a_publish)
+    rows = reg.list()
+    assert landed and [r["problem"] for r in rows] == [None] * 3
+    assert [(r["seq"], r["current"]) for r in rows] == [(1, False), (2, True), (3, False)]
+    monkeypatch.undo()
+    assert [r["current"] for r in reg.list()] == [False, False, True]
+    # a damaged history without a pointer is still one row with its reason
+    (reg.root / "site" / "F1" / "CURRENT").unlink()
+    (reg.root / "site" / "F1" / "history.json").write_text("{}")
+    (row,) = reg.list()
+    assert row["seq"] is None and "not a registry history" in row["problem"]
+
+
+def test_a_bundle_being_written_beside_others_is_none_of_them(tmp_path):
+    """A bundle written into a folder of bundles stays in a hidden .tmp-* folder until its
+    manifest is in place; a killed writer leaves it so. Since the damaged-bundle check it was
+    taken for a bundle without its manifest, and the folder failed to open."""
+    from localize.bundle import bundle_dirs
+    from localize.floors import SiteMaps
+
+    write_bundle(tmp_path / "F1", _content(0))
+    half = tmp_path / ".tmp-12345-F2"
+    shutil.copytree(tmp_path / "F1", half)
+    (half / "manifest.json").unlink()
+    assert bundle_dirs(tmp_path) == [tmp_path / "F1"]
+    assert len(SiteMaps.open(tmp_path).bundles) == 1
+    res = CliRunner().invoke(main, ["bundle", "verify", str(tmp_path)])
+    assert res.exit_code == 0 and ".tmp-" not in res.output, res.output

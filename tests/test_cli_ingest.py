@@ -48,6 +48,10 @@ def test_ingest_prints_summary_and_is_idempotent(tmp_path):
     assert (f"changed w1: now {tmp_path / 'copy' / 'w1.txt.gz'}; replaced "
             f"{tmp_path / 'in' / 'w1.txt.gz'}, ") in cut.output, cut.output
     assert lines.loc["w1", "source_path"] == str(tmp_path / "copy" / "w1.txt.gz")
+    write_trace(tmp_path / "copy" / "w1.txt.gz", small_trace(n=30, trace_id="w1"))
+    edited = runner.invoke(main, ["ingest", str(tmp_path / "copy"), "--store",
+                                  str(tmp_path / "store")])  # the same file edited: a count
+    assert "changed 1" in edited.output and "changed w1:" not in edited.output
 
 
 def test_strict_exits_1_with_file_and_line(tmp_path):

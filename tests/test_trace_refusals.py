@@ -481,10 +481,22 @@ def test_a_utf16_or_32_trace_is_named_as_such(tmp_path, encoding, name, order):
     assert read_trace(tmp_path / "d.txt").header.site_name == "杭州西溪银泰城"
 
 
+def test_wide_text_is_named_past_an_emoji_and_a_short_first_gzip_member(tmp_path):
+    """UTF-32 without a mark whose name holds a character beyond U+FFFF (its second byte not
+    NUL) was missed; a gzip file whose first member is a few bytes was judged by those."""
+    text = _chinese_named_trace_text().replace("杭州", "杭州\U0001F600")
+    assert wide_encoding(text.encode("utf-32-le")) == ("UTF-32", "little")
+    assert wide_encoding(text.encode("utf-32-be")) == ("UTF-32", "big")
+    data = text.encode("utf-16-le")
+    (tmp_path / "m.txt.gz").write_bytes(gzip.compress(data[:20]) + gzip.compress(data[20:]))
+    with pytest.raises(SurveyFormatError, match=r"UTF-16 text \(little-endian\)"):
+        read_trace_bytes(tmp_path / "m.txt.gz")
+
+
 def test_bytes_with_nuls_that_are_no_wide_text_are_not_called_so():
     """Only the NUL pattern of UTF-16 or UTF-32 names an encoding: NUL bytes alone (a file
     zero-filled by a crash), random bytes and short texts are left to the trace reader."""
     rng = np.random.default_rng(0)
-    for data in (bytes(4096), rng.bytes(4096), "ab".encode("utf-16-le"),
+    for data in (bytes(4096), rng.bytes(4096), "abcdefg".encode("utf-16-le"),
                  b"1\x00" * 10 + b"\x00" * 200):
         assert wide_encoding(data) is None

@@ -377,19 +377,24 @@ def test_a_floor_dir_that_cannot_be_the_bundles_floor_is_said(sites, tmp_path):
     figures over nothing or over the other floor's image without a word."""
     site, bundle, _ = sites["clean"]
     (tmp_path / "empty").mkdir()
-    other = tmp_path / "F9"
+    other, renamed = tmp_path / "F1", tmp_path / "plans_of_f1"
     shutil.copytree(site / "F1", other, ignore=shutil.ignore_patterns("path_data_files"))
+    shutil.copytree(other, renamed)  # the plan a --plan build used, in a folder named so
+    plan = json.loads((other / "geojson_map.json").read_text())
+    plan["features"][0]["properties"] = {"edited": True}  # another plan, under F1's name
+    (other / "geojson_map.json").write_text(json.dumps(plan))
     for folder, said in ((tmp_path / "empty", "holds neither floor_image.png nor "
                                               "floor_info.json"),
-                         (other, "is the folder of floor 'F9', the bundle's floor is 'F1'"),
-                         (site / "F1", None)):
-        res, metrics = _validate(bundle, None, tmp_path / f"r-{folder.name}", "--floor-dir",
-                                 str(folder))
+                         (other, "its geojson_map.json is not the plan the bundle was built "
+                                 "on (floor 'F1')"),
+                         (renamed, None), (site / "F1", None)):
+        res, metrics = _validate(bundle, None, tmp_path / f"r-{folder.parent.name}-"
+                                 f"{folder.name}", "--floor-dir", str(folder))
         found = [f for f in metrics["findings"] if f["check"] == "floor_dir"]
         if said is None:
             assert not found and "--floor-dir" not in res.output, res.output
         else:
-            assert said in found[0]["message"] and f"warning: --floor-dir {folder} " in \
+            assert said in found[0]["message"] and f"warning: --floor-dir {folder}" in \
                 res.output and said in " ".join(res.output.split()), res.output
 
 

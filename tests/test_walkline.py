@@ -456,4 +456,5 @@ def test_build_exclude_names_walk_plan_walks(tmp_path):
     summary = ingest([src], tmp_path / "store")
     catalog = SurveyStore.open(tmp_path / "store").catalog()
     for name in ("w1", "w1.csv"):
-        assert excluded_walks(catalog, summary, [src], [name], lambda msg: None) == {"w1"}
+        assert excluded_walks(catalog, summary, [src], [name], lambda msg: None,
+                              floors=[]) == {"w1"}
