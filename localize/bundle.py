@@ -890,7 +890,11 @@ def load_bundle(path: str | os.PathLike) -> MapBundle:
         current = registry_current(path)
         path, pointer = (path, None) if current is None else current
     if path.is_symlink():
-        raise BundleIntegrityError(f"{path}: a bundle folder may not be a link")
+        try:
+            real = f"; give the folder it links to, {path.resolve(strict=True)}"
+        except (OSError, RuntimeError):  # dangling, or a loop of links
+            real = ""
+        raise BundleIntegrityError(f"{path}: a bundle folder may not be a link{real}")
     manifest = read_manifest(path)
     if pointer is not None and manifest["bundle_id"] != pointer["bundle_id"]:
         raise BundleIntegrityError(f"{path}: holds bundle {manifest['bundle_id'][:16]}, but the "

@@ -599,3 +599,13 @@ def test_a_bundle_being_written_beside_others_is_none_of_them(tmp_path):
     assert len(SiteMaps.open(tmp_path).bundles) == 1
     res = CliRunner().invoke(main, ["bundle", "verify", str(tmp_path)])
     assert res.exit_code == 0 and ".tmp-" not in res.output, res.output
+
+
+def test_a_linked_bundle_folder_is_refused_naming_the_real_one(tmp_path):
+    """`bundle verify LINK` said only that a bundle folder may not be a link."""
+    write_bundle(tmp_path / "F1", _content(0))
+    (tmp_path / "link").symlink_to(tmp_path / "F1")
+    res = CliRunner().invoke(main, ["bundle", "verify", str(tmp_path / "link")])
+    assert res.exit_code == 1 and "a bundle folder may not be a link; give the folder it " \
+        f"links to, {tmp_path / 'F1'}" in " ".join(res.output.split()), res.output
+    assert CliRunner().invoke(main, ["bundle", "verify", str(tmp_path / "F1")]).exit_code == 0
