@@ -461,8 +461,7 @@ def read_manifest(path: Path) -> dict:
                               "current with indoormap bundle use REGISTRY SITE/FLOOR VERSION "
                               "(indoormap bundle list REGISTRY lists them)") from err
         try:  # a hint only: a folder that cannot be listed is no bundle all the same
-            inner = sorted(q.name for q in path.iterdir() if not q.name.startswith(".")
-                           and is_bundle_dir(q)) if path.is_dir() else []
+            inner = [q.name for q in _bundles_in(path)] if path.is_dir() else []
         except OSError:
             inner = []
         floors = [n for n in inner if n != "_site"]  # the site bundle is no floor's
@@ -863,8 +862,13 @@ def bundle_dirs(path: str | os.PathLike) -> list[Path]:
     if is_bundle_dir(path):
         return [path]
     finish_publication(path)
-    return sorted(q for q in path.iterdir() if not q.name.startswith(".") and is_bundle_dir(q)
-                  ) if path.is_dir() else []
+    return _bundles_in(path) if path.is_dir() else []
+
+
+def _bundles_in(folder: Path) -> list[Path]:
+    """The bundle folders directly in ``folder`` (:func:`is_bundle_dir`), sorted; hidden ones
+    (``.tmp-*``) are none."""
+    return sorted(q for q in folder.iterdir() if not q.name.startswith(".") and is_bundle_dir(q))
 
 
 def load_bundle(path: str | os.PathLike) -> MapBundle:

@@ -177,10 +177,15 @@ def plan_floor_name(path: str | os.PathLike) -> str:
     """The floor a floor plan (`process --floor-plan`, `build --plan`) is for: a folder's name, the
     name of the folder holding a ``geojson_map.json``, else the file's name without its suffix
     (``plans/F2.dxf``: F2)."""
+    file = plan_file(path)
+    return file.parent.resolve().name if file.name == "geojson_map.json" else file.stem
+
+
+def plan_file(path: str | os.PathLike) -> Path:
+    """The file a floor plan path names: a floor folder's ``geojson_map.json``, else the
+    path itself."""
     path = Path(path)
-    if path.is_dir() or path.name == "geojson_map.json":
-        return (path if path.is_dir() else path.parent).resolve().name
-    return path.stem
+    return path / "geojson_map.json" if path.is_dir() else path
 
 
 def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
@@ -207,7 +212,7 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
 
         return read_dxf_floor_plan(p, **{f"{role}_layers": tuple(names)
                                          for role, names in (dxf_layers or {}).items()})
-    geo = p / "geojson_map.json" if p.is_dir() else p
+    geo = plan_file(p)
     info = geo.parent / "floor_info.json"
     sources: list[tuple[str, str]] = []
     feats = _features(geo, sources)

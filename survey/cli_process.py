@@ -23,12 +23,6 @@ def _require_walks(selected, everything, site: str | None, floor: str | None) ->
         param_hint="--site/--floor")
 
 
-def _plan_file(floor_plan: str) -> Path:
-    """The file a ``--floor-plan`` names: a floor folder's ``geojson_map.json``, resolved."""
-    path = Path(floor_plan).resolve()
-    return path / "geojson_map.json" if path.is_dir() else path
-
-
 @click.command("process")
 @click.option("--store", "store_dir", required=True, type=click.Path(file_okay=False,
                                                                      exists=True))
@@ -43,7 +37,7 @@ def process_command(store_dir: str, site: str | None, floor: str | None,
                     floor_plans: tuple[str, ...]) -> None:
     """Position every sample, scan and beacon row along its walk, calibrate the magnetometer,
     rotate the field into the map frame, and store the results (new or changed walks only)."""
-    from mapping.floorplan import plan_floor_name, read_floor_plan
+    from mapping.floorplan import plan_file, plan_floor_name, read_floor_plan
 
     store = SurveyStore.open(store_dir)
     reachable = {}
@@ -75,7 +69,7 @@ def process_command(store_dir: str, site: str | None, floor: str | None,
                            f"({', '.join(sorted(sites))}); give --site to pick one", err=True)
         for s in sites:
             other = plan_of.setdefault((s, name), fp)
-            if _plan_file(other) != _plan_file(fp):  # the last one won, unsaid
+            if plan_file(other).resolve() != plan_file(fp).resolve():  # the last one won
                 raise click.BadParameter(f"{other} and {fp} are both plans of floor {name!r} "
                                          f"of site {s} (by their names); give one",
                                          param_hint="--floor-plan")
