@@ -455,7 +455,7 @@ def read_manifest(path: Path) -> dict:
             raise BundleIntegrityError(f"{path}: manifest.json is missing, but the folder holds "
                                        f"a bundle's {', '.join(members)}: a damaged bundle "
                                        "(build or publish it again)") from err
-        if (path / "history.json").exists() or (path / "versions").is_dir():
+        if is_registry_floor_dir(path):
             raise BundleError(f"{path}: a registry floor folder with no current version "
                               "(published with --no-current, or its CURRENT deleted): make one "
                               "current with indoormap bundle use REGISTRY SITE/FLOOR VERSION "
@@ -849,6 +849,13 @@ def is_bundle_dir(path: str | os.PathLike) -> bool:
     path = Path(path)
     return any((path / name).exists() for name in ("manifest.json", "CURRENT")
                + _BUNDLE_MEMBERS)
+
+
+def is_registry_floor_dir(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is a registry's floor folder (``REG/<site>/<floor>``: with
+    ``history.json`` or ``versions/``), current version or not."""
+    path = Path(path)
+    return (path / "history.json").exists() or (path / "versions").is_dir()
 
 
 def bundle_dirs(path: str | os.PathLike) -> list[Path]:

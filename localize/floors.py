@@ -126,12 +126,12 @@ class SiteMaps:
         BundleError, RegistryError
             A damaged bundle or registry pointer (:func:`~localize.bundle.load_bundle`).
         """
-        from localize.bundle import bundle_dirs, is_bundle_dir, load_bundle
+        from localize.bundle import bundle_dirs, is_bundle_dir, is_registry_floor_dir, load_bundle
         from localize.floor_classifier import site_floor_models
 
         path = Path(path)
         # a registry floor with no current version: load_bundle says so and what to do
-        subs = [load_bundle(path)] if is_bundle_dir(path) or (path / "history.json").exists() \
+        subs = [load_bundle(path)] if is_bundle_dir(path) or is_registry_floor_dir(path) \
             else [load_bundle(p) for p in bundle_dirs(path)]
         if not subs:
             raise LocalizationError(f"{path}: neither a bundle nor a folder of bundles (nor a "

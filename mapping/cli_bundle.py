@@ -12,7 +12,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from localize.bundle import MapBundle, bundle_dirs, load_bundle
+from localize.bundle import MapBundle, bundle_dirs, is_registry_floor_dir, load_bundle
 from survey.errors import IndoormapError, RegistryError, RollbackRefused, at_path
 
 from .bundle_report import bundle_differences, metric_lines, plan_text
@@ -102,11 +102,10 @@ def _bundle_paths(paths: tuple[Path, ...]) -> list[Path]:
                                     for q in bundle_dirs(site)] if registry_root else [])
         out += found or [p]
         if found != [p]:  # registry floors with none current are no bundle, but are said
-            for floor in sorted(p.glob("*/history.json") if not registry_root else
-                                p.glob("*/*/history.json")):
-                if not (floor.parent / "CURRENT").exists():
-                    click.echo(f"note: {floor.parent}: no current version (indoormap bundle "
-                               "use makes one current)", err=True)
+            for floor in sorted(p.glob("*/*" if registry_root else "*")):
+                if is_registry_floor_dir(floor) and not (floor / "CURRENT").exists():
+                    click.echo(f"note: {floor}: no current version (indoormap bundle use "
+                               "makes one current)", err=True)
     return out
 
 

@@ -103,6 +103,11 @@ class FloorPlan:
         return shapely.difference(self.outline, self.obstacles)
 
 
+def wall_band(line: shapely.Geometry, width_m: float = WALL_WIDTH_M) -> shapely.Geometry:
+    """A wall line as the band it blocks: ``width_m`` wide (m), flat at its ends."""
+    return shapely.buffer(line, width_m / 2, cap_style="flat")
+
+
 def made_valid(geom: shapely.Geometry, what: str, repairs: list[str]) -> shapely.Geometry:
     """``geom`` made valid by shapely; when it was not, a line naming ``what`` and GEOS's
     reason (e.g. ``Self-intersection[3 4]``) is appended to ``repairs``."""
@@ -276,7 +281,7 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
             continue
         if g.geom_type in ("LineString", "MultiLineString", "LinearRing"):
             if role == "wall":
-                obstacles.append(shapely.buffer(g, WALL_WIDTH_M / 2, cap_style="flat"))
+                obstacles.append(wall_band(g))
             else:
                 lines_left_out.append(i)
         elif g.geom_type in ("Polygon", "MultiPolygon"):

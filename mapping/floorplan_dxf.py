@@ -29,7 +29,7 @@ import shapely
 import shapely.errors
 
 from .floorplan import (MAX_FLOOR_SIDE_M, WALL_WIDTH_M, FloorPlan, FloorPlanError, checked_plan,
-                        made_valid, metre_frame, read_plan_bytes)
+                        made_valid, metre_frame, read_plan_bytes, wall_band)
 
 _UNIT_TO_M = {0: 1.0, 1: 0.0254, 2: 0.3048, 3: 1609.344, 4: 0.001, 5: 0.01, 6: 1.0,
               7: 1000.0, 10: 0.9144, 13: 1e-6, 14: 0.1, 15: 10.0, 16: 100.0,
@@ -236,7 +236,7 @@ def _entity_geometry(e, scale: float, wall_width_m: float | None, valid: Callabl
     if kind == "LINE":
         line = shapely.LineString(_finite([(e.dxf.start.x * scale, e.dxf.start.y * scale),
                                            (e.dxf.end.x * scale, e.dxf.end.y * scale)]))
-        return (line.buffer(wall_width_m / 2, cap_style="flat") if wall_width_m else None,
+        return (wall_band(line, wall_width_m) if wall_width_m else None,
                 line)
     if kind in _CURVES:
         from ezdxf import path as ezpath
@@ -256,7 +256,7 @@ def _entity_geometry(e, scale: float, wall_width_m: float | None, valid: Callabl
             return (poly if wall_width_m is None else poly.boundary.buffer(wall_width_m / 2),
                     None)
         line = shapely.LineString(pts)
-        return (line.buffer(wall_width_m / 2, cap_style="flat") if wall_width_m else None,
+        return (wall_band(line, wall_width_m) if wall_width_m else None,
                 line)
     if kind == "CIRCLE":
         (cx, cy), = _finite([(e.dxf.center.x * scale, e.dxf.center.y * scale)])

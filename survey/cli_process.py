@@ -136,15 +136,16 @@ def survey_report_command(store_dir: str, site: str | None, floor: str | None,
 
         refuse_output_inside_data(Path(csv_path), "--csv")  # a file there damaged a bundle
         refuse_to_replace(csv_path, overwrite, suffixes=(".csv",))
-    SurveyStore.open(store_dir).catalog()  # a damaged store is said, as by every command
-    everything = cat = processed_catalog(store_dir)
+    store = SurveyStore.open(store_dir)
+    store.catalog()  # a damaged store is said, as by every command
+    everything = cat = processed_catalog(store)
     if site is not None:
         cat = cat[cat["site"] == site]
     if floor is not None:
         cat = cat[cat["floor"] == floor]
     _require_walks(cat, everything, site, floor)
     if list_legs:
-        _report_legs(store_dir, site, floor, csv_path, overwrite)
+        _report_legs(store, site, floor, csv_path, overwrite)
         return
     rows = []
     for r in cat.itertuples(index=False):
@@ -168,7 +169,7 @@ def survey_report_command(store_dir: str, site: str | None, floor: str | None,
                            "display.max_colwidth", 40):
         click.echo(table.to_string(index=False))
     try:
-        legs = processed_table(store_dir, "legs", site=site, floor=floor)
+        legs = processed_table(store, "legs", site=site, floor=floor)
         flags = legs["flags"][legs["flags"] != ""].str.split(",").explode().value_counts()
         click.echo("flagged legs by reason: " + (", ".join(f"{k} {v}" for k, v in flags.items())
                                                  or "none"))
@@ -182,12 +183,12 @@ _LEG_COLUMNS = {"trace_id": None, "leg": None, "t_start_ms": 0, "duration_s": 1,
                 "heading_rotation_deg": 1, "waypoint_residual_m": 2, "flags": None}
 
 
-def _report_legs(store_dir: str, site: str | None, floor: str | None, csv_path: str | None,
-                 overwrite: bool) -> None:
+def _report_legs(store: SurveyStore, site: str | None, floor: str | None,
+                 csv_path: str | None, overwrite: bool) -> None:
     """``survey-report --legs``: the flagged legs of the walks chosen, a row each."""
     import pandas as pd
 
-    legs = processed_table(store_dir, "legs", site=site, floor=floor)
+    legs = processed_table(store, "legs", site=site, floor=floor)
     flagged = legs[legs["flags"] != ""]
     table = pd.DataFrame({c: flagged[c] if r is None else flagged[c].round(r)
                           for c, r in _LEG_COLUMNS.items()})
