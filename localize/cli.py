@@ -204,7 +204,9 @@ def _params(particles: int | None):
               help="Offline: positions from the whole walk, later steps included (particle "
                    "filters and align; default: the real-time estimates). wifi-locate's "
                    "--smoothing walk|forward is the same choice for radio fixes alone.")
-@click.option("--overwrite", is_flag=True, help="Replace a walk's existing outputs in OUT.")
+@click.option("--overwrite", is_flag=True,
+              help="Replace a walk's outputs of an earlier run in OUT: its table in either "
+                   "format and its plot (one not made this run is removed).")
 def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, method: str,
                      start: str, particles: int | None, seed: int, fmt: str,
                      plot: bool, smooth: bool, overwrite: bool) -> None:
@@ -239,7 +241,10 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
         name = f"{trace.trace_id}.smoothed" if smooth else trace.trace_id
         target = out / f"{name}.{fmt}"
         png = out / f"{name}.png"
-        for existing in (target, png) if plot else (target,):
+        # the walk's outputs of any run (either format, the plot): all are replaced, so
+        # that an earlier run's table or plot is not left beside this run's
+        earlier = [out / f"{name}.{ext}" for ext in ("parquet", "csv", "png")]
+        for existing in earlier:
             refuse_to_replace(existing, overwrite)  # before the work, not after
         t_wp, xy_wp = waypoints_of(trace)
         wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp, floors_said)
@@ -267,6 +272,7 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
                                                  ("method", track.method))):
                 table = table.add_column(i, column, pa.array([str(value)] * len(table)))
         _write_table(table, target, fmt, overwrite=overwrite)
+        written = [target]
         msg = (f"{trace.trace_id}: {len(track)} {'smoothed ' if smooth else ''}steps on "
                f"{bundle.floor_id} "
                f"({bundle.manifest.get('floor_name', '')}) by {used}, start {how}, "
@@ -279,8 +285,14 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
                                 f"({bundle.floor_id[:12]}): {ran}, {kind}, start {how}"
                                 + (f"\n{scored}" if scored else "")):
                 msg += f", {png.name}"
+                written.append(png)
             else:
                 msg += " (no plot: matplotlib not installed)"
+        stale = [p for p in earlier if p not in written and (p.is_file() or p.is_symlink())]
+        for p in stale:
+            p.unlink()
+        if stale:
+            msg += f" (removed the earlier run's {', '.join(p.name for p in stale)})"
         in_build.check(bundle, trace.trace_id)  # a walk that failed is not counted
         click.echo(msg)
 

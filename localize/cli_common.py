@@ -100,7 +100,7 @@ def trace_files(paths: tuple[str, ...], failures: WalkFailures, *,
         click.echo(f"note: {len(plans)} walk plan(s) in the folders left out: their logs "
                    "carry no Wi-Fi or BLE scans", err=True)
         plans = []
-    files = sorted(traces + plans)
+    files = traces + plans  # in ingest's order: one trace id, the same walk kept
     if not files and not failures.count:
         raise click.UsageError("no trace files (.txt, .txt.gz)"
                                + (" or walk plans (.geojson)" if walk_plans else "")

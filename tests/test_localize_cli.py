@@ -524,3 +524,63 @@ def test_a_walk_without_magnetometer_is_localized_by_auto_with_the_alignment(
     n = str(len(waypoints_of(read_trace(no_mag))[0]))
     assert rows["auto (align)"][2] == n and float(rows["auto (align)"][3]) < 3.0  # median, m
     assert rows["indoormap"][1] == "0" and rows["pf_no_mag"][1] == n
+
+
+def test_overwrite_replaces_every_earlier_output_of_a_walk(truth_bundles, tmp_path):  # noqa: F811
+    """A walk's outputs are its table in either format and its plot: a run in the other
+    format is refused without --overwrite (the earlier run's table would stay beside this
+    run's), and with it the earlier table and plot go; before, ``--format csv --overwrite``
+    left the earlier ``.parquet`` and ``.png`` beside the new ``.csv``."""
+    walk = min(F1_WALKS.glob("*.txt.gz"))
+    tid, out = walk.name.split(".")[0], tmp_path / "out"
+    args = ["localize", str(truth_bundles["F1"]), str(walk), "-o", str(out), "--method", "pdr",
+            "--start", "waypoint"]
+    assert CliRunner().invoke(main, args).exit_code == 0
+    assert sorted(p.name for p in out.iterdir()) == [f"{tid}.parquet", f"{tid}.png"]
+    csv = args + ["--format", "csv", "--no-plot"]
+    refused = CliRunner().invoke(main, csv)
+    assert refused.exit_code == 1 and f"{tid}.parquet exists; pass --overwrite" in refused.output
+    res = CliRunner().invoke(main, csv + ["--overwrite"])
+    assert res.exit_code == 0, res.output
+    assert f"(removed the earlier run's {tid}.parquet, {tid}.png)" in res.output
+    assert [p.name for p in out.iterdir()] == [f"{tid}.csv"]
+    smoothed = CliRunner().invoke(main, args + ["--smooth", "--method", "align", "--no-plot"])
+    assert smoothed.exit_code == 0, smoothed.output  # the smoothed track is another output
+    assert sorted(p.name for p in out.iterdir()) == [f"{tid}.csv", f"{tid}.smoothed.parquet"]
+
+
+def test_a_trace_and_a_walk_plan_with_one_id_keep_the_trace_as_ingest_does(
+        truth_bundles, tmp_path):  # noqa: F811
+    """``ingest`` takes a run's trace files before its walk plans, and refuses a later input
+    with a trace id already seen; ``localize`` refused the one sorting later by path, so with
+    the plan's folder sorting first it kept the plan's walk where ingest kept the trace."""
+    import json
+
+    from survey.ingest import ingest
+
+    walk = min(F1_WALKS.glob("*.txt.gz"))
+    other = sorted(F1_WALKS.glob("*.txt.gz"))[1]
+    (tmp_path / "a_plan").mkdir()
+    plan = _as_walk_plan(other, tmp_path / "a_plan")  # the other walk, under walk's id
+    doc = json.loads(plan.read_text())
+    tid = walk.name.split(".")[0]
+    doc["features"][0]["properties"]["walk_id"] = tid
+    plan.write_text(json.dumps(doc))
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / walk.name).write_bytes(walk.read_bytes())
+    inputs = [str(tmp_path / "a_plan"), str(tmp_path / "b")]
+    summary = ingest(inputs, tmp_path / "store")
+    kept = [o.path for o in summary.outcomes if o.status != "failed"]
+    assert kept == [str(tmp_path / "b" / walk.name)]
+    res = CliRunner().invoke(main, ["localize", str(truth_bundles["F1"]), *inputs, "-o",
+                                    str(tmp_path / "out"), "--method", "pdr", "--no-plot",
+                                    "--start", "waypoint"])
+    assert res.exit_code == 1
+    assert f"{plan} (walk {tid}): trace id {tid} is also {tmp_path / 'b' / walk.name}'s" \
+        in res.output
+    alone = CliRunner().invoke(main, ["localize", str(truth_bundles["F1"]), str(walk), "-o",
+                                      str(tmp_path / "alone"), "--method", "pdr", "--no-plot",
+                                      "--start", "waypoint"])
+    assert alone.exit_code == 0, alone.output  # what was written is the trace's track
+    assert (tmp_path / "out" / f"{tid}.parquet").read_bytes() == \
+        (tmp_path / "alone" / f"{tid}.parquet").read_bytes()
