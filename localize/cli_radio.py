@@ -223,7 +223,11 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
 @click.argument("bundle_path", metavar="BUNDLE",
                 type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.argument("walks", nargs=-1, required=True, type=click.Path())
-@click.option("--kind", type=click.Choice(["wifi", "ble"]), default="wifi", show_default=True)
+@click.option("--kind", type=click.Choice(["auto", "wifi", "ble"]), default="auto",
+              show_default=True,
+              help="auto: Wi-Fi when the bundle locates one of the walk's Wi-Fi scans, else "
+                   "BLE over its BLE windows (as localize chooses; BLE fixes are about twice "
+                   "as far off); wifi or ble: that kind only.")
 @click.option("--calibration", default="auto", show_default=True,
               help="RSSI calibration of the walk's phone: auto (Wi-Fi: the bundle's device "
                    "table for a phone it knows; else online from the walk's first 8 scans when "
@@ -242,6 +246,7 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
     \b
     CSV columns (stdout; one line per walk on stderr):
       trace_id, floor  the walk and the floor bundle used
+      kind             wifi (a Wi-Fi scan) or ble (a BLE window)
       t_ms             the scan's time (Unix ms)
       n_known          transmitters of the scan the bundle knows
       x_m, y_m         the position (m, map frame); empty when the scan hears none
@@ -270,24 +275,45 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
     files = trace_files(walks, failures, walk_plans=False)
     maps = SiteMaps.open(bundle_path)
     floors_said, in_build = FloorChoices(), SeenWalks()
-    out = _CsvRows(["trace_id", "floor", "t_ms", "n_known", "x_m", "y_m", "sigma_m", "error_m"])
+    out = _CsvRows(["trace_id", "floor", "kind", "t_ms", "n_known", "x_m", "y_m", "sigma_m",
+                    "error_m"])
     seen = TraceIds("its rows would be printed under the other's id")
 
     def one(where: str, trace: Trace) -> None:
         seen.claim(trace.trace_id, where)
-        scans = _scans(trace, kind, maps.ble_window_ms)
-        if not scans:
+        kinds = {"wifi": scans_of(trace), "ble": ble_scans_of(trace, maps.ble_window_ms)}
+        if kind != "auto" and not kinds[kind]:
             other = "ble" if kind == "wifi" else "wifi"
-            hint = (f"; it has {other} scans: --kind {other}"
-                    if _scans(trace, other, maps.ble_window_ms) else "")
+            hint = f"; it has {other} scans: --kind {other}" if kinds[other] else ""
             raise LocalizationError(f"{trace.trace_id}: no {kind} scans{hint}")
+        if not any(kinds.values()):
+            raise LocalizationError(f"{trace.trace_id}: no Wi-Fi scans and no BLE rows")
         h = trace.header  # the floor from the header, else the Wi-Fi, else the BLE floor model
         bundle, how = maps.choose(trace.trace_id, h.site_id or "", h.floor_id or "",
-                                  h.floor_name or "", scans if kind == "wifi" else scans_of(trace),
-                                  scans if kind == "ble" else ble_scans_of(trace,
-                                                                           maps.ble_window_ms),
+                                  h.floor_name or "", kinds["wifi"], kinds["ble"],
                                   device_model=h.model or "")
         floors_said.say(trace.trace_id, bundle, how)
+        if kind != "auto":
+            rows, said = locate(trace, bundle, kind, kinds[kind])
+        else:  # Wi-Fi when it locates the walk, as localize chooses (walk_radio)
+            tried = []
+            for k in (k for k in ("wifi", "ble") if kinds[k]):
+                try:
+                    rows, said = locate(trace, bundle, k, kinds[k])
+                    break
+                except LocalizationError as refused:
+                    tried.append(str(refused).removeprefix(f"{trace.trace_id}: "))
+            else:
+                raise LocalizationError(f"{trace.trace_id}: " + "; ".join(tried))
+            if k == "ble":
+                said += f" (Wi-Fi: {tried[0] if tried else 'no scans in the walk'})"
+        out.write(rows)
+        in_build.check(bundle, trace.trace_id)  # a walk that failed is not counted
+        click.echo(said, err=True)
+
+    def locate(trace: Trace, bundle, kind: str, scans) -> tuple[list[dict], str]:
+        """The CSV rows of the walk's ``kind`` scans located on ``bundle``, and its line
+        for standard error; a LocalizationError when none is located."""
         pos = bundle_positioner(bundle, kind)
         if pos is None:
             raise LocalizationError(f"{bundle.path}: no {kind} fingerprints in this bundle")
@@ -317,20 +343,17 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
         err = np.hypot(*(fixes.xy_m - truth).T)
         rows = []
         for i, scan in enumerate(scans):
-            rows.append({"trace_id": trace.trace_id, "floor": floor,
+            rows.append({"trace_id": trace.trace_id, "floor": floor, "kind": kind,
                          "t_ms": scan.t_ms, "n_known": int(fixes.n_known[i]),
                          "x_m": float(fixes.xy_m[i, 0]) if np.isfinite(fixes.xy_m[i, 0]) else "",
                          "y_m": float(fixes.xy_m[i, 1]) if np.isfinite(fixes.xy_m[i, 1]) else "",
                          "sigma_m": float(fixes.sigma_m[i]) if np.isfinite(fixes.sigma_m[i])
                          else "", "error_m": float(err[i]) if np.isfinite(err[i]) else ""})
-        out.write(rows)
-        in_build.check(bundle, trace.trace_id)  # a walk that failed is not counted
         e = err[np.isfinite(err)]
-        click.echo(f"{trace.trace_id}: {len(scans)} {kind} scans on {floor}, "
-                   f"{int(located.sum())} located; "
-                   f"calibration {how}"
-                   + (f"; error vs waypoint track median {np.median(e):.2f} m" if len(e) else ""),
-                   err=True)
+        return rows, (f"{trace.trace_id}: {len(scans)} {kind} scans on {floor}, "
+                      f"{int(located.sum())} located; calibration {how}"
+                      + (f"; error vs waypoint track median {np.median(e):.2f} m"
+                         if len(e) else ""))
 
     total = each_walk(files, failures, one)
     in_build.finish()

@@ -397,21 +397,34 @@ def test_wifi_locate_fails_a_walk_whose_scans_hear_no_known_transmitter(built, t
                      lambda m: m.group(1) + "02:" + m.group(2)[3:], text)
     assert unknown != text
     (tmp_path / walks[0].name).write_bytes(gzip.compress(unknown.encode()))
-    res = CliRunner().invoke(main, ["wifi-locate", "--calibration", "none", str(built / "F2"),
-                                    str(tmp_path / walks[0].name), str(walks[1])])
+    args = ["wifi-locate", "--calibration", "none", str(built / "F2"),
+            str(tmp_path / walks[0].name), str(walks[1])]
+    res = CliRunner().invoke(main, args[:1] + ["--kind", "wifi"] + args[1:])
     assert res.exit_code == 1, res.output
     assert "wifi scans hears a transmitter the F2 bundle knows" in res.stderr
     assert "1 failure(s) in 2 walk(s)" in res.stderr
     assert {r["trace_id"] for r in _rows(res.stdout)} == {walks[1].name.split(".")[0]}
+    # --kind auto (the default) locates that walk by its BLE windows instead, and says why
+    res = CliRunner().invoke(main, args)
+    assert res.exit_code == 0, res.output
+    tid = walks[0].name.split(".")[0]
+    assert re.search(rf"{tid}: \d+ ble scans on F2, \d+ located; calibration .*\(Wi-Fi: none "
+                     r"of its \d+ wifi scans hears a transmitter the F2 bundle knows",
+                     res.stderr), res.stderr
+    kinds = {(r["trace_id"], r["kind"]) for r in _rows(res.stdout)}
+    assert kinds == {(tid, "ble"), (walks[1].name.split(".")[0], "wifi")}
 
 
 def test_walk_without_wifi(built, tmp_path):
     """The sample's walk with no Wi-Fi rows (one real walk has none): clear message."""
     walk = SITE / "F1" / "path_data_files" / "641189778a6ffd7aae963f2c.txt.gz"
     runner = CliRunner()
-    res = runner.invoke(main, ["wifi-locate", str(built), str(walk)])
+    res = runner.invoke(main, ["wifi-locate", "--kind", "wifi", str(built), str(walk)])
     assert res.exit_code == 1 and "no wifi scans; it has ble scans: --kind ble" in res.stderr
-    assert res.stdout.strip() == "trace_id,floor,t_ms,n_known,x_m,y_m,sigma_m,error_m"
+    assert res.stdout.strip() == "trace_id,floor,kind,t_ms,n_known,x_m,y_m,sigma_m,error_m"
+    res = runner.invoke(main, ["wifi-locate", str(built), str(walk)])  # auto: by BLE
+    assert res.exit_code == 0 and "(Wi-Fi: no scans in the walk)" in res.stderr, res.output
+    assert {r["kind"] for r in _rows(res.stdout)} == {"ble"}
     res = runner.invoke(main, ["floor", str(built), str(walk)])  # by BLE: said so
     assert res.exit_code == 0 and "(no Wi-Fi scan classified)" in res.stderr
     assert [(r["floor"], r["kind"]) for r in _rows(res.stdout) if r["level"] == "walk"] == \
