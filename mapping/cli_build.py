@@ -190,6 +190,17 @@ def floor_of_traces(catalog: pd.DataFrame, summary: IngestSummary, source: Path)
     return names[0]
 
 
+def check_plan_floor(plan: FloorPlan, plan_file: Path, walks_floor: str, source: Path) -> None:
+    """A usage error when ``plan`` says it is of another floor than the walks of
+    ``source`` (``build TRACES --plan`` given the wrong floor's plan: the bundle would have
+    been built, with only its coverage to show it); ``--floor`` builds it anyway."""
+    if plan.floor_name and plan.floor_name != walks_floor:
+        raise click.UsageError(f"{plan_file} says it is the plan of floor {plan.floor_name}, "
+                               f"but the walks in {source} are recorded as floor "
+                               f"{walks_floor}; give floor {walks_floor}'s plan, or "
+                               f"--floor {walks_floor} to build on this one")
+
+
 def check_floor_names(catalog: pd.DataFrame, summary: IngestSummary, floor: str,
                       folder: Path, say: Callable[[str], None], *, planned: bool = False
                       ) -> None:
@@ -417,6 +428,10 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
         inputs = [source]
         floor_names = {source: floor_name or plan_floor_name(plan_file)}
         plan = read_floor_plan(plan_file, dxf_layers=layers)
+        if floor_name is not None and plan.floor_name and plan.floor_name != floor_name:
+            click.echo(f"warning: {plan_file} says it is the plan of floor "
+                       f"{plan.floor_name}; building it as floor {floor_name} (--floor)",
+                       err=True)
         read_from = {plan_file: plan}
         plans = {floor_name: plan} if floor_name is not None else {}
     for plan_read in read_from.values():
@@ -475,7 +490,10 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
                 say(f"  {len(unnamed)} walk(s) in {folder} record no floor: taken as "
                     f"{unnamed['floor'].iloc[0]}")
         if not plans:  # --plan without --floor: the floor of SOURCE's traces
-            plans = {floor_of_traces(cat, summary, source): plan}
+            walks_floor = floor_of_traces(cat, summary, source)
+            if walks_floor != floor_names[source]:  # not walks that record no floor
+                check_plan_floor(plan, plan_file, walks_floor, source)
+            plans = {walks_floor: plan}
             check_targets()
         else:
             for name, folder in zip(plans, inputs):

@@ -81,6 +81,10 @@ class FloorPlan:
         Lower-left corner of the map frame: 0, or the plan's lowest coordinate where a plan in
         metres (GeoJSON, DXF) reaches below 0. Plans are never moved: walks are recorded in
         the plan's own coordinates.
+    floor_name : str
+        The floor the plan says it is of: the ``name`` of a GeoJSON outline feature whose
+        ``type`` or ``category`` is ``"floor"`` (the ILC plans' and the simulator's feature
+        0, e.g. ``"F2"``); empty when it says none (DXF drawings, plain outlines).
     """
 
     outline: shapely.Geometry
@@ -91,6 +95,7 @@ class FloorPlan:
     x0_m: float = 0.0
     y0_m: float = 0.0
     sources: tuple[tuple[str, str], ...] = ()
+    floor_name: str = ""
 
     def grid(self, cell_m: float) -> Grid:
         """The raster grid over the map frame with ``cell_m`` (m) cells."""
@@ -302,7 +307,20 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
     if walkable:
         obstacle_union = shapely.difference(obstacle_union, shapely.union_all(walkable))
     return checked_plan(FloorPlan(outline, obstacle_union, width, height, tuple(repairs),
-                                  x0, y0, tuple(sources)), geo)
+                                  x0, y0, tuple(sources),
+                                  _named_floor([feats[i] for i in outline_at])), geo)
+
+
+def _named_floor(outline_features: list[dict]) -> str:
+    """The floor name the first outline feature saying it is a floor (``type`` or
+    ``category`` ``"floor"``) gives as its ``name``; empty without one."""
+    for f in outline_features:
+        props = f.get("properties") or {}
+        name = props.get("name")
+        if "floor" in (props.get("type"), props.get("category")) and isinstance(name, str) \
+                and name.strip():
+            return name.strip()
+    return ""
 
 
 def _role(feature: dict, path: Path, index: int) -> str | None:

@@ -775,3 +775,24 @@ def test_traces_that_record_no_floor_are_their_folders_floor(tmp_path):
     assert res.exit_code == 0, res.output
     assert "record no floor: taken as L3" in res.output
     assert load_bundle(tmp_path / "plan" / "L3").manifest["floor_name"] == "L3"
+
+
+def test_a_plan_of_another_floor_is_refused_by_its_name(tmp_path):
+    """``build F1/path_data_files --plan F2``: the bundle was built on F2's plan, with only
+    its low coverage to show it. The plan names its floor (feature 0, as the ILC plans and
+    the simulator's do): a usage error before anything is processed; ``--floor`` builds
+    anyway, with a warning."""
+    assert read_floor_plan(SITE / "F2").floor_name == "F2"
+    runner, plan = CliRunner(), SITE / "F2" / "geojson_map.json"
+    args = ["build", str(SITE / "F1" / "path_data_files"), "--plan", str(plan),
+            "-o", str(tmp_path / "out")]
+    res = runner.invoke(main, args)
+    assert res.exit_code == 2, res.output
+    assert (f"{plan} says it is the plan of floor F2, but the walks in "
+            f"{SITE / 'F1' / 'path_data_files'} are recorded as floor F1; give floor F1's "
+            "plan, or --floor F1 to build on this one") in res.output
+    assert "process" not in res.output and not (tmp_path / "out").exists()
+    res = runner.invoke(main, args + ["--floor", "F1"])
+    assert res.exit_code == 0, res.output
+    assert f"warning: {plan} says it is the plan of floor F2; building it as floor F1 " \
+        "(--floor)" in res.output
