@@ -23,7 +23,7 @@ from .store import IngestOutcome, SurveyStore, catalog_row, write_parts
 from .trace_bytes import trace_file_sha256
 from .trace_reader import BATCH_BYTES, ReadFailure, find_trace_files, iter_traces, \
     trace_id_from_path
-from .walkline import identity_sha256, is_walk_plan, plan_walks
+from .walkline import PlanWalk, identity_sha256, is_walk_plan, plan_walks
 
 
 @dataclass
@@ -289,26 +289,28 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
             floor = floor_of(plan)
             for walk in walks:
                 try:  # one walk at a time: a missing or bad log fails its walk alone
-                    trace, source, identity = walk.read(strict=strict)
+                    source, csv_bytes = walk.log_bytes()
                 except SurveyFormatError as err:
                     if strict:
                         raise
                     summary.outcomes.append(IngestOutcome(walk.where, walk.walk_id, "failed",
                                                           str(err)))
                     continue
-                if second_input(source, trace.trace_id):
+                if second_input(source, walk.walk_id):
                     continue
+                identity = walk.identity(csv_bytes)
                 sha = identity_sha256(identity)
-                known = w.known(trace.trace_id, sha, floor)
+                known = w.known(walk.walk_id, sha, floor)  # unchanged: not parsed, as a trace
                 if known:
                     known.path = source
                     if known.status == "duplicate":
-                        deferred.append((len(summary.outcomes), trace.trace_id, sha,
-                                         ("plan", trace, source, len(identity), floor)))
+                        deferred.append((len(summary.outcomes), walk.walk_id, sha,
+                                         ("plan", walk, source, csv_bytes, len(identity),
+                                          floor)))
                     summary.outcomes.append(known)
                     continue
-                summary.outcomes.append(_add_walk(w, summary, trace, source, sha,
-                                                  len(identity), floor))
+                summary.outcomes.append(_parse_walk(w, summary, walk, source, csv_bytes, sha,
+                                                    len(identity), floor, strict))
             tick()
         # to a fixed point: ingesting one can make another's original go (walks renumbered:
         # w2 -> w1, w3 -> w2, ...)
@@ -320,7 +322,8 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
                                        [item[3]], strict, batch_bytes)
                 summary.outcomes[index] = _add_results(w, summary, res)[0]
             else:
-                summary.outcomes[index] = _add_walk(w, summary, *item[1:3], sha, *item[3:])
+                summary.outcomes[index] = _parse_walk(w, summary, *item[1:4], sha, *item[4:],
+                                                      strict)
         for index, tid, sha, _ in deferred:  # what each duplicates in the end
             summary.outcomes[index].detail = w.known(tid, sha).detail
     return summary
@@ -351,10 +354,17 @@ def _outcome(w, path: str, row: dict) -> IngestOutcome:
                          f"replaced {was[0]}, {was[1]} lines" if other else "")
 
 
-def _add_walk(w, summary: IngestSummary, trace, source: str, sha: str, size: int,
-              floor_default: str | None) -> IngestOutcome:
-    """Store one walk of a walk plan with the writer ``w``; its row is added to ``summary``,
-    its outcome returned."""
+def _parse_walk(w, summary: IngestSummary, walk: PlanWalk, source: str, csv_bytes: bytes,
+                sha: str, size: int, floor_default: str | None, strict: bool) -> IngestOutcome:
+    """Parse one walk of a walk plan (its sensor CSV's bytes, read from ``source``) and store
+    it with the writer ``w``; its row is added to ``summary``, its outcome returned (failed
+    when the CSV cannot be parsed; raised in strict mode)."""
+    try:
+        trace = walk.parse(source, csv_bytes, strict=strict)
+    except SurveyFormatError as err:
+        if strict:
+            raise
+        return IngestOutcome(walk.where, walk.walk_id, "failed", str(err))
     row = catalog_row(trace, source_path=source, sha256=sha, size_bytes=size,
                       source_format="walkline", floor_default=floor_default)
     write_parts(w.root, trace, row)

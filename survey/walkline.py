@@ -147,24 +147,54 @@ class PlanWalk:
     def read(self, *, strict: bool = False) -> tuple[Trace, str, bytes]:
         """Read the walk's sensor log: ``(trace, source path of the sensor CSV, identity
         bytes)`` (the canonical feature JSON plus the CSV content, what the store hashes to
-        detect changes).
+        detect changes): :meth:`log_bytes`, :meth:`identity` and :meth:`parse`.
 
         Raises
         ------
         SurveyFormatError
             A missing or malformed sensor CSV (strict mode: also any bad CSV row).
         """
-        log, where, times, xy = self.sensor_log, self.where, self.times_ms, self.xy_m
+        source, csv_bytes = self.log_bytes()
+        return self.parse(source, csv_bytes, strict=strict), source, self.identity(csv_bytes)
+
+    def log_bytes(self) -> tuple[str, bytes]:
+        """``(path, content)`` of the walk's sensor CSV, not parsed (``ingest`` hashes a walk
+        before it parses it, and skips an unchanged one).
+
+        Raises
+        ------
+        SurveyFormatError
+            The sensor CSV is missing or not a readable regular file.
+        """
+        log = self.sensor_log
         try:
             csv_path = (self.folder / log).resolve()
-            csv_bytes = read_regular(csv_path, MAX_TRACE_BYTES)  # not a FIFO or device
+            return str(csv_path), read_regular(csv_path, MAX_TRACE_BYTES)  # not a FIFO
         except (OSError, ValueError) as err:  # ValueError: a NUL byte in the path
             raise SurveyFormatError(f"sensor log {log!r} not readable "
                                     f"({getattr(err, 'strerror', None) or err})",
-                                    path=where, reason="io") from err
-        check_not_utf16_or_32(csv_bytes, csv_path)
+                                    path=self.where, reason="io") from err
+
+    def identity(self, csv_bytes: bytes) -> bytes:
+        """What identifies this version of the walk: its feature with the collection's
+        defaults it inherits (a change in either is a change of the walk) and its sensor
+        CSV's bytes."""
+        feature = {**self.feature, "properties": self.props}
+        return json.dumps(feature, sort_keys=True).encode() + b"\n" + csv_bytes
+
+    def parse(self, source: str, csv_bytes: bytes, *, strict: bool = False) -> Trace:
+        """The walk as a trace from its sensor CSV's bytes (read from ``source``), its
+        header from the plan's properties and its waypoints the plan's vertices.
+
+        Raises
+        ------
+        SurveyFormatError
+            A malformed sensor CSV (strict mode: also any bad CSV row).
+        """
+        check_not_utf16_or_32(csv_bytes, source)
+        times, xy = self.times_ms, self.xy_m
         trace = parse_sensor_csv(csv_bytes, reference_ms=float(np.median(times)),
-                                 path=str(csv_path), strict=strict)
+                                 path=source, strict=strict)
         trace.trace_id = self.walk_id
         for prop, attr in _HEADER_PROPS.items():
             if self.props.get(prop) is not None:
@@ -172,11 +202,7 @@ class PlanWalk:
         trace.header.start_ms, trace.header.end_ms = int(times[0]), int(times[-1])
         trace.waypoints = pd.DataFrame({"t_ms": times.astype(np.int64), "x_m": xy[:, 0],
                                         "y_m": xy[:, 1]})
-        # the feature with the collection's defaults it inherits: a change in either is a
-        # change of the walk
-        feature = {**self.feature, "properties": self.props}
-        identity = json.dumps(feature, sort_keys=True).encode() + b"\n" + csv_bytes
-        return trace, str(csv_path), identity
+        return trace
 
 
 def read_walk_plan(path: str | os.PathLike, *, strict: bool = False

@@ -111,6 +111,35 @@ def test_bad_csv_row_lenient_and_strict(tmp_path):
         read_walk_plan(plan, strict=True)
 
 
+def test_an_unchanged_walk_is_not_parsed_again(tmp_path, monkeypatch):
+    """A stored walk of a plan is hashed before it is parsed, as a trace file is: an
+    unchanged one is skipped unread, so ``--strict`` does not raise on a bad row it was
+    stored with (a trace file's was never raised on), and a changed one still is."""
+    from survey.walkline import PlanWalk
+
+    _csv(tmp_path / "a.csv", extra_bad_row=True)
+    _csv(tmp_path / "b.csv")
+    plan = _plan(tmp_path, [_feature(w, [[0, 0], [1, 0]], start_ms=T0, end_ms=T0 + 1980)
+                            for w in ("a", "b")])
+    assert ingest([plan], tmp_path / "store").status_counts() == {"new": 2}
+    parsed = []
+    real_parse = PlanWalk.parse
+    monkeypatch.setattr(PlanWalk, "parse", lambda self, *a, **k: (
+        parsed.append(self.walk_id), real_parse(self, *a, **k))[1])
+    again = ingest([plan], tmp_path / "store", strict=True)
+    assert again.status_counts() == {"unchanged": 2} and parsed == []
+    _csv(tmp_path / "b.csv", n=50)
+    assert ingest([plan], tmp_path / "store", strict=True).status_counts() == {
+        "unchanged": 1, "changed": 1}
+    assert parsed == ["b"]
+    _csv(tmp_path / "a.csv", n=60, extra_bad_row=True)  # changed, with its bad row: raised
+    with pytest.raises(SurveyFormatError, match=r"a.csv:6: non-numeric"):
+        ingest([plan], tmp_path / "store", strict=True)
+    lenient = ingest([plan], tmp_path / "store")  # and without --strict, stored and counted
+    assert lenient.status_counts() == {"changed": 1, "unchanged": 1}
+    assert lenient.bad == {"non_numeric": 1}
+
+
 @pytest.mark.parametrize("row,message", [
     ("1,,3,", "non-numeric, missing or non-finite value: column acc_y (empty)"),
     ("1,2,inf,", "non-numeric, missing or non-finite value: column acc_z (inf)"),
