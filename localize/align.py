@@ -45,7 +45,8 @@ from localize.errors import LocalizationError
 from localize.filter import BaseLocalizer, check_step, check_within_reach
 from localize.params import MAX_STEP_M
 from localize.radio import RadioModel
-from localize.steps import AttitudeCode, RadioScan, StepSummaries, StepSummary
+from localize.steps import (AttitudeCode, RadioScan, StepSummaries, StepSummary,
+                            check_step_numbers)
 from localize.track import Estimate, Track
 
 __all__ = ["AlignParams", "WalkAligner", "distance_from_mask_m", "walk_shape"]
@@ -391,6 +392,9 @@ class WalkAligner(BaseLocalizer):
         caller (its scan time). For serving many users
         (:class:`localize.align_engine.MultiUserAligner`, which checks a tick's steps with
         :meth:`check_next` before any user moves)."""
+        check_step_numbers(t_ms, t_ms=t_ms, compass_deg=compass_deg,
+                           relative_heading_deg=relative_heading_deg,
+                           delta_acc_ms2=delta_acc_ms2)
         self.check_next(t_ms, compass_deg)
         return self._advance(t_ms, compass_deg, relative_heading_deg, delta_acc_ms2,
                              bool(carried), self._checked_fix(t_ms, fix))

@@ -37,7 +37,7 @@ from localize.particles import (
 from localize.radio import RadioModel
 from localize.smoothing import Genealogy
 from localize.stepper import StepInputs, advance
-from localize.steps import RadioScan, StepSummaries, StepSummary
+from localize.steps import RadioScan, StepSummaries, StepSummary, check_step_values
 from localize.track import Estimate, Track
 from localize.update import position_update, radio_likelihood, radio_update
 from survey.errors import require_type
@@ -122,6 +122,7 @@ def check_step(s: StepSummary, owner: object) -> None:
     that) as ``owner``'s step."""
     require_type(s, StepSummary, f"{type(owner).__name__}.step(s)",
                  "one element of StepSummaries; run() localizes a whole walk")
+    check_step_values(s)
 
 
 #: How far (m) outside the floor's grid a given start may lie (the filter's start square

@@ -205,6 +205,51 @@ class StepSummary:
 
 _FLOAT_COLUMNS = ("frequency_hz", "delta_acc_ms2", "compass_deg", "turn_deg", "strength_ut",
                   "azimuth_deg", "polar_deg", "relative_heading_deg")
+
+
+def _is_real(v: object) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(
+        v, (bool, np.bool_))
+
+
+def check_step_numbers(step_t_ms: object, **values: object) -> None:
+    """Refuse a streamed step whose ``values`` (field name -> value) are not all real numbers
+    (NaN, not None, for what is unknown): a LocalizationError naming the step's time
+    ``step_t_ms`` and the field."""
+    at = f"step at {step_t_ms} ms" if _is_real(step_t_ms) else "step"
+    for name, v in values.items():
+        if not _is_real(v):
+            raise LocalizationError(f"{at}: {name} must be a number (NaN when unknown), not "
+                                    f"{v!r}; the step was not taken")
+
+
+def check_step_values(s: StepSummary) -> None:
+    """Refuse a streamed step whose fields are not what :class:`StepSummary` says, before a
+    localizer takes any of it: ``t_ms`` and the float fields real numbers (NaN, not None,
+    for what is unknown), ``attitude`` an :class:`AttitudeCode`, ``mag_strength_ut`` None or
+    a 1-D array of numbers, ``scan`` None or a :class:`RadioScan`. A None compass used to
+    break a particle filter for good: its particles were moved to NaN before it failed.
+
+    Raises
+    ------
+    LocalizationError
+        Naming the step's time and the field.
+    """
+    check_step_numbers(s.t_ms, **{name: getattr(s, name) for name in ("t_ms", *_FLOAT_COLUMNS)})
+    at = f"step at {s.t_ms} ms"
+    if not _is_real(s.attitude) or float(s.attitude) not in {float(a) for a in AttitudeCode}:
+        raise LocalizationError(f"{at}: attitude must be one of the AttitudeCode values "
+                                f"{[int(a) for a in AttitudeCode]}, not {s.attitude!r}; the "
+                                "step was not taken")
+    if s.mag_strength_ut is not None:
+        raw = np.asarray(s.mag_strength_ut)
+        if raw.ndim != 1 or raw.dtype.kind not in "fiu":
+            raise LocalizationError(f"{at}: mag_strength_ut must be None or a 1-D array of "
+                                    f"numbers (uT), not {raw.ndim}-D of {raw.dtype}; the step "
+                                    "was not taken")
+    if s.scan is not None and not isinstance(s.scan, RadioScan):
+        raise LocalizationError(f"{at}: scan must be None or a RadioScan, not "
+                                f"{type(s.scan).__name__}; the step was not taken")
 #: The per-step columns a table of step summaries holds
 #: (:func:`survey.step_summaries.summaries_table`, :meth:`StepSummaries.from_table`).
 TABLE_COLUMNS = ("t_ms", *_FLOAT_COLUMNS, "attitude")

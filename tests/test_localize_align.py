@@ -1,5 +1,7 @@
 """Walk alignment (localize.align): the step track fitted to radio fixes and the walls."""
 
+import re
+
 import numpy as np
 import pytest
 from localize_fixtures import f1_bundle, sim_walks, truth_bundles  # noqa: F401  (fixtures)
@@ -130,9 +132,11 @@ def test_a_refused_step_leaves_the_stream_going(f1_bundle, sim_walks, monkeypatc
     loc = WalkAligner(f1_bundle)
     loc.start(*w.start_xy, t_ms=w.steps.t_ms[0] - 500.0)
     got = [loc.step(w.steps[i]) for i in range(3)]
-    for compass in (np.nan, np.inf, "north"):
+    for compass in (np.nan, np.inf):
         with pytest.raises(LocalizationError, match="no compass heading"):
             loc.step(replace(w.steps[3], compass_deg=compass))
+    with pytest.raises(LocalizationError, match="compass_deg must be a number"):
+        loc.step(replace(w.steps[3], compass_deg="north"))
     s = w.steps[3]
     with pytest.raises(LocalizationError, match="more than 200 m off the floor's map"):
         loc.step_values(s.t_ms, s.compass_deg, s.relative_heading_deg, s.delta_acc_ms2,
@@ -159,6 +163,48 @@ def test_a_refused_step_leaves_the_stream_going(f1_bundle, sim_walks, monkeypatc
     with pytest.raises(LocalizationError, match="no compass heading"):
         pdr.step(replace(w.steps[0], compass_deg=np.nan))
     assert np.isfinite(pdr.step(w.steps[0]).x_m)  # it went on NaN for ever, before
+
+
+@pytest.mark.parametrize("field,bad,said", [
+    ("compass_deg", None, "compass_deg must be a number (NaN when unknown), not None"),
+    ("delta_acc_ms2", None, "delta_acc_ms2 must be a number"),
+    ("relative_heading_deg", None, "relative_heading_deg must be a number"),
+    ("strength_ut", "41.0", "strength_ut must be a number"),
+    ("frequency_hz", True, "frequency_hz must be a number"),
+    ("attitude", 1.7, "attitude must be one of the AttitudeCode values"),
+    ("attitude", 9, "attitude must be one of the AttitudeCode values"),
+    ("mag_strength_ut", np.zeros((2, 2)), "mag_strength_ut must be None or a 1-D array"),
+    ("scan", (0, ["ab"], [-50.0]), "scan must be None or a RadioScan, not tuple"),
+])
+def test_a_step_with_a_field_of_the_wrong_kind_is_refused_and_the_stream_goes_on(
+        f1_bundle, sim_walks, field, bad, said):  # noqa: F811
+    """A streamed step whose field is None, text, a bool, or an array of the wrong shape: a
+    LocalizationError naming the field, before any of it is taken, for every method. A
+    compass of None passed ``check_next`` (None meant "a method that walks without it") and
+    the filter moved its particles to NaN before it failed with a TypeError; every later
+    step of the user then failed with an IndexError. The alignment broke the same way on a
+    None swing or gyroscope heading."""
+    from dataclasses import replace
+
+    w = _f1_with_scans(sim_walks)[0]
+    for method in ("indoormap", "align", "pdr", "pf_no_mag", "magicol_dtw"):
+        ref = make_localizer(method, f1_bundle, rng=5)
+        ref.start(*w.start_xy, t_ms=w.steps.t_ms[0] - 500.0)
+        want = [ref.step(w.steps[i]) for i in range(8)]
+        loc = make_localizer(method, f1_bundle, rng=5)
+        loc.start(*w.start_xy, t_ms=w.steps.t_ms[0] - 500.0)
+        got = [loc.step(w.steps[i]) for i in range(4)]
+        with pytest.raises(LocalizationError, match=re.escape(said)):
+            loc.step(replace(w.steps[4], **{field: bad}))
+        got += [loc.step(w.steps[i]) for i in range(4, 8)]
+        assert [(e.x_m, e.y_m) for e in got] == [(e.x_m, e.y_m) for e in want], method
+    aligner = WalkAligner(f1_bundle)  # the values API of the multi-user aligner
+    aligner.start(*w.start_xy, t_ms=w.steps.t_ms[0] - 500.0)
+    s = w.steps[0]
+    with pytest.raises(LocalizationError, match="delta_acc_ms2 must be a number"):
+        aligner.step_values(s.t_ms, s.compass_deg, s.relative_heading_deg, None)
+    assert np.isfinite(aligner.step_values(s.t_ms, s.compass_deg, s.relative_heading_deg,
+                                           s.delta_acc_ms2).x_m)
 
 
 def test_a_stream_from_a_scan_starts_at_its_time(f1_bundle, sim_walks):  # noqa: F811
