@@ -507,7 +507,7 @@ class WalkAligner(BaseLocalizer):
             best alignment. Offline, ``info`` holds the fitted ``rotation_deg``, ``scale``,
             the number of fixes and the share of the track on the reachable mask.
         """
-        self.check(steps)
+        self.check_run(steps, smooth, start_t_ms)
         t0 = float(steps.t_ms[0]) - 500.0 if start_t_ms is None else float(start_t_ms)
         fixes = [] if self.radio is None or steps.scans is None else [
             (i, sc.time_or(steps.t_ms[i]), f) for i, sc in enumerate(steps.scans)

@@ -11,6 +11,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 from dataclasses import replace
 
 import numpy as np
@@ -104,7 +106,7 @@ class RadioOnlyLocalizer(BaseLocalizer):
         return self._last
 
 
-def make_localizer(method: str, bundle: MapBundle, params: FilterParams | None = None, *,
+def make_localizer(method: str, bundle: MapBundle, params: FilterParams | Mapping | None = None, *,
                    radio: RadioModel | None = None,
                    rng: np.random.Generator | int | None = None,
                    fmap: FilterMap | None = None, magnetometer: bool = True
@@ -124,9 +126,10 @@ def make_localizer(method: str, bundle: MapBundle, params: FilterParams | None =
     if method not in METHODS:
         raise LocalizationError(f"unknown method {method!r}; expected one of {sorted(METHODS)}")
     require_type(bundle, MapBundle, "make_localizer(bundle)", BUNDLE_HINT)
+    params = FilterParams.coerce(params, "make_localizer(params)")
     if method == "auto":  # by the floor map's measured quality (localize.methods)
         choice = auto_method(bundle.manifest.get("metrics") or {}, magnetometer=magnetometer)
-        params = replace(params or FilterParams(),
+        params = replace(params,
                          radio_guide="align" if choice.guided else "fixes")
         loc = make_localizer(choice.method, bundle, params, radio=radio, rng=rng, fmap=fmap)
         loc.auto_choice = choice
@@ -137,5 +140,5 @@ def make_localizer(method: str, bundle: MapBundle, params: FilterParams | None =
         return RadioOnlyLocalizer(bundle, radio=radio)
     if method == "align":
         return WalkAligner(bundle, radio=radio)
-    p = replace(params or FilterParams(), weight_mode=WEIGHT_MODE_OF[method])
+    p = replace(params, weight_mode=WEIGHT_MODE_OF[method])
     return Localizer(bundle, p, radio=radio, rng=rng, method=method, fmap=fmap)

@@ -27,6 +27,8 @@ Examples
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -69,11 +71,11 @@ class MultiUserEngine:
     steps' times. Users started at a known position use their fixes themselves.
     """
 
-    def __init__(self, bundle: MapBundle, params: FilterParams | None = None, *,
+    def __init__(self, bundle: MapBundle, params: FilterParams | Mapping | None = None, *,
                  rng: np.random.Generator | int | None = None, dtype=np.float64,
                  fmap: FilterMap | None = None) -> None:
         require_type(bundle, MapBundle, "MultiUserEngine(bundle)", BUNDLE_HINT)
-        self.params = params or FilterParams()
+        self.params = FilterParams.coerce(params, "MultiUserEngine(params)")
         if self.params.weight_mode == "dtw":
             raise LocalizationError("the multi-user engine does not run the DTW update")
         self.bundle = bundle

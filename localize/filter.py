@@ -11,6 +11,8 @@ re-draws them around the last estimate with a growing spread (counted as a recov
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 from dataclasses import replace
 from functools import partial
 from typing import NamedTuple
@@ -37,7 +39,8 @@ from localize.particles import (
 from localize.radio import RadioModel
 from localize.smoothing import Genealogy
 from localize.stepper import StepInputs, advance
-from localize.steps import RadioScan, StepSummaries, StepSummary, check_step_values
+from localize.steps import (RadioScan, StepSummaries, StepSummary, check_step_numbers,
+                            check_step_values)
 from localize.track import Estimate, Track
 from localize.update import position_update, radio_likelihood, radio_update
 from survey.errors import require_type
@@ -286,6 +289,19 @@ class BaseLocalizer:
                                     "align on such a walk, in Python given "
                                     "make_localizer(..., magnetometer=False))")
 
+    def check_run(self, steps: StepSummaries, smooth: object, start_t_ms: object) -> None:
+        """What :meth:`run` refuses before any work: a walk this method cannot localize
+        (:meth:`check`), ``smooth`` other than True or False (``"no"`` smoothed), a start
+        time that is not a finite number (NaN gave a track starting at NaN)."""
+        self.check(steps)
+        if not isinstance(smooth, (bool, np.bool_)):
+            raise LocalizationError(f"smooth must be True or False, got {smooth!r}")
+        if start_t_ms is not None:
+            check_step_numbers(start_t_ms, start_t_ms=start_t_ms)
+            if not np.isfinite(start_t_ms):
+                raise LocalizationError(f"start_t_ms must be a finite time (Unix ms), got "
+                                        f"{start_t_ms}")
+
     def first_fix(self, steps: StepSummaries) -> RadioFix | None:
         """The fix of the first scan of the walk the radio model can locate."""
         return first_radio_fix(self.radio, steps)
@@ -315,7 +331,7 @@ class BaseLocalizer:
             One estimate per step (``info["smoothed"]`` says which kind;
             ``info["seen_by_map"]`` whether the bundle was built from this walk).
         """
-        self.check(steps)
+        self.check_run(steps, smooth, start_t_ms)
         if smooth and not self.can_smooth:
             raise LocalizationError(f"method {self.method} cannot smooth (particle filters "
                                     "and align only)")
@@ -377,12 +393,12 @@ class Localizer(BaseLocalizer):
     method = "indoormap"
     can_smooth = True
 
-    def __init__(self, bundle: MapBundle, params: FilterParams | None = None, *,
+    def __init__(self, bundle: MapBundle, params: FilterParams | Mapping | None = None, *,
                  radio: RadioModel | None = None,
                  rng: np.random.Generator | int | None = None, method: str | None = None,
                  fmap: FilterMap | None = None) -> None:
         super().__init__(bundle, radio=radio)
-        self.params = params or FilterParams()
+        self.params = FilterParams.coerce(params, f"{type(self).__name__}(params)")
         self.rng = make_rng(rng)
         if method:
             self.method = method

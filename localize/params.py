@@ -18,9 +18,13 @@ from __future__ import annotations
 import json
 import math
 import numbers
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields, replace
 
+import numpy as np
+
 from localize.errors import LocalizationError
+from survey.errors import require_type
 
 __all__ = ["MAX_STEP_M", "WEIGHT_MODES", "FeatureParams", "FilterParams"]
 
@@ -77,6 +81,19 @@ def _set_numbers(obj, unbounded: frozenset[str] = frozenset(), prefix: str = "")
         object.__setattr__(obj, f.name, plain if isinstance(f.default, tuple) else plain[0])
 
 
+def _set_flags(obj, prefix: str = "") -> None:
+    """Check and store the switches of a frozen dataclass ``obj`` (fields whose default is a
+    bool) as Python bools: a LocalizationError for anything but True or False (numpy's
+    too). Text read from a file or the environment, ``"False"``, was taken as true."""
+    for f in fields(obj):
+        if isinstance(f.default, bool):
+            value = getattr(obj, f.name)
+            if not isinstance(value, (bool, np.bool_)):
+                raise LocalizationError(f"{prefix}{f.name} must be True or False, got "
+                                        f"{value!r}")
+            object.__setattr__(obj, f.name, bool(value))
+
+
 @dataclass(frozen=True)
 class FeatureParams:
     """Mass-centered update of one field feature (000 eq. 5; 001 eqs. 8-10).
@@ -112,6 +129,7 @@ class FeatureParams:
 
     def __post_init__(self) -> None:
         _set_numbers(self, prefix="FeatureParams.")
+        _set_flags(self, prefix="FeatureParams.")
 
     @property
     def history(self) -> int:
@@ -304,7 +322,23 @@ class FilterParams:
 
     def __post_init__(self) -> None:
         _set_numbers(self, UNBOUNDED_OK)
+        _set_flags(self)
+        for f in fields(self):  # the features: a dict of fields over that feature's defaults
+            value = getattr(self, f.name)
+            if f.name in FEATURE_NAMES and not isinstance(value, FeatureParams):
+                object.__setattr__(self, f.name, _feature(f.name, f.default_factory(), value))
         self.validate()
+
+    @classmethod
+    def coerce(cls, params: FilterParams | Mapping | None, what: str) -> FilterParams:
+        """``params`` as FilterParams: None gives the defaults, a dict of fields
+        :meth:`from_dict`; anything else a TypeError naming ``what`` (the argument)."""
+        if params is None:
+            return cls()
+        if isinstance(params, Mapping):
+            return cls.from_dict(params)
+        require_type(params, cls, what, "FilterParams(...) or a dict of its fields")
+        return params
 
     def validate(self) -> None:
         """Raise :class:`LocalizationError` on inconsistent values: noise and drift not
@@ -370,19 +404,41 @@ class FilterParams:
 
     def with_features(self, **changes) -> FilterParams:
         """Copy with feature parameters changed, e.g. ``with_features(strength={"window": 5})``."""
-        kw = {k: replace(getattr(self, k), **v) for k, v in changes.items()}
+        kw = {k: _feature(k, getattr(self, k) if k in FEATURE_NAMES else None, v)
+              for k, v in changes.items()}
         return replace(self, **kw)
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), sort_keys=True)
 
     @classmethod
-    def from_dict(cls, d: dict) -> FilterParams:
+    def from_dict(cls, d: Mapping) -> FilterParams:
+        """FilterParams from a dict of fields (``to_json``'s, or some of them): a feature's
+        dict changes that feature's defaults (``{"strength": {"window": 5}}`` keeps the
+        strength threshold of 0.5); an unknown field is a LocalizationError naming it."""
         d = dict(d)
-        for k in FEATURE_NAMES:
-            if isinstance(d.get(k), dict):
-                d[k] = FeatureParams(**d[k])
-        for k in ("genome_a_range", "genome_b_range", "step_length_range_m"):
-            if k in d:
-                d[k] = tuple(d[k])
-        return cls(**d)
+        unknown = sorted(set(d) - {f.name for f in fields(cls)})
+        if unknown:
+            raise LocalizationError(f"unknown filter parameter(s) {', '.join(map(repr, unknown))}")
+        return cls(**d)  # ranges given as lists (JSON's) are made tuples by _set_numbers
+
+
+def _feature(name: str, base: FeatureParams | None, value: object) -> FeatureParams:
+    """Feature ``name``'s parameters from ``value``: a FeatureParams, or a dict of fields
+    changing ``base`` (the feature's defaults, or its parameters so far); a
+    LocalizationError naming the feature for anything else, and for an unknown feature or
+    field."""
+    if base is None:
+        raise LocalizationError(f"unknown feature {name!r}; the features are "
+                                f"{', '.join(FEATURE_NAMES)}")
+    if isinstance(value, FeatureParams):
+        return value
+    if not isinstance(value, Mapping):
+        raise LocalizationError(f"{name} must be a FeatureParams or a dict of its fields, got "
+                                f"{type(value).__name__}")
+    unknown = sorted(set(value) - {f.name for f in fields(FeatureParams)})
+    if unknown:
+        raise LocalizationError(f"{name}: unknown feature parameter(s) "
+                                f"{', '.join(map(repr, unknown))}; they are "
+                                f"{', '.join(f.name for f in fields(FeatureParams))}")
+    return replace(base, **value)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 import json
+import re
 import subprocess
 import sys
 from dataclasses import replace
@@ -291,6 +292,57 @@ def test_other_bad_calls(f1_bundle, sim_walks):  # noqa: F811
     assert p.genome_a_range == (0.1, 0.9) and p.genome_b_range == (-0.5, 0.5)
     assert type(p.n_particles) is int and type(p.strength.window) is int
     assert FilterParams.from_dict(json.loads(p.to_json())) == p and hash(p)
+
+
+def test_switches_take_only_true_or_false_and_features_take_dicts(f1_bundle):  # noqa: F811
+    """Text for a switch, as a YAML, CSV or environment value gives it ("False", "no"), was
+    taken as true: ``radio_update="False"`` ran the radio update. A feature given as a dict
+    failed with an AttributeError (``from_dict`` alone took one, and built it over
+    FeatureParams' defaults, not the feature's: ``{"strength": {"window": 5}}`` lost the
+    strength threshold of 0.5 for 0.05). A dict for the parameters of a localizer or an
+    engine failed with an AttributeError too."""
+    for bad, said in [(dict(radio_update="False"), "radio_update must be True or False, got "
+                                                   "'False'"),
+                      (dict(turn_correction=0), "turn_correction must be True or False"),
+                      (dict(strength={"enabled": "no"}), "FeatureParams.enabled must be True"),
+                      (dict(strength=3), "strength must be a FeatureParams or a dict of its "
+                                         "fields, got int"),
+                      (dict(polar={"windw": 3}), "polar: unknown feature parameter(s) 'windw'")]:
+        with pytest.raises(LocalizationError, match=re.escape(said)):
+            FilterParams(**bad)
+    with pytest.raises(LocalizationError, match="FeatureParams.enabled must be True or False"):
+        FeatureParams(enabled="no")
+    assert FilterParams(radio_update=np.bool_(False)).radio_update is False
+    for p in (FilterParams(strength={"window": 5}),
+              FilterParams.from_dict({"strength": {"window": 5}}),
+              FilterParams().with_features(strength={"window": 5})):
+        assert p.strength == FeatureParams(window=5, threshold=0.5)  # the strength defaults
+    with pytest.raises(LocalizationError, match="unknown feature 'bogus'"):
+        FilterParams().with_features(bogus={"window": 3})
+    with pytest.raises(LocalizationError, match="unknown filter parameter.*'n_particle'"):
+        FilterParams.from_dict({"n_particle": 100})
+    a = Localizer(f1_bundle, {"n_particles": 100}, rng=0)
+    assert a.params == FilterParams(n_particles=100)
+    assert MultiUserEngine(f1_bundle, {"n_particles": 100}).params.n_particles == 100
+    assert make_localizer("indoormap", f1_bundle, {"n_particles": 100}).params.n_particles == 100
+    with pytest.raises(TypeError, match=r"Localizer\(params\): a FilterParams is needed"):
+        Localizer(f1_bundle, 100)
+
+
+def test_run_takes_only_true_or_false_to_smooth_and_a_finite_start_time(f1_bundle,  # noqa: F811
+                                                                           sim_walks):  # noqa: F811
+    """``run(smooth="no")`` smoothed; ``start_t_ms=nan`` gave a track starting at NaN and
+    ``inf`` said the first step came before the start."""
+    w = _f1(sim_walks)[0]
+    for method in ("indoormap", "align"):
+        loc = make_localizer(method, f1_bundle, {"n_particles": 50})
+        for kw, said in ((dict(smooth="no"), "smooth must be True or False, got 'no'"),
+                         (dict(start_t_ms=np.nan), "start_t_ms must be a finite time"),
+                         (dict(start_t_ms=np.inf), "start_t_ms must be a finite time"),
+                         (dict(start_t_ms="0"), "start_t_ms must be a number")):
+            with pytest.raises(LocalizationError, match=re.escape(said)):
+                loc.run(w.steps, start_xy=w.start_xy, **kw)
+        assert len(loc.run(w.steps, start_xy=w.start_xy, smooth=np.bool_(True))) == len(w.steps)
 
 
 @pytest.mark.parametrize("method", sorted(METHODS))
