@@ -19,6 +19,7 @@ from pathlib import Path
 
 from .errors import StoreError, SurveyFormatError
 from .publish import crash_point
+from .regular_files import path_list
 from .store import IngestOutcome, SurveyStore, catalog_row, write_parts
 from .trace_bytes import trace_file_sha256
 from .trace_reader import BATCH_BYTES, ReadFailure, find_trace_files, iter_traces, \
@@ -65,12 +66,13 @@ class IngestSummary:
             self.messages.extend(json.loads(row["messages_json"])[:room])
 
 
-def find_inputs(paths: Iterable[str | os.PathLike]) -> tuple[list[Path], list[Path]]:
+def find_inputs(paths: str | os.PathLike | Iterable[str | os.PathLike]
+                ) -> tuple[list[Path], list[Path]]:
     """Split inputs into trace files and walk plans, searching folders. In folders, GeoJSON files
     that are not walk plans (floor plans, planned routes) are ignored; named explicitly, a
     ``.geojson`` file must be a walk plan."""
     traces, plans = [], []
-    for p in map(Path, paths):
+    for p in map(Path, path_list(paths)):
         if p.is_dir():
             plans.extend(q for q in sorted(p.rglob("*.geojson")) if is_walk_plan(q))
             traces.extend(find_trace_files([p]))
@@ -107,7 +109,7 @@ def _parse_and_write(root: str, paths: list[str], shas: list[str], sizes: list[i
     return out
 
 
-def ingest(paths: Iterable[str | os.PathLike], store: str | os.PathLike | SurveyStore, *,
+def ingest(paths: str | os.PathLike | Iterable[str | os.PathLike], store: str | os.PathLike | SurveyStore, *,
            strict: bool = False, workers: int = 1, batch_bytes: int = BATCH_BYTES,
            progress: Callable[[int, int], None] | None = None,
            floor_names: Mapping[str | os.PathLike, str] | None = None) -> IngestSummary:
@@ -139,7 +141,7 @@ def ingest(paths: Iterable[str | os.PathLike], store: str | os.PathLike | Survey
     -------
     IngestSummary
     """
-    paths = list(paths)
+    paths = path_list(paths)
     trace_files, plans = find_inputs(paths)
     if not trace_files and not plans:
         raise SurveyFormatError("no trace files (.txt, .txt.gz) or walk plans (.geojson) found",

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import stat
+from collections.abc import Iterable
 
 _OPEN_FLAGS = os.O_RDONLY | getattr(os, "O_BINARY", 0) | getattr(os, "O_NONBLOCK", 0)
 
@@ -71,3 +72,12 @@ def read_regular(path: str | os.PathLike, max_bytes: int) -> bytes:
         if total > max_bytes:
             raise FileTooLarge(f"file grew past the {max_bytes}-byte limit while read")
         return b"".join(parts)
+
+
+def path_list(paths: str | os.PathLike | Iterable[str | os.PathLike]) -> list:
+    """``paths`` as a list: one path given alone (a ``str`` or path-like) is a list of one,
+    not its characters (``ingest("survey/F1", store)`` searched ``s``, ``u``, ... and
+    ``/``, the whole file system)."""
+    if isinstance(paths, (str, bytes, os.PathLike)):
+        return [paths]
+    return list(paths)

@@ -370,17 +370,21 @@ class SurveyStore:
         return cat.reset_index(drop=True)
 
     def table(self, name: str, *, site: str | None = None, floor: str | None = None,
-              trace_ids: list[str] | None = None) -> pd.DataFrame:
+              trace_ids: str | list[str] | None = None) -> pd.DataFrame:
         """Rows of one table (``sensors``, ``wifi``, ``ble``, ``waypoints``) for the selected
-        traces, with a ``trace_id`` column, in catalog order then time order."""
+        traces (``trace_ids``: one id or a list), with a ``trace_id`` column, in catalog
+        order then time order."""
         if name not in TABLES:
             raise StoreError(f"unknown table {name!r}; expected one of {TABLES}")
         cat = self.traces(site, floor)
         if trace_ids is not None:
+            if isinstance(trace_ids, str):  # one id, not its characters
+                trace_ids = [trace_ids]
             cat = cat[cat["trace_id"].isin(list(trace_ids))]
         parts = [self._read_part(name, row) for row in cat.itertuples(index=False)]
         if not parts:
-            raise StoreError(f"{self.root}: no traces match site={site!r} floor={floor!r}")
+            raise StoreError(f"{self.root}: no traces match site={site!r} floor={floor!r}"
+                             + ("" if trace_ids is None else f" trace_ids={trace_ids!r}"))
         return _frame(pa.concat_tables(parts, promote_options="permissive"))
 
     def part(self, name: str, row: Any, columns: list[str] | None = None) -> pd.DataFrame:

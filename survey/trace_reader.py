@@ -45,6 +45,7 @@ import pyarrow.csv as pacsv
 from localize.bundle import RSSI_RANGE_DBM, rssi_in_range
 
 from .errors import SurveyFormatError
+from .regular_files import path_list
 from .trace_bytes import MAX_TRACE_BYTES, not_regular, read_trace_bytes
 from .trace_format import (
     BLE_COLUMNS,
@@ -139,14 +140,14 @@ def trace_id_from_path(path: str | os.PathLike) -> str:
     return name
 
 
-def find_trace_files(paths: Iterable[str | os.PathLike]) -> list[Path]:
+def find_trace_files(paths: str | os.PathLike | Iterable[str | os.PathLike]) -> list[Path]:
     """Expand files and folders (recursively) into the sorted list of ``*.txt``/``*.txt.gz``.
 
     Folders yield regular files only; a path named that is neither a folder nor a regular
     file (a FIFO, socket or device, or a link to one: reading it, or hashing it, would block
     or never end) raises, as a missing one does."""
     found: list[Path] = []
-    for p in map(Path, paths):
+    for p in map(Path, path_list(paths)):
         if p.is_dir():
             found.extend(q for q in p.rglob("*") if q.is_file()
                          and (q.name.endswith(".txt") or q.name.endswith(".txt.gz")))
@@ -927,7 +928,8 @@ class ReadFailure:
     error: SurveyFormatError
 
 
-def iter_traces(paths: Iterable[str | os.PathLike], *, strict: bool = False,
+def iter_traces(paths: str | os.PathLike | Iterable[str | os.PathLike], *,
+                strict: bool = False,
                 batch_bytes: int = BATCH_BYTES,
                 max_bytes: int = MAX_TRACE_BYTES) -> Iterator[Trace | ReadFailure]:
     """Read traces in batches of about ``batch_bytes`` of text, yielding them in path order.
@@ -937,7 +939,7 @@ def iter_traces(paths: Iterable[str | os.PathLike], *, strict: bool = False,
     empty or not a trace file) is yielded as a :class:`ReadFailure` and reading goes on; in
     strict mode its error is raised.
     """
-    for item in _read_batched(paths, strict=strict, batch_bytes=batch_bytes,
+    for item in _read_batched(path_list(paths), strict=strict, batch_bytes=batch_bytes,
                               max_bytes=max_bytes):
         if isinstance(item, Trace) and item.is_empty:
             if strict:

@@ -495,3 +495,26 @@ def test_store_info_and_verify_cli(tmp_path):
     assert f"FAILED  trace {raw.name.split('-')[0]}: {raw}: part file changed" in bad.output
     assert f"FAILED  processed walk {done.name.split('-')[0]}: {done}: processed part changed" \
         in bad.output
+
+
+def test_one_path_or_trace_id_given_alone_is_one_not_its_characters(tmp_path, monkeypatch):
+    """``ingest("survey/F1", store)`` iterated the string: it searched ``s``, ``u``, ... and
+    ``/``, the whole file system (or ingested a folder twice, or failed on a letter);
+    ``iter_traces(path)`` yielded a failure per character, and ``table(trace_ids="id")``
+    matched no trace. One path, or one id, is now a list of one."""
+    from survey.trace_reader import find_trace_files, iter_traces
+
+    folder = tmp_path / "F1"
+    folder.mkdir()
+    for i in range(2):
+        write_trace(folder / f"walk{i}.txt", small_trace(seed=i, trace_id=f"walk{i}"))
+    monkeypatch.chdir(tmp_path)
+    assert find_trace_files("F1") == find_trace_files(["F1"]) and len(find_trace_files("F1")) == 2
+    assert [t.trace_id for t in iter_traces(folder / "walk0.txt")] == ["walk0"]
+    assert [t.trace_id for t in iter_traces(str(folder / "walk1.txt"))] == ["walk1"]
+    assert ingest("F1", tmp_path / "store").status_counts() == {"new": 2}
+    store = SurveyStore.open(tmp_path / "store")
+    one = store.table("waypoints", trace_ids="walk1")
+    assert set(one["trace_id"]) == {"walk1"} and len(one)
+    with pytest.raises(StoreError, match=r"trace_ids=\['nope'\]"):
+        store.table("waypoints", trace_ids="nope")
