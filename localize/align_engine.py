@@ -30,7 +30,8 @@ from localize.errors import LocalizationError
 from localize.filter import BUNDLE_HINT
 from localize.steps import AttitudeCode
 from localize.stepper import StepInputs, StepOutputs
-from localize.ticks import check_tick_inputs, checked_tick_fixes, per_user, tick_ids
+from localize.ticks import (check_tick_inputs, checked_tick_fixes, per_user, start_points,
+                            tick_ids)
 from survey.errors import require_type
 
 __all__ = ["MultiUserAligner"]
@@ -77,7 +78,7 @@ class MultiUserAligner:
             A fix's accuracy (m): the start is then the first of the user's fixes, with the
             fixes' error model. NaN or absent: a known position (``AlignParams.start_sd_m``).
         """
-        xy = np.asarray(start_xy, dtype=np.float64).reshape(-1, 2)
+        xy = start_points(start_xy)
         k = len(xy)
         t = per_user(t_ms, k, "t_ms")
         sigma = np.full(k, np.nan) if sigma_m is None else per_user(sigma_m, k, "sigma_m")

@@ -42,7 +42,8 @@ from localize.params import FilterParams
 from localize.particles import (ParticleState, estimate, init_state, inject_around_fix,
                                 inject_around_guide, needed_layers, start_half_width_m)
 from localize.stepper import StepInputs, StepOutputs, advance
-from localize.ticks import check_tick_inputs, checked_tick_fixes, per_user, tick_ids
+from localize.ticks import (check_tick_inputs, checked_tick_fixes, per_user, start_points,
+                            tick_ids)
 from localize.update import position_update
 from survey.errors import require_type
 
@@ -121,7 +122,7 @@ class MultiUserEngine:
             The starts' times (Unix ms); needed for guided users.
         """
         p = self.params
-        xy = np.asarray(start_xy, dtype=np.float64).reshape(-1, 2)
+        xy = start_points(start_xy)
         k = len(xy)
         sigma = np.full(k, np.nan) if fix_sigma_m is None else \
             per_user(fix_sigma_m, k, "fix_sigma_m")

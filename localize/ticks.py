@@ -14,12 +14,19 @@ from localize.errors import LocalizationError
 from localize.filter import MAX_START_OFF_MAP_M, within_reach
 from localize.stepper import StepInputs
 
-__all__ = ["check_tick_inputs", "checked_tick_fixes", "per_user", "tick_ids"]
+__all__ = ["check_tick_inputs", "checked_tick_fixes", "per_user", "start_points", "tick_ids"]
 
 
 def tick_ids(ids: ArrayLike) -> NDArray[np.int64]:
-    """The users of a tick as int64 ids (k,); a LocalizationError when one appears twice."""
-    ids = np.asarray(ids, dtype=np.int64).ravel()
+    """The users of a tick as int64 ids (k,); a LocalizationError when one is not a whole
+    number (1.7 was taken as user 1) or appears twice."""
+    raw = np.asarray(ids)
+    whole = raw.dtype.kind in "iu" or raw.dtype.kind == "f" and bool(
+        np.all(np.isfinite(raw)) and np.all(raw == np.round(raw)))
+    if not whole:
+        raise LocalizationError(f"user ids must be whole numbers (the ids add_users gave), "
+                                f"got {raw.ravel()[:5].tolist()}; nobody was advanced")
+    ids = raw.astype(np.int64).ravel()
     if len(np.unique(ids)) != len(ids):
         raise LocalizationError("a user id appears twice in one tick")
     return ids
@@ -87,10 +94,22 @@ def check_tick_inputs(inputs: StepInputs, ids: NDArray[np.int64]) -> None:
                                 "(NaN or infinite compass_deg); nobody was advanced")
 
 
+def start_points(start_xy: ArrayLike) -> NDArray[np.float64]:
+    """New users' start positions as (k, 2) floats (m); one point ``(x, y)`` is one user. A
+    LocalizationError for text, or a shape that is not pairs (``[10, 5, 3]``)."""
+    xy = _floats(start_xy, "start_xy")
+    if xy.shape == (2,):
+        xy = xy.reshape(1, 2)
+    if xy.ndim != 2 or xy.shape[1] != 2:
+        raise LocalizationError(f"start_xy has shape {xy.shape}, expected (k, 2): an (x, y) "
+                                "pair (m) per new user; nobody was added")
+    return xy
+
+
 def per_user(values: ArrayLike, k: int, name: str) -> NDArray[np.float64]:
     """``values`` as one float per user, shape (k,) (a scalar is every user's); else a
     LocalizationError naming the argument ``name``."""
-    arr = np.asarray(values, dtype=np.float64)
+    arr = _floats(values, name)
     if arr.shape not in ((), (k,)):
         raise LocalizationError(f"{name} has shape {arr.shape}, expected ({k},): one value "
                                 "per user")

@@ -96,9 +96,10 @@ class Track:
         return np.column_stack([self.x_m, self.y_m])
 
     def at(self, t_ms: ArrayLike) -> NDArray[np.float64]:
-        """Positions (k, 2) at times, linear between steps; before the first step the track
-        moves from the start position (at the start time) to the first step; after the last
-        step it stays."""
+        """Positions (m) at times (Unix ms), linear between steps; before the first step the
+        track moves from the start position (at the start time) to the first step; after
+        the last step it stays. Shape (k, 2) for a time or k times (1-D), else the times'
+        shape plus a last axis (x, y)."""
         t = np.asarray(t_ms, dtype=np.float64)
         tt = np.concatenate([[self.start.t_ms], self.t_ms]) if len(self) else np.array(
             [self.start.t_ms])
@@ -107,7 +108,8 @@ class Track:
         if len(tt) > 1 and tt[0] >= tt[1]:
             tt = tt[1:]
             xx, yy = xx[1:], yy[1:]
-        return np.column_stack([np.interp(t, tt, xx), np.interp(t, tt, yy)])
+        xy = np.stack([np.interp(t, tt, xx), np.interp(t, tt, yy)], axis=-1)
+        return xy.reshape(-1, 2) if t.ndim <= 1 else xy
 
     def to_columns(self) -> dict[str, NDArray]:
         """Plain columns for a table: step, t_ms, x_m, y_m, spread_m, alive_fraction,

@@ -489,6 +489,13 @@ def test_a_bad_tick_moves_no_user(f1_bundle, sim_walks):  # noqa: F811
                          r"turn_deg has shape \(2,\)"),
                         (lambda: eng.tick([ids[0], ids[0]], inputs(0)),
                          "appears twice"),
+                        (lambda: eng.tick(ids + 0.7, inputs(0)),  # 1.7 was taken as user 1
+                         r"user ids must be whole numbers .*, got \[0.7, 1.7, 2.7\]"),
+                        (lambda: eng.tick(["a", "b", "c"], inputs(0)),
+                         "user ids must be whole numbers"),
+                        (lambda: eng.add_users([10.0, 5.0, 3.0]),
+                         r"start_xy has shape \(3,\), expected \(k, 2\)"),
+                        (lambda: eng.add_users("10,5"), "start_xy is not numeric"),
                         (lambda: eng.tick([ids[0], 99], StepInputs(
                             **{c: getattr(inputs(0), c)[:2] for c in cols})),
                          r"unknown user ids in tick: \[99\]"),
@@ -500,7 +507,8 @@ def test_a_bad_tick_moves_no_user(f1_bundle, sim_walks):  # noqa: F811
         with pytest.raises(LocalizationError, match=match):
             call()
         np.testing.assert_array_equal(eng.state.x, before)
-    out = eng.tick(None, inputs(0))
+    assert eng.n_users == 3
+    out = eng.tick(ids.astype(float), inputs(0))  # whole numbers as floats are ids
     assert np.isfinite(out.x_m).all() and len(out.x_m) == 3
     one = {c: getattr(walks[0].steps, c)[1] for c in cols}  # one user: scalars still work
     assert len(eng.tick([ids[0]], StepInputs(**one)).x_m) == 1
@@ -528,6 +536,12 @@ def test_step_errors_needs_one_true_position_per_step():
     np.testing.assert_allclose(waypoint_errors(timed, 1.0, (1.0, 3.0)), [3.0])
     with pytest.raises(ValueError, match=r"shape \(2, 2\) expected"):
         waypoint_errors(timed, [0.0, 1.0], (1.0, 3.0))  # two times, one point: ambiguous
+    # times of any shape keep it, with (x, y) last (a (2, 3) grid gave (2, 6): x, then y)
+    grid = np.array([[0.0, 0.5, 1.0], [1.5, 2.0, 9.0]])
+    xy = timed.at(grid)
+    assert xy.shape == (2, 3, 2)
+    np.testing.assert_allclose(xy.reshape(-1, 2), timed.at(grid.ravel()))
+    assert timed.at(0.5).shape == (1, 2) and timed.at([0.5]).shape == (1, 2)
     # times in seconds, or another walk's: every waypoint was scored at the track's end
     walk = Track(1.7e12 + np.array([0.0, 1e3, 2e3]), np.array([0.0, 1.0, 2.0]), z, z,
                  np.ones(3), np.zeros(3, bool), Estimate(1.7e12 - 500, 0.0, 0.0))
