@@ -75,8 +75,9 @@ class MultiUserAligner:
         t_ms : array_like (k,)
             Their times (Unix ms): a fix's scan time.
         sigma_m : array_like (k,), optional
-            A fix's accuracy (m): the start is then the first of the user's fixes, with the
-            fixes' error model. NaN or absent: a known position (``AlignParams.start_sd_m``).
+            Finite (a fix's accuracy, m, not negative): the start is the first of the user's
+            fixes, weighed by the fixes' error model (``AlignParams.fix_*``), not by this
+            value. NaN or absent: a known position (``AlignParams.start_sd_m``).
         """
         xy = start_points(start_xy)
         k = len(xy)
@@ -84,6 +85,8 @@ class MultiUserAligner:
         sigma = np.full(k, np.nan) if sigma_m is None else per_user(sigma_m, k, "sigma_m")
         if not np.isfinite(t).all():
             raise LocalizationError("add_users: a start time is not finite (t_ms)")
+        if (sigma < 0).any():
+            raise LocalizationError("add_users: a fix's accuracy sigma_m is negative")
         new = []
         for (x, y), t0, s in zip(xy, t, sigma):
             aligner = WalkAligner(self.bundle, self.params)

@@ -275,7 +275,20 @@ class MapBundle:
         return self.manifest.get("floor_id", "")
 
     def layer_unit(self, name: str) -> str:
-        return self.manifest["layers"][name]["unit"]
+        """The unit of layer ``name`` (``uT``, ``deg``); a BundleError naming the layers
+        the bundle has for another name."""
+        return self._layer_meta(name)["unit"]
+
+    def _layer_meta(self, name: str) -> dict:
+        """Layer ``name``'s manifest entry; a BundleError for a site bundle (no rasters), a
+        name that is not text, or a layer the bundle does not have."""
+        if self.grid is None:
+            raise BundleError(f"{self.path}: a site-level bundle has no floor map layers; "
+                              "give a floor bundle")
+        meta = self.manifest["layers"].get(name) if isinstance(name, str) else None
+        if meta is None:
+            raise BundleError(f"{self.path}: no layer {name!r}; has {sorted(self.layers)}")
+        return meta
 
     def verify(self) -> None:
         """Re-check every member against the manifest (raises BundleIntegrityError)."""
@@ -306,7 +319,10 @@ class MapBundle:
 
     def reachable(self, x_m: ArrayLike, y_m: ArrayLike) -> NDArray[np.bool_]:
         """Whether each point lies in a reachable cell."""
-        row, col, inside = self.grid.cell_of(x_m, y_m)
+        if self.grid is None:
+            raise BundleError(f"{self.path}: a site-level bundle has no reachable-area mask; "
+                              "give a floor bundle")
+        row, col, inside = self.grid.cell_of(*_coordinates(x_m, y_m))
         return inside & self.mask[row, col]
 
     def sample(self, layer: str, x_m: ArrayLike, y_m: ArrayLike, *,
@@ -325,12 +341,24 @@ class MapBundle:
         >>> b.sample("strength", [10.0, 1e6], [5.0, 5.0])  # doctest: +SKIP
         array([43.1, nan])
         """
-        meta = self.manifest["layers"].get(layer)
-        if meta is None:
-            raise BundleError(f"{self.path}: no layer {layer!r}; has {sorted(self.layers)}")
+        meta = self._layer_meta(layer)
+        x_m, y_m = _coordinates(x_m, y_m)
         values = self.std[layer] if std else self.layers[layer]
         return sample_grid(self.grid, self.mask, values, x_m, y_m,
                            angle=meta.get("kind") == "angle" and not std)
+
+
+def _coordinates(x_m: ArrayLike, y_m: ArrayLike) -> tuple[NDArray, NDArray]:
+    """Points' coordinates (m) as numeric arrays; a ValueError naming them for text, None
+    or objects (None was read as NaN, text failed inside numpy)."""
+    out = []
+    for name, v in (("x_m", x_m), ("y_m", y_m)):
+        arr = np.asarray(v)
+        if arr.dtype.kind not in "iuf":
+            raise ValueError(f"{name} must be numbers (m), got {arr.dtype} "
+                             f"({np.ravel(arr)[:3].tolist()})")
+        out.append(arr)
+    return out[0], out[1]
 
 
 def sample_grid(grid: Grid, mask: NDArray[np.bool_], values: NDArray, x_m: ArrayLike,
@@ -880,7 +908,7 @@ def _bundles_in(folder: Path) -> list[Path]:
 
 def load_bundle(path: str | os.PathLike) -> MapBundle:
     """Open and verify a map bundle folder, or the current version of a registry's floor folder
-    (``REG/<site>/<floor>``). Arrays are memory-mapped read-only.
+    (``REG/<site>/<floor>``). Arrays are read-only (the layers memory-mapped).
 
     Raises
     ------
@@ -895,6 +923,9 @@ def load_bundle(path: str | os.PathLike) -> MapBundle:
         ``history.json`` or points at no version.
     """
     path = Path(path)
+    if path.is_file():  # its manifest.json, say: the folder is the bundle
+        raise BundleError(f"{path}: a file; a map bundle is a folder"
+                          + (f": give {path.parent}" if path.name == "manifest.json" else ""))
     finish_publication(path.parent)
     pointer = None
     if not (path / "manifest.json").exists():
@@ -922,6 +953,7 @@ def load_bundle(path: str | os.PathLike) -> MapBundle:
             raise BundleIntegrityError(f"{path}: the mask must hold 0/1 (bool or uint8), got "
                                        f"dtype {raw.dtype}")
         mask = raw.astype(bool)
+        mask.flags.writeable = False  # as the layers: a change would reach every localizer
         if mask.shape != grid.shape:
             raise BundleIntegrityError(f"{path}: mask shape {mask.shape} != grid {grid.shape}")
         for name, meta in manifest.get("layers", {}).items():

@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from localize.bundle import RADIO_KINDS
 from localize.errors import LocalizationError
 from localize.radio_match import (
     AGE_DECAY_MS,
@@ -66,7 +67,7 @@ RP_TABLE, FP_TABLE, DEVICE_TABLE = "{kind}_rp", "{kind}_fp", "devices"
 
 def fingerprint_kinds(bundle: MapBundle) -> list[str]:
     """Radio kinds (``wifi``, ``ble``) whose fingerprint tables the bundle holds."""
-    return [k for k in ("wifi", "ble")
+    return [k for k in RADIO_KINDS
             if bundle.has_table(RP_TABLE.format(kind=k)) and bundle.has_table(FP_TABLE.format(
                 kind=k))]
 
@@ -212,7 +213,11 @@ class FingerprintPositioner:
         """The positioner of a floor bundle's ``kind`` fingerprints; None when it has none.
         A BLE window needs a beacon at :data:`~localize.radio_match.BLE_MIN_STRONGEST_DBM`
         (-inf by default) or stronger to be located (``min_strongest_dbm`` in ``kw``
-        overrides it)."""
+        overrides it). A ``kind`` that is neither is a LocalizationError (``"WiFi"`` looked
+        like a bundle without fingerprints)."""
+        if kind not in RADIO_KINDS:
+            raise LocalizationError(f"kind must be one of {', '.join(RADIO_KINDS)}, got "
+                                    f"{kind!r}")
         if kind not in fingerprint_kinds(bundle):
             return None
         kw.setdefault("min_strongest_dbm", min_strongest_dbm(kind))

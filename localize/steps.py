@@ -98,7 +98,10 @@ class RadioScan:
 
     def __post_init__(self) -> None:
         keys = np.asarray(self.keys)
-        if keys.ndim != 1 or np.ndim(self.rssi_dbm) != 1 or len(keys) != len(self.rssi_dbm):
+        if keys.ndim != 1:  # a key given alone ("ab") is no list of keys
+            raise LocalizationError(f"scan at {self.t_ms}: keys must be a list of transmitter "
+                                    f"ids, got {self.keys!r}")
+        if np.ndim(self.rssi_dbm) != 1 or len(keys) != len(self.rssi_dbm):
             raise LocalizationError(f"scan at {self.t_ms}: {keys.size} keys but "
                                     f"{np.size(self.rssi_dbm)} RSSI values (one per key)")
         if self.age_ms is not None and np.size(self.age_ms) != len(keys):
@@ -375,6 +378,11 @@ class StepSummaries:
         return bool(np.isfinite(self.strength_ut).any())
 
     def __getitem__(self, i: int) -> StepSummary:
+        """Step ``i`` (a whole number; negative from the end) as a :class:`StepSummary`."""
+        if not isinstance(i, (int, np.integer)) or isinstance(i, (bool, np.bool_)):
+            raise TypeError(f"StepSummaries index must be a whole number (one step), not "
+                            f"{type(i).__name__}; iterate, or take the arrays "
+                            "(steps.t_ms[:3], ...) for several")
         i = int(i)
         if i < 0:
             i += len(self)

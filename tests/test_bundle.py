@@ -72,6 +72,36 @@ def test_round_trip_and_lookup(bundle_dir):
         b.table("walks")
 
 
+def test_lookups_refuse_what_is_no_layer_or_no_coordinates(bundle_dir):
+    """From a notebook (session 48's tour): a list for the layer name ("unhashable type"),
+    text coordinates (numpy's ValueError), None coordinates (NaN, silently), a site bundle's
+    layer (KeyError 'layers') and layer_unit of a wrong name (KeyError) now name what is
+    wrong; the mask is read-only as the layers are (an assignment to it moved every
+    localizer's walls); a bundle's manifest.json given for the bundle names its folder."""
+    b = load_bundle(bundle_dir)
+    with pytest.raises(BundleError, match=r"no layer \['strength'\]; has \['azimuth', 'strength'\]"):
+        b.sample(["strength"], 11.0, 25.0)
+    with pytest.raises(BundleError, match="no layer 'nope'"):
+        b.layer_unit("nope")
+    for x, said in (("a", "x_m must be numbers (m), got <U1"), (None, "x_m must be numbers")):
+        with pytest.raises(ValueError, match=re.escape(said)):
+            b.sample("strength", x, 25.0)
+        with pytest.raises(ValueError, match=re.escape(said)):
+            b.reachable(x, 25.0)
+    with pytest.raises(ValueError, match="assignment destination is read-only"):
+        b.mask[:] = True
+    assert not b.layers["strength"].flags.writeable
+    site = load_bundle(bundle_dir)
+    site.grid = None  # what a site bundle loads as (no rasters)
+    for call in (lambda: site.sample("strength", 1.0, 1.0), lambda: site.reachable(1.0, 1.0),
+                 lambda: site.layer_unit("strength")):
+        with pytest.raises(BundleError, match="a site-level bundle has no"):
+            call()
+    with pytest.raises(BundleError, match=re.escape(f"a map bundle is a folder: give "
+                                                    f"{bundle_dir}")):
+        load_bundle(bundle_dir / "manifest.json")
+
+
 def test_sample_grid_next_to_missing_cells_renormalises():
     g = Grid(0, 0, 1.0, 3, 1)
     mask = np.ones((1, 3), bool)

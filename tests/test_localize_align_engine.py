@@ -121,6 +121,8 @@ def test_bad_ticks_move_nobody(f1_bundle, sim_walks):  # noqa: F811
         eng.add_users([[1e6, 0.0]], t_ms=t)
     with pytest.raises(LocalizationError, match="start time"):
         eng.add_users([w.start_xy], t_ms=np.nan)
+    with pytest.raises(LocalizationError, match="sigma_m is negative"):
+        eng.add_users([w.start_xy], t_ms=t, sigma_m=-3.0)
     assert eng.n_users == 2
 
 

@@ -144,6 +144,13 @@ def test_step_summaries_validate():
         RadioScan(0, np.array(["a"]), np.array([-50.0, -60.0]))
     with pytest.raises(IndexError):
         s[4]
+    # one step by a whole number: a slice failed inside int(), and 1.7 gave step 1
+    for bad in (slice(0, 3), 1.7, True):
+        with pytest.raises(TypeError, match="index must be a whole number"):
+            s[bad]
+    assert s[np.int64(1)].t_ms == s[1].t_ms
+    with pytest.raises(LocalizationError, match="keys must be a list of transmitter ids"):
+        RadioScan(1, "abc", [-50.0])  # said "1 keys but 1 RSSI values"
     assert attitude_codes(["UFH", "NU", "?"]).tolist() == [1, 4, 0]
 
 

@@ -109,6 +109,8 @@ def test_localizer_positions_equal_the_mapping_matcher(built, wifi_obs):
     pos = FingerprintPositioner.from_bundle(b, "wifi")
     assert repr(pos) == (f"FingerprintPositioner({len(pos.xy_m)} reference points, "
                          f"{len(pos.aps)} emitters, k=5, rssi_k=1, rssi_b=+0 dB)")  # not tables
+    with pytest.raises(LocalizationError, match="kind must be one of wifi, ble, got 'WiFi'"):
+        FingerprintPositioner.from_bundle(b, "WiFi")  # it returned None: "no fingerprints"
     db = FingerprintDB.from_tables(_tables(b, "wifi"))
     obs = wifi_obs["F1"]
     scans = scan_set(obs)  # every row, with its age
