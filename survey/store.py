@@ -393,6 +393,11 @@ class SurveyStore:
         by walk keeps memory bounded by the largest walk, not by the store."""
         if name not in TABLES:
             raise StoreError(f"unknown table {name!r}; expected one of {TABLES}")
+        if columns is not None:  # a typo is the caller's, not a damaged part file
+            unknown = [c for c in columns if c != "trace_id" and c not in TABLE_COLUMNS[name]]
+            if unknown:
+                raise StoreError(f"the {name} table has no column {', '.join(map(repr, unknown))}"
+                                 f"; it has {', '.join(TABLE_COLUMNS[name])}")
         return _frame(self._read_part(name, row, columns))
 
     def _read_part(self, name: str, row, columns: list[str] | None = None) -> pa.Table:

@@ -518,3 +518,9 @@ def test_one_path_or_trace_id_given_alone_is_one_not_its_characters(tmp_path, mo
     assert set(one["trace_id"]) == {"walk1"} and len(one)
     with pytest.raises(StoreError, match=r"trace_ids=\['nope'\]"):
         store.table("waypoints", trace_ids="nope")
+    # a column typo is named as such; it said "missing, unreadable or corrupted part file"
+    row = store.catalog().iloc[0]
+    with pytest.raises(StoreError, match=r"the sensors table has no column 'tms'; it has "
+                                         r"stream, t_ms"):
+        store.part("sensors", row, columns=["tms"])
+    assert list(store.part("sensors", row, columns=["t_ms"]).columns) == ["trace_id", "t_ms"]
