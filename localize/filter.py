@@ -49,10 +49,17 @@ __all__ = ["BaseLocalizer", "Localizer", "RadioFix", "first_radio_fix", "make_rn
 
 
 def make_rng(rng: np.random.Generator | int | None) -> np.random.Generator:
-    """A generator from a generator (used as is), a seed, or None (seed 0: reproducible)."""
+    """A generator from a generator (used as is), a seed (a whole number >= 0), or None (seed
+    0: reproducible); a LocalizationError naming ``rng`` for anything else (numpy's own
+    errors for "7", 1.5 or -1 did not say which argument)."""
     if isinstance(rng, np.random.Generator):
         return rng
-    return np.random.default_rng(0 if rng is None else rng)
+    if rng is None:
+        return np.random.default_rng(0)
+    if not isinstance(rng, (int, np.integer)) or isinstance(rng, (bool, np.bool_)) or rng < 0:
+        raise LocalizationError(f"rng must be a seed (a whole number >= 0), a "
+                                f"numpy.random.Generator or None, got {rng!r}")
+    return np.random.default_rng(rng)
 
 
 class RadioFix(NamedTuple):

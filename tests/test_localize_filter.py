@@ -327,6 +327,13 @@ def test_switches_take_only_true_or_false_and_features_take_dicts(f1_bundle):  #
     assert make_localizer("indoormap", f1_bundle, {"n_particles": 100}).params.n_particles == 100
     with pytest.raises(TypeError, match=r"Localizer\(params\): a FilterParams is needed"):
         Localizer(f1_bundle, 100)
+    for seed in ("7", 1.5, -1, True):  # numpy's errors did not name the argument
+        with pytest.raises(LocalizationError, match="rng must be a seed"):
+            Localizer(f1_bundle, rng=seed)
+        with pytest.raises(LocalizationError, match="rng must be a seed"):
+            MultiUserEngine(f1_bundle, rng=seed)
+    assert Localizer(f1_bundle, rng=np.int64(3)).rng.integers(1 << 30) == \
+        np.random.default_rng(3).integers(1 << 30)
 
 
 def test_run_takes_only_true_or_false_to_smooth_and_a_finite_start_time(f1_bundle,  # noqa: F811
