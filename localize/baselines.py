@@ -12,7 +12,6 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-
 from dataclasses import replace
 
 import numpy as np
@@ -94,7 +93,7 @@ class RadioOnlyLocalizer(BaseLocalizer):
                         self.bundle.floor_id)
 
     def step(self, s: StepSummary) -> Estimate:
-        check_step(s, self)
+        check_step(s, self, numbers_read=("t_ms",))
         self.check_next(s.t_ms)  # the radio alone: no compass needed
         x, y, spread = self._last.x_m, self._last.y_m, self._last.spread_m
         if s.scan is not None:

@@ -349,14 +349,14 @@ class MapBundle:
 
 
 def _coordinates(x_m: ArrayLike, y_m: ArrayLike) -> tuple[NDArray, NDArray]:
-    """Points' coordinates (m) as numeric arrays; a ValueError naming them for text, None
+    """Points' coordinates (m) as numeric arrays; a BundleError naming them for text, None
     or objects (None was read as NaN, text failed inside numpy)."""
     out = []
     for name, v in (("x_m", x_m), ("y_m", y_m)):
         arr = np.asarray(v)
         if arr.dtype.kind not in "iuf":
-            raise ValueError(f"{name} must be numbers (m), got {arr.dtype} "
-                             f"({np.ravel(arr)[:3].tolist()})")
+            raise BundleError(f"{name} must be numbers (m), got {arr.dtype} "
+                              f"({np.ravel(arr)[:3].tolist()})")
         out.append(arr)
     return out[0], out[1]
 

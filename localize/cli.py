@@ -272,7 +272,10 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
                                                  ("method", track.method))):
                 table = table.add_column(i, column, pa.array([str(value)] * len(table)))
         _write_table(table, target, fmt, overwrite=overwrite)
-        written = [target]
+        # an earlier run's other outputs go now: a plot that then fails leaves none of them
+        stale = [p for p in earlier if p != target and (p.is_file() or p.is_symlink())]
+        for p in stale:
+            p.unlink()
         msg = (f"{trace.trace_id}: {len(track)} {'smoothed ' if smooth else ''}steps on "
                f"{bundle.floor_id} "
                f"({bundle.manifest.get('floor_name', '')}) by {used}, start {how}, "
@@ -285,12 +288,9 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
                                 f"({bundle.floor_id[:12]}): {ran}, {kind}, start {how}"
                                 + (f"\n{scored}" if scored else "")):
                 msg += f", {png.name}"
-                written.append(png)
+                stale = [p for p in stale if p != png]  # replaced, not removed
             else:
                 msg += " (no plot: matplotlib not installed)"
-        stale = [p for p in earlier if p not in written and (p.is_file() or p.is_symlink())]
-        for p in stale:
-            p.unlink()
         if stale:
             msg += f" (removed the earlier run's {', '.join(p.name for p in stale)})"
         in_build.check(bundle, trace.trace_id)  # a walk that failed is not counted

@@ -232,7 +232,8 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
               help="RSSI calibration of the walk's phone: auto (Wi-Fi: the bundle's device "
                    "table for a phone it knows; else online from the walk's first 8 scans when "
                    "3 of them hear enough known transmitters, otherwise none; BLE is always "
-                   "calibrated online), none, or K,B (calibrated = K * rssi + B dBm).")
+                   "calibrated online), none, or K,B (calibrated = K * rssi + B dBm; with "
+                   "--kind auto the Wi-Fi scans', a walk located by BLE is calibrated online).")
 @click.option("--smoothing", type=click.Choice(["walk", "forward", "none"]), default="walk",
               show_default=True,
               help="walk: match each walk's scans together (earlier and later scans: "
@@ -246,13 +247,13 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
     \b
     CSV columns (stdout; one line per walk on stderr):
       trace_id, floor  the walk and the floor bundle used
-      kind             wifi (a Wi-Fi scan) or ble (a BLE window)
       t_ms             the scan's time (Unix ms)
       n_known          transmitters of the scan the bundle knows
       x_m, y_m         the position (m, map frame); empty when the scan hears none
       sigma_m          weighted RMS spread of the k neighbours (m, at least 1)
       error_m          distance to the walk's waypoint track (waypoints joined linearly in
                        time) at the scan's time; empty outside its first and last waypoint
+      kind             wifi (a Wi-Fi scan) or ble (a BLE window)
     """
     from localize.floors import SiteMaps
     from localize.radio_match import WalkSmoothing
@@ -275,8 +276,8 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
     files = trace_files(walks, failures, walk_plans=False)
     maps = SiteMaps.open(bundle_path)
     floors_said, in_build = FloorChoices(), SeenWalks()
-    out = _CsvRows(["trace_id", "floor", "kind", "t_ms", "n_known", "x_m", "y_m", "sigma_m",
-                    "error_m"])
+    out = _CsvRows(["trace_id", "floor", "t_ms", "n_known", "x_m", "y_m", "sigma_m", "error_m",
+                    "kind"])
     seen = TraceIds("its rows would be printed under the other's id")
 
     def one(where: str, trace: Trace) -> None:
@@ -296,7 +297,7 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
         if kind != "auto":
             rows, said = locate(trace, bundle, kind, kinds[kind])
         else:  # Wi-Fi when it locates the walk, as localize chooses (walk_radio)
-            tried = []
+            tried = [] if kinds["wifi"] else ["no wifi scans"]
             for k in (k for k in ("wifi", "ble") if kinds[k]):
                 try:
                     rows, said = locate(trace, bundle, k, kinds[k])
@@ -306,10 +307,12 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
             else:
                 raise LocalizationError(f"{trace.trace_id}: " + "; ".join(tried))
             if k == "ble":
-                said += f" (Wi-Fi: {tried[0] if tried else 'no scans in the walk'})"
+                said += f" (Wi-Fi: {tried[0]})"
         out.write(rows)
         in_build.check(bundle, trace.trace_id)  # a walk that failed is not counted
         click.echo(said, err=True)
+
+    wanted = kind  # --kind: auto, wifi or ble
 
     def locate(trace: Trace, bundle, kind: str, scans) -> tuple[list[dict], str]:
         """The CSV rows of the walk's ``kind`` scans located on ``bundle``, and its line
@@ -317,7 +320,9 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
         pos = bundle_positioner(bundle, kind)
         if pos is None:
             raise LocalizationError(f"{bundle.path}: no {kind} fingerprints in this bundle")
-        if calibration == "auto":
+        if calibration == "auto" or given is not None and kind == "ble" and wanted == "auto":
+            # a K,B given with --kind auto is the phone's Wi-Fi calibration: its BLE windows
+            # are calibrated online, as localize does
             pos, how = radio_for_walk(bundle, trace.header.model, scans, kind=kind)
         elif given is None:
             how = "none"

@@ -11,8 +11,7 @@ re-draws them around the last estimate with a growing spread (counted as a recov
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-
+from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from functools import partial
 from typing import NamedTuple
@@ -48,18 +47,24 @@ from survey.errors import require_type
 __all__ = ["BaseLocalizer", "Localizer", "RadioFix", "first_radio_fix", "make_rng"]
 
 
-def make_rng(rng: np.random.Generator | int | None) -> np.random.Generator:
-    """A generator from a generator (used as is), a seed (a whole number >= 0), or None (seed
-    0: reproducible); a LocalizationError naming ``rng`` for anything else (numpy's own
-    errors for "7", 1.5 or -1 did not say which argument)."""
+def make_rng(rng: np.random.Generator | np.random.SeedSequence | int | None
+             ) -> np.random.Generator:
+    """A generator from a generator (used as is), anything ``numpy.random.default_rng``
+    takes as a seed (a whole number >= 0, a sequence of them, a ``SeedSequence`` or a bit
+    generator), or None (seed 0: reproducible); a LocalizationError naming ``rng`` for text,
+    a bool, a fraction or a negative seed (numpy's own errors did not say which argument)."""
     if isinstance(rng, np.random.Generator):
         return rng
     if rng is None:
         return np.random.default_rng(0)
-    if not isinstance(rng, (int, np.integer)) or isinstance(rng, (bool, np.bool_)) or rng < 0:
+    if isinstance(rng, (str, bytes, bool, np.bool_, float, np.floating)) or (
+            isinstance(rng, (int, np.integer)) and rng < 0):
         raise LocalizationError(f"rng must be a seed (a whole number >= 0), a "
                                 f"numpy.random.Generator or None, got {rng!r}")
-    return np.random.default_rng(rng)
+    try:
+        return np.random.default_rng(rng)
+    except (TypeError, ValueError) as err:
+        raise LocalizationError(f"rng is not a seed numpy takes ({err})") from err
 
 
 class RadioFix(NamedTuple):
@@ -127,12 +132,13 @@ BUNDLE_HINT = ("localize.bundle.load_bundle(path) opens one; "
 STEPS_HINT = "survey.step_summaries.step_summaries(trace) gives a walk's"
 
 
-def check_step(s: StepSummary, owner: object) -> None:
+def check_step(s: StepSummary, owner: object, **reads: Sequence[str]) -> None:
     """Refuse what is not one :class:`StepSummary` (the whole walk, say: :meth:`run` takes
-    that) as ``owner``'s step."""
+    that) as ``owner``'s step, or one whose fields are not of their kinds
+    (:func:`~localize.steps.check_step_values`; ``reads``: its ``numbers_read``)."""
     require_type(s, StepSummary, f"{type(owner).__name__}.step(s)",
                  "one element of StepSummaries; run() localizes a whole walk")
-    check_step_values(s)
+    check_step_values(s, **reads)
 
 
 #: How far (m) outside the floor's grid a given start may lie (the filter's start square
@@ -263,8 +269,8 @@ class BaseLocalizer:
     def check_next(self, t_ms: float, compass_deg: float | None = None) -> None:
         """What a streamed step must pass before it is taken (else a LocalizationError, and
         the localizer carries on with the next): a start made, a finite compass heading
-        (unless None: a method that walks without it), a time after the last step's (not
-        before the start's)."""
+        (``compass_deg`` None: a method that does not read it), a time after the last
+        step's (not before the start's)."""
         if self._last is None:
             raise LocalizationError("call start() (or run()) before step()")
         if compass_deg is not None:
@@ -301,7 +307,8 @@ class BaseLocalizer:
         (:meth:`check`), ``smooth`` other than True or False (``"no"`` smoothed), a start
         time that is not a finite number (NaN gave a track starting at NaN)."""
         self.check(steps)
-        if not isinstance(smooth, (bool, np.bool_)):
+        if not isinstance(smooth, (bool, np.bool_)) and not (
+                isinstance(smooth, (int, np.integer)) and smooth in (0, 1)):
             raise LocalizationError(f"smooth must be True or False, got {smooth!r}")
         if start_t_ms is not None:
             check_step_numbers(start_t_ms, start_t_ms=start_t_ms)

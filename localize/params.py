@@ -83,12 +83,14 @@ def _set_numbers(obj, unbounded: frozenset[str] = frozenset(), prefix: str = "")
 
 def _set_flags(obj, prefix: str = "") -> None:
     """Check and store the switches of a frozen dataclass ``obj`` (fields whose default is a
-    bool) as Python bools: a LocalizationError for anything but True or False (numpy's
-    too). Text read from a file or the environment, ``"False"``, was taken as true."""
+    bool) as Python bools: a LocalizationError for anything but True or False (numpy's, and
+    the whole numbers 0 and 1, too). Text read from a file or the environment, ``"False"``,
+    was taken as true."""
     for f in fields(obj):
         if isinstance(f.default, bool):
             value = getattr(obj, f.name)
-            if not isinstance(value, (bool, np.bool_)):
+            if not isinstance(value, (bool, np.bool_)) and not (
+                    isinstance(value, (int, np.integer)) and value in (0, 1)):
                 raise LocalizationError(f"{prefix}{f.name} must be True or False, got "
                                         f"{value!r}")
             object.__setattr__(obj, f.name, bool(value))
@@ -400,7 +402,11 @@ class FilterParams:
                 strength=FeatureParams(window=3, award=70.0, threshold=0.05),
                 azimuth=FeatureParams(window=3, award=70.0, threshold=0.05),
                 polar=FeatureParams(window=3, award=70.0, threshold=0.05))
-        return replace(p, **overrides)
+        # a feature given as a dict changes the papers' feature, not the default one
+        features = {k: v for k, v in overrides.items()
+                    if k in FEATURE_NAMES and isinstance(v, Mapping)}
+        rest = {k: v for k, v in overrides.items() if k not in features}
+        return replace(p, **rest).with_features(**features)
 
     def with_features(self, **changes) -> FilterParams:
         """Copy with feature parameters changed, e.g. ``with_features(strength={"window": 5})``."""

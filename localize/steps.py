@@ -12,6 +12,8 @@ the previous step to this one).
 
 from __future__ import annotations
 
+import numbers
+import operator
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum
@@ -211,8 +213,14 @@ _FLOAT_COLUMNS = ("frequency_hz", "delta_acc_ms2", "compass_deg", "turn_deg", "s
 
 
 def _is_real(v: object) -> bool:
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(
-        v, (bool, np.bool_))
+    """A real number (numpy's, and a 0-d numeric array, too), not a bool."""
+    if isinstance(v, np.ndarray):
+        return v.ndim == 0 and v.dtype.kind in "iuf"
+    return isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_))
+
+
+#: The :class:`AttitudeCode` values, as a streamed step's ``attitude`` may give them.
+_ATTITUDE_VALUES = frozenset(float(a) for a in AttitudeCode)
 
 
 def check_step_numbers(step_t_ms: object, **values: object) -> None:
@@ -226,21 +234,24 @@ def check_step_numbers(step_t_ms: object, **values: object) -> None:
                                     f"{v!r}; the step was not taken")
 
 
-def check_step_values(s: StepSummary) -> None:
+def check_step_values(s: StepSummary, numbers_read: Sequence[str] = ("t_ms", *_FLOAT_COLUMNS)
+                      ) -> None:
     """Refuse a streamed step whose fields are not what :class:`StepSummary` says, before a
     localizer takes any of it: ``t_ms`` and the float fields real numbers (NaN, not None,
     for what is unknown), ``attitude`` an :class:`AttitudeCode`, ``mag_strength_ut`` None or
     a 1-D array of numbers, ``scan`` None or a :class:`RadioScan`. A None compass used to
     break a particle filter for good: its particles were moved to NaN before it failed.
+    ``numbers_read``: the number fields the method reads (the radio alone reads ``t_ms``;
+    the others may then be None).
 
     Raises
     ------
     LocalizationError
         Naming the step's time and the field.
     """
-    check_step_numbers(s.t_ms, **{name: getattr(s, name) for name in ("t_ms", *_FLOAT_COLUMNS)})
+    check_step_numbers(s.t_ms, **{name: getattr(s, name) for name in numbers_read})
     at = f"step at {s.t_ms} ms"
-    if not _is_real(s.attitude) or float(s.attitude) not in {float(a) for a in AttitudeCode}:
+    if not _is_real(s.attitude) or float(s.attitude) not in _ATTITUDE_VALUES:
         raise LocalizationError(f"{at}: attitude must be one of the AttitudeCode values "
                                 f"{[int(a) for a in AttitudeCode]}, not {s.attitude!r}; the "
                                 "step was not taken")
@@ -379,11 +390,14 @@ class StepSummaries:
 
     def __getitem__(self, i: int) -> StepSummary:
         """Step ``i`` (a whole number; negative from the end) as a :class:`StepSummary`."""
-        if not isinstance(i, (int, np.integer)) or isinstance(i, (bool, np.bool_)):
+        try:
+            if isinstance(i, (bool, np.bool_)):
+                raise TypeError
+            i = operator.index(i)
+        except TypeError:
             raise TypeError(f"StepSummaries index must be a whole number (one step), not "
                             f"{type(i).__name__}; iterate, or take the arrays "
-                            "(steps.t_ms[:3], ...) for several")
-        i = int(i)
+                            "(steps.t_ms[:3], ...) for several") from None
         if i < 0:
             i += len(self)
         if not 0 <= i < len(self):

@@ -22,7 +22,8 @@ def tick_ids(ids: ArrayLike) -> NDArray[np.int64]:
     number (1.7 was taken as user 1) or appears twice."""
     raw = np.asarray(ids)
     whole = raw.dtype.kind in "iu" or raw.dtype.kind == "f" and bool(
-        np.all(np.isfinite(raw)) and np.all(raw == np.round(raw)))
+        np.all(np.isfinite(raw)) and np.all(raw == np.round(raw))
+        and np.all(np.abs(raw) < 2.0 ** 62))
     if not whole:
         raise LocalizationError(f"user ids must be whole numbers (the ids add_users gave), "
                                 f"got {raw.ravel()[:5].tolist()}; nobody was advanced")
@@ -63,14 +64,17 @@ def checked_tick_fixes(fix_xy_m: ArrayLike, fix_sigma_m: ArrayLike | None, k: in
     return xy, np.fmax(sigma, floor_m)  # NaN: the floor
 
 
-def _floats(values: ArrayLike, name: str) -> NDArray[np.float64]:
-    """``values`` as a new float64 array; a LocalizationError naming ``name`` for text or
-    objects numpy cannot convert."""
+def _floats(values: ArrayLike, name: str, nobody: str = "nobody was advanced"
+            ) -> NDArray[np.float64]:
+    """``values`` as a new float64 array; a LocalizationError naming ``name`` (and ending
+    with ``nobody``) for text, bools or objects, which numpy would convert ("10" to 10)."""
     try:
-        return np.array(values, dtype=np.float64)
-    except (TypeError, ValueError) as err:
-        raise LocalizationError(f"{name} is not numeric ({err}); nobody was advanced") \
-            from err
+        kind = np.asarray(values).dtype.kind
+    except (TypeError, ValueError) as err:  # ragged lists
+        raise LocalizationError(f"{name} is not numeric ({err}); {nobody}") from err
+    if kind not in "iuf":
+        raise LocalizationError(f"{name} is not numeric (numpy dtype kind {kind!r}); {nobody}")
+    return np.array(values, dtype=np.float64)
 
 
 def check_tick_inputs(inputs: StepInputs, ids: NDArray[np.int64]) -> None:
@@ -97,7 +101,7 @@ def check_tick_inputs(inputs: StepInputs, ids: NDArray[np.int64]) -> None:
 def start_points(start_xy: ArrayLike) -> NDArray[np.float64]:
     """New users' start positions as (k, 2) floats (m); one point ``(x, y)`` is one user. A
     LocalizationError for text, or a shape that is not pairs (``[10, 5, 3]``)."""
-    xy = _floats(start_xy, "start_xy")
+    xy = _floats(start_xy, "start_xy", "nobody was added")
     if xy.shape == (2,):
         xy = xy.reshape(1, 2)
     if xy.ndim != 2 or xy.shape[1] != 2:
@@ -109,7 +113,7 @@ def start_points(start_xy: ArrayLike) -> NDArray[np.float64]:
 def per_user(values: ArrayLike, k: int, name: str) -> NDArray[np.float64]:
     """``values`` as one float per user, shape (k,) (a scalar is every user's); else a
     LocalizationError naming the argument ``name``."""
-    arr = _floats(values, name)
+    arr = _floats(values, name, "nobody was added or advanced")
     if arr.shape not in ((), (k,)):
         raise LocalizationError(f"{name} has shape {arr.shape}, expected ({k},): one value "
                                 "per user")

@@ -26,6 +26,7 @@ from survey.publish import (
 )
 from survey.process_store import walks_per_site
 from survey.regular_files import read_regular
+from survey.store import floor_key
 from survey.trace_format import bad_lines_summary
 
 from .build import ON_PLAN_M, BuildError, BuildParams, build_floor
@@ -190,15 +191,27 @@ def floor_of_traces(catalog: pd.DataFrame, summary: IngestSummary, source: Path)
     return names[0]
 
 
-def check_plan_floor(plan: FloorPlan, plan_file: Path, walks_floor: str, source: Path) -> None:
-    """A usage error when ``plan`` says it is of another floor than the walks of
-    ``source`` (``build TRACES --plan`` given the wrong floor's plan: the bundle would have
-    been built, with only its coverage to show it); ``--floor`` builds it anyway."""
-    if plan.floor_name and plan.floor_name != walks_floor:
-        raise click.UsageError(f"{plan_file} says it is the plan of floor {plan.floor_name}, "
-                               f"but the walks in {source} are recorded as floor "
-                               f"{walks_floor}; give floor {walks_floor}'s plan, or "
-                               f"--floor {walks_floor} to build on this one")
+def check_plan_floor(plan: FloorPlan, plan_file: Path, catalog: pd.DataFrame,
+                     summary: IngestSummary, source: Path) -> None:
+    """A usage error when ``plan`` says it is of another floor than the walks of ``source``
+    record (``build TRACES --plan`` given the wrong floor's plan: the bundle would have been
+    built, with only its coverage to show it); ``--floor`` builds it anyway. Walks that
+    record no floor (they take the plan's) are not checked; a walk's floor matches by name,
+    id or store key (``Floor 2`` is stored as ``Floor_2``)."""
+    if not plan.floor_name:
+        return
+    mine = ingested_from(catalog, summary, source)
+    recorded = mine[(mine["floor_name"] != "") | (mine["floor_id"] != "")]
+    if recorded.empty:
+        return
+    said = {plan.floor_name, floor_key(plan.floor_name)}
+    if said & (set(recorded["floor_name"]) | set(recorded["floor_id"])
+               | set(recorded["floor"].astype(str))):
+        return
+    walks = ", ".join(sorted(set(recorded["floor"].astype(str))))
+    raise click.UsageError(f"{plan_file} says it is the plan of floor {plan.floor_name}, "
+                           f"but the walks in {source} are recorded as floor {walks}; give "
+                           f"floor {walks}'s plan, or --floor {walks} to build on this one")
 
 
 def check_floor_names(catalog: pd.DataFrame, summary: IngestSummary, floor: str,
@@ -491,8 +504,7 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
                     f"{unnamed['floor'].iloc[0]}")
         if not plans:  # --plan without --floor: the floor of SOURCE's traces
             walks_floor = floor_of_traces(cat, summary, source)
-            if walks_floor != floor_names[source]:  # not walks that record no floor
-                check_plan_floor(plan, plan_file, walks_floor, source)
+            check_plan_floor(plan, plan_file, cat, summary, source)
             plans = {walks_floor: plan}
             check_targets()
         else:

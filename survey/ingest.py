@@ -223,7 +223,8 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
         todo_sha: dict[str, str] = {}   # content hash -> trace id, of this run's files
         # duplicates, checked again before the commit: what they duplicate may be replaced
         # by this run (a file renamed, another put in its place); then they are ingested
-        deferred: list[tuple[int, str, str, tuple]] = []  # (outcome index, id, sha, input)
+        # (outcome index, id, sha, (path, size, floor default))
+        deferred: list[tuple[int, str, str, tuple[str, int, str | None]]] = []
         for p in trace_files:
             tid = trace_id_from_path(p)
             if second_input(str(p), tid):
@@ -244,8 +245,7 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
             if known:
                 known.path = str(p)
                 if known.status == "duplicate":
-                    deferred.append((len(summary.outcomes), tid, sha,
-                                     ("trace", str(p), size, floor)))
+                    deferred.append((len(summary.outcomes), tid, sha, (str(p), size, floor)))
                 summary.outcomes.append(known)
                 tick()
             else:
@@ -302,13 +302,11 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
                     continue
                 identity = walk.identity(csv_bytes)
                 sha = identity_sha256(identity)
-                known = w.known(walk.walk_id, sha, floor)  # unchanged: not parsed, as a trace
+                # unchanged: not parsed, as a trace file. (Never a "duplicate": a walk's
+                # identity holds its own walk id, so no other walk shares its hash.)
+                known = w.known(walk.walk_id, sha, floor)
                 if known:
                     known.path = source
-                    if known.status == "duplicate":
-                        deferred.append((len(summary.outcomes), walk.walk_id, sha,
-                                         ("plan", walk, source, csv_bytes, len(identity),
-                                          floor)))
                     summary.outcomes.append(known)
                     continue
                 summary.outcomes.append(_parse_walk(w, summary, walk, source, csv_bytes, sha,
@@ -319,13 +317,10 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
         while ready := [d for d in deferred if not w.known(d[1], d[2])]:
             index, tid, sha, item = ready[0]
             deferred.remove(ready[0])
-            if item[0] == "trace":  # parse it after all (rare: no progress tick)
-                res = _parse_and_write(str(store.root), [item[1]], [sha], [item[2]],
-                                       [item[3]], strict, batch_bytes)
-                summary.outcomes[index] = _add_results(w, summary, res)[0]
-            else:
-                summary.outcomes[index] = _parse_walk(w, summary, *item[1:4], sha, *item[4:],
-                                                      strict)
+            path, size, floor = item  # parse it after all (rare: no progress tick)
+            res = _parse_and_write(str(store.root), [path], [sha], [size], [floor], strict,
+                                   batch_bytes)
+            summary.outcomes[index] = _add_results(w, summary, res)[0]
         for index, tid, sha, _ in deferred:  # what each duplicates in the end
             summary.outcomes[index].detail = w.known(tid, sha).detail
     return summary

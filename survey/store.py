@@ -393,6 +393,8 @@ class SurveyStore:
         by walk keeps memory bounded by the largest walk, not by the store."""
         if name not in TABLES:
             raise StoreError(f"unknown table {name!r}; expected one of {TABLES}")
+        if isinstance(columns, str):  # one column, not its characters
+            columns = [columns]
         if columns is not None:  # a typo is the caller's, not a damaged part file
             unknown = [c for c in columns if c != "trace_id" and c not in TABLE_COLUMNS[name]]
             if unknown:

@@ -796,3 +796,29 @@ def test_a_plan_of_another_floor_is_refused_by_its_name(tmp_path):
     assert res.exit_code == 0, res.output
     assert f"warning: {plan} says it is the plan of floor F2; building it as floor F1 " \
         "(--floor)" in res.output
+
+
+def test_a_plans_floor_matches_walks_by_name_id_or_store_key(tmp_path):
+    """The plan's floor name is compared with what the walks record: their floor name, id
+    or store key (``Floor 2`` is stored as ``Floor_2``: the raw name against the key refused
+    a right plan), and walks that record no floor are not checked, whatever the plan's file
+    is called."""
+    import click
+    from mapping.cli_build import check_plan_floor
+    from survey.ingest import IngestSummary
+    from survey.store import IngestOutcome
+
+    src = tmp_path / "traces"
+    summary = IngestSummary(outcomes=[IngestOutcome(str(src / "a.txt"), "a", "new")])
+    plan = dataclasses.replace(read_floor_plan(SITE / "F2"), floor_name="Floor 2")
+
+    def walks(name, floor_id, key):
+        return pd.DataFrame({"trace_id": ["a"], "floor_name": [name], "floor_id": [floor_id],
+                             "floor": [key]})
+
+    for ok in (walks("Floor 2", "", "Floor_2"), walks("", "Floor 2", "Floor_2"),
+               walks("Floor_2", "", "Floor_2"), walks("", "", "plan_file_name")):
+        check_plan_floor(plan, src / "p.geojson", ok, summary, src)
+    with pytest.raises(click.UsageError, match="says it is the plan of floor Floor 2, but the "
+                                               "walks in .* are recorded as floor F1"):
+        check_plan_floor(plan, src / "p.geojson", walks("F1", "", "F1"), summary, src)

@@ -187,17 +187,24 @@ def test_a_step_with_a_field_of_the_wrong_kind_is_refused_and_the_stream_goes_on
     from dataclasses import replace
 
     w = _f1_with_scans(sim_walks)[0]
-    for method in ("indoormap", "align", "pdr", "pf_no_mag", "magicol_dtw"):
+    for method in ("indoormap", "align", "pdr", "pf_no_mag", "magicol_dtw", "auto"):
         ref = make_localizer(method, f1_bundle, rng=5)
         ref.start(*w.start_xy, t_ms=w.steps.t_ms[0] - 500.0)
         want = [ref.step(w.steps[i]) for i in range(8)]
         loc = make_localizer(method, f1_bundle, rng=5)
         loc.start(*w.start_xy, t_ms=w.steps.t_ms[0] - 500.0)
-        got = [loc.step(w.steps[i]) for i in range(4)]
+        got = [loc.step(w.steps[np.int64(i)]) for i in range(4)]
         with pytest.raises(LocalizationError, match=re.escape(said)):
             loc.step(replace(w.steps[4], **{field: bad}))
         got += [loc.step(w.steps[i]) for i in range(4, 8)]
         assert [(e.x_m, e.y_m) for e in got] == [(e.x_m, e.y_m) for e in want], method
+    # what a method does not read may be None: the radio alone reads the time and the scan
+    radio = make_localizer("radio", f1_bundle, radio=_BiasedRadio(w, 0))
+    radio.start(*w.start_xy, t_ms=w.steps.t_ms[0] - 500.0)
+    assert np.isfinite(radio.step(replace(w.steps[0], compass_deg=None)).x_m)
+    zero_d = make_localizer("indoormap", f1_bundle, rng=5)  # a 0-d array is a number
+    zero_d.start(*w.start_xy, t_ms=w.steps.t_ms[0] - 500.0)
+    assert np.isfinite(zero_d.step(replace(w.steps[0], compass_deg=np.array(10.0))).x_m)
     aligner = WalkAligner(f1_bundle)  # the values API of the multi-user aligner
     aligner.start(*w.start_xy, t_ms=w.steps.t_ms[0] - 500.0)
     s = w.steps[0]

@@ -303,7 +303,7 @@ def test_switches_take_only_true_or_false_and_features_take_dicts(f1_bundle):  #
     engine failed with an AttributeError too."""
     for bad, said in [(dict(radio_update="False"), "radio_update must be True or False, got "
                                                    "'False'"),
-                      (dict(turn_correction=0), "turn_correction must be True or False"),
+                      (dict(turn_correction=2), "turn_correction must be True or False"),
                       (dict(strength={"enabled": "no"}), "FeatureParams.enabled must be True"),
                       (dict(strength=3), "strength must be a FeatureParams or a dict of its "
                                          "fields, got int"),
@@ -313,6 +313,10 @@ def test_switches_take_only_true_or_false_and_features_take_dicts(f1_bundle):  #
     with pytest.raises(LocalizationError, match="FeatureParams.enabled must be True or False"):
         FeatureParams(enabled="no")
     assert FilterParams(radio_update=np.bool_(False)).radio_update is False
+    assert FilterParams(radio_update=0).radio_update is False  # an int() of a config value
+    # a feature dict over the papers' parameters changes the papers' feature
+    assert FilterParams.paper_params(strength={"window": 5}).strength == FeatureParams(
+        window=5, award=70.0, threshold=0.05)
     for p in (FilterParams(strength={"window": 5}),
               FilterParams.from_dict({"strength": {"window": 5}}),
               FilterParams().with_features(strength={"window": 5})):
@@ -332,8 +336,9 @@ def test_switches_take_only_true_or_false_and_features_take_dicts(f1_bundle):  #
             Localizer(f1_bundle, rng=seed)
         with pytest.raises(LocalizationError, match="rng must be a seed"):
             MultiUserEngine(f1_bundle, rng=seed)
-    assert Localizer(f1_bundle, rng=np.int64(3)).rng.integers(1 << 30) == \
-        np.random.default_rng(3).integers(1 << 30)
+    for seed in (np.int64(3), np.random.SeedSequence(3), np.random.PCG64(3), [3]):
+        assert Localizer(f1_bundle, rng=seed).rng.integers(1 << 30) == \
+            np.random.default_rng(3 if not isinstance(seed, list) else [3]).integers(1 << 30)
 
 
 def test_run_takes_only_true_or_false_to_smooth_and_a_finite_start_time(f1_bundle,  # noqa: F811
@@ -503,6 +508,10 @@ def test_a_bad_tick_moves_no_user(f1_bundle, sim_walks):  # noqa: F811
                         (lambda: eng.add_users([10.0, 5.0, 3.0]),
                          r"start_xy has shape \(3,\), expected \(k, 2\)"),
                         (lambda: eng.add_users("10,5"), "start_xy is not numeric"),
+                        (lambda: eng.add_users(["10", "5"]), "start_xy is not numeric"),
+                        (lambda: eng.add_users([True, False]), "start_xy is not numeric"),
+                        (lambda: eng.tick([1e19, 0, 1], inputs(0)),
+                         "user ids must be whole numbers"),
                         (lambda: eng.tick([ids[0], 99], StepInputs(
                             **{c: getattr(inputs(0), c)[:2] for c in cols})),
                          r"unknown user ids in tick: \[99\]"),

@@ -415,6 +415,11 @@ def test_wifi_locate_fails_a_walk_whose_scans_hear_no_known_transmitter(built, t
                      res.stderr), res.stderr
     kinds = {(r["trace_id"], r["kind"]) for r in _rows(res.stdout)}
     assert kinds == {(tid, "ble"), (walks[1].name.split(".")[0], "wifi")}
+    # a K,B given is the Wi-Fi scans': the walk located by BLE is calibrated online
+    given = CliRunner().invoke(main, args[:1] + ["--calibration", "1,0"] + args[3:])
+    assert given.exit_code == 0, given.output
+    assert re.search(rf"{tid}: \d+ ble scans .*calibration (?!given)", given.stderr)
+    assert re.search(r"wifi scans .*calibration given k=1, b=\+0 dB", given.stderr)
 
 
 def test_walk_without_wifi(built, tmp_path):
@@ -423,9 +428,9 @@ def test_walk_without_wifi(built, tmp_path):
     runner = CliRunner()
     res = runner.invoke(main, ["wifi-locate", "--kind", "wifi", str(built), str(walk)])
     assert res.exit_code == 1 and "no wifi scans; it has ble scans: --kind ble" in res.stderr
-    assert res.stdout.strip() == "trace_id,floor,kind,t_ms,n_known,x_m,y_m,sigma_m,error_m"
+    assert res.stdout.strip() == "trace_id,floor,t_ms,n_known,x_m,y_m,sigma_m,error_m,kind"
     res = runner.invoke(main, ["wifi-locate", str(built), str(walk)])  # auto: by BLE
-    assert res.exit_code == 0 and "(Wi-Fi: no scans in the walk)" in res.stderr, res.output
+    assert res.exit_code == 0 and "(Wi-Fi: no wifi scans)" in res.stderr, res.output
     assert {r["kind"] for r in _rows(res.stdout)} == {"ble"}
     res = runner.invoke(main, ["floor", str(built), str(walk)])  # by BLE: said so
     assert res.exit_code == 0 and "(no Wi-Fi scan classified)" in res.stderr
