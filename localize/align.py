@@ -389,9 +389,8 @@ class WalkAligner(BaseLocalizer):
         (Unix ms), compass and gyroscope headings (deg; gyroscope NaN: the compass alone),
         acceleration swing (m/s^2; NaN: the nominal step), whether the phone is carried
         (:attr:`AttitudeCode.CARRIED`), and a radio fix ``(x_m, y_m, t_ms)`` located by the
-        caller (its scan time). For serving many users
-        (:class:`localize.align_engine.MultiUserAligner`, which checks a tick's steps with
-        :meth:`check_next` before any user moves)."""
+        caller (its scan time), each checked as :meth:`step` checks them. (The multi-user
+        aligner checks a whole tick before any user moves, then takes the steps unchecked.)"""
         check_step_numbers(t_ms, t_ms=t_ms, compass_deg=compass_deg,
                            relative_heading_deg=relative_heading_deg,
                            delta_acc_ms2=delta_acc_ms2)

@@ -74,6 +74,7 @@ class RadioOnlyLocalizer(BaseLocalizer):
     """The latest Wi-Fi/BLE fix of the radio model, held between scans."""
 
     method = "radio"
+    step_numbers_read = ("t_ms",)  # the radio alone: its time and scan
 
     def __init__(self, bundle: MapBundle, *, radio: RadioModel) -> None:
         if radio is None:
@@ -93,7 +94,7 @@ class RadioOnlyLocalizer(BaseLocalizer):
                         self.bundle.floor_id)
 
     def step(self, s: StepSummary) -> Estimate:
-        check_step(s, self, numbers_read=("t_ms",))
+        check_step(s, self)
         self.check_next(s.t_ms)  # the radio alone: no compass needed
         x, y, spread = self._last.x_m, self._last.y_m, self._last.spread_m
         if s.scan is not None:

@@ -11,7 +11,7 @@ re-draws them around the last estimate with a growing spread (counted as a recov
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import replace
 from functools import partial
 from typing import NamedTuple
@@ -24,7 +24,7 @@ from localize.errors import LocalizationError
 from localize.floors import check_walk_fits
 from localize.maps import FilterMap
 from localize.methods import method_label
-from localize.params import FilterParams
+from localize.params import FilterParams, is_switch
 from localize.particles import (
     ParticleState,
     estimate,
@@ -38,8 +38,8 @@ from localize.particles import (
 from localize.radio import RadioModel
 from localize.smoothing import Genealogy
 from localize.stepper import StepInputs, advance
-from localize.steps import (RadioScan, StepSummaries, StepSummary, check_step_numbers,
-                            check_step_values)
+from localize.steps import (STEP_NUMBER_FIELDS, RadioScan, StepSummaries, StepSummary,
+                            check_step_numbers, check_step_values)
 from localize.track import Estimate, Track
 from localize.update import position_update, radio_likelihood, radio_update
 from survey.errors import require_type
@@ -132,13 +132,14 @@ BUNDLE_HINT = ("localize.bundle.load_bundle(path) opens one; "
 STEPS_HINT = "survey.step_summaries.step_summaries(trace) gives a walk's"
 
 
-def check_step(s: StepSummary, owner: object, **reads: Sequence[str]) -> None:
+def check_step(s: StepSummary, owner: BaseLocalizer) -> None:
     """Refuse what is not one :class:`StepSummary` (the whole walk, say: :meth:`run` takes
     that) as ``owner``'s step, or one whose fields are not of their kinds
-    (:func:`~localize.steps.check_step_values`; ``reads``: its ``numbers_read``)."""
+    (:func:`~localize.steps.check_step_values`, for the number fields ``owner`` reads:
+    :attr:`BaseLocalizer.step_numbers_read`)."""
     require_type(s, StepSummary, f"{type(owner).__name__}.step(s)",
                  "one element of StepSummaries; run() localizes a whole walk")
-    check_step_values(s, **reads)
+    check_step_values(s, owner.step_numbers_read)
 
 
 #: How far (m) outside the floor's grid a given start may lie (the filter's start square
@@ -157,6 +158,9 @@ class BaseLocalizer:
     needs_magnetometer = False
     #: Whether :meth:`run` can smooth offline (particle filters).
     can_smooth = False
+    #: The number fields of a streamed step the method reads (:func:`check_step`); the
+    #: others may be None.
+    step_numbers_read: tuple[str, ...] = STEP_NUMBER_FIELDS
     #: What ``auto`` chose, and why, when :func:`~localize.baselines.make_localizer` built
     #: this localizer for ``method="auto"`` (a :class:`~localize.methods.AutoChoice`); else
     #: None.
@@ -307,8 +311,7 @@ class BaseLocalizer:
         (:meth:`check`), ``smooth`` other than True or False (``"no"`` smoothed), a start
         time that is not a finite number (NaN gave a track starting at NaN)."""
         self.check(steps)
-        if not isinstance(smooth, (bool, np.bool_)) and not (
-                isinstance(smooth, (int, np.integer)) and smooth in (0, 1)):
+        if not is_switch(smooth):
             raise LocalizationError(f"smooth must be True or False, got {smooth!r}")
         if start_t_ms is not None:
             check_step_numbers(start_t_ms, start_t_ms=start_t_ms)

@@ -49,9 +49,16 @@ NOT_NEGATIVE = ("n_particles_start", "shrink_spread_m", "shrink_after_steps",
                 "recovery_max_half_width_m")
 
 
-def _is_number(v) -> bool:
+def is_number(v: object) -> bool:
     """A real number (numpy's too), not a bool."""
     return isinstance(v, numbers.Real) and not isinstance(v, bool)
+
+
+def is_switch(v: object) -> bool:
+    """A value a switch takes: True or False (numpy's too), or the whole number 0 or 1 (an
+    ``int()`` of a config value); not text (``"False"`` was taken as true)."""
+    return isinstance(v, (bool, np.bool_)) or (isinstance(v, (int, np.integer))
+                                               and v in (0, 1))
 
 
 def _set_numbers(obj, unbounded: frozenset[str] = frozenset(), prefix: str = "") -> None:
@@ -62,7 +69,7 @@ def _set_numbers(obj, unbounded: frozenset[str] = frozenset(), prefix: str = "")
     field is in ``unbounded``), a fraction where a count is expected, or no number."""
     for f in fields(obj):
         default = f.default if isinstance(f.default, tuple) else (f.default,)
-        if not all(_is_number(v) for v in default):
+        if not all(is_number(v) for v in default):
             continue
         value = getattr(obj, f.name)
         try:
@@ -70,7 +77,7 @@ def _set_numbers(obj, unbounded: frozenset[str] = frozenset(), prefix: str = "")
         except TypeError:
             values = ()
         ok = len(values) == len(default) and all(
-            _is_number(v) and not math.isnan(v) and (f.name in unbounded or not math.isinf(v))
+            is_number(v) and not math.isnan(v) and (f.name in unbounded or not math.isinf(v))
             and (not isinstance(d, int) or float(v).is_integer())
             for v, d in zip(values, default))
         if not ok:
@@ -89,8 +96,7 @@ def _set_flags(obj, prefix: str = "") -> None:
     for f in fields(obj):
         if isinstance(f.default, bool):
             value = getattr(obj, f.name)
-            if not isinstance(value, (bool, np.bool_)) and not (
-                    isinstance(value, (int, np.integer)) and value in (0, 1)):
+            if not is_switch(value):
                 raise LocalizationError(f"{prefix}{f.name} must be True or False, got "
                                         f"{value!r}")
             object.__setattr__(obj, f.name, bool(value))

@@ -12,7 +12,6 @@ the previous step to this one).
 
 from __future__ import annotations
 
-import numbers
 import operator
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -23,6 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from localize.bundle import RSSI_RANGE_DBM, rssi_in_range
 from localize.errors import LocalizationError
+from localize.params import is_number
 
 __all__ = ["AttitudeCode", "RadioScan", "StepSummaries", "StepSummary", "attitude_codes",
            "ble_transmitter_ids"]
@@ -213,10 +213,10 @@ _FLOAT_COLUMNS = ("frequency_hz", "delta_acc_ms2", "compass_deg", "turn_deg", "s
 
 
 def _is_real(v: object) -> bool:
-    """A real number (numpy's, and a 0-d numeric array, too), not a bool."""
+    """A real number (:func:`~localize.params.is_number`, and a 0-d numeric array)."""
     if isinstance(v, np.ndarray):
         return v.ndim == 0 and v.dtype.kind in "iuf"
-    return isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_))
+    return is_number(v)
 
 
 #: The :class:`AttitudeCode` values, as a streamed step's ``attitude`` may give them.
@@ -234,7 +234,11 @@ def check_step_numbers(step_t_ms: object, **values: object) -> None:
                                     f"{v!r}; the step was not taken")
 
 
-def check_step_values(s: StepSummary, numbers_read: Sequence[str] = ("t_ms", *_FLOAT_COLUMNS)
+#: The number fields of a :class:`StepSummary`.
+STEP_NUMBER_FIELDS = ("t_ms", *_FLOAT_COLUMNS)
+
+
+def check_step_values(s: StepSummary, numbers_read: Sequence[str] = STEP_NUMBER_FIELDS
                       ) -> None:
     """Refuse a streamed step whose fields are not what :class:`StepSummary` says, before a
     localizer takes any of it: ``t_ms`` and the float fields real numbers (NaN, not None,
