@@ -177,8 +177,8 @@ def read_walks(path: Path) -> list[tuple[str, Callable[[], Trace]]]:
     from survey.walkline import plan_walks
 
     def read(walk) -> Trace:
-        log, data = walk.log_bytes()  # not its identity: ingest's, to hash
-        return _checked_walk(walk.parse(log, data), Path(log))
+        logs = walk.log_bytes()  # not its identity: ingest's, to hash
+        return _checked_walk(walk.parse(logs), Path(logs.source))
 
     return [(f"{path} (walk {walk.walk_id})", lambda walk=walk: read(walk))
             for walk in plan_walks(path)]

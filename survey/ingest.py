@@ -24,7 +24,7 @@ from .store import IngestOutcome, SurveyStore, catalog_row, write_parts
 from .trace_bytes import trace_file_sha256
 from .trace_reader import BATCH_BYTES, ReadFailure, find_trace_files, iter_traces, \
     trace_id_from_path
-from .walkline import PlanWalk, identity_sha256, is_walk_plan, plan_walks
+from .walkline import PlanWalk, WalkLogs, identity_sha256, is_walk_plan, plan_walks
 
 
 @dataclass
@@ -291,25 +291,25 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
             floor = floor_of(plan)
             for walk in walks:
                 try:  # one walk at a time: a missing or bad log fails its walk alone
-                    source, csv_bytes = walk.log_bytes()
+                    logs = walk.log_bytes()
                 except SurveyFormatError as err:
                     if strict:
                         raise
                     summary.outcomes.append(IngestOutcome(walk.where, walk.walk_id, "failed",
                                                           str(err)))
                     continue
-                if second_input(source, walk.walk_id):
+                if second_input(logs.source, walk.walk_id):
                     continue
-                identity = walk.identity(csv_bytes)
+                identity = walk.identity(logs)
                 sha = identity_sha256(identity)
                 # unchanged: not parsed, as a trace file. (Never a "duplicate": a walk's
                 # identity holds its own walk id, so no other walk shares its hash.)
                 known = w.known(walk.walk_id, sha, floor)
                 if known:
-                    known.path = source
+                    known.path = logs.source
                     summary.outcomes.append(known)
                     continue
-                summary.outcomes.append(_parse_walk(w, summary, walk, source, csv_bytes, sha,
+                summary.outcomes.append(_parse_walk(w, summary, walk, logs, sha,
                                                     len(identity), floor, strict))
             tick()
         # to a fixed point: ingesting one can make another's original go (walks renumbered:
@@ -351,13 +351,14 @@ def _outcome(w, path: str, row: dict) -> IngestOutcome:
                          f"replaced {was[0]}, {was[1]} lines" if other else "")
 
 
-def _parse_walk(w, summary: IngestSummary, walk: PlanWalk, source: str, csv_bytes: bytes,
-                sha: str, size: int, floor_default: str | None, strict: bool) -> IngestOutcome:
-    """Parse one walk of a walk plan (its sensor CSV's bytes, read from ``source``) and store
-    it with the writer ``w``; its row is added to ``summary``, its outcome returned (failed
-    when the CSV cannot be parsed; raised in strict mode)."""
+def _parse_walk(w, summary: IngestSummary, walk: PlanWalk, logs: WalkLogs, sha: str,
+                size: int, floor_default: str | None, strict: bool) -> IngestOutcome:
+    """Parse one walk of a walk plan (its logs as read) and store it with the writer ``w``;
+    its row is added to ``summary``, its outcome returned (failed when a log cannot be
+    parsed; raised in strict mode)."""
+    source = logs.source
     try:
-        trace = walk.parse(source, csv_bytes, strict=strict)
+        trace = walk.parse(logs, strict=strict)
     except SurveyFormatError as err:
         if strict:
             raise

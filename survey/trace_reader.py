@@ -554,6 +554,120 @@ def _split(frame: pd.DataFrame, ranges: np.ndarray) -> list[pd.DataFrame]:
             for i in range(len(ranges) - 1)]
 
 
+def wifi_row_checks(cols: dict) -> tuple[pa.Array, list[tuple[str, str, np.ndarray]]]:
+    """The Wi-Fi rows' BSSIDs normalized (:func:`normalize_bssids`) and the rows refused, as
+    ``(reason, detail, rows)`` with disjoint masks (n,), in order: a BSSID that is no MAC
+    address, RSSI outside :data:`RSSI_RANGE_DBM`, a frequency that is not in MHz, a last-seen
+    time more than :data:`MAX_WIFI_SEEN_AFTER_SCAN_MS` after the scan. ``cols``: ``bssid``
+    (pyarrow strings) and ``t_ms`` (scan time), ``last_seen_ms``, ``rssi_dbm``, ``freq_mhz``
+    (numbers, n,)."""
+    bssid, valid = normalize_bssids(cols["bssid"])
+    lo, hi = RSSI_RANGE_DBM
+    rssi_ok = rssi_in_range(cols["rssi_dbm"])
+    freq_ok = (cols["freq_mhz"] >= 1) & (cols["freq_mhz"] <= 100_000)
+    seen_ok = cols["last_seen_ms"] <= cols["t_ms"] + MAX_WIFI_SEEN_AFTER_SCAN_MS
+    return bssid, [
+        ("bad_bssid", "bssid is not a MAC address", ~valid),
+        ("out_of_range", f"rssi outside [{lo:g}, {hi:g}] dBm", valid & ~rssi_ok),
+        ("out_of_range", "frequency is not in MHz", valid & rssi_ok & ~freq_ok),
+        ("out_of_range", f"last-seen time more than {MAX_WIFI_SEEN_AFTER_SCAN_MS} ms after "
+                         "the scan", valid & rssi_ok & freq_ok & ~seen_ok)]
+
+
+def beacon_row_checks(cols: dict) -> list[tuple[str, str, np.ndarray]]:
+    """The BLE rows refused, as ``(reason, detail, rows)`` with disjoint masks (n,), in
+    order: RSSI outside :data:`RSSI_RANGE_DBM`, a major or minor outside [0, 65535] or an
+    absurd TX power. ``cols``: ``rssi_dbm``, ``major``, ``minor``, ``tx_power_dbm`` (numbers,
+    n,)."""
+    lo, hi = RSSI_RANGE_DBM
+    ok = rssi_in_range(cols["rssi_dbm"])
+    ok_id = ((cols["major"] >= 0) & (cols["major"] < 2**16) & (cols["minor"] >= 0)
+             & (cols["minor"] < 2**16) & (np.abs(cols["tx_power_dbm"]) < 2**15))
+    return [("out_of_range", f"rssi outside [{lo:g}, {hi:g}] dBm", ~ok),
+            ("out_of_range", "major/minor outside [0, 65535] or absurd tx power", ok & ~ok_id)]
+
+
+def wifi_table(files: np.ndarray, cols: dict) -> tuple[pd.DataFrame, np.ndarray, np.ndarray]:
+    """Checked Wi-Fi rows as the store's table (:data:`WIFI_COLUMNS`), sorted by file, scan
+    time and BSSID; a scan that lists a BSSID more than once keeps the freshest row (latest
+    last-seen time), then the strongest RSSI, then the first in file order.
+
+    ``files`` (n,): each row's file; ``cols``: ``t_ms`` (scan time), ``last_seen_ms``,
+    ``rssi_dbm``, ``freq_mhz`` (integer arrays, n,), ``ssid`` and ``bssid`` (pyarrow string
+    arrays, BSSIDs normalized by :func:`normalize_bssids`), rows in file order. Returns the
+    table, each of its rows' file and the files of the rows dropped as repeated."""
+    enc = pc.dictionary_encode(cols["bssid"])
+    dictionary = enc.dictionary.to_numpy(zero_copy_only=False)
+    rank = np.argsort(np.argsort(dictionary, kind="stable"))
+    bcode = rank[enc.indices.to_numpy(zero_copy_only=False)] if len(dictionary) else \
+        np.zeros(0, dtype=np.int64)
+    # the sort is stable and rows are in file order: "first in file order" is first here
+    order = _lex_order(files, cols["t_ms"], bcode)
+    files, scan, bc = files[order], cols["t_ms"][order], bcode[order]
+    dup = best_of_runs(files, scan, bc, cols["last_seen_ms"][order], cols["rssi_dbm"][order])
+    dropped = files[dup]
+    if dup.any():
+        order, files, scan = order[~dup], files[~dup], scan[~dup]
+    take = pa.array(order, type=pa.int64())
+    seen = cols["last_seen_ms"][order]
+    frame = pd.DataFrame({
+        "scan_t_ms": scan, "ssid": _str_array(cols["ssid"].take(take)),
+        "bssid": _str_array(cols["bssid"].take(take)),
+        "rssi_dbm": cols["rssi_dbm"][order].astype(np.int16),
+        "freq_mhz": cols["freq_mhz"][order].astype(np.int32),
+        "last_seen_ms": seen, "age_ms": scan - seen})
+    return frame, files, dropped
+
+
+def beacon_table(files: np.ndarray, cols: dict) -> tuple[pd.DataFrame, np.ndarray]:
+    """Checked BLE rows as the store's table (:data:`BLE_COLUMNS`), sorted by file and time
+    (rows of one time keep their file order); a beacon's key is ``uuid:major:minor`` with
+    the UUID lower-cased.
+
+    ``files`` (n,): each row's file; ``cols``: ``t_ms``, ``major``, ``minor``,
+    ``tx_power_dbm``, ``rssi_dbm``, ``last_seen_ms`` (integer arrays, n,), ``distance_m``
+    (float, m) and ``uuid``, ``mac`` (pyarrow string arrays), rows in file order. Returns the
+    table and each of its rows' file."""
+    order = _lex_order(files, cols["t_ms"])  # rows are in line order; the sort is stable
+    files = files[order]
+    take = pa.array(order, type=pa.int64())
+    uuid = pc.utf8_lower(pc.utf8_trim_whitespace(cols["uuid"].take(take)))
+    mac = pc.utf8_lower(pc.utf8_trim_whitespace(cols["mac"].take(take)))
+    major, minor = cols["major"][order], cols["minor"][order]
+    key = pc.binary_join_element_wise(uuid, pa.array(major.astype(str)),
+                                      pa.array(minor.astype(str)), ":")
+    frame = pd.DataFrame({
+        "t_ms": cols["t_ms"][order], "uuid": _str_array(uuid),
+        "major": major.astype(np.int32), "minor": minor.astype(np.int32),
+        "key": _str_array(key), "tx_power_dbm": cols["tx_power_dbm"][order].astype(np.int16),
+        "rssi_dbm": cols["rssi_dbm"][order].astype(np.int16),
+        "distance_m": cols["distance_m"][order], "mac": _str_array(mac),
+        "last_seen_ms": cols["last_seen_ms"][order]})
+    return frame, files
+
+
+def drop_repeats(frame: pd.DataFrame, files: np.ndarray
+                 ) -> tuple[pd.DataFrame, np.ndarray, np.ndarray]:
+    """``frame`` (rows sorted by file, then by ``t_ms``, stable) without the rows that
+    repeat an earlier row of the same file in every column; returns it, its rows' files and
+    the files of the rows dropped.
+
+    Only rows that share their file and time with a neighbour can repeat one (equal rows
+    are next to each other in that order), so the full comparison runs on those alone:
+    none in the ILC traces."""
+    none = files[:0]
+    t = frame["t_ms"].to_numpy()
+    same = (files[1:] == files[:-1]) & (t[1:] == t[:-1])
+    if not same.any():
+        return frame, files, none
+    maybe = np.flatnonzero(np.append(same, False) | np.insert(same, 0, False))
+    dup = np.zeros(len(frame), bool)
+    dup[maybe] = frame.iloc[maybe].assign(_file=files[maybe]).duplicated().to_numpy()
+    if not dup.any():
+        return frame, files, none
+    return frame[~dup], files[~dup], files[dup]
+
+
 class _Tables:
     """Per-file tables of one batch, plus per-file record and drop counts."""
 
@@ -631,77 +745,30 @@ class _Tables:
     def wifi(self, cols: dict | None, bad: _Collector) -> list[pd.DataFrame]:
         if cols is None:
             return [empty_table(WIFI_COLUMNS, WIFI_DTYPES) for _ in range(self.n_files)]
-        bssid, valid = normalize_bssids(cols["bssid"])
-        lo, hi = RSSI_RANGE_DBM
-        rssi_ok = rssi_in_range(cols["rssi_dbm"])
-        freq_ok = (cols["freq_mhz"] >= 1) & (cols["freq_mhz"] <= 100_000)
-        bad.add(cols["gline"][~valid], "bad_bssid", "TYPE_WIFI: bssid is not a MAC address")
-        bad.add(cols["gline"][valid & ~rssi_ok], "out_of_range",
-                f"TYPE_WIFI: rssi outside [{lo:g}, {hi:g}] dBm")
-        bad.add(cols["gline"][valid & rssi_ok & ~freq_ok], "out_of_range",
-                "TYPE_WIFI: frequency is not in MHz")
-        seen_ok = cols["last_seen_ms"] <= cols["t_ms"] + MAX_WIFI_SEEN_AFTER_SCAN_MS
-        bad.add(cols["gline"][valid & rssi_ok & freq_ok & ~seen_ok], "out_of_range",
-                f"TYPE_WIFI: last-seen time more than {MAX_WIFI_SEEN_AFTER_SCAN_MS} ms after "
-                "the scan")
-        cols["bssid"] = bssid
-        keep = valid & rssi_ok & freq_ok & seen_ok
+        cols["bssid"], refused = wifi_row_checks(cols)
+        for reason, detail, rows in refused:
+            bad.add(cols["gline"][rows], reason, f"TYPE_WIFI: {detail}")
+        keep = ~np.logical_or.reduce([rows for _, _, rows in refused])
         if not keep.all():
             cols = _take(cols, np.flatnonzero(keep))
-        files = self.count(cols)
-        enc = pc.dictionary_encode(cols["bssid"])
-        dictionary = enc.dictionary.to_numpy(zero_copy_only=False)
-        rank = np.argsort(np.argsort(dictionary, kind="stable"))
-        bcode = rank[enc.indices.to_numpy(zero_copy_only=False)] if len(dictionary) else \
-            np.zeros(0, dtype=np.int64)
-        # Per (file, scan, bssid) keep the freshest row: latest last-seen, then strongest
-        # RSSI, then first in file order (the sort is stable and rows are in file order).
-        order = _lex_order(files, cols["t_ms"], bcode)
-        files, scan, bc = files[order], cols["t_ms"][order], bcode[order]
-        dup = best_of_runs(files, scan, bc, cols["last_seen_ms"][order], cols["rssi_dbm"][order])
-        if dup.any():
-            self.drop("duplicate_bssid_in_scan", files[dup])
-            order, files, scan = order[~dup], files[~dup], scan[~dup]
-        take = pa.array(order, type=pa.int64())
-        seen = cols["last_seen_ms"][order]
-        frame = pd.DataFrame({
-            "scan_t_ms": scan, "ssid": _str_array(cols["ssid"].take(take)),
-            "bssid": _str_array(cols["bssid"].take(take)),
-            "rssi_dbm": cols["rssi_dbm"][order].astype(np.int16),
-            "freq_mhz": cols["freq_mhz"][order].astype(np.int32),
-            "last_seen_ms": seen, "age_ms": scan - seen})
+        frame, files, dropped = wifi_table(self.count(cols), cols)
+        if len(dropped):
+            self.drop("duplicate_bssid_in_scan", dropped)
         return _split(frame, _file_ranges(files, self.n_files))
 
     def ble(self, cols: dict | None, bad: _Collector) -> list[pd.DataFrame]:
         if cols is None:
             return [empty_table(BLE_COLUMNS, BLE_DTYPES) for _ in range(self.n_files)]
-        lo, hi = RSSI_RANGE_DBM
-        ok = rssi_in_range(cols["rssi_dbm"])
-        ok_id = ((cols["major"] >= 0) & (cols["major"] < 2**16) & (cols["minor"] >= 0)
-                 & (cols["minor"] < 2**16) & (np.abs(cols["tx_power_dbm"]) < 2**15))
-        bad.add(cols["gline"][~ok], "out_of_range", f"TYPE_BEACON: rssi outside [{lo:g}, {hi:g}] dBm")
-        bad.add(cols["gline"][ok & ~ok_id], "out_of_range",
-                "TYPE_BEACON: major/minor outside [0, 65535] or absurd tx power")
-        keep = ok & ok_id
+        refused = beacon_row_checks(cols)
+        for reason, detail, rows in refused:
+            bad.add(cols["gline"][rows], reason, f"TYPE_BEACON: {detail}")
+        keep = ~np.logical_or.reduce([rows for _, _, rows in refused])
         if not keep.all():
             cols = _take(cols, np.flatnonzero(keep))
-        files = self.count(cols)
-        order = _lex_order(files, cols["t_ms"])  # rows are in line order; the sort is stable
-        files = files[order]
-        take = pa.array(order, type=pa.int64())
-        uuid = pc.utf8_lower(pc.utf8_trim_whitespace(cols["uuid"].take(take)))
-        mac = pc.utf8_lower(pc.utf8_trim_whitespace(cols["mac"].take(take)))
-        major, minor = cols["major"][order], cols["minor"][order]
-        key = pc.binary_join_element_wise(uuid, pa.array(major.astype(str)),
-                                          pa.array(minor.astype(str)), ":")
-        frame = pd.DataFrame({
-            "t_ms": cols["t_ms"][order], "uuid": _str_array(uuid),
-            "major": major.astype(np.int32), "minor": minor.astype(np.int32),
-            "key": _str_array(key), "tx_power_dbm": cols["tx_power_dbm"][order].astype(np.int16),
-            "rssi_dbm": cols["rssi_dbm"][order].astype(np.int16),
-            "distance_m": cols["distance_m"][order], "mac": _str_array(mac),
-            "last_seen_ms": cols["last_seen_ms"][order]})
-        frame, files = self._drop_repeats("duplicate_beacon", frame, files)
+        frame, files = beacon_table(self.count(cols), cols)
+        frame, files, dropped = drop_repeats(frame, files)
+        if len(dropped):
+            self.drop("duplicate_beacon", dropped)
         return _split(frame, _file_ranges(files, self.n_files))
 
     def waypoints(self, cols: dict | None, bad: _Collector) -> list[pd.DataFrame]:
@@ -716,28 +783,10 @@ class _Tables:
         order = _lex_order(files, cols["t_ms"])  # rows are in line order; the sort is stable
         frame = pd.DataFrame({"t_ms": cols["t_ms"][order], "x_m": cols["x_m"][order],
                               "y_m": cols["y_m"][order]})
-        frame, files = self._drop_repeats("duplicate_waypoint", frame, files[order])
+        frame, files, dropped = drop_repeats(frame, files[order])
+        if len(dropped):
+            self.drop("duplicate_waypoint", dropped)
         return _split(frame, _file_ranges(files, self.n_files))
-
-    def _drop_repeats(self, name: str, frame: pd.DataFrame, files: np.ndarray
-                      ) -> tuple[pd.DataFrame, np.ndarray]:
-        """``frame`` (rows sorted by file, then by ``t_ms``, stable) without the rows that
-        repeat an earlier row of the same file in every column, counted as dropped ``name``.
-
-        Only rows that share their file and time with a neighbour can repeat one (equal rows
-        are next to each other in that order), so the full comparison runs on those alone:
-        none in the ILC traces."""
-        t = frame["t_ms"].to_numpy()
-        same = (files[1:] == files[:-1]) & (t[1:] == t[:-1])
-        if not same.any():
-            return frame, files
-        maybe = np.flatnonzero(np.append(same, False) | np.insert(same, 0, False))
-        dup = np.zeros(len(frame), bool)
-        dup[maybe] = frame.iloc[maybe].assign(_file=files[maybe]).duplicated().to_numpy()
-        if not dup.any():
-            return frame, files
-        self.drop(name, files[dup])
-        return frame[~dup], files[~dup]
 
 
 # --------------------------------------------------------------------------------------------

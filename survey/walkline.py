@@ -5,6 +5,7 @@ FeatureCollection in map metres (x east, y north); each LineString feature is on
 
 - ``walk_id`` (required): the trace id in the store;
 - ``sensor_log`` (required): path of the walk's sensor CSV, relative to the plan file;
+- ``wifi_log``, ``ble_log`` (optional): paths of its Wi-Fi and BLE logs;
 - either ``start_ms`` and ``end_ms`` (vertices get times in proportion to distance along the
   line, i.e. a steady pace) or ``vertex_times_ms`` (one strictly increasing time per vertex);
 - optional ``site_id``, ``site_name``, ``floor_id``, ``floor_name``, ``device_brand``,
@@ -15,12 +16,15 @@ of these groups (a group is all-or-nothing): ``acc_x,acc_y,acc_z`` (m/s^2), ``gy
 ``mag_x..z`` (uT), ``rot_x..z`` (Android rotation vector), ``acc_uncal_x..z`` with
 ``acc_bias_x..z``, ``gyro_uncal_x..z`` with ``gyro_bias_x..z``, ``mag_uncal_x..z`` with
 ``mag_bias_x..z``, and optionally ``accuracy``. The plan's vertices become the walk's waypoints.
+
+A walk may also name a Wi-Fi and a BLE log (``wifi_log``, ``ble_log``): read by
+:mod:`survey.walkline_radio`. The CSV rows of every log are read and checked by
+:mod:`survey.walkline_csv`.
 """
 
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import os
 from dataclasses import dataclass
@@ -28,9 +32,6 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import pyarrow as pa
-import pyarrow.compute as pc
-import pyarrow.csv as pacsv
 from numpy.typing import NDArray
 
 from .errors import SurveyFormatError
@@ -39,7 +40,6 @@ from .trace_bytes import MAX_TRACE_BYTES, check_not_utf16_or_32
 from .trace_format import (
     BLE_COLUMNS,
     BLE_DTYPES,
-    MAX_FROM_MEDIAN_TIME_MS,
     STREAM_NAMES,
     WAYPOINT_LIMIT_M,
     WIFI_COLUMNS,
@@ -50,6 +50,7 @@ from .trace_format import (
     empty_table,
     sensor_limit,
 )
+from .walkline_csv import MAX_TIME_MS, RowCheck, good_rows, read_log_csv, time_check
 
 #: CSV column prefix per stream: (value prefix, bias prefix or None).
 STREAM_COLUMNS: dict[str, tuple[str, str | None]] = {
@@ -64,8 +65,6 @@ STREAM_COLUMNS: dict[str, tuple[str, str | None]] = {
 _AXES = ("x", "y", "z")
 #: Largest walk-plan GeoJSON read (bytes): a plan of thousands of walks is a few MB.
 MAX_PLAN_BYTES = 256 * 2**20
-#: Times (Unix ms) must be below this; larger values are not times of this format.
-MAX_TIME_MS = 2**53
 # Finite float64 values at or beyond this become infinite as float32 (round to nearest even).
 _FLOAT32_LIMIT = 2.0**128 - 2.0**103
 _HEADER_PROPS = {"site_id": "site_id", "site_name": "site_name", "floor_id": "floor_id",
@@ -130,10 +129,28 @@ def plan_walk_names(path: str | os.PathLike) -> set[str]:
     return names
 
 
+#: The logs a walk names, by property (the radio logs optional): what messages call them.
+LOGS = {"sensor_log": "sensor log", "wifi_log": "Wi-Fi log", "ble_log": "BLE log"}
+
+
+@dataclass(frozen=True)
+class WalkLogs:
+    """A plan walk's log files as read, not parsed (:meth:`PlanWalk.log_bytes`): per log
+    property (``sensor_log``, and ``wifi_log``/``ble_log`` when the plan names them), the
+    file's resolved path and its bytes."""
+
+    files: dict[str, tuple[str, bytes]]
+
+    @property
+    def source(self) -> str:
+        """The sensor CSV's path: the walk's source in the store and in messages."""
+        return self.files["sensor_log"][0]
+
+
 @dataclass(frozen=True, eq=False)
 class PlanWalk:
-    """One walk of a walk plan, its feature checked (:func:`plan_walks`) and its sensor log
-    not yet read (:meth:`read`)."""
+    """One walk of a walk plan, its feature checked (:func:`plan_walks`) and its logs not
+    yet read (:meth:`read`)."""
 
     walk_id: str
     sensor_log: str  #: as the plan gives it, relative to the plan's folder
@@ -145,56 +162,75 @@ class PlanWalk:
     times_ms: NDArray[np.float64]  #: vertex times (n,) (Unix ms, whole)
 
     def read(self, *, strict: bool = False) -> tuple[Trace, str, bytes]:
-        """Read the walk's sensor log: ``(trace, source path of the sensor CSV, identity
-        bytes)`` (the canonical feature JSON plus the CSV content, what the store hashes to
-        detect changes): :meth:`log_bytes`, :meth:`identity` and :meth:`parse`.
+        """Read the walk's logs: ``(trace, source path of the sensor CSV, identity bytes)``
+        (the canonical feature JSON plus the logs' content, what the store hashes to detect
+        changes): :meth:`log_bytes`, :meth:`identity` and :meth:`parse`.
 
         Raises
         ------
         SurveyFormatError
-            A missing or malformed sensor CSV (strict mode: also any bad CSV row).
+            A missing or malformed log (strict mode: also any bad CSV row).
         """
-        source, csv_bytes = self.log_bytes()
-        return self.parse(source, csv_bytes, strict=strict), source, self.identity(csv_bytes)
+        logs = self.log_bytes()
+        return self.parse(logs, strict=strict), logs.source, self.identity(logs)
 
-    def log_bytes(self) -> tuple[str, bytes]:
-        """``(path, content)`` of the walk's sensor CSV, not parsed (``ingest`` hashes a walk
-        before it parses it, and skips an unchanged one).
+    def log_bytes(self) -> WalkLogs:
+        """The walk's logs as read, not parsed (``ingest`` hashes a walk before it parses
+        it, and skips an unchanged one).
 
         Raises
         ------
         SurveyFormatError
-            The sensor CSV is missing or not a readable regular file.
+            A log is missing or not a readable regular file.
         """
-        log = self.sensor_log
-        try:
-            csv_path = (self.folder / log).resolve()
-            return str(csv_path), read_regular(csv_path, MAX_TRACE_BYTES)  # not a FIFO
-        except (OSError, ValueError) as err:  # ValueError: a NUL byte in the path
-            raise SurveyFormatError(f"sensor log {log!r} not readable "
-                                    f"({getattr(err, 'strerror', None) or err})",
-                                    path=self.where, reason="io") from err
+        files = {}
+        for prop, what in LOGS.items():
+            log = self.props.get(prop)
+            if log is None:
+                continue
+            try:
+                csv_path = (self.folder / log).resolve()
+                files[prop] = str(csv_path), read_regular(csv_path, MAX_TRACE_BYTES)  # no FIFO
+            except (OSError, ValueError) as err:  # ValueError: a NUL byte in the path
+                raise SurveyFormatError(f"{what} {log!r} not readable "
+                                        f"({getattr(err, 'strerror', None) or err})",
+                                        path=self.where, reason="io") from err
+        return WalkLogs(files)
 
-    def identity(self, csv_bytes: bytes) -> bytes:
+    def identity(self, logs: WalkLogs) -> bytes:
         """What identifies this version of the walk: its feature with the collection's
-        defaults it inherits (a change in either is a change of the walk) and its sensor
-        CSV's bytes."""
+        defaults it inherits (a change in either is a change of the walk) and its logs'
+        bytes (the sensor CSV's, then the radio logs' the feature names)."""
         feature = {**self.feature, "properties": self.props}
-        return json.dumps(feature, sort_keys=True).encode() + b"\n" + csv_bytes
+        return b"\n".join([json.dumps(feature, sort_keys=True).encode(),
+                           *(logs.files[p][1] for p in LOGS if p in logs.files)])
 
-    def parse(self, source: str, csv_bytes: bytes, *, strict: bool = False) -> Trace:
-        """The walk as a trace from its sensor CSV's bytes (read from ``source``), its
-        header from the plan's properties and its waypoints the plan's vertices.
+    def parse(self, logs: WalkLogs, *, strict: bool = False) -> Trace:
+        """The walk as a trace from its logs' bytes: its sensors from the sensor CSV, its
+        Wi-Fi scans and BLE rows from the radio logs the plan names (else none), its header
+        from the plan's properties and its waypoints the plan's vertices.
 
         Raises
         ------
         SurveyFormatError
-            A malformed sensor CSV (strict mode: also any bad CSV row).
+            A malformed log (strict mode: also any bad CSV row).
         """
-        check_not_utf16_or_32(csv_bytes, source)
+        # the radio logs' reader brings the trace reader (numba): imported when a walk is parsed
+        from .walkline_radio import parse_ble_csv, parse_wifi_csv
+
+        for path, data in logs.files.values():
+            check_not_utf16_or_32(data, path)
         times, xy = self.times_ms, self.xy_m
-        trace = parse_sensor_csv(csv_bytes, reference_ms=float(np.median(times)),
-                                 path=source, strict=strict)
+        reference_ms = float(np.median(times))
+        source, csv_bytes = logs.files["sensor_log"]
+        trace = parse_sensor_csv(csv_bytes, reference_ms=reference_ms, path=source,
+                                 strict=strict)
+        for prop, table, parse in (("wifi_log", "wifi", parse_wifi_csv),
+                                   ("ble_log", "ble", parse_ble_csv)):
+            if prop in logs.files:
+                path, data = logs.files[prop]
+                setattr(trace, table, parse(data, reference_ms=reference_ms,
+                                            report=trace.report, path=path, strict=strict))
         trace.trace_id = self.walk_id
         for prop, attr in _HEADER_PROPS.items():
             if self.props.get(prop) is not None:
@@ -207,7 +243,7 @@ class PlanWalk:
 
 def read_walk_plan(path: str | os.PathLike, *, strict: bool = False
                    ) -> list[tuple[Trace, str, bytes]]:
-    """Read a walk plan and its sensor logs: :func:`plan_walks`, each walk read
+    """Read a walk plan and its walks' logs: :func:`plan_walks`, each walk read
     (:meth:`PlanWalk.read`).
 
     Returns
@@ -281,9 +317,10 @@ def plan_walks(path: str | os.PathLike) -> list[PlanWalk]:
                     if walk_id and "start_ms" in props else "")
             raise SurveyFormatError("feature needs properties 'walk_id' and 'sensor_log'"
                                     + hint, path=where, reason="plan")
-        if not isinstance(log, str):
-            raise SurveyFormatError("'sensor_log' must be a path (a string)", path=where,
-                                    reason="plan")
+        for prop in LOGS:
+            if props.get(prop) is not None and not isinstance(props[prop], str):
+                raise SurveyFormatError(f"{prop!r} must be a path (a string)", path=where,
+                                        reason="plan")
         times = _vertex_times(xy[:, :2], props, where)
         walks.append(PlanWalk(walk_id, log, where, path.parent, props, feature, xy, times))
     if not walks:
@@ -332,92 +369,21 @@ def _vertex_times(xy: np.ndarray, props: dict, where: str) -> np.ndarray:
     return times
 
 
-def _numeric(column: pa.ChunkedArray) -> np.ndarray:
-    """Float64 values of a CSV column, NaN where a value is missing or not a number (columns
-    pyarrow typed as booleans, dates or times hold no numbers)."""
-    kind = column.type
-    if pa.types.is_integer(kind) or pa.types.is_floating(kind):
-        return pc.cast(column, pa.float64(), safe=False).to_numpy(zero_copy_only=False)
-    if pa.types.is_string(kind) or pa.types.is_large_string(kind):
-        return pd.to_numeric(column.to_pandas(), errors="coerce").to_numpy(dtype=float,
-                                                                             na_value=np.nan)
-    return np.full(len(column), np.nan)
-
-
-def _missing(column: pa.ChunkedArray) -> np.ndarray:
-    """Where a CSV column has no value (empty or null)."""
-    missing = column.is_null().to_numpy(zero_copy_only=False)
-    if pa.types.is_string(column.type) or pa.types.is_large_string(column.type):
-        missing = missing | (pc.utf8_trim_whitespace(column).to_numpy(zero_copy_only=False)
-                             == "")
-    return missing
-
-
-def _row_lines(data: bytes, n_rows: int, skipped: list[int]
-               ) -> tuple[np.ndarray, np.ndarray]:
-    """1-based line numbers of the CSV rows read and of the rows pyarrow ``skipped`` (given
-    as pyarrow numbers them: 1-based among the non-blank lines, the header first). pyarrow
-    skips blank lines, so row ``i`` is not always line ``i + 2``. Falls back to ``i + 2`` (and
-    pyarrow's numbers) when the lines cannot be matched (a quoted field spanning lines, old
-    Mac line ends)."""
-    lines = data.split(b"\n")
-    filled = np.flatnonzero([bool(line.strip(b"\r")) for line in lines]) + 1
-    at = np.asarray(skipped, dtype=np.int64) - 1
-    if len(filled) == n_rows + 1 + len(skipped) and (at >= 1).all():
-        return np.delete(filled, at)[1:], filled[at]
-    return np.arange(n_rows) + 2, at + 1
-
-
 def parse_sensor_csv(data: bytes, *, reference_ms: float, path: str = "<input>",
                      strict: bool = False) -> Trace:
     """Parse a walk-line sensor CSV into a :class:`Trace` (sensors only). ``reference_ms``:
     the walk's time (Unix ms; the median of its plan's vertex times), which a row more than
-    :data:`MAX_FROM_MEDIAN_TIME_MS` from is a ``time_outlier``."""
+    :data:`~survey.trace_format.MAX_FROM_MEDIAN_TIME_MS` from is a ``time_outlier``."""
     report = ParseReport(path=path)
-    wrong_width: list[tuple[int | None, int, int]] = []  # (row number, fields, expected)
-
-    def skip_row(row) -> str:  # a row with too few or too many fields is one bad line
-        wrong_width.append((row.number, row.actual_columns, row.expected_columns))
-        return "skip"
-
-    # Bytes that are not UTF-8 become U+FFFD: pyarrow cannot report a wrong-width row holding
-    # them, and a value holding one is then non-numeric, a bad line like any other.
-    try:
-        data.decode("utf-8")
-    except UnicodeDecodeError:
-        data = data.decode("utf-8", errors="replace").encode("utf-8")
-    try:
-        table = pacsv.read_csv(  # one thread: pyarrow numbers the rows it skips
-            io.BytesIO(data), read_options=pacsv.ReadOptions(use_threads=False),
-            parse_options=pacsv.ParseOptions(invalid_row_handler=skip_row),
-            convert_options=pacsv.ConvertOptions(column_types={}, strings_can_be_null=False))
-        names = table.column_names  # decoding a name can fail
-    except pa.ArrowInvalid as err:
-        raise SurveyFormatError(f"not a readable CSV ({err})", path=path, reason="csv") from err
-    if wrong_width and not table.num_rows:
-        _, got, want = wrong_width[0]
-        raise SurveyFormatError(f"not a readable CSV: no row has the header's {want} fields "
-                                f"(the first has {got})", path=path, reason="csv")
-    if len(set(names)) != len(names):
-        raise SurveyFormatError("sensor log has duplicate column names", path=path, reason="csv")
-    columns = set(names)
-    if "t_ms" not in columns:
-        sep = next((sep for sep in (";", "\t", "|") if len(names) == 1 and sep in names[0]),
-                   None)
-        said = (f": its header is one column, {names[0][:40]!r}; the log must be "
-                f"comma-separated, not {'tab' if sep == chr(9) else repr(sep)}-separated"
-                if sep else "")
-        raise SurveyFormatError(f"sensor log needs a 't_ms' column{said}", path=path,
-                                reason="csv")
-    report.lines_total = table.num_rows + 1 + len(wrong_width)
-    report.header_lines = 1
-    numeric = {c: _numeric(table.column(c)) for c in names}
-    t = numeric["t_ms"]
+    log = read_log_csv(data, path, "sensor log", ("t_ms",))
+    columns = log.columns
+    t = log.numbers("t_ms")
     bad_t = ~np.isfinite(t) | (t < 0)
     parts = []
     row_bad = bad_t.copy()
     implausible = np.zeros(len(t), dtype=bool)
-    column_bad: list[tuple[str, NDArray[np.bool_]]] = []  # rows each sensor column makes bad
+    unstorable_by_column: list[tuple[str, NDArray[np.bool_]]] = []
+    unphysical_by_column: list[tuple[str, NDArray[np.bool_]]] = []
     for stream, (prefix, bias) in STREAM_COLUMNS.items():
         cols = [f"{prefix}_{a}" for a in _AXES] + ([f"{bias}_{a}" for a in _AXES] if bias else [])
         present = [c for c in cols if c in columns]
@@ -427,85 +393,42 @@ def parse_sensor_csv(data: bytes, *, reference_ms: float, path: str = "<input>",
             raise SurveyFormatError(f"stream {stream} needs columns {cols}, missing "
                                     f"{sorted(set(cols) - set(present))}", path=path,
                                     reason="csv")
-        values = np.column_stack([numeric[c] for c in cols])
+        values = np.column_stack([log.numbers(c) for c in cols])
         # a row that leaves all of a stream's columns empty has no sample of it (streams
         # logged at their own rates, one event per row); one that fills them in part is bad
-        absent = np.column_stack([_missing(table.column(c)) for c in cols]).all(axis=1)
+        absent = np.column_stack([log.missing(c) for c in cols]).all(axis=1)
         # stored as float32: a value beyond its range would become infinite
         unstorable = ~absent[:, None] & ~(np.abs(values) < _FLOAT32_LIMIT)
         unphysical = ~absent[:, None] & (np.abs(values) > sensor_limit(stream)[0])
         row_bad |= unstorable.any(axis=1)
         implausible |= unphysical.any(axis=1)
-        column_bad.extend(zip(cols, (unstorable | unphysical).T))
+        unstorable_by_column.extend(zip(cols, unstorable.T))
+        unphysical_by_column.extend(zip(cols, unphysical.T))
         parts.append((stream, values, ~absent))
     if not parts:
         raise SurveyFormatError("sensor log has no sensor columns (e.g. acc_x, acc_y, acc_z)",
                                 path=path, reason="csv")
-    row_bad |= ~np.column_stack([has for _, _, has in parts]).any(axis=1)  # no sample at all
+    no_sample = ~np.column_stack([has for _, _, has in parts]).any(axis=1)
     # An accuracy, when given, is a whole number (a missing one means 3). Out of range: a time
     # beyond 2^53 ms, an accuracy beyond int8.
-    acc = numeric.get("accuracy")
+    acc = log.numbers("accuracy") if "accuracy" in columns else None
+    accuracy_bad = []
     if acc is not None:
-        not_whole = ~_missing(table.column("accuracy")) & ~(np.isfinite(acc)
-                                                            & (acc == np.round(acc)))
+        not_whole = ~log.missing("accuracy") & ~(np.isfinite(acc) & (acc == np.round(acc)))
+        accuracy_bad = [("accuracy", not_whole | (np.abs(acc) > 127))]
+        implausible |= np.abs(acc) > 127
         row_bad |= not_whole
-        column_bad.append(("accuracy", not_whole | (np.abs(acc) > 127)))
-    out_of_range = ~row_bad & ((t >= MAX_TIME_MS) | implausible)
-    if acc is not None:
-        out_of_range |= ~row_bad & (np.abs(acc) > 127)
-    # a row far in time from the walk's plan: a wrong clock or a stray row, as the trace
-    # reader's time_outlier; one row at time 0 made step detection ask for hundreds of GiB
-    timed = ~row_bad & ~out_of_range
-    time_outlier = timed & (np.abs(t - reference_ms) > MAX_FROM_MEDIAN_TIME_MS)
-    if timed.any() and (time_outlier == timed).all():
-        raise SurveyFormatError(
-            f"every row's t_ms is over {MAX_FROM_MEDIAN_TIME_MS // 3_600_000} h from the walk "
-            f"plan's vertex times (median {reference_ms:.0f} ms): the log and the plan are on "
-            "different clocks", path=path, reason="clock")
-    problems = {"non_numeric": (row_bad, "non-numeric, missing or non-finite value"),
-                "out_of_range": (out_of_range, "t_ms beyond 2^53 ms, accuracy beyond 127 or a "
-                                               "sensor value no phone reports (e.g. beyond "
-                                               "2000 m/s^2)"),
-                "time_outlier": (time_outlier, f"t_ms is over "
-                                               f"{MAX_FROM_MEDIAN_TIME_MS // 3_600_000} h from "
-                                               "the walk's time (a wrong clock or a stray "
-                                               "row)")}
-    any_bad = row_bad | out_of_range | time_outlier
-    column_bad.insert(0, ("t_ms", bad_t | (t >= MAX_TIME_MS) | time_outlier))
-
-    def _bad_column(i: int) -> str:
-        """The first column that makes row ``i`` bad, with its value, for its message."""
-        for c, bad_rows in column_bad:
-            if bad_rows[i]:
-                v = table.column(c)[i].as_py()
-                return f"column {c} ({'empty' if v in (None, '') else repr(v)})"
-        return "no sensor column filled"
-
-    if any_bad.any() or wrong_width:
-        line, skipped_line = _row_lines(data, table.num_rows,
-                                        [n or 0 for n, _, _ in wrong_width])
-        reason = np.select([row_bad, out_of_range], ["non_numeric", "out_of_range"],
-                           "time_outlier")
-        # the first 20 bad lines (for the messages) are among the first 20 of either kind
-        bad = sorted([(int(line[i]), f"{problems[reason[i]][1]}: {_bad_column(i)}",
-                       str(reason[i])) for i in np.flatnonzero(any_bad)[:20]]
-                     + [(int(at), f"{got} fields, the header has {want}", "field_count")
-                        for at, (_, got, want) in zip(skipped_line[:20], wrong_width)])
-        if strict:
-            at, message, reason = bad[0]
-            raise SurveyFormatError(message, path=path, line=at, reason=reason)
-        for reason, (mask, _) in problems.items():
-            if mask.any():
-                report.bad[reason] = int(mask.sum())
-        if wrong_width:
-            report.bad["field_count"] = len(wrong_width)
-        report.messages = [f"{path}:{at}: {message}" for at, message, _ in bad[:20]]
-    good = ~any_bad
-    if not good.any():  # nothing to store: a walk without sensors, refused as an empty trace
-        why = (f"none of its {table.num_rows + len(wrong_width)} rows is usable ("
-               + ", ".join(f"{k} {v}" for k, v in report.bad.items())
-               + f"; the first: {report.messages[0]})" if report.messages else "no rows")
-        raise SurveyFormatError(f"sensor log has no sample: {why}", path=path, reason="empty")
+    row_bad |= no_sample
+    beyond_t = t >= MAX_TIME_MS
+    checks = [RowCheck("non_numeric", "non-numeric, missing or non-finite value", row_bad,
+                       [("t_ms", bad_t), *unstorable_by_column, *accuracy_bad],
+                       otherwise="no sensor column filled"),
+              RowCheck("out_of_range", "t_ms beyond 2^53 ms, accuracy beyond 127 or a sensor "
+                       "value no phone reports (e.g. beyond 2000 m/s^2)",
+                       ~row_bad & (beyond_t | implausible),
+                       [("t_ms", beyond_t), *unphysical_by_column, *accuracy_bad])]
+    checks.append(time_check(log, t, ~row_bad & ~checks[1].rows, reference_ms))
+    good = good_rows(log, checks, report, strict=strict, row_name="SENSOR_ROW", unit="sample")
     accuracy_all = np.nan_to_num(acc if acc is not None else np.full(len(t), 3.0),
                                  nan=3.0)
     frames = []
@@ -532,8 +455,6 @@ def parse_sensor_csv(data: bytes, *, reference_ms: float, path: str = "<input>",
     sensors = sensors.astype({"x": "float32", "y": "float32", "z": "float32", "bx": "float32",
                               "by": "float32", "bz": "float32"})
     sensors = sensors.sort_values(["stream", "t_ms"], kind="stable").reset_index(drop=True)
-    # Each CSV row is a "line" holding several streams: count lines, not stream rows.
-    report.records = {"SENSOR_ROW": int(good.sum())}
     return Trace(trace_id=Path(path).stem, header=TraceHeader(), sensors=sensors,
                  wifi=empty_table(WIFI_COLUMNS, WIFI_DTYPES),
                  ble=empty_table(BLE_COLUMNS, BLE_DTYPES),

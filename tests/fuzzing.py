@@ -445,8 +445,9 @@ def table_problems(trace: Trace, *, walkline: bool = False) -> list[str]:
             p.append("order: wifi not sorted by (scan_t_ms, bssid) without repeats")
         if not all(_MAC.fullmatch(x) for x in w["bssid"]):
             p.append("wifi: bssid not normalized")
+        known = w["freq_mhz"] != 0 if walkline else True  # a walk-line log may omit it
         if not (((w["rssi_dbm"] >= lo) & (w["rssi_dbm"] <= hi)).all()
-                and ((w["freq_mhz"] >= 1) & (w["freq_mhz"] <= 100_000)).all()):
+                and ((w["freq_mhz"] >= 1) & (w["freq_mhz"] <= 100_000))[known].all()):
             p.append("range: wifi rssi/frequency")
         if not (w["age_ms"] == w["scan_t_ms"] - w["last_seen_ms"]).all():
             p.append("wifi: age_ms != scan_t_ms - last_seen_ms")
@@ -454,7 +455,8 @@ def table_problems(trace: Trace, *, walkline: bool = False) -> list[str]:
     if len(b["t_ms"]):
         if (np.diff(b["t_ms"]) < 0).any():
             p.append("order: ble not sorted by t_ms")
-        if not np.isfinite(b["distance_m"]).all():
+        if not (np.isfinite(b["distance_m"])  # a walk-line log may omit it: NaN
+                | (np.isnan(b["distance_m"]) if walkline else False)).all():
             p.append("non_finite: ble distance")
         if any(k != f"{u}:{ma}:{mi}" for k, u, ma, mi in zip(b["key"], b["uuid"], b["major"],
                                                             b["minor"])):
@@ -484,8 +486,12 @@ def table_problems(trace: Trace, *, walkline: bool = False) -> list[str]:
     n_s, n_w, n_b, n_wp = (len(arrays[k]["t_ms" if k != "wifi" else "scan_t_ms"])
                            for k in ("sensors", "wifi", "ble", "waypoints"))
     if walkline:
-        if set(r.bad) - {"non_numeric", "out_of_range", "field_count"}:
+        if set(r.bad) - {"non_numeric", "out_of_range", "field_count", "bad_bssid",
+                         "time_outlier"}:
             p.append(f"report: unexpected bad reasons {sorted(r.bad)}")
+        if (n_w + r.dropped.get("duplicate_bssid_in_scan", 0) != r.records.get("WIFI_ROW", 0)
+                or n_b + r.dropped.get("duplicate_beacon", 0) != r.records.get("BLE_ROW", 0)):
+            p.append("counts: wifi/ble rows + dropped != walk-line radio rows")
         if n_wp and (np.diff(wp["t_ms"]) <= 0).any():
             p.append("order: walk-line vertex times not strictly increasing")
         return p
@@ -729,7 +735,8 @@ PLAN = {
     "features": [
         {"type": "Feature",
          "geometry": {"type": "LineString", "coordinates": [[0, 0], [3, 0], [3, 4]]},
-         "properties": {"walk_id": "a", "sensor_log": "a.csv", "start_ms": 1_700_000_000_000,
+         "properties": {"walk_id": "a", "sensor_log": "a.csv", "wifi_log": "a.wifi.csv",
+                        "ble_log": "a.ble.csv", "start_ms": 1_700_000_000_000,
                         "end_ms": 1_700_000_007_000}},
         {"type": "Feature",
          "geometry": {"type": "LineString", "coordinates": [[0, 0], [0, 10.5]]},
@@ -757,6 +764,16 @@ def sensor_csv(columns: list[str], n: int = 25, seed: int = 1) -> bytes:
 
 CSV_A = sensor_csv(_CSV_A_COLS)
 CSV_B = sensor_csv(_CSV_B_COLS, seed=2)
+#: Walk a's radio logs (docs/walkline_format.md): two Wi-Fi scans, BLE sightings.
+WIFI_A = (b"t_ms,bssid,rssi_dbm,freq_mhz,ssid,last_seen_ms\n"
+          b"1700000001000,aa:bb:cc:00:00:01,-61,2412,mall,1700000000900\n"
+          b"1700000001000,AA-BB-CC-00-00-02,-75.4,5180,\"a,b\",1700000001000\n"
+          b"1700000001000,aabbcc000003,-88,,,\n"
+          b"1700000003000,aa:bb:cc:00:00:01,-58,2412,mall,1700000003000\n")
+BLE_A = (b"t_ms,uuid,major,minor,rssi_dbm,tx_power_dbm,distance_m,mac,last_seen_ms\n"
+         b"1700000001500,FDA50693-A4E2-4FB1-AFCF-C6EB07647825,10,1,-70,-59,2.5,"
+         b"AA:00:00:00:00:01,1700000001500\n"
+         b"1700000002500,fda50693-a4e2-4fb1-afcf-c6eb07647825,10,2,-81,,,,\n")
 PLAN_BYTES = json.dumps(PLAN, indent=1).encode()
 
 CSV_TOKENS = [b"", b"nan", b"NaN", b"inf", b"-inf", b"1e309", b"1e30", b"-1e30", b"3.5e38",
@@ -880,11 +897,21 @@ def check_walk_plan(folder: Path) -> list[str]:
 
 
 def write_walk_case(folder: Path, plan: bytes = PLAN_BYTES, csv_a: bytes = CSV_A,
-                    csv_b: bytes = CSV_B) -> None:
+                    csv_b: bytes = CSV_B, wifi_a: bytes = WIFI_A, ble_a: bytes = BLE_A) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "plan.geojson").write_bytes(plan)
-    (folder / "a.csv").write_bytes(csv_a)
-    (folder / "b.csv").write_bytes(csv_b)
+    for name, data in (("a.csv", csv_a), ("b.csv", csv_b), ("a.wifi.csv", wifi_a),
+                       ("a.ble.csv", ble_a)):
+        (folder / name).write_bytes(data)
+
+
+#: A saved CSV stands in for the log of its kind, by its name's ending.
+_CSV_ROLES = {".wifi.csv": "wifi_a", ".ble.csv": "ble_a", ".csv": "csv_a"}
+
+
+def csv_role(name: str) -> str:
+    """The :func:`write_walk_case` argument a saved CSV named ``name`` replays as."""
+    return next(role for end, role in _CSV_ROLES.items() if name.endswith(end))
 
 
 # ============================================================================================
@@ -928,7 +955,7 @@ def check_corrupt_file(path: Path, workdir: Path) -> list[str]:
         write_walk_case(workdir / "plan", plan=path.read_bytes())
         return check_walk_plan(workdir / "plan")
     if name.endswith(".csv"):
-        write_walk_case(workdir / "csv", csv_a=path.read_bytes())
+        write_walk_case(workdir / "csv", **{csv_role(name): path.read_bytes()})
         return check_walk_plan(workdir / "csv")
     if name.endswith((".txt", ".txt.gz")):
         # read alone and batched (iter_traces) before a file with bad lines
@@ -981,9 +1008,14 @@ def minimize(data: bytes, fails: Callable[[bytes], bool], *, budget: int = 200) 
     return data
 
 
+#: A saved input's file name ending, by kind.
+_EXTENSIONS = {"txt": ".txt", "gz": ".txt.gz", "plan": ".geojson", "csv": ".csv",
+               "wifi.csv": ".wifi.csv", "ble.csv": ".ble.csv"}
+
+
 @dataclass
 class Failure:
-    kind: str  # "txt", "gz", "plan", "csv"
+    kind: str  # "txt", "gz", "plan", "csv", "wifi.csv", "ble.csv"
     data: bytes
     problems: list[str]
     seed: int
@@ -995,13 +1027,12 @@ class Failure:
     def filename(self) -> str:
         sig = re.sub(r"[^a-z0-9]+", "-", self.signature.lower()).strip("-")[:40]
         digest = hashlib.sha256(self.data).hexdigest()[:10]
-        ext = {"txt": ".txt", "gz": ".txt.gz", "plan": ".geojson", "csv": ".csv"}[self.kind]
-        return f"{self.kind}-{sig}-{digest}{ext}"
+        return f"{self.kind.split('.')[0]}-{sig}-{digest}{_EXTENSIONS[self.kind]}"
 
 
 def replay_check(kind: str, workdir: Path) -> Callable[[bytes], list[str]]:
     """The check a saved input of this kind is replayed with (see :func:`check_corrupt_file`)."""
-    ext = {"txt": ".txt", "gz": ".txt.gz", "plan": ".geojson", "csv": ".csv"}[kind]
+    ext = _EXTENSIONS[kind]
 
     def check(data: bytes) -> list[str]:
         workdir.mkdir(parents=True, exist_ok=True)
@@ -1147,9 +1178,12 @@ def run_fuzz(seed: int, workdir: Path, *, texts: int = 0, gz_cases: int = 0,
         if rng.random() < 0.5:
             kind, data = "plan", mutate_plan(rng)
             write_walk_case(walk_dir, plan=data)
-        else:
-            kind, data = "csv", mutate_csv(rng.choice([CSV_A, CSV_B]), rng)
-            write_walk_case(walk_dir, csv_a=data)
+        else:  # a sensor CSV stands in as a.csv, a radio log as walk a's
+            role, seed = rng.choice([("csv_a", CSV_A), ("csv_a", CSV_B), ("wifi_a", WIFI_A),
+                                     ("ble_a", BLE_A)])
+            kind, data = {"csv_a": "csv", "wifi_a": "wifi.csv", "ble_a": "ble.csv"}[role], \
+                mutate_csv(seed, rng)
+            write_walk_case(walk_dir, **{role: data})
         stats.tried["walkline"] += 1
         problems = check_walk_plan(walk_dir)
         if problems:
