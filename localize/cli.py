@@ -185,7 +185,8 @@ def _params(particles: int | None):
 @click.option("-o", "--out", "out", required=True, type=click.Path(file_okay=False,
                                                                    path_type=Path),
               help="Output folder: <trace_id>.parquet|csv and <trace_id>.png per walk "
-                   "(<trace_id>.smoothed.* with --smooth).")
+                   "(<trace_id>.smoothed.* with --smooth; an id that is no safe file name, "
+                   "such as a/b, is made one and given 8 hex digits of its hash).")
 @click.option("--method", default="auto", show_default=True,
               type=click.Choice(list(METHODS)),
               help="auto: the particle filter (indoormap), guided by the walk alignment, on "
@@ -225,6 +226,7 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
         raise click.BadParameter(f"--smooth needs a method that can locate a walk offline "
                                  f"({', '.join(SMOOTHABLE)}), not {method}")
     from survey.step_summaries import waypoints_of
+    from survey.store import file_stem
 
     start_opt = _parse_start(start)
     refuse_output_inside_data(out)
@@ -238,7 +240,7 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
 
     def one(where: str, trace: Trace) -> None:
         seen.claim(trace.trace_id, where)
-        name = f"{trace.trace_id}.smoothed" if smooth else trace.trace_id
+        name = file_stem(trace.trace_id) + (".smoothed" if smooth else "")
         target = out / f"{name}.{fmt}"
         png = out / f"{name}.png"
         # the walk's outputs of any run (either format, the plot): all are replaced, so

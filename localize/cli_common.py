@@ -70,18 +70,16 @@ class AliasedOption(click.Option):
         return self._current_only(super().get_error_hint, ctx)
 
 
-def trace_files(paths: tuple[str, ...], failures: WalkFailures, *,
-                walk_plans: bool = True) -> list[Path]:
+def trace_files(paths: tuple[str, ...], failures: WalkFailures) -> list[Path]:
     """The trace files (``.txt``, ``.txt.gz``) and walk plans (``.geojson``, indoormap's
     walk-line format) given or inside the given folders, as ``indoormap ingest`` finds them.
     A path that does not exist is reported to ``failures`` as a walk that failed, and the
-    others go on. Without ``walk_plans`` (commands that need a walk's radio scans, which
-    walk-line logs do not carry) the plans found in folders are left out with a note.
+    others go on.
 
     Raises
     ------
     click.UsageError
-        None found, and no path was missing; a walk plan named when ``walk_plans`` is false.
+        None found, and no path was missing.
     """
     from survey.ingest import find_inputs
 
@@ -92,19 +90,10 @@ def trace_files(paths: tuple[str, ...], failures: WalkFailures, *,
         else:
             failures.missing(p)
     traces, plans = find_inputs(present)
-    if plans and not walk_plans:
-        named = [p for p in present if Path(p).is_file() and str(p).endswith(".geojson")]
-        if named:
-            raise click.UsageError(f"{named[0]}: a walk plan's logs carry no Wi-Fi or BLE "
-                                   "scans; this command takes trace files (.txt, .txt.gz)")
-        click.echo(f"note: {len(plans)} walk plan(s) in the folders left out: their logs "
-                   "carry no Wi-Fi or BLE scans", err=True)
-        plans = []
     files = traces + plans  # in ingest's order: one trace id, the same walk kept
     if not files and not failures.count:
-        raise click.UsageError("no trace files (.txt, .txt.gz)"
-                               + (" or walk plans (.geojson)" if walk_plans else "")
-                               + " found in the given paths")
+        raise click.UsageError("no trace files (.txt, .txt.gz) or walk plans (.geojson) "
+                               "found in the given paths")
     unique: dict[Path, Path] = {}
     for f in files:  # one file named twice (relative and absolute, or a folder and a file)
         unique.setdefault(f.resolve(), f)
@@ -180,8 +169,12 @@ def read_walks(path: Path) -> list[tuple[str, Callable[[], Trace]]]:
         logs = walk.log_bytes()  # not its identity: ingest's, to hash
         return _checked_walk(walk.parse(logs), Path(logs.source))
 
-    return [(f"{path} (walk {walk.walk_id})", lambda walk=walk: read(walk))
-            for walk in plan_walks(path)]
+    walks = plan_walks(path)
+    ids = [walk.walk_id for walk in walks]
+    # a walk id twice in one plan: each is told apart by its feature (the second is refused)
+    return [(f"{path} (walk {walk.walk_id}"
+             + (f", feature {k})" if ids.count(walk.walk_id) > 1 else ")"),
+             lambda walk=walk: read(walk)) for k, walk in enumerate(walks)]
 
 
 def read_walk(path: Path) -> Trace:

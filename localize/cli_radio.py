@@ -4,7 +4,7 @@ Both print CSV on standard output, each walk's rows as soon as the walk is throu
 and notes on standard error); a walk that fails (unreadable, of another site, or without a
 result: no scan of the kind, or none that hears a transmitter the maps know) prints no rows and
 is reported with its file and reason, the others go on, and the exit code is then 1. Walks
-are trace files (walk plans are left out: their logs carry no Wi-Fi or BLE):
+are trace files or the walks of walk plans (their Wi-Fi and BLE logs):
 
 - ``floor SITE_BUNDLE WALK...``: per scan ``level=scan`` rows (floor of the scan alone and of the
   last ``--window`` scans) and one ``level=walk`` row per walk (all its scans), with the floor
@@ -208,7 +208,7 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
             click.echo(f"{trace.trace_id}: floor {walk_floor} from {int(ok.sum())} BLE windows "
                        f"({why})", err=True)
 
-    total = each_walk(trace_files(walks, failures, walk_plans=False), failures, one)
+    total = each_walk(trace_files(walks, failures), failures, one)
     if scan_rows:
         right = sum(bool(r["recorded_floor"]) and r["floor"] == r["recorded_floor"]
                     for r in scan_rows)
@@ -273,7 +273,7 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
                                      param_hint="--calibration") from err
     failures = WalkFailures()
     # a mistyped path is said before the bundles load
-    files = trace_files(walks, failures, walk_plans=False)
+    files = trace_files(walks, failures)
     maps = SiteMaps.open(bundle_path)
     floors_said, in_build = FloorChoices(), SeenWalks()
     out = _CsvRows(["trace_id", "floor", "t_ms", "n_known", "x_m", "y_m", "sigma_m", "error_m",

@@ -406,35 +406,10 @@ def test_localize_refuses_to_write_into_a_bundle_or_a_store(truth_bundles, tmp_p
 
 
 def _as_walk_plan(trace_path, folder):
-    """A trace file written as indoormap's walk-line format: its sensor events one per CSV row
-    (float32 values written exactly), its waypoints as the plan's vertices at their times."""
-    import json
+    """A trace file written as indoormap's walk-line format (``folder`` is created)."""
+    from survey.walkline_writer import write_walk_plan
 
-    from survey.walkline import STREAM_COLUMNS
-
-    trace = read_trace(trace_path)
-    groups = [(stream, [f"{v}_{a}" for v in (value, bias) if v for a in "xyz"])
-              for stream, (value, bias) in STREAM_COLUMNS.items()]
-    header = ["t_ms", *(c for _, cols in groups for c in cols), "accuracy"]
-    lines = [",".join(header)]
-    for row in trace.sensors.itertuples(index=False):
-        cells = dict.fromkeys(header, "")
-        cells["t_ms"], cells["accuracy"] = str(row.t_ms), str(row.accuracy)
-        cols = dict(groups)[row.stream]
-        for c, v in zip(cols, (row.x, row.y, row.z, row.bx, row.by, row.bz)):
-            cells[c] = repr(float(v))
-        lines.append(",".join(cells[c] for c in header))
-    (folder / "walk.csv").write_text("\n".join(lines) + "\n")
-    h, wp = trace.header, trace.waypoints
-    plan = {"type": "FeatureCollection",
-            "properties": {"site_id": h.site_id, "floor_id": h.floor_id,
-                           "floor_name": h.floor_name, "device_model": h.model},
-            "features": [{"type": "Feature", "geometry": {
-                "type": "LineString", "coordinates": wp[["x_m", "y_m"]].to_numpy().tolist()},
-                "properties": {"walk_id": trace.trace_id, "sensor_log": "walk.csv",
-                               "vertex_times_ms": wp["t_ms"].tolist()}}]}
-    (folder / "plan.geojson").write_text(json.dumps(plan))
-    return folder / "plan.geojson"
+    return write_walk_plan(folder, [read_trace(trace_path)])
 
 
 def test_walk_plans_are_walks_to_localize_and_evaluate(truth_bundles, tmp_path):  # noqa: F811
@@ -442,7 +417,6 @@ def test_walk_plans_are_walks_to_localize_and_evaluate(truth_bundles, tmp_path):
     take) is localized and scored like the trace it was written from; before, ``localize``
     and ``evaluate`` found no trace file in it."""
     walk = min(F1_WALKS.glob("*.txt.gz"))
-    (tmp_path / "plan").mkdir()
     plan = _as_walk_plan(walk, tmp_path / "plan")
     bundles = str(truth_bundles["F1"].parent)
     tracks = {}
@@ -485,15 +459,46 @@ def test_walk_plans_are_walks_to_localize_and_evaluate(truth_bundles, tmp_path):
     assert f"{plan} (walk shifted)" in two.output
     assert f"{plan} (walk lost)" in two.output and "sensor log 'gone.csv' not" in two.output
     assert (tmp_path / "two" / f"{walk.name.split('.')[0]}.parquet").is_file()
-    # wifi-locate and floor need scans, which walk-line logs do not carry: plans in a folder
-    # are left out with a note (each walk failed, "no wifi scans"), one named is a usage
-    # error
-    named = CliRunner().invoke(main, ["wifi-locate", bundles, str(plan)])
-    assert named.exit_code == 2 and "a walk plan's logs carry no Wi-Fi or BLE" in named.output
-    (tmp_path / "plan" / "trace.txt.gz").write_bytes(walk.read_bytes())
-    folder = CliRunner().invoke(main, ["wifi-locate", bundles, str(tmp_path / "plan")])
-    assert "note: 1 walk plan(s) in the folders left out" in folder.output
-    assert "1 failure(s) in 1 walk(s)" in folder.output  # the trace: no fingerprints here
+
+
+def test_walk_ids_that_are_no_file_names_or_repeat_stay_in_the_output_folder(
+        truth_bundles, tmp_path):  # noqa: F811
+    """A walk plan's ids name localize's output files: ``../../escape`` wrote two folders
+    above ``-o`` and ``line 7/a`` made a subfolder; an id given twice in one plan ran twice,
+    the second track replacing the first's (exit 0). Now the ids are made safe names and
+    the second walk of an id is refused, named by its feature."""
+    import json
+
+    walk = min(F1_WALKS.glob("*.txt.gz"))
+    plan = _as_walk_plan(walk, tmp_path / "plan")
+    doc = json.loads(plan.read_text())
+    feature = doc["features"][0]
+    doc["features"] = [json.loads(json.dumps(feature)) for _ in range(4)]
+    for f, walk_id in zip(doc["features"], ["../../escape", "line 7/a", "twice", "twice"]):
+        f["properties"]["walk_id"] = walk_id
+    plan.write_text(json.dumps(doc))
+    out = tmp_path / "deep" / "er" / "out"
+    res = CliRunner().invoke(main, ["localize", str(truth_bundles["F1"]), str(plan), "-o",
+                                    str(out), "--method", "pdr", "--start", "waypoint",
+                                    "--format", "csv"])
+    assert res.exit_code == 1, res.output
+    assert f"{plan} (walk twice, feature 3): trace id twice is also {plan} (walk twice, " \
+        "feature 2)'s in this run" in res.output
+    written = sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*.csv")
+                     if "plan" not in p.parts)
+    assert written == ["deep/er/out/_._.._escape-" + _sha8("../../escape") + ".csv",
+                       "deep/er/out/line_7_a-" + _sha8("line 7/a") + ".csv",
+                       "deep/er/out/twice.csv"]
+    assert sorted(p.name for p in out.glob("*.png")) == [w.replace(".csv", ".png") for w in
+                                                          (p.rsplit("/", 1)[1] for p in written)]
+    track = pd.read_csv(out / f"line_7_a-{_sha8('line 7/a')}.csv")
+    assert set(track["trace_id"]) == {"line 7/a"}  # the table keeps the walk's own id
+
+
+def _sha8(text: str) -> str:
+    import hashlib
+
+    return hashlib.sha256(text.encode()).hexdigest()[:8]
 
 
 def test_a_walk_without_magnetometer_is_localized_by_auto_with_the_alignment(
@@ -560,7 +565,6 @@ def test_a_trace_and_a_walk_plan_with_one_id_keep_the_trace_as_ingest_does(
 
     walk = min(F1_WALKS.glob("*.txt.gz"))
     other = sorted(F1_WALKS.glob("*.txt.gz"))[1]
-    (tmp_path / "a_plan").mkdir()
     plan = _as_walk_plan(other, tmp_path / "a_plan")  # the other walk, under walk's id
     doc = json.loads(plan.read_text())
     tid = walk.name.split(".")[0]

@@ -68,6 +68,17 @@ def test_a_floor_built_from_walk_lines_has_the_traces_maps_and_fingerprints(tmp_
                                   "-o", str(tmp_path / "loc"), "--no-plot"])
     assert result.exit_code == 0, result.output
     assert re.search(rf"{first}: \d+ steps .* start first Wi-Fi fix", result.output)
+    # wifi-locate and floor take the plan's walks too (they left plans out: no scans), and
+    # print for them what they print for the trace files
+    for command in (["wifi-locate", str(b)], ["floor", str(tmp_path / "lines" / "_site")]):
+        csv, status = {}, {}
+        for name, walks in (("traces", str(SITE / "F1" / "path_data_files")),
+                            ("lines", str(plan))):
+            result = runner.invoke(main, [*command, walks])
+            csv[name], status[name] = sorted(result.stdout.splitlines()), result.exit_code
+        # (floor: the walk without Wi-Fi has no floor on a site of one floor, either way)
+        assert len(csv["lines"]) > 100 and csv["lines"] == csv["traces"]
+        assert status["lines"] == status["traces"] == (command[0] == "floor")
 
 
 def _wifi(rows: list[str], header: str = "t_ms,bssid,rssi_dbm,freq_mhz,ssid,last_seen_ms",
