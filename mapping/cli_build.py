@@ -168,13 +168,16 @@ def check_floor_bundle_name(name: str, what: str) -> None:
 
 def ingested_from(catalog: pd.DataFrame, summary: IngestSummary, folder: Path
                   ) -> pd.DataFrame:
-    """Catalog rows of the walks an ingest read (or found already stored) under ``folder``.
+    """Catalog rows of the walks an ingest read (or found already stored) under ``folder``:
+    trace files, and walk plans' walks by their plan (their logs may lie elsewhere,
+    ``../logs/x.csv``).
 
     Paths are compared as found, not resolved: a folder of symbolic links to traces elsewhere
     (a subset of a survey, say) holds those traces."""
     root = Path(os.path.abspath(folder))
     ids = {o.trace_id for o in summary.outcomes
-           if o.status != "failed" and Path(os.path.abspath(o.path)).is_relative_to(root)}
+           if o.status != "failed"
+           and Path(os.path.abspath(o.plan or o.path)).is_relative_to(root)}
     return catalog[catalog["trace_id"].isin(ids)]
 
 

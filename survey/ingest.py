@@ -289,6 +289,7 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
                 tick()
                 continue
             floor = floor_of(plan)
+            first = len(summary.outcomes)
             for walk in walks:
                 try:  # one walk at a time: a missing or bad log fails its walk alone
                     logs = walk.log_bytes()
@@ -311,6 +312,8 @@ def _ingest_files(store: SurveyStore, trace_files: list[Path], plans: list[Path]
                     continue
                 summary.outcomes.append(_parse_walk(w, summary, walk, logs, sha,
                                                     len(identity), floor, strict))
+            for outcome in summary.outcomes[first:]:
+                outcome.plan = str(plan)
             tick()
         # to a fixed point: ingesting one can make another's original go (walks renumbered:
         # w2 -> w1, w3 -> w2, ...)

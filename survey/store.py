@@ -262,6 +262,7 @@ class IngestOutcome:
     trace_id: str
     status: str  # "new", "changed", "repaired", "unchanged", "duplicate", "failed"
     detail: str = ""
+    plan: str = ""  #: a walk plan's walk: the plan file, as found (``path`` is its log's)
 
 
 def _write_meta(root: Path) -> None:

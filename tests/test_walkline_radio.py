@@ -230,3 +230,25 @@ def test_a_walk_without_radio_logs_keeps_the_identity_it_had(tmp_path):
     assert walk.identity(logs) == (json.dumps(feature, sort_keys=True).encode() + b"\n"
                                    + logs.files["sensor_log"][1])
     assert np.array_equal(walk.parse(logs).waypoints["x_m"], trace.waypoints["x_m"])
+
+
+def test_a_plan_whose_logs_lie_outside_its_folder_builds_from_that_folder(tmp_path):
+    """``build survey/plans --plan ...`` of a plan naming ``../logs/x.csv``: ingest read
+    every walk, and build found none of them "from" the folder (it looked where the logs
+    were), so it said "no readable walks" (or, with --floor, "every processed walk is
+    excluded")."""
+    survey = tmp_path / "survey"
+    plan = write_walk_plan(survey, _traces())
+    (survey / "plans").mkdir()
+    data = json.loads(plan.read_text())
+    for f in data["features"]:
+        for prop in ("sensor_log", "wifi_log", "ble_log"):
+            if prop in f["properties"]:
+                f["properties"][prop] = "../" + f["properties"][prop]
+    (survey / "plans" / "F1.geojson").write_text(json.dumps(data))
+    plan.unlink()
+    result = CliRunner().invoke(main, ["build", str(survey / "plans"), "--plan",
+                                       str(SITE / "F1" / "geojson_map.json"),
+                                       "-o", str(tmp_path / "out")])
+    assert result.exit_code == 0, result.output
+    assert "F1: 6 walks" in result.output
