@@ -21,6 +21,7 @@ import numpy as np
 
 from localize.bundle import MapBundle
 from localize.errors import LocalizationError
+from localize.names import floor_key
 from localize.steps import RadioScan, StepSummaries
 
 __all__ = ["FloorModel", "SiteMaps", "check_walk_fits", "unknown_phone_calibration"]
@@ -103,6 +104,11 @@ class SiteMaps:
         """The bundle of a floor named as the floor models name them (the floor name the
         survey recorded, else the floor id); None when there is none."""
         return self._by_name.get(floor) or self.bundles.get(floor)
+
+    def _named(self, floor_name: str) -> MapBundle | None:
+        """The bundle of the floor a walk names, by name or by the name's store key (a
+        walk of ``Level 1`` was built into the bundle of ``Level_1``)."""
+        return self._by_name.get(floor_name) or self._by_name.get(floor_key(floor_name))
 
     @property
     def ble_window_ms(self) -> int:
@@ -267,8 +273,7 @@ class SiteMaps:
                     f"the bundles given hold only floor {given}: give the folder of the site's "
                     "bundles (what `indoormap build` writes) to localize walks of every floor"
                     if len(self._by_name) == 1 else f"bundles exist for floors {given}"))
-        if floor_name and floor_name in self._by_name:
-            found = self._by_name[floor_name]
+        if floor_name and (found := self._named(floor_name)):
             return found, "floor name in the trace header" + self._wifi_doubt(
                 found, wifi_scans, device_model)
         missing = []

@@ -26,7 +26,7 @@ from survey.publish import (
 )
 from survey.process_store import walks_per_site
 from survey.regular_files import read_regular
-from survey.store import floor_key
+from localize.names import floor_key
 from survey.trace_format import bad_lines_summary
 
 from .build import ON_PLAN_M, BuildError, BuildParams, build_floor
@@ -437,7 +437,8 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
         inputs = [f / "path_data_files" for f in floors]
         floor_names = {folder: f.name for f, folder in zip(floors, inputs)}
         read_from = {f: read_floor_plan(f) for f in floors}  # a bad plan fails before the work
-        plans = {f.name: plan for f, plan in read_from.items()}
+        # by the store's key of the floor: a folder "Level 1" holds walks of "Level_1"
+        plans = {floor_key(f.name): plan for f, plan in read_from.items()}
     else:
         if floor_name is not None:
             check_floor_bundle_name(floor_name, "--floor")
@@ -449,7 +450,7 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
                        f"{plan.floor_name}; building it as floor {floor_name} (--floor)",
                        err=True)
         read_from = {plan_file: plan}
-        plans = {floor_name: plan} if floor_name is not None else {}
+        plans = {floor_key(floor_name): plan} if floor_name is not None else {}
     for plan_read in read_from.values():
         for repair in plan_read.repairs:
             click.echo(f"warning: {repair}", err=True)

@@ -20,7 +20,6 @@ import contextlib
 import hashlib
 import json
 import os
-import re
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,6 +30,8 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
+
+from localize.names import floor_key, safe_component
 
 from .errors import StoreError
 
@@ -68,27 +69,15 @@ CATALOG_COLUMNS = {
 }
 
 
-def _safe_component(value: str | None, fallback: str) -> str:
-    """A partition value usable as a folder name (``[A-Za-z0-9_.-]``, not starting with a dot)."""
-    text = re.sub(r"[^A-Za-z0-9_.-]", "_", (value or "").strip()) or fallback
-    return (("_" + text[1:]) if text.startswith(".") else text)[:80]
-
-
 def file_stem(trace_id: str) -> str:
     """A file name for a walk's output (``localize -o``): its trace id when that is a safe
     name (``[A-Za-z0-9_.-]``, at most 80 characters, not starting with a dot), else the id
     made one plus 8 hex digits of its sha256, so that ``../x`` or ``a/b`` stays in the output
     folder and two ids made alike (``a/b``, ``a_b``) do not share a file."""
-    safe = _safe_component(trace_id, "trace")
+    safe = safe_component(trace_id, "trace")
     if safe == trace_id:
         return safe
     return f"{safe[:71]}-{hashlib.sha256(trace_id.encode()).hexdigest()[:8]}"
-
-
-def floor_key(floor: str | None) -> str:
-    """The store's ``floor`` key of a walk of this floor name or id (None or empty:
-    ``unknown_floor``)."""
-    return _safe_component(floor, "unknown_floor")
 
 
 def remove_empty_folders(base: Path) -> None:
@@ -104,7 +93,7 @@ def part_path(table: str, site: str, floor: str, trace_id: str, sha256: str) -> 
     name (``[A-Za-z0-9_.-]``, at most 80 characters; the content hash keeps it apart from
     others): a walk plan's ``walk_id`` or a long file name cannot leave the store or exceed
     the file system's name limit."""
-    name = _safe_component(trace_id, "trace")
+    name = safe_component(trace_id, "trace")
     return f"{table}/site={site}/floor={floor}/{name}-{sha256[:12]}.parquet"
 
 
@@ -119,7 +108,7 @@ def catalog_row(trace: Trace, *, source_path: str, sha256: str, size_bytes: int,
     return {
         "trace_id": trace.trace_id, "source_path": source_path, "sha256": sha256,
         "size_bytes": size_bytes, "source_format": source_format,
-        "site": _safe_component(h.site_id, "unknown_site"),
+        "site": safe_component(h.site_id, "unknown_site"),
         "floor": floor_key(h.floor_name or h.floor_id or floor_default),
         "site_id": h.site_id or "", "site_name": h.site_name or "",
         "floor_id": h.floor_id or "", "floor_name": h.floor_name or "",

@@ -252,3 +252,30 @@ def test_a_plan_whose_logs_lie_outside_its_folder_builds_from_that_folder(tmp_pa
                                        "-o", str(tmp_path / "out")])
     assert result.exit_code == 0, result.output
     assert "F1: 6 walks" in result.output
+
+
+def test_a_site_whose_floors_are_named_with_spaces_builds_and_localizes(tmp_path):
+    """Walks recording floor "Level 1" in a floor folder "Level 1": the site build refused
+    the folder ("its walks are recorded as floor Level_1, not Level 1"), and renamed, the
+    bundles of Level_1 did not take a walk naming "Level 1" ("the walk names no floor")."""
+    import shutil
+
+    site = tmp_path / "site"
+    for floor, name in (("F1", "Level 1"), ("F2", "Level 2")):
+        (site / name).mkdir(parents=True)
+        for f in ("floor_info.json", "geojson_map.json"):
+            shutil.copy(SITE / floor / f, site / name / f)
+        traces = _traces(floor)[:3]
+        for t in traces:
+            t.header.floor_name, t.header.floor_id = name, None
+        write_walk_plan(site / name / "path_data_files", traces)
+    runner = CliRunner()
+    built = runner.invoke(main, ["build", str(site), "-o", str(tmp_path / "out")])
+    assert built.exit_code == 0, built.output
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["Level_1", "Level_2",
+                                                                    "_site"]
+    result = runner.invoke(main, ["localize", str(tmp_path / "out"),
+                                  str(site / "Level 2" / "path_data_files"), "-o",
+                                  str(tmp_path / "loc"), "--no-plot"])
+    assert result.exit_code == 0, result.output
+    assert result.output.count("(Level_2) by auto") == 3
