@@ -226,7 +226,7 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
         raise click.BadParameter(f"--smooth needs a method that can locate a walk offline "
                                  f"({', '.join(SMOOTHABLE)}), not {method}")
     from survey.step_summaries import waypoints_of
-    from survey.store import file_stem
+    from localize.names import file_stem
 
     start_opt = _parse_start(start)
     refuse_output_inside_data(out)

@@ -31,6 +31,7 @@ from localize.cli_common import (FloorChoices, SeenWalks, TraceIds, WalkFailures
                                   each_walk, trace_files)
 from localize.errors import LocalizationError
 from localize.floors import ble_window_ms, device_table
+from localize.names import floor_key
 from localize.rssi_calibration import checked_rssi_calibration
 
 if TYPE_CHECKING:
@@ -210,7 +211,8 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
 
     total = each_walk(trace_files(walks, failures), failures, one)
     if scan_rows:
-        right = sum(bool(r["recorded_floor"]) and r["floor"] == r["recorded_floor"]
+        right = sum(bool(r["recorded_floor"])  # "Level 1" is the floor Level_1
+                    and r["floor"] in (r["recorded_floor"], floor_key(r["recorded_floor"]))
                     for r in scan_rows)
         ble = sum(r["kind"] == "ble" for r in scan_rows)
         click.echo(f"{len(scan_rows)} scans" + (f" ({ble} of them BLE windows)" if ble else "")

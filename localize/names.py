@@ -5,6 +5,7 @@ no pandas."""
 
 from __future__ import annotations
 
+import hashlib
 import re
 
 
@@ -19,3 +20,14 @@ def floor_key(floor: str | None) -> str:
     """The store's ``floor`` key of a walk of this floor name or id (None or empty:
     ``unknown_floor``)."""
     return safe_component(floor, "unknown_floor")
+
+
+def file_stem(trace_id: str) -> str:
+    """A file name for a walk's output (``localize -o``): its trace id when that is a safe
+    name (``[A-Za-z0-9_.-]``, at most 80 characters, not starting with a dot), else the id
+    made one plus 8 hex digits of its sha256, so that ``../x`` or ``a/b`` stays in the output
+    folder and two ids made alike (``a/b``, ``a_b``) do not share a file."""
+    safe = safe_component(trace_id, "trace")
+    if safe == trace_id:
+        return safe
+    return f"{safe[:71]}-{hashlib.sha256(trace_id.encode()).hexdigest()[:8]}"

@@ -69,17 +69,6 @@ CATALOG_COLUMNS = {
 }
 
 
-def file_stem(trace_id: str) -> str:
-    """A file name for a walk's output (``localize -o``): its trace id when that is a safe
-    name (``[A-Za-z0-9_.-]``, at most 80 characters, not starting with a dot), else the id
-    made one plus 8 hex digits of its sha256, so that ``../x`` or ``a/b`` stays in the output
-    folder and two ids made alike (``a/b``, ``a_b``) do not share a file."""
-    safe = safe_component(trace_id, "trace")
-    if safe == trace_id:
-        return safe
-    return f"{safe[:71]}-{hashlib.sha256(trace_id.encode()).hexdigest()[:8]}"
-
-
 def remove_empty_folders(base: Path) -> None:
     """Remove the folders under ``base`` left empty (partitions whose part files went),
     deepest first; a folder that still holds anything stays."""

@@ -10,7 +10,7 @@ column         required  meaning
 t_ms           yes       scan time (Unix ms)
 bssid          yes       the access point's MAC address (``aa:bb:..``, ``AA-BB-..``, 12 hex)
 rssi_dbm       yes       received strength (dBm, within [-127, 0]; rounded to whole dBm)
-freq_mhz       no        channel frequency (MHz); 0 in the store when absent (unknown)
+freq_mhz       no        channel frequency (MHz); 0 in the store when absent or 0 (unknown)
 ssid           no        network name
 last_seen_ms   no        when the phone last heard it (Unix ms); the scan time when absent
 =============  ========  ===========================================================
@@ -103,15 +103,18 @@ def _texts(log: LogTable, name: str) -> pa.Array:
 
 
 def _checks(log: LogTable, numbers: _Numbers, t_ms: NDArray[np.float64],
-            refused: list[tuple[str, str, NDArray[np.bool_]]],
+            seen_ms: NDArray[np.float64], refused: list[tuple[str, str, NDArray[np.bool_]]],
             columns: list[list[tuple[str, NDArray[np.bool_]]]],
             reference_ms: float) -> list[RowCheck]:
     """The rows of a radio log refused: numbers, then the trace reader's checks
     (``refused``; ``columns``, per check, the rows each column makes bad), then the time."""
     not_numbers = numbers.rows()
     checks = [RowCheck("non_numeric", _NOT_A_NUMBER, not_numbers, numbers.bad)]
-    beyond = ~not_numbers & (t_ms >= MAX_TIME_MS)
-    checks.append(RowCheck("out_of_range", "t_ms beyond 2^53 ms", beyond, [("t_ms", beyond)]))
+    late = ~not_numbers & (t_ms >= MAX_TIME_MS)
+    seen = ~not_numbers & ~((seen_ms >= 0) & (seen_ms < MAX_TIME_MS))
+    beyond = late | seen
+    checks.append(RowCheck("out_of_range", "a time outside [0, 2^53) ms", beyond,
+                           [("t_ms", late), ("last_seen_ms", seen)]))
     taken = not_numbers | beyond
     for (reason, detail, rows), named in zip(refused, columns):
         rows = rows & ~taken
@@ -141,14 +144,15 @@ def parse_wifi_csv(data: bytes, *, reference_ms: float, report: ParseReport,
     rssi = np.round(numbers.take("rssi_dbm", whole=False))
     freq = numbers.take("freq_mhz", default=0.0)
     seen = numbers.take("last_seen_ms", default=np.nan_to_num(t))
-    given_freq = ~log.missing("freq_mhz") if "freq_mhz" in log.columns else \
+    # absent, empty or 0 (what the store keeps for unknown): unknown, not refused
+    given_freq = (~log.missing("freq_mhz") & (freq != 0)) if "freq_mhz" in log.columns else \
         np.zeros(log.n_rows, dtype=bool)
     cols = {"t_ms": t, "rssi_dbm": rssi, "last_seen_ms": seen, "bssid": log.texts("bssid"),
-            "freq_mhz": np.where(given_freq, freq, 1.0)}  # absent: unknown, not refused
+            "freq_mhz": np.where(given_freq, freq, 1.0)}
     bssid, refused = wifi_row_checks(cols)
     columns = [[(c, rows)] for c, (_, _, rows)
                in zip(("bssid", "rssi_dbm", "freq_mhz", "last_seen_ms"), refused)]
-    checks = _checks(log, numbers, t, refused, columns, reference_ms)
+    checks = _checks(log, numbers, t, seen, refused, columns, reference_ms)
     good = good_rows(log, checks, report, strict=strict, row_name="WIFI_ROW", empty_ok=True)
     if not good.any():
         return empty_table(WIFI_COLUMNS, WIFI_DTYPES)
@@ -189,7 +193,7 @@ def parse_ble_csv(data: bytes, *, reference_ms: float, report: ParseReport,
     columns = [[("rssi_dbm", refused[0][2])],
                [(c, ~((cols[c] >= 0) & (cols[c] < 2**16))) for c in ("major", "minor")]
                + [("tx_power_dbm", refused[1][2])]]
-    checks = _checks(log, numbers, t, refused, columns, reference_ms)
+    checks = _checks(log, numbers, t, cols["last_seen_ms"], refused, columns, reference_ms)
     good = good_rows(log, checks, report, strict=strict, row_name="BLE_ROW", empty_ok=True)
     if not good.any():
         return empty_table(BLE_COLUMNS, BLE_DTYPES)

@@ -18,6 +18,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from localize.names import file_stem
+
 from .publish import atomic_directory
 from .trace_format import Trace
 from .walkline import STREAM_COLUMNS
@@ -92,7 +94,8 @@ def walk_feature(trace: Trace, logs: dict[str, str]) -> dict:
 def write_walk_plan(folder: str | os.PathLike, traces: Sequence[Trace], *,
                     plan_name: str = "plan.geojson", overwrite: bool = False) -> Path:
     """Write ``traces`` as one walk plan, ``folder/plan_name``, with their logs in
-    ``folder/logs/`` (``<trace id>.csv``, ``<trace id>.wifi.csv``, ``<trace id>.ble.csv``);
+    ``folder/logs/`` (``<trace id>.csv``, ``<trace id>.wifi.csv``, ``<trace id>.ble.csv``, the
+    id made a safe file name by :func:`localize.names.file_stem`);
     the folder is published atomically. Returns the plan's path.
 
     Raises
@@ -117,7 +120,7 @@ def write_walk_plan(folder: str | os.PathLike, traces: Sequence[Trace], *,
                 files["ble_log"] = (".ble.csv", ble_csv(trace))
             logs = {}
             for prop, (suffix, data) in files.items():
-                logs[prop] = f"logs/{trace.trace_id}{suffix}"
+                logs[prop] = f"logs/{file_stem(trace.trace_id)}{suffix}"
                 (tmp / logs[prop]).write_bytes(data)
             features.append(walk_feature(trace, logs))
         plan = {"type": "FeatureCollection", "features": features}

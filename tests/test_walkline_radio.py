@@ -112,6 +112,9 @@ def test_wifi_log_rows_are_read_as_the_trace_reader_reads_scans():
     assert report.records == {"WIFI_ROW": 4} and report.accounted_lines() == report.lines_total
     only_required, _ = _wifi([f"{T0},aa:bb:cc:00:00:01,-60"], header="t_ms,bssid,rssi_dbm")
     assert only_required[["freq_mhz", "age_ms", "ssid"]].values.tolist() == [[0, 0, ""]]
+    # a frequency of 0, what the store keeps for an unknown one, reads back as unknown
+    zero, report = _wifi([f"{T0},aa:bb:cc:00:00:01,-60,0,x,{T0}"])
+    assert zero["freq_mhz"].tolist() == [0] and not report.bad
 
 
 BAD_WIFI = [  # (row, reason, what its message says)
@@ -122,6 +125,7 @@ BAD_WIFI = [  # (row, reason, what its message says)
     (f"{T0}.5,aa:bb:cc:00:00:01,-60,2412,x,{T0}", "non_numeric", "column t_ms"),
     (f"{T0},aa:bb:cc:00:00:01,-60,2412000,x,{T0}", "out_of_range", "column freq_mhz (2412000)"),
     (f"{T0},aa:bb:cc:00:00:01,-60,2412,x,{T0 + 5000}", "out_of_range", "column last_seen_ms"),
+    (f"{T0},aa:bb:cc:00:00:01,-60,2412,x,-1e30", "out_of_range", "column last_seen_ms"),
     (f"{T0 + 13 * 3_600_000},aa:bb:cc:00:00:01,-60,2412,x,", "time_outlier", "column t_ms"),
     (f"{T0},aa:bb:cc:00:00:01,-60", "field_count", "3 fields, the header has 6"),
 ]
@@ -151,6 +155,10 @@ def test_ble_log_rows_are_read_as_the_trace_reader_reads_beacons():
         f"{T0},{uuid},70000,2,-80",  # major out of range
         f"{T0},,10,2,-80",  # no uuid
     ]).encode()
+    late = b"t_ms,uuid,major,minor,rssi_dbm,last_seen_ms\n" \
+        + f"{T0},{uuid},10,2,-80,1e20\n{T0},{uuid},10,3,-80,{T0}\n".encode()
+    with pytest.raises(SurveyFormatError, match="outside .* column last_seen_ms"):
+        parse_ble_csv(late, reference_ms=T0, report=ParseReport(), path="b.csv", strict=True)
     ble = parse_ble_csv(data, reference_ms=T0, report=report, path="b.csv")
     assert ble["key"].tolist() == [f"{uuid.lower()}:10:2", f"{uuid.lower()}:10:3"]
     assert ble["rssi_dbm"].tolist() == [-80, -71] and ble["t_ms"].tolist() == [T0, T0 + 500]
@@ -218,6 +226,15 @@ def test_a_missing_radio_log_fails_its_walk_alone_and_a_log_that_is_no_path_the_
         plan_walks(plan)
 
 
+def test_the_writer_names_logs_by_safe_names(tmp_path):
+    trace = _traces()[0]
+    trace.trace_id = "../../outside"
+    plan = write_walk_plan(tmp_path / "p", [trace])
+    written = sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*.csv"))
+    assert len(written) == 3 and all(p.startswith("p/logs/_._.._outside-") for p in written)
+    assert read_walk_plan(plan)[0][0].trace_id == "../../outside"
+
+
 def test_a_walk_without_radio_logs_keeps_the_identity_it_had(tmp_path):
     """A store ingested before radio logs existed must not see its walks as changed."""
     trace = _traces()[0]
@@ -279,3 +296,7 @@ def test_a_site_whose_floors_are_named_with_spaces_builds_and_localizes(tmp_path
                                   str(tmp_path / "loc"), "--no-plot"])
     assert result.exit_code == 0, result.output
     assert result.output.count("(Level_2) by auto") == 3
+    floors = runner.invoke(main, ["floor", str(tmp_path / "out" / "_site"),
+                                  str(site / "Level 2" / "path_data_files")])
+    assert floors.exit_code == 0, floors.output
+    assert "100.00 % on the floor the trace files name" in floors.output
