@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import re
 import sys
+from collections import Counter
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
@@ -170,10 +171,10 @@ def read_walks(path: Path) -> list[tuple[str, Callable[[], Trace]]]:
         return _checked_walk(walk.parse(logs), Path(logs.source))
 
     walks = plan_walks(path)
-    ids = [walk.walk_id for walk in walks]
+    ids = Counter(walk.walk_id for walk in walks)
     # a walk id twice in one plan: each is told apart by its feature (the second is refused)
     return [(f"{path} (walk {walk.walk_id}"
-             + (f", feature {k})" if ids.count(walk.walk_id) > 1 else ")"),
+             + (f", feature {k})" if ids[walk.walk_id] > 1 else ")"),
              lambda walk=walk: read(walk)) for k, walk in enumerate(walks)]
 
 

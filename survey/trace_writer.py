@@ -19,7 +19,8 @@ import pandas as pd
 from .trace_format import STREAM_TO_RECORD, UNCALIBRATED_STREAMS, Trace, TraceHeader
 
 
-def _fmt_float(values: np.ndarray) -> np.ndarray:
+def format_floats(values: np.ndarray) -> np.ndarray:
+    """Values as text of 9 significant digits (float32 values survive a round trip)."""
     return np.array([format(v, ".9g") for v in np.asarray(values, dtype=np.float64).tolist()],
                     dtype=object)
 
@@ -64,9 +65,9 @@ def render_records(trace: Trace, waypoint_delay_ms: int = 800) -> list[str]:
     for stream, rows in sensors.groupby("stream", observed=True, sort=False):
         record = STREAM_TO_RECORD[str(stream)]
         cols = [_fmt_int(rows["t_ms"]), np.full(len(rows), record, dtype=object)]
-        cols += [_fmt_float(rows[c].to_numpy()) for c in ("x", "y", "z")]
+        cols += [format_floats(rows[c].to_numpy()) for c in ("x", "y", "z")]
         if record in UNCALIBRATED_STREAMS:
-            cols += [_fmt_float(rows[c].to_numpy()) for c in ("bx", "by", "bz")]
+            cols += [format_floats(rows[c].to_numpy()) for c in ("bx", "by", "bz")]
         cols.append(_fmt_int(rows["accuracy"]))
         parts.append((rows["t_ms"].to_numpy(np.int64), _join(cols)))
 
@@ -82,14 +83,14 @@ def render_records(trace: Trace, waypoint_delay_ms: int = 800) -> list[str]:
         cols = [_fmt_int(ble["t_ms"]), np.full(len(ble), "TYPE_BEACON", dtype=object),
                 _fmt_str(ble["uuid"]), _fmt_int(ble["major"]), _fmt_int(ble["minor"]),
                 _fmt_int(ble["tx_power_dbm"]), _fmt_int(ble["rssi_dbm"]),
-                _fmt_float(ble["distance_m"].to_numpy()), _fmt_str(ble["mac"]),
+                format_floats(ble["distance_m"].to_numpy()), _fmt_str(ble["mac"]),
                 _fmt_int(ble["last_seen_ms"])]
         parts.append((ble["t_ms"].to_numpy(np.int64), _join(cols)))
 
     wp = trace.waypoints
     if len(wp):
         cols = [_fmt_int(wp["t_ms"]), np.full(len(wp), "TYPE_WAYPOINT", dtype=object),
-                _fmt_float(wp["x_m"].to_numpy()), _fmt_float(wp["y_m"].to_numpy())]
+                format_floats(wp["x_m"].to_numpy()), format_floats(wp["y_m"].to_numpy())]
         parts.append((wp["t_ms"].to_numpy(np.int64) + int(waypoint_delay_ms), _join(cols)))
 
     if not parts:

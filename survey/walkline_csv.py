@@ -74,7 +74,7 @@ class LogTable:
     data: bytes  #: the bytes read, non-UTF-8 bytes replaced
     table: pa.Table
     wrong_width: list[tuple[int | None, int, int]]
-    _numbers: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+    _cache: dict[tuple[str, str], np.ndarray] = field(default_factory=dict, repr=False)
 
     @property
     def columns(self) -> set[str]:
@@ -86,17 +86,27 @@ class LogTable:
         return self.table.num_rows
 
     def numbers(self, name: str) -> NDArray[np.float64]:
-        """Column ``name`` as float64 (n_rows,), NaN where empty or not a number."""
-        if name not in self._numbers:
-            self._numbers[name] = _numeric(self.table.column(name))
-        return self._numbers[name]
+        """Column ``name`` as float64 (n_rows,), NaN where empty or not a number (everywhere
+        when the log has no such column)."""
+        key = ("numbers", name)
+        if key not in self._cache:
+            self._cache[key] = (_numeric(self.table.column(name)) if name in self.columns
+                                else np.full(self.n_rows, np.nan))
+        return self._cache[key]
 
     def missing(self, name: str) -> NDArray[np.bool_]:
-        """Where column ``name`` is empty (n_rows,)."""
-        return _missing(self.table.column(name))
+        """Where column ``name`` is empty (n_rows,; everywhere when the log has none)."""
+        key = ("missing", name)
+        if key not in self._cache:
+            self._cache[key] = (_missing(self.table.column(name)) if name in self.columns
+                                else np.ones(self.n_rows, dtype=bool))
+        return self._cache[key]
 
     def texts(self, name: str) -> pa.Array:
-        """Column ``name`` as one pyarrow string array, white space trimmed (n_rows,)."""
+        """Column ``name`` as one pyarrow string array, white space trimmed, empty where
+        there is no value (n_rows,; everywhere when the log has no such column)."""
+        if name not in self.columns:
+            return pa.array([""] * self.n_rows, type=pa.string())
         column = self.table.column(name).combine_chunks().cast(pa.string())
         return pc.utf8_trim_whitespace(pc.fill_null(column, ""))
 

@@ -74,9 +74,6 @@ class _Numbers:
         ``default`` (required when None). A value that is not a finite number (or, ``whole``,
         not a whole number) marks its row bad."""
         log = self.log
-        n = log.n_rows
-        if name not in log.columns:
-            return np.broadcast_to(np.asarray(default, dtype=np.float64), (n,)).copy()
         values = log.numbers(name)
         empty = log.missing(name)
         bad = ~empty & ~np.isfinite(values)
@@ -93,13 +90,6 @@ class _Numbers:
         """Rows with a bad number (n_rows,)."""
         return np.logical_or.reduce([bad for _, bad in self.bad]) if self.bad else \
             np.zeros(self.log.n_rows, dtype=bool)
-
-
-def _texts(log: LogTable, name: str) -> pa.Array:
-    """Column ``name`` as trimmed strings, empty where absent (n_rows,)."""
-    if name not in log.columns:
-        return pa.array([""] * log.n_rows, type=pa.string())
-    return log.texts(name)
 
 
 def _checks(log: LogTable, numbers: _Numbers, t_ms: NDArray[np.float64],
@@ -145,8 +135,7 @@ def parse_wifi_csv(data: bytes, *, reference_ms: float, report: ParseReport,
     freq = numbers.take("freq_mhz", default=0.0)
     seen = numbers.take("last_seen_ms", default=np.nan_to_num(t))
     # absent, empty or 0 (what the store keeps for unknown): unknown, not refused
-    given_freq = (~log.missing("freq_mhz") & (freq != 0)) if "freq_mhz" in log.columns else \
-        np.zeros(log.n_rows, dtype=bool)
+    given_freq = ~log.missing("freq_mhz") & (freq != 0)
     cols = {"t_ms": t, "rssi_dbm": rssi, "last_seen_ms": seen, "bssid": log.texts("bssid"),
             "freq_mhz": np.where(given_freq, freq, 1.0)}
     bssid, refused = wifi_row_checks(cols)
@@ -160,7 +149,7 @@ def parse_wifi_csv(data: bytes, *, reference_ms: float, report: ParseReport,
     table, _, dropped = wifi_table(np.zeros(int(good.sum()), dtype=np.int64), {
         "t_ms": t[good].astype(np.int64), "last_seen_ms": seen[good].astype(np.int64),
         "rssi_dbm": rssi[good].astype(np.int64), "freq_mhz": freq[good].astype(np.int64),
-        "ssid": _texts(log, "ssid").take(keep), "bssid": bssid.take(keep)})
+        "ssid": log.texts("ssid").take(keep), "bssid": bssid.take(keep)})
     if len(dropped):
         report.dropped["duplicate_bssid_in_scan"] = len(dropped)
     return table
@@ -201,7 +190,7 @@ def parse_ble_csv(data: bytes, *, reference_ms: float, report: ParseReport,
     kept = {c: v[good] if c == "distance_m" else v[good].astype(np.int64)
             for c, v in cols.items()}
     table, files = beacon_table(np.zeros(int(good.sum()), dtype=np.int64), {
-        **kept, "uuid": log.texts("uuid").take(keep), "mac": _texts(log, "mac").take(keep)})
+        **kept, "uuid": log.texts("uuid").take(keep), "mac": log.texts("mac").take(keep)})
     table, _, dropped = drop_repeats(table, files)
     if len(dropped):
         report.dropped["duplicate_beacon"] = len(dropped)

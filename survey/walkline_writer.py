@@ -22,6 +22,7 @@ from localize.names import file_stem
 
 from .publish import atomic_directory
 from .trace_format import Trace
+from .trace_writer import format_floats
 from .walkline import STREAM_COLUMNS
 
 _AXES = ("x", "y", "z")
@@ -54,10 +55,9 @@ def sensor_csv(trace: Trace) -> bytes:
 
 
 def _floats(values: pd.Series) -> np.ndarray:
-    """Values as text of 9 significant digits (float32 exact), empty for NaN."""
+    """Values as the trace writer writes them (float32 exact), empty for NaN."""
     v = values.to_numpy(dtype=np.float64)
-    return np.array(["" if np.isnan(x) else format(x, ".9g") for x in v.tolist()],
-                    dtype=object)
+    return np.where(np.isnan(v), "", format_floats(v)).astype(object)
 
 
 def wifi_csv(trace: Trace) -> bytes:
