@@ -49,6 +49,10 @@ from survey.errors import require_type
 
 __all__ = ["MultiUserEngine"]
 
+#: Largest map coordinate (m) float32 particles are allowed: float32's spacing there is 2 mm
+#: (at a UTM easting of 500 km it is 3 cm, at a northing of 4,000 km 25 cm).
+FLOAT32_REACH_M = 16_384.0
+
 
 class MultiUserEngine:
     """Particle filters of many users on one floor bundle.
@@ -61,7 +65,8 @@ class MultiUserEngine:
         Shared by all users; ``weight_mode`` must not be ``"dtw"``.
     rng : numpy.random.Generator or int, optional
     dtype : numpy dtype
-        Particle storage (float32 halves memory per user).
+        Particle storage (float32 halves memory per user; refused for a map whose
+        coordinates reach beyond :data:`FLOAT32_REACH_M`, a plan in UTM say).
 
     With ``params.radio_guide == "align"`` (and a radio update or injection on), users added
     with ``fix_sigma_m`` (started from a radio fix) are guided: a walk alignment of their
@@ -81,6 +86,15 @@ class MultiUserEngine:
             raise LocalizationError("the multi-user engine does not run the DTW update")
         self.bundle = bundle
         self.rng = make_rng(rng)
+        g = bundle.grid
+        reach_m = max(abs(g.x0_m), abs(g.y0_m), abs(g.x0_m + g.width * g.cell_m),
+                      abs(g.y0_m + g.height * g.cell_m))
+        if np.dtype(dtype).itemsize < 8 and reach_m > FLOAT32_REACH_M:
+            raise LocalizationError(
+                f"the map's coordinates reach {reach_m:,.0f} m, where {np.dtype(dtype).name} "
+                f"particles would move in steps of {np.spacing(np.float32(reach_m)):g} m; "
+                f"use float64 (float32 keeps centimetres within {FLOAT32_REACH_M:,.0f} m of "
+                "the origin)")
         self.dtype = dtype
         if fmap is None:
             layers, stds = needed_layers(self.params)

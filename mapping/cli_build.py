@@ -95,11 +95,7 @@ def check_grids(plans: dict[Path, FloorPlan], params: BuildParams) -> None:
         try:
             grid = plan.grid(params.cell_m)
         except ValueError as err:
-            x0, y0, x1, y1 = plan.outline.bounds
-            far = (f"its outline spans x {x0:g} to {x1:g} m and y {y0:g} to {y1:g} m, and "
-                   "the map frame runs from (0, 0): shift the plan and the walks near the "
-                   "origin; " if min(x0, y0) > max(x1 - x0, y1 - y0) else "")
-            raise click.UsageError(f"{path}: {err}; {far}check the plan's units (a floor "
+            raise click.UsageError(f"{path}: {err}; check the plan's units (a floor "
                                    "drawn in mm without units reads 1000 times too large), "
                                    "or raise --cell") from err
         if not reachable_mask(grid, plan.reachable).any():

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -32,7 +33,7 @@ import shapely
 import shapely.errors
 from shapely.geometry import shape
 
-from localize.bundle import Grid
+from localize.bundle import MAX_COORD_M, Grid
 from mapping.grid import grid_for_extent
 from survey.errors import IndoormapError
 from survey.regular_files import read_regular
@@ -78,9 +79,9 @@ class FloorPlan:
         (``geojson_map.json`` and ``floor_info.json``, or the DXF drawing); the build records
         them in the bundle's manifest. Empty for a plan made in code.
     x0_m, y0_m : float
-        Lower-left corner of the map frame: 0, or the plan's lowest coordinate where a plan in
-        metres (GeoJSON, DXF) reaches below 0. Plans are never moved: walks are recorded in
-        the plan's own coordinates.
+        Lower-left corner of the map frame: 0 for a lon/lat plan; for a plan in metres
+        (GeoJSON, DXF), its lowest coordinates rounded down to whole metres. Plans are never
+        moved: walks are recorded in the plan's own coordinates.
     floor_name : str
         The floor the plan says it is of: the ``name`` of a GeoJSON outline feature whose
         ``type`` or ``category`` is ``"floor"`` (the ILC plans' and the simulator's feature
@@ -172,9 +173,7 @@ def checked_size(path: Path, width_m: float, height_m: float) -> tuple[float, fl
                              "finite size")
     if max(width_m, height_m) > MAX_FLOOR_SIDE_M:
         raise FloorPlanError(f"{path}: floor size {width_m:g} x {height_m:g} m is over "
-                             f"{MAX_FLOOR_SIDE_M:g} m on a side (the map frame runs from (0, 0) "
-                             "to the plan's largest coordinates: a plan in metres, near the "
-                             "origin?)")
+                             f"{MAX_FLOOR_SIDE_M:g} m on a side")
     return float(width_m), float(height_m)
 
 
@@ -337,12 +336,19 @@ def _role(feature: dict, path: Path, index: int) -> str | None:
 
 
 def metre_frame(path: Path, outline: shapely.Geometry) -> tuple[float, float, float, float]:
-    """``(x0_m, y0_m, width_m, height_m)`` of the map frame of a plan in metres: from (0, 0),
-    or from the outline's lowest coordinates where they are below 0, to its largest."""
+    """``(x0_m, y0_m, width_m, height_m)`` of the map frame of a plan in metres: from the
+    outline's lowest coordinates, rounded down to whole metres (so the cells of a 0.25, 0.5
+    or 1 m grid have round edges), to its largest. A plan in a local or projected CRS
+    (a site grid at (3000, 3000), UTM eastings) gets a frame of the floor's own size; the
+    walks and the plan keep their coordinates."""
     minx, miny, maxx, maxy = outline.bounds
-    x0, y0 = min(0.0, float(minx)), min(0.0, float(miny))
+    if max(abs(minx), abs(miny), abs(maxx), abs(maxy)) > MAX_COORD_M:
+        raise FloorPlanError(f"{path}: the outline reaches ({minx:g}, {miny:g}) .. ({maxx:g}, "
+                             f"{maxy:g}) m, beyond the {MAX_COORD_M:g} m a map's coordinates "
+                             "may have (not metres?)")
+    x0, y0 = math.floor(minx), math.floor(miny)
     width, height = checked_size(path, maxx - x0, maxy - y0)
-    return x0, y0, width, height
+    return float(x0), float(y0), width, height
 
 
 def checked_plan(plan: FloorPlan, source: Path) -> FloorPlan:

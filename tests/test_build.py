@@ -22,7 +22,7 @@ from mapping.grid import distance_to_reachable_m
 from mapping.cli_build import THIN_COVERAGE
 from mapping.bundle_writer import write_bundle
 from mapping.errors import FingerprintError
-from mapping.floorplan import FloorPlan, read_floor_plan
+from mapping.floorplan import FloorPlan, FloorPlanError, read_floor_plan
 from mapping.radio_build import build_site_radio
 from mapping.truth_errors import truth_errors
 from survey.cli import main
@@ -578,18 +578,68 @@ def test_build_cli_with_a_dxf_plan_and_a_folder_of_traces(tmp_path):
     assert res.exit_code == 2 and "--floor names the floor of a --plan build" in res.output
 
 
-def test_a_plan_far_from_the_origin_says_so(tmp_path):
-    """A plan in metres drawn at (3000, 3000) (a site grid's coordinates) makes a floor of
-    3040 x 3025 m; the error said to raise --cell, which builds a useless floor."""
+def test_a_plan_in_site_coordinates_builds_the_maps_of_the_floor_at_the_origin(tmp_path):
+    """A floor drawn at (3000, 1000) in a site grid's metres, its walks recorded there: the
+    map frame ran from (0, 0), so the 40 x 25 m floor asked for 3040 x 1025 m and was refused
+    (at (2000, 1000) it built a 391 MB bundle in 6 minutes). The frame starts at the plan's
+    corner: the bundle is the size of the one at the origin, with the same maps, moved."""
+    from survey.trace_reader import read_trace
+    from survey.walkline_writer import write_walk_plan
+
     plan = read_floor_plan(SITE / "F2")
-    far = dataclasses.replace(plan, outline=shapely.affinity.translate(plan.outline, 3000, 3000),
-                              obstacles=shapely.affinity.translate(plan.obstacles, 3000, 3000))
-    _dxf_of(far, tmp_path / "far.dxf")
-    res = CliRunner().invoke(main, ["build", str(SITE / "F2" / "path_data_files"), "--plan",
-                                    str(tmp_path / "far.dxf"), "-o", str(tmp_path / "out")])
-    assert res.exit_code == 2 and "its outline spans x 3000 to 3040 m and y 3000 to 3025 m, " \
-        "and the map frame runs from (0, 0): shift the plan and the walks near the origin" \
-        in res.output
+    traces = [read_trace(p) for p in sorted((SITE / "F2" / "path_data_files").glob("*.txt.gz"))]
+    bundles = {}
+    for name, (dx, dy) in (("origin", (0.0, 0.0)), ("site", (3000.0, 1000.0))):
+        moved = dataclasses.replace(
+            plan, outline=shapely.affinity.translate(plan.outline, dx, dy),
+            obstacles=shapely.affinity.translate(plan.obstacles, dx, dy))
+        _dxf_of(moved, tmp_path / f"{name}.dxf")
+        walks = [dataclasses.replace(t, waypoints=t.waypoints.assign(
+            x_m=t.waypoints.x_m + dx, y_m=t.waypoints.y_m + dy)) for t in traces]
+        write_walk_plan(tmp_path / name, walks)
+        res = CliRunner().invoke(main, ["build", str(tmp_path / name), "--plan",
+                                        str(tmp_path / f"{name}.dxf"), "-o",
+                                        str(tmp_path / f"{name}_out")])
+        assert res.exit_code == 0, res.output
+        bundles[name] = load_bundle(tmp_path / f"{name}_out" / "F2")
+    near, far = bundles["origin"], bundles["site"]
+    assert (far.grid.width, far.grid.height) == (near.grid.width, near.grid.height)
+    assert (far.grid.x0_m - near.grid.x0_m, far.grid.y0_m - near.grid.y0_m) == (3000, 1000)
+    np.testing.assert_array_equal(far.mask, near.mask)
+    for layer in ("strength", "vertical", "heading_offset"):
+        a, b = near.layers[layer], far.layers[layer]
+        np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+        np.testing.assert_allclose(b, a, atol=1e-3, equal_nan=True)  # uT, deg
+    x, y = np.array([10.0, 20.0, 30.0]), np.array([5.0, 12.5, 20.0])
+    np.testing.assert_allclose(far.sample("strength", x + 3000, y + 1000),
+                               near.sample("strength", x, y), atol=1e-3, equal_nan=True)
+
+
+def test_a_plan_in_utm_coordinates_has_a_frame_of_its_own_size(tmp_path):
+    """A floor at a UTM easting and northing (500000, 4000000): refused before as over
+    20 km on a side; now a frame of the floor's size from its corner, rounded to whole
+    metres. Beyond the bundle's 1e8 m (a plan in mm or in some other unit) it is refused."""
+    utm = _plan_file(tmp_path / "utm.geojson", 500_012.3, 4_000_007.6)
+    plan = read_floor_plan(utm)
+    assert (plan.x0_m, plan.y0_m) == (500_012, 4_000_007)
+    assert plan.width_m == pytest.approx(40.3) and plan.height_m == pytest.approx(25.6)
+    grid = plan.grid(0.25)
+    assert (grid.width, grid.height) == (162, 103)
+    with pytest.raises(FloorPlanError, match=r"beyond the 1e\+08 m a map's coordinates"):
+        read_floor_plan(_plan_file(tmp_path / "far.geojson", 3e8, 0.0))
+
+
+def _plan_file(path: Path, x0: float, y0: float) -> Path:
+    """A 40 x 25 m metre GeoJSON floor from ``(x0, y0)`` with a 4 m shop in it."""
+    def square(x, y, w, h):
+        return [[[x, y], [x + w, y], [x + w, y + h], [x, y + h], [x, y]]]
+
+    path.write_text(json.dumps({"type": "FeatureCollection", "features": [
+        {"type": "Feature", "properties": {"role": "outline"},
+         "geometry": {"type": "Polygon", "coordinates": square(x0, y0, 40, 25)}},
+        {"type": "Feature", "properties": {},
+         "geometry": {"type": "Polygon", "coordinates": square(x0 + 10, y0 + 10, 4, 4)}}]}))
+    return path
 
 
 def test_dxf_layers_named_on_the_command_line(tmp_path):

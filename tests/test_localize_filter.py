@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+import copy
 import dataclasses
-
 import json
 import re
 import subprocess
@@ -158,6 +158,17 @@ def test_engine_matches_single_user_and_scales(f1_bundle, sim_walks):  # noqa: F
     assert eng.n_users == len(walks) - 1
     with pytest.raises(LocalizationError):
         eng.tick(ids[:1], StepInputs(*(np.zeros(1) for _ in cols)))
+
+
+def test_float32_particles_are_refused_on_a_map_far_from_the_origin(f1_bundle):  # noqa: F811
+    """A plan in UTM metres keeps its coordinates (northing 4,000 km): float32 particles
+    there move in 25 cm steps, so the engine refuses them and says to use float64."""
+    far = copy.copy(f1_bundle)
+    far.grid = replace(f1_bundle.grid, x0_m=500_000.0, y0_m=4_000_000.0)
+    with pytest.raises(LocalizationError, match=r"reach 4,000,025 m, where float32 "
+                                                r"particles would move in steps of 0\.25 m"):
+        MultiUserEngine(far, {"n_particles": 100}, dtype=np.float32)
+    assert MultiUserEngine(far, {"n_particles": 100}).n_users == 0  # float64 is fine
 
 
 def test_recovery_when_all_particles_die(f1_bundle, sim_walks):  # noqa: F811
