@@ -432,7 +432,8 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
         floors = floors_of(source)
         inputs = [f / "path_data_files" for f in floors]
         floor_names = {folder: f.name for f, folder in zip(floors, inputs)}
-        read_from = {f: read_floor_plan(f) for f in floors}  # a bad plan fails before the work
+        # a bad plan fails before the work; a plan of several floors gives the folder's
+        read_from = {f: read_floor_plan(f, level=f.name) for f in floors}
         # by the store's key of the floor: a folder "Level 1" holds walks of "Level_1"
         plans = {floor_key(f.name): plan for f, plan in read_from.items()}
     else:
@@ -440,7 +441,8 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
             check_floor_bundle_name(floor_name, "--floor")
         inputs = [source]
         floor_names = {source: floor_name or plan_floor_name(plan_file)}
-        plan = read_floor_plan(plan_file, dxf_layers=layers)
+        plan = read_floor_plan(plan_file, dxf_layers=layers,
+                               level=floor_name or plan_floor_name(plan_file))
         if floor_name is not None and plan.floor_name and plan.floor_name != floor_name:
             click.echo(f"warning: {plan_file} says it is the plan of floor "
                        f"{plan.floor_name}; building it as floor {floor_name} (--floor)",

@@ -14,7 +14,9 @@ it is (:data:`GEOJSON_ROLES`): a polygon without one is an obstacle (``obstacle_
 selects among them by properties), ``role: "wall"`` lines are walls :data:`WALL_WIDTH_M`
 thick, ``role: "walkable"`` (or ``corridor``, ``open``, ``passage``) polygons are open floor
 cut out of the obstacles, and ``role: "ignore"`` features are left out. Lines without a wall
-role are left out too, said in :attr:`FloorPlan.repairs`. DXF drawings are read by
+role are left out too, said in :attr:`FloorPlan.repairs`. A GeoJSON export of several floors
+(features tagged by a :data:`LEVEL_PROPERTIES` property such as ``level``) is read one floor at
+a time, named by ``level``; outline features that overlap are warned of (two floors stacked). DXF drawings are read by
 :mod:`mapping.floorplan_dxf` (``read_floor_plan`` dispatches on the ``.dxf`` suffix).
 """
 
@@ -34,6 +36,7 @@ import shapely.errors
 from shapely.geometry import shape
 
 from localize.bundle import MAX_COORD_M, Grid
+from localize.names import floor_key
 from mapping.grid import grid_for_extent
 from survey.errors import IndoormapError
 from survey.regular_files import read_regular
@@ -55,6 +58,14 @@ WALL_WIDTH_M = 0.2
 GEOJSON_ROLES = {"outline": "outline", "obstacle": "obstacle", "wall": "wall",
                  "walkable": "walkable", "corridor": "walkable", "open": "walkable",
                  "passage": "walkable", "ignore": "ignore"}
+#: Feature properties (keys case-insensitive, first found) saying which floor a feature of a
+#: GeoJSON plan is on, as a building's export of all its floors in one file tags them. An
+#: outline feature naming its floor (``type`` or ``category`` ``"floor"``, with a ``name``)
+#: is on that floor.
+LEVEL_PROPERTIES = ("level", "floor", "floor_name", "level_name", "storey")
+#: Share of the smallest outline feature that outline features of a plan may overlap by
+#: before the reader warns (two floors' outlines stacked in one file).
+OUTLINE_OVERLAP_WARN = 0.5
 
 
 @dataclass(frozen=True)
@@ -199,7 +210,8 @@ def plan_file(path: str | os.PathLike) -> Path:
 
 def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
                     obstacle_filter: Callable[[dict], bool] | None = None,
-                    dxf_layers: dict[str, tuple[str, ...]] | None = None) -> FloorPlan:
+                    dxf_layers: dict[str, tuple[str, ...]] | None = None,
+                    level: str | None = None) -> FloorPlan:
     """Read a floor plan.
 
     Parameters
@@ -214,6 +226,12 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
     dxf_layers : dict, optional
         For a DXF drawing: role (``outline``, ``obstacle``, ``wall``) -> layer names, in
         place of that role's defaults (:func:`mapping.floorplan_dxf.read_dxf_floor_plan`).
+    level : str, optional
+        The floor to read from a GeoJSON plan whose features are of several floors (tagged
+        by a :data:`LEVEL_PROPERTIES` property): its features and those without a floor are
+        read, the others left out. A plan of several floors read without the name of one of
+        them is refused, naming its floors; ``level`` is not used for a plan of one floor
+        (a floor folder's name or ``build --floor`` is passed for every plan).
     """
     p = Path(floor_dir_or_geojson)
     if p.suffix.lower() == ".dxf":
@@ -225,11 +243,15 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
     info = geo.parent / "floor_info.json"
     sources: list[tuple[str, str]] = []
     feats = _features(geo, sources)
-    roles = [_role(f, geo, i) for i, f in enumerate(feats)]
-    outline_at = [i for i, r in enumerate(roles) if r == "outline"] or [0]  # union of them
-    if roles and "outline" not in roles and roles[0] is not None:
-        raise FloorPlanError(f"{geo}: no feature has role 'outline', and feature 0 (the "
-                             f"outline of a plan without roles) has role {roles[0]!r}")
+    repairs: list[str] = []
+    on_floor, floor_name = _features_of_level(feats, level, geo, repairs)
+    roles = [_role(f, geo, i) if mine else "ignore"
+             for i, (f, mine) in enumerate(zip(feats, on_floor))]
+    first = on_floor.index(True)
+    outline_at = [i for i, r in enumerate(roles) if r == "outline"] or [first]  # union of them
+    if "outline" not in roles and roles[first] is not None:
+        raise FloorPlanError(f"{geo}: no feature has role 'outline', and feature {first} (the "
+                             f"outline of a plan without roles) has role {roles[first]!r}")
     geoms = []
     for i, f in enumerate(feats):
         try:
@@ -272,10 +294,11 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
             return np.column_stack([(coords[:, 0] - lon0) * sx, (coords[:, 1] - lat0) * sy])
 
         geoms = [None if g is None else shapely.transform(g, to_m) for g in geoms]
-    repairs: list[str] = []
     parts = [made_valid(geoms[i], f"{geo}: feature {i} (the outline)", repairs)
              for i in outline_at]
     outline = parts[0] if len(parts) == 1 else shapely.union_all(parts)
+    if len(parts) > 1:
+        _warn_overlapping_outlines(geo, parts, outline_at, outline, repairs)
     if not info.exists():
         x0, y0, width, height = metre_frame(geo, outline)
     keep = obstacle_filter or (lambda props: True)
@@ -307,7 +330,66 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
         obstacle_union = shapely.difference(obstacle_union, shapely.union_all(walkable))
     return checked_plan(FloorPlan(outline, obstacle_union, width, height, tuple(repairs),
                                   x0, y0, tuple(sources),
-                                  _named_floor([feats[i] for i in outline_at])), geo)
+                                  floor_name or _named_floor([feats[i] for i in outline_at])),
+                        geo)
+
+
+def feature_level(feature: dict) -> str:
+    """The floor a GeoJSON feature says it is on: its first :data:`LEVEL_PROPERTIES`
+    property (a text or a number), else the ``name`` of a feature that is a floor (``type``
+    or ``category`` ``"floor"``); empty when it says none."""
+    props = feature.get("properties") or {}
+    by_key = {str(k).lower(): v for k, v in props.items()}
+    for key in LEVEL_PROPERTIES:
+        value = by_key.get(key)
+        if isinstance(value, (str, int, float)) and not isinstance(value, bool) \
+                and str(value).strip():
+            return str(value).strip()
+    return _named_floor([feature])
+
+
+def _features_of_level(feats: list[dict], level: str | None, path: Path,
+                       repairs: list[str]) -> tuple[list[bool], str]:
+    """Which features are read (all, or for a plan of several floors those of ``level``
+    and those of no floor) and the floor they were picked for (empty when all are read);
+    a :class:`FloorPlanError` for a plan of several floors without one of them named."""
+    levels = [feature_level(f) for f in feats]
+    named = sorted(set(levels) - {""})
+    if len(named) < 2:
+        return [True] * len(feats), ""
+    wanted = None if level is None else floor_key(level)
+    picked = [lv for lv in named if wanted is not None and floor_key(lv) == wanted]
+    if not picked:
+        shown = ", ".join(named[:10]) + (", ..." if len(named) > 10 else "")
+        asked = "" if level is None else f", and none is {level!r}, the one it is read for"
+        raise FloorPlanError(
+            f"{path}: its features are of {len(named)} floors ({shown}), tagged by "
+            f"{'/'.join(LEVEL_PROPERTIES)} or a floor outline's name; a floor's plan is of "
+            f"one floor{asked}: name the floor to read (`indoormap build TRACES --plan FILE "
+            "--floor NAME`, a floor folder named after it, `read_floor_plan(..., level=NAME)`)")
+    untagged = [i for i, lv in enumerate(levels) if not lv and feats[i].get("geometry")]
+    if untagged:
+        shown = ", ".join(map(str, untagged[:5])) + (", ..." if len(untagged) > 5 else "")
+        repairs.append(f"{path}: read for floor {picked[0]} of {', '.join(named)}: "
+                       f"{len(untagged)} feature(s) name no floor (feature {shown}) and are "
+                       "read as part of it")
+    return [lv in ("", *picked) for lv in levels], picked[0]
+
+
+def _warn_overlapping_outlines(path: Path, parts: list[shapely.Geometry], at: list[int],
+                               union: shapely.Geometry, repairs: list[str]) -> None:
+    """A line in ``repairs`` when the outline features overlap by more than
+    :data:`OUTLINE_OVERLAP_WARN` of the smallest: two floors' outlines in one file, whose
+    union is no floor and whose shops would all be cut out of it."""
+    areas = shapely.area(np.asarray(parts, dtype=object))
+    overlap = float(areas.sum() - union.area)
+    if overlap > OUTLINE_OVERLAP_WARN * float(areas.min()):
+        shown = ", ".join(map(str, at[:5])) + (", ..." if len(at) > 5 else "")
+        repairs.append(f"{path}: the outline features ({shown}) overlap by {overlap:.0f} m^2, "
+                       f"{overlap / areas.min():.0%} of the smallest: two floors' outlines in "
+                       "one file? Their union is read as the outline and every other polygon "
+                       "cut out of it; give each floor its own plan, or tag the features with "
+                       "their floor (property \"level\") and name it")
 
 
 def _named_floor(outline_features: list[dict]) -> str:

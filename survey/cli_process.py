@@ -50,10 +50,10 @@ def process_command(store_dir: str, site: str | None, floor: str | None,
     _require_walks(cat, everything, site, floor)
     plan_of: dict[tuple[str, str], str] = {}  # (site, floor) -> the plan given for it
     for fp in floor_plans:
-        plan = read_floor_plan(fp)
+        name = plan_floor_name(fp)
+        plan = read_floor_plan(fp, level=name)
         for repair in plan.repairs:
             click.echo(f"warning: {repair}", err=True)
-        name = plan_floor_name(fp)
         sites = cat.loc[cat["floor"] == name, "site"].unique()
         if not len(sites):
             click.echo(f"warning: {fp}: no walks of floor {name!r} to check against this plan "

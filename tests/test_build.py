@@ -13,6 +13,7 @@ import pandas as pd
 import pytest
 import shapely
 import shapely.affinity
+import shapely.geometry
 from click.testing import CliRunner
 
 from localize.bundle import load_bundle
@@ -613,6 +614,40 @@ def test_a_plan_in_site_coordinates_builds_the_maps_of_the_floor_at_the_origin(t
     x, y = np.array([10.0, 20.0, 30.0]), np.array([5.0, 12.5, 20.0])
     np.testing.assert_allclose(far.sample("strength", x + 3000, y + 1000),
                                near.sample("strength", x, y), atol=1e-3, equal_nan=True)
+
+
+def test_a_plan_of_the_whole_building_builds_the_floor_named(tmp_path):
+    """``build TRACES --plan building.geojson --floor F1`` with every floor's features in one
+    file, tagged ``level``: the F1 maps are those built on F1's own plan (before, both floors'
+    outlines were united and their shops cut out, silently); without --floor it is refused,
+    naming the floors, before anything is ingested."""
+    def features(plan, level):
+        tag = {} if level is None else {"level": level}
+        return [{"type": "Feature", "properties": {"role": "outline", **tag},
+                 "geometry": shapely.geometry.mapping(plan.outline)}] + [
+            {"type": "Feature", "properties": dict(tag), "geometry": shapely.geometry.mapping(p)}
+            for p in shapely.get_parts(plan.obstacles)]
+
+    f1, f2 = read_floor_plan(SITE / "F1"), read_floor_plan(SITE / "F2")
+    files = {"building": features(f1, "F1") + features(f2, "F2"), "F1": features(f1, None)}
+    traces, runner, bundles = SITE / "F1" / "path_data_files", CliRunner(), {}
+    for name, feats in files.items():
+        (tmp_path / f"{name}.geojson").write_text(json.dumps(
+            {"type": "FeatureCollection", "features": feats}))
+        res = runner.invoke(main, ["build", str(traces), "--plan",
+                                   str(tmp_path / f"{name}.geojson"), "--floor", "F1", "-o",
+                                   str(tmp_path / name)])
+        assert res.exit_code == 0, res.output
+        bundles[name] = tmp_path / name / "F1"
+    layers = sorted(p.relative_to(bundles["F1"]) for p in bundles["F1"].rglob("*.npy"))
+    assert len(layers) > 10
+    for member in layers:
+        assert (bundles["building"] / member).read_bytes() == \
+            (bundles["F1"] / member).read_bytes(), member
+    res = runner.invoke(main, ["build", str(traces), "--plan",
+                               str(tmp_path / "building.geojson"), "-o", str(tmp_path / "x")])
+    assert res.exit_code != 0 and "its features are of 2 floors (F1, F2)" in res.output
+    assert "none is 'building'" in res.output and "ingest" not in res.output
 
 
 def test_a_plan_in_utm_coordinates_has_a_frame_of_its_own_size(tmp_path):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import re
 import json
 from pathlib import Path
 
@@ -10,6 +11,7 @@ import ezdxf
 import numpy as np
 import pytest
 import shapely
+import shapely.geometry
 
 from mapping.floorplan import FloorPlanError, read_floor_plan
 from mapping.grid import grid_for_extent, reachable_mask
@@ -409,3 +411,76 @@ def test_geojson_roles_walls_walkable_outlines_and_lines_left_out(tmp_path):
     with pytest.raises(FloorPlanError, match=r"plan.geojson: feature 3 has role 'shop', not "
                        r"one indoormap knows \(corridor, ignore, "):
         read_floor_plan(tmp_path / "plan.geojson")
+
+
+def _features_of(plan, level: str | None, outline_role: bool = True) -> list[dict]:
+    """A plan (metres) as GeoJSON features, each tagged ``level`` (when given)."""
+    tag = {"level": level} if level is not None else {}
+    feats = [{"type": "Feature", "geometry": shapely.geometry.mapping(plan.outline),
+              "properties": {"role": "outline"} if outline_role else {}}]
+    feats += [{"type": "Feature", "geometry": shapely.geometry.mapping(p), "properties": {}}
+              for p in shapely.get_parts(plan.obstacles)]
+    for f in feats:
+        f["properties"].update(tag)
+    return feats
+
+
+def _collection(path: Path, feats: list[dict]) -> Path:
+    path.write_text(json.dumps({"type": "FeatureCollection", "features": feats}))
+    return path
+
+
+def test_a_plan_of_several_floors_is_read_one_floor_at_a_time(tmp_path):
+    """A building's export with every floor in one GeoJSON, each feature tagged with its
+    ``level``: it was read as one floor, the outlines united and every floor's shops cut out
+    (the sample F1's reachable area fell from 488 to 347 m^2, no warning). Now the floor named
+    is read, equal to its own plan; without a name, or with one the file lacks, it is refused
+    naming its floors."""
+    f1, f2 = read_floor_plan(SITE / "F1"), read_floor_plan(SITE / "F2")
+    building = _collection(tmp_path / "building.geojson",
+                           _features_of(f1, "F1") + _features_of(f2, "F2"))
+    alone = read_floor_plan(_collection(tmp_path / "F1.geojson", _features_of(f1, None)))
+    picked = read_floor_plan(building, level="F1")
+    assert picked.floor_name == "F1" and not picked.repairs
+    assert picked.reachable.symmetric_difference(alone.reachable).area < 1e-6
+    assert picked.reachable.area == pytest.approx(f1.reachable.area)
+    assert read_floor_plan(building, level="F2").reachable.area == \
+        pytest.approx(f2.reachable.area)
+    with pytest.raises(FloorPlanError, match=r"building.geojson: its features are of 2 floors "
+                                             r"\(F1, F2\).*name the floor to read"):
+        read_floor_plan(building)
+    with pytest.raises(FloorPlanError, match="none is 'F3'"):
+        read_floor_plan(building, level="F3")
+    # a floor tagged "Level 1" is read for the floor folder "Level_1" (its store key)
+    spaced = _collection(tmp_path / "spaced.geojson",
+                         _features_of(f1, "Level 1") + _features_of(f2, "Level 2"))
+    assert read_floor_plan(spaced, level="Level_1").floor_name == "Level 1"
+    # a feature naming no floor is read as part of the floor picked, and said so
+    shared = _features_of(f1, "F1") + _features_of(f2, "F2")
+    del shared[1]["properties"]["level"]
+    plan = read_floor_plan(_collection(tmp_path / "shared.geojson", shared), level="F2")
+    assert "1 feature(s) name no floor (feature 1) and are read as part of it" in \
+        plan.repairs[0]
+    assert plan.reachable.area < f2.reachable.area
+    # a plan of one tagged floor reads as before, whatever floor is asked for (its tag is
+    # not taken for the floor's name: a "floor": 1 would refuse walks of "F1")
+    one = read_floor_plan(_collection(tmp_path / "one.geojson", _features_of(f1, "F1")),
+                          level="anything")
+    assert one.reachable.area == pytest.approx(f1.reachable.area) and one.floor_name == ""
+
+
+def test_stacked_outlines_without_floor_tags_are_warned_of(tmp_path):
+    """Two floors' outlines in one file with nothing saying which is which cannot be split,
+    but outline features overlapping by more than half the smaller one is said: their
+    union is read as the floor, both floors' shops cut out of it."""
+    f1, f2 = read_floor_plan(SITE / "F1"), read_floor_plan(SITE / "F2")
+    stacked = read_floor_plan(_collection(tmp_path / "stacked.geojson",
+                                          _features_of(f1, None) + _features_of(f2, None)))
+    assert len(stacked.repairs) == 1
+    assert re.search(r"stacked.geojson: the outline features \(0, \d+\) overlap by \d+ m\^2, "
+                     r"\d+% of the smallest: two floors' outlines in one file\?",
+                     stacked.repairs[0])
+    # an outline drawn as two pieces overlapping a little is an outline, not two floors
+    pieces = [{"type": "Feature", "properties": {"role": "outline"}, "geometry": g}
+              for g in (_square(0, 0, 20), _square(18, 0, 20))]
+    assert not read_floor_plan(_collection(tmp_path / "pieces.geojson", pieces)).repairs
