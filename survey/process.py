@@ -36,6 +36,7 @@ from .field_features import circular_median_deg, field_features, unwrap_deg, wra
 from .magcal import MagCalResult
 from .positions import PositionParams, clean_waypoints, positions_along_walk
 from .rotation import heading_deg, interpolate_rotation_vector, rotation_matrices, tilt_deg
+from .sensor_units import acceleration_unit_problem, field_unit_problem, gyro_turn_problem
 from .steps import detect_steps, fit_weinberg, segment_ids, weinberg_length
 
 if TYPE_CHECKING:  # an annotation only
@@ -201,6 +202,39 @@ def calibrated_field(sensors: pd.DataFrame, session_fit: MagCalResult | None = N
     raise ProcessingError("no magnetometer stream")
 
 
+def field_strengths_ut(sensors: pd.DataFrame) -> dict[str, float]:
+    """Median strength (uT, as logged) of each field a walk's magnetometer gives: the
+    calibrated stream and the uncalibrated one minus the phone's bias (or as it is, without
+    a bias); empty without a magnetometer."""
+    cal, unc = (_stream(sensors, name) for name in MAGNETOMETER_STREAMS)
+    out = {}
+    if len(cal):
+        out["calibrated"] = float(np.median(np.linalg.norm(
+            cal[["x", "y", "z"]].to_numpy(np.float64), axis=1)))
+    if len(unc):
+        raw = unc[["x", "y", "z"]].to_numpy(np.float64)
+        bias = unc[["bx", "by", "bz"]].to_numpy(np.float64)
+        if np.isfinite(bias).all():
+            out["uncalibrated minus bias"] = float(np.median(np.linalg.norm(raw - bias, axis=1)))
+        else:
+            out["uncalibrated"] = float(np.median(np.linalg.norm(raw, axis=1)))
+    return out
+
+
+def check_sensor_units(trace_id: str, sensors: pd.DataFrame, acc_xyz: NDArray[np.float64],
+                       compass: tuple[NDArray, NDArray],
+                       gyro: tuple[NDArray, NDArray] | None) -> None:
+    """A :class:`ProcessingError` naming the walk when a sensor's values are in another unit
+    than indoormap reads (:mod:`survey.sensor_units`: accelerometer ``acc_xyz`` (n, 3) not in
+    m/s^2, magnetometer not in uT, gyroscope not in rad/s by its turns against the
+    ``compass`` track)."""
+    problem = (acceleration_unit_problem(acc_xyz)
+               or field_unit_problem(field_strengths_ut(sensors))
+               or (gyro_turn_problem(compass, gyro) if gyro is not None else None))
+    if problem:
+        raise ProcessingError(f"{trace_id}: {problem}")
+
+
 def compass_track_deg(trace_id: str, rot_t: NDArray, rot: NDArray
                       ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The phone's compass heading from its rotation vector, unwrapped (deg), at the samples
@@ -328,6 +362,11 @@ def process_walk(trace_id: str, sensors: pd.DataFrame, waypoints: pd.DataFrame,
     rot_t = rv["t_ms"].to_numpy(np.float64)
     rot = rv[["x", "y", "z"]].to_numpy(np.float64)
 
+    # Headings: gyro (relative, immune to magnetic anomalies) and compass (rotation vector).
+    compass = compass_track_deg(trace_id, rot_t, rot)
+    gyro = gyro_heading_deg(sensors, rot_t, rot)
+    check_sensor_units(trace_id, sensors, acc_xyz, compass, gyro)
+
     steps = detect_steps(acc_t, acc_xyz)
     st = steps.t_ms
     if len(st) == 0:
@@ -335,14 +374,10 @@ def process_walk(trace_id: str, sensors: pd.DataFrame, waypoints: pd.DataFrame,
     step_start = np.concatenate([[st[0] - 600.0], st[:-1]])
     step_start = np.maximum(step_start, st - 1000.0)
     mid = 0.5 * (step_start + st)
-
-    # Headings: gyro (relative, immune to magnetic anomalies) and compass (rotation vector).
-    compass = compass_track_deg(trace_id, rot_t, rot)
     compass_step = np.mod(np.interp(mid, *compass), 360.0)
     axis = carried_heading_deg(acc_t, acc_xyz, rot_t, rot, step_start, st, params.carried)
     carried = np.isfinite(axis)
     compass_step[carried] = _way_along_legs(axis[carried], st[carried], wt, wxy)
-    gyro = gyro_heading_deg(sensors, rot_t, rot)
     if gyro is not None:
         relative_heading = np.interp(mid, *gyro)
         # Anchor the gyro's arbitrary origin to the compass over the whole walk (a median, so

@@ -693,9 +693,15 @@ def processed_table(store: SurveyStore | str, name: str, *, site: str | None = N
 
 def processed_floors_text(store: SurveyStore | str) -> str:
     """``"the store has processed walks of site S floors F1 (3), F2 (1)"``, or says it has
-    none: what a selection that matched nothing names, so a misspelt floor is plain."""
+    none (and why, when every walk was skipped in processing): what a selection that matched
+    nothing names, so a misspelt floor is plain."""
     ok = processed_walks(store)
     if not len(ok):
+        cat = processed_catalog(store)
+        skipped = cat[cat["status"] == "skipped"]
+        if len(skipped):  # processed, and every one refused: say why, not to process them
+            return (f"the store has no walk that processed: {len(skipped)} skipped (the first: "
+                    f"{skipped['reason'].iloc[0]})")
         return "the store has no processed walks (indoormap process --store STORE)"
     parts = []
     for site, walks in ok.groupby("site", sort=True):

@@ -907,3 +907,29 @@ def test_a_plans_floor_matches_walks_by_name_id_or_store_key(tmp_path):
     with pytest.raises(click.UsageError, match="says it is the plan of floor Floor 2, but the "
                                                "walks in .* are recorded as floor F1"):
         check_plan_floor(plan, src / "p.geojson", walks("F1", "", "F1"), summary, src)
+
+
+def test_a_survey_logged_in_gauss_is_refused_saying_so(tmp_path):
+    """Walks converted with the magnetometer in gauss built a bundle whose field layers read
+    0.4-0.5 "uT", without a word. Each walk is now skipped naming the unit, and the build
+    ends saying every walk was skipped and why (it said to run `indoormap process`)."""
+    from survey.trace_reader import read_trace
+    from survey.walkline_writer import write_walk_plan
+
+    def in_gauss(trace):
+        sensors = trace.sensors.copy()
+        mag = sensors["stream"].astype(str).str.startswith("magnetic")
+        for col in ("x", "y", "z", "bx", "by", "bz"):
+            sensors.loc[mag, col] = sensors.loc[mag, col] / 100
+        return dataclasses.replace(trace, sensors=sensors)
+
+    traces = sorted((SITE / "F1" / "path_data_files").glob("*.txt.gz"))[:2]
+    plan = write_walk_plan(tmp_path / "gauss", [in_gauss(read_trace(p)) for p in traces])
+    res = CliRunner().invoke(main, ["build", str(plan.parent), "--plan",
+                                    str(SITE / "F1" / "geojson_map.json"), "-o",
+                                    str(tmp_path / "out")])
+    assert res.exit_code == 1 and not (tmp_path / "out" / "F1").exists()
+    assert res.output.count("where the Earth's field is 25-65 uT: in gauss (1 G = 100 uT)? "
+                            "indoormap reads uT") == 3  # two walks, then the summary
+    assert "the store has no walk that processed: 2 skipped (the first: " in res.output
+    assert "indoormap process" not in res.output

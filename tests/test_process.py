@@ -300,3 +300,58 @@ def test_gap_in_streams_is_bridged(walks):
     walk = process_walk("w", gap, tr.waypoints)
     assert walk.summary["n_steps"] > 0
     assert np.isfinite(walk.samples[["x_m", "y_m", "strength_ut"]].to_numpy()).all()
+
+
+def _scaled(sensors: pd.DataFrame, prefix: str, factor: float) -> pd.DataFrame:
+    """``sensors`` with every stream named ``prefix...`` (values and bias) times ``factor``."""
+    out = sensors.copy()
+    rows = out["stream"].astype(str).str.startswith(prefix)
+    for col in ("x", "y", "z", "bx", "by", "bz"):
+        out.loc[rows, col] = out.loc[rows, col] * factor
+    return out
+
+
+@pytest.mark.parametrize("prefix, factor, message", [
+    ("accelerometer", 1 / 9.80665, r"median magnitude is 0\.99\d, where a phone reads gravity, "
+                                   r"about 9\.8 m/s\^2: in g \(1 g = 9\.81 m/s\^2\), or linear "
+                                   r"acceleration \(without gravity\)\?"),
+    ("accelerometer", 100.0, r"median magnitude is 9\d\d, .*: in mg or cm/s\^2\?"),
+    ("magnetic", 0.01, r"median strength is calibrated 0\.\d+, uncalibrated minus bias "
+                       r"0\.\d+, where the Earth's field is 25-65 uT: in gauss"),
+    ("magnetic", 1000.0, r"in nanotesla \(1 nT = 0\.001 uT\)\? indoormap reads uT"),
+    ("gyroscope", 180 / np.pi, r"the gyroscope turns 5\d\.\d times as far as the rotation "
+                               r"vector .*: in deg/s\? indoormap reads rad/s"),
+    ("gyroscope", 0.01, r"turns 0\.0\d+ times as far .*: in another unit, or broken\?"),
+])
+def test_sensors_in_another_unit_are_named(walks, prefix, factor, message):
+    """A converted log in g, gauss, nT or deg/s: the walk was processed into a wrong map
+    (field layers of 0.4 "uT"; every leg missing its waypoints, blamed on the waypoints) or
+    failed with "no steps detected". Processing for a map and step summaries for the
+    localizer both refuse it, naming the unit the values look like."""
+    from survey.step_summaries import step_summaries
+
+    tr = _walk(walks)
+    wrong = _scaled(tr.sensors, prefix, factor)
+    with pytest.raises(ProcessingError, match=message):
+        process_walk("w", wrong, tr.waypoints)
+    with pytest.raises(ProcessingError, match=message):
+        step_summaries(dataclasses.replace(tr, sensors=wrong))
+
+
+def test_unit_checks_leave_what_a_phone_logs():
+    """The checks judge units only: a phone's field out of range in no other unit (a
+    magnet nearby) is left to the calibration, one plausible field of two is enough, and a
+    walk without turns says nothing of its gyroscope."""
+    from survey.sensor_units import (acceleration_unit_problem, field_unit_problem,
+                                     gyro_turn_problem)
+
+    assert field_unit_problem({"calibrated": 300.0}) is None
+    assert field_unit_problem({"calibrated": 0.45, "uncalibrated minus bias": 45.0}) is None
+    assert field_unit_problem({}) is None
+    assert "in gauss" in field_unit_problem({"uncalibrated": 0.5})
+    g = np.array([[0.0, 0.0, 9.81]]) + np.random.default_rng(0).normal(0, 2, (500, 3))
+    assert acceleration_unit_problem(g) is None
+    assert "linear acceleration" in acceleration_unit_problem(g - [0, 0, 9.81])
+    t = np.arange(0, 60_000, 20.0)
+    straight = (t, 0.5 * np.sin(t / 1000))  # a wobble of +-0.5 deg
+    assert gyro_turn_problem(straight, (t, 57.3 * straight[1])) is None
