@@ -11,6 +11,9 @@ FeatureCollection in map metres (x east, y north); each LineString feature is on
 - optional ``site_id``, ``site_name``, ``floor_id``, ``floor_name``, ``device_brand``,
   ``device_model``; the collection's own ``properties`` give defaults for every walk.
 
+A feature with no geometry is a walk without ground truth (no waypoints; ``start_ms`` and
+``end_ms`` optional): localized from a radio fix or a given start, never mapped or scored.
+
 The sensor CSV has a header row, one row per sample, and the column ``t_ms`` (Unix ms) plus any
 of these groups (a group is all-or-nothing): ``acc_x,acc_y,acc_z`` (m/s^2), ``gyro_x..z`` (rad/s),
 ``mag_x..z`` (uT), ``rot_x..z`` (Android rotation vector), ``acc_uncal_x..z`` with
@@ -221,10 +224,12 @@ class PlanWalk:
         for path, data in logs.files.values():
             check_not_utf16_or_32(data, path)
         times, xy = self.times_ms, self.xy_m
-        reference_ms = float(np.median(times))
         source, csv_bytes = logs.files["sensor_log"]
-        trace = parse_sensor_csv(csv_bytes, reference_ms=reference_ms, path=source,
-                                 strict=strict)
+        trace = parse_sensor_csv(csv_bytes, path=source, strict=strict,
+                                 reference_ms=float(np.median(times)) if len(times) else None)
+        # a walk without times of its own is at its sensor log's
+        reference_ms = float(np.median(times)) if len(times) else \
+            float(trace.sensors["t_ms"].median())
         for prop, table, parse in (("wifi_log", "wifi", parse_wifi_csv),
                                    ("ble_log", "ble", parse_ble_csv)):
             if prop in logs.files:
@@ -235,9 +240,11 @@ class PlanWalk:
         for prop, attr in _HEADER_PROPS.items():
             if self.props.get(prop) is not None:
                 setattr(trace.header, attr, str(self.props[prop]))
-        trace.header.start_ms, trace.header.end_ms = int(times[0]), int(times[-1])
-        trace.waypoints = pd.DataFrame({"t_ms": times.astype(np.int64), "x_m": xy[:, 0],
-                                        "y_m": xy[:, 1]})
+        if len(times):
+            trace.header.start_ms, trace.header.end_ms = int(times[0]), int(times[-1])
+        if len(xy):
+            trace.waypoints = pd.DataFrame({"t_ms": times.astype(np.int64), "x_m": xy[:, 0],
+                                            "y_m": xy[:, 1]})
         return trace
 
 
@@ -292,9 +299,12 @@ def plan_walks(path: str | os.PathLike) -> list[PlanWalk]:
             raise SurveyFormatError("feature must be an object with object 'properties' and "
                                     "'geometry'", path=where, reason="plan")
         props = {**defaults, **(own or {})}
+        if not geom:  # no ground truth: a walk to localize, not to map
+            walks.append(_untruthed_walk(props, where, path.parent, feature))
+            continue
         if geom.get("type") != "LineString":
-            raise SurveyFormatError("walk geometry must be a LineString", path=where,
-                                    reason="plan")
+            raise SurveyFormatError("walk geometry must be a LineString (or null: a walk "
+                                    "without ground truth)", path=where, reason="plan")
         coords = geom.get("coordinates")
         numbers = isinstance(coords, list) and all(
             isinstance(pt, list) and all(isinstance(v, (int, float)) and not isinstance(v, bool)
@@ -309,23 +319,48 @@ def plan_walks(path: str | os.PathLike) -> list[PlanWalk]:
         if np.abs(xy[:, :2]).max() > WAYPOINT_LIMIT_M:
             raise SurveyFormatError(f"a vertex lies beyond +-{WAYPOINT_LIMIT_M:g} m (the plan "
                                     "is in map metres)", path=where, reason="plan")
-        walk_id = str(props.get("walk_id") or "").strip()
-        log = props.get("sensor_log")
-        if not walk_id or not log:
-            hint = ("; this looks like the simulator's planned_routes.geojson (the routes its "
-                    "walks follow, not a walk plan): ingest the traces in path_data_files/"
-                    if walk_id and "start_ms" in props else "")
-            raise SurveyFormatError("feature needs properties 'walk_id' and 'sensor_log'"
-                                    + hint, path=where, reason="plan")
-        for prop in LOGS:
-            if props.get(prop) is not None and not isinstance(props[prop], str):
-                raise SurveyFormatError(f"{prop!r} must be a path (a string)", path=where,
-                                        reason="plan")
+        walk_id, log = _walk_logs(props, where)
         times = _vertex_times(xy[:, :2], props, where)
         walks.append(PlanWalk(walk_id, log, where, path.parent, props, feature, xy, times))
     if not walks:
         raise SurveyFormatError("walk plan has no features", path=str(path), reason="plan")
     return walks
+
+
+def _walk_logs(props: dict, where: str) -> tuple[str, str]:
+    """A feature's ``walk_id`` and ``sensor_log``, its log properties checked to be paths."""
+    walk_id = str(props.get("walk_id") or "").strip()
+    log = props.get("sensor_log")
+    if not walk_id or not log:
+        hint = ("; this looks like the simulator's planned_routes.geojson (the routes its "
+                "walks follow, not a walk plan): ingest the traces in path_data_files/"
+                if walk_id and "start_ms" in props else "")
+        raise SurveyFormatError("feature needs properties 'walk_id' and 'sensor_log'" + hint,
+                                path=where, reason="plan")
+    for prop in LOGS:
+        if props.get(prop) is not None and not isinstance(props[prop], str):
+            raise SurveyFormatError(f"{prop!r} must be a path (a string)", path=where,
+                                    reason="plan")
+    return walk_id, log
+
+
+def _untruthed_walk(props: dict, where: str, folder: Path, feature: dict) -> PlanWalk:
+    """A feature without geometry: a walk with no waypoints (nothing to map it with or score
+    it against; ``localize`` starts it from a radio fix or ``--start``). Its ``start_ms`` and
+    ``end_ms``, when given, are its time; otherwise its sensor log's median time is."""
+    walk_id, log = _walk_logs(props, where)
+    times = np.empty(0)
+    if props.get("start_ms") is not None or props.get("end_ms") is not None:
+        try:
+            times = np.round(np.array([props.get("start_ms"), props.get("end_ms")],
+                                      dtype=np.float64))
+        except (TypeError, ValueError, OverflowError) as err:
+            raise SurveyFormatError("start_ms and end_ms must be numbers", path=where,
+                                    reason="plan") from err
+        if not (np.isfinite(times).all() and 0 <= times[0] <= times[1] < MAX_TIME_MS):
+            raise SurveyFormatError("start_ms and end_ms must be within [0, 2^53) ms, the "
+                                    "start not after the end", path=where, reason="plan")
+    return PlanWalk(walk_id, log, where, folder, props, feature, np.empty((0, 2)), times)
 
 
 def identity_sha256(identity: bytes) -> str:
@@ -369,16 +404,20 @@ def _vertex_times(xy: np.ndarray, props: dict, where: str) -> np.ndarray:
     return times
 
 
-def parse_sensor_csv(data: bytes, *, reference_ms: float, path: str = "<input>",
+def parse_sensor_csv(data: bytes, *, reference_ms: float | None, path: str = "<input>",
                      strict: bool = False) -> Trace:
     """Parse a walk-line sensor CSV into a :class:`Trace` (sensors only). ``reference_ms``:
-    the walk's time (Unix ms; the median of its plan's vertex times), which a row more than
+    the walk's time (Unix ms; the median of its plan's vertex times; None: the median of the
+    log's own times, as the trace reader measures), which a row more than
     :data:`~survey.trace_format.MAX_FROM_MEDIAN_TIME_MS` from is a ``time_outlier``."""
     report = ParseReport(path=path)
     log = read_log_csv(data, path, "sensor log", ("t_ms",))
     columns = log.columns
     t = log.numbers("t_ms")
     bad_t = ~np.isfinite(t) | (t < 0)
+    if reference_ms is None:
+        timed = ~bad_t & (t < MAX_TIME_MS)
+        reference_ms = float(np.median(t[timed])) if timed.any() else 0.0
     parts = []
     row_bad = bad_t.copy()
     implausible = np.zeros(len(t), dtype=bool)

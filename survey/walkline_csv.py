@@ -182,6 +182,25 @@ class RowCheck:
     otherwise: str = ""
 
 
+#: Ratio of a log's times to its plan's (power of ten) -> how it reads and what it suggests.
+_TIME_UNITS = {-3: ("a thousandth of", "the log in seconds, or the plan in microseconds"),
+               3: ("a thousand times", "the log in microseconds, or the plan in seconds"),
+               6: ("a million times", "the log in nanoseconds")}
+
+
+def _time_unit(t_ms: NDArray[np.float64], reference_ms: float) -> tuple[str, str] | None:
+    """How a log's times ``t_ms`` compare with the plan's time ``reference_ms`` when they are
+    in another unit (their median a thousandth, a thousand or a million times it, within
+    25 %), else None."""
+    if not reference_ms > 0:
+        return None
+    ratio = np.median(t_ms) / reference_ms
+    if not ratio > 0:
+        return None
+    power = int(np.round(np.log10(ratio)))
+    return _TIME_UNITS.get(power) if abs(ratio / 10.0 ** power - 1) <= 0.25 else None
+
+
 def time_check(log: LogTable, t_ms: NDArray[np.float64], usable: NDArray[np.bool_],
                reference_ms: float) -> RowCheck:
     """The ``time_outlier`` rows among the ``usable`` ones: ``t_ms`` more than
@@ -192,10 +211,18 @@ def time_check(log: LogTable, t_ms: NDArray[np.float64], usable: NDArray[np.bool
     Raises
     ------
     SurveyFormatError
-        Every usable row is such a row: the log and the plan are on different clocks (reason
-        ``clock``).
+        Every usable row is such a row: the log and the plan are on different clocks, or in
+        different units (the log's times a thousandth, a thousand or a million times the
+        plan's, named; nanoseconds are beyond 2^53 and not usable) (reason ``clock``).
     """
     outlier = usable & (np.abs(t_ms - reference_ms) > MAX_FROM_MEDIAN_TIME_MS)
+    timed = np.isfinite(t_ms)  # with the rows beyond 2^53 ms (nanoseconds)
+    unit = _time_unit(t_ms[timed], reference_ms) if timed.any() else None
+    if unit is not None and not (usable & ~outlier).any():
+        raise SurveyFormatError(
+            f"the log's t_ms (median {np.median(t_ms[timed]):.6g}) are {unit[0]} the walk "
+            f"plan's vertex times (median {reference_ms:.0f} ms): {unit[1]}? Both are Unix "
+            "milliseconds", path=log.path, reason="clock")
     if usable.any() and (outlier == usable).all():
         raise SurveyFormatError(
             f"every row's t_ms is over {_HOURS} h from the walk plan's vertex times (median "

@@ -73,21 +73,26 @@ def ble_csv(trace: Trace) -> bytes:
 
 
 def walk_feature(trace: Trace, logs: dict[str, str]) -> dict:
-    """The walk's plan feature: a LineString through its waypoints (m) at their times, its
-    header's site, floor and phone, and its ``logs`` (property -> path, relative to the
-    plan)."""
+    """The walk's plan feature: a LineString through its waypoints (m) at their times (a
+    walk without waypoints: no geometry, its header's start and end times), its header's
+    site, floor and phone, and its ``logs`` (property -> path, relative to the plan)."""
     wp = trace.waypoints
-    if len(wp) < 2:
-        raise ValueError(f"walk {trace.trace_id!r} has {len(wp)} waypoints; a walk-line walk "
-                         "needs two or more")
+    if len(wp) == 1:
+        raise ValueError(f"walk {trace.trace_id!r} has 1 waypoint; a walk-line walk has none "
+                         "or two or more")
     h = trace.header
     header = {"site_id": h.site_id, "site_name": h.site_name, "floor_id": h.floor_id,
               "floor_name": h.floor_name, "device_brand": h.brand, "device_model": h.model}
-    return {"type": "Feature",
-            "geometry": {"type": "LineString",
-                         "coordinates": wp[["x_m", "y_m"]].to_numpy(np.float64).tolist()},
-            "properties": {"walk_id": trace.trace_id, **logs,
-                           "vertex_times_ms": wp["t_ms"].to_numpy(np.int64).tolist(),
+    if len(wp):
+        geometry = {"type": "LineString",
+                    "coordinates": wp[["x_m", "y_m"]].to_numpy(np.float64).tolist()}
+        times = {"vertex_times_ms": wp["t_ms"].to_numpy(np.int64).tolist()}
+    else:
+        geometry = None
+        times = {"start_ms": h.start_ms, "end_ms": h.end_ms} \
+            if h.start_ms is not None and h.end_ms is not None else {}
+    return {"type": "Feature", "geometry": geometry,
+            "properties": {"walk_id": trace.trace_id, **logs, **times,
                            **{k: v for k, v in header.items() if v is not None}}}
 
 
@@ -101,8 +106,8 @@ def write_walk_plan(folder: str | os.PathLike, traces: Sequence[Trace], *,
     Raises
     ------
     ValueError
-        A walk with fewer than two waypoints (a plan's walk is a line through them), or two
-        walks of one trace id.
+        A walk with one waypoint (a plan's walk is a line through them, or has no line), or
+        two walks of one trace id.
     survey.errors.PublishError
         ``folder`` exists and not ``overwrite``.
     """

@@ -10,6 +10,7 @@ import pyarrow.parquet as pq
 import pytest
 from click.testing import CliRunner
 from localize_fixtures import SAMPLE, truth_bundles  # noqa: F401  (fixture)
+from radio_fixtures import built  # noqa: F401  (fixture)
 
 from localize.bundle import load_bundle
 from survey.cli import main
@@ -410,6 +411,45 @@ def _as_walk_plan(trace_path, folder):
     from survey.walkline_writer import write_walk_plan
 
     return write_walk_plan(folder, [read_trace(trace_path)])
+
+
+def test_a_walk_without_ground_truth_is_localized(built, tmp_path):  # noqa: F811
+    """A walk-plan walk with no geometry (no ground truth, as a production walk has none):
+    ``localize`` starts it from its first Wi-Fi fix and writes the track the same walk gives
+    as a trace, with no error; one without scans needs ``--start``; ``evaluate`` skips
+    them, having nothing to score against. Before, such a walk had to be given an invented
+    line, and its 'error at its 2 waypoints' was printed."""
+    import dataclasses
+
+    from survey.walkline_writer import write_walk_plan
+
+    walk = min(F1_WALKS.glob("*.txt.gz"))
+    trace = read_trace(walk)
+    blind = dataclasses.replace(trace, waypoints=trace.waypoints.iloc[:0])
+    quiet = dataclasses.replace(blind, trace_id="quiet", wifi=trace.wifi.iloc[:0],
+                                ble=trace.ble.iloc[:0])
+    plan = write_walk_plan(tmp_path / "plan", [blind, quiet])
+    bundles, runner = str(built), CliRunner()
+    tracks = {}
+    # (auto starts a walk with waypoints at its first one, as the PDR baseline does)
+    for name, path, start in (("trace", walk, "radio"), ("plan", plan, "auto")):
+        res = runner.invoke(main, ["localize", bundles, str(path), "-o", str(tmp_path / name),
+                                   "--no-plot", "--method", "indoormap", "--start", start])
+        assert "start first Wi-Fi fix" in res.output, res.output
+        tracks[name] = pq.read_table(tmp_path / name / f"{trace.trace_id}.parquet")
+    assert res.exit_code == 1 and "quiet: no waypoint to start from and no Wi-Fi or BLE fix; " \
+        "give a start position" in res.output
+    assert "recoveries ->" in res.output  # no "error at its waypoints": it has none
+    assert tracks["plan"].column_names == tracks["trace"].column_names
+    for column in ("t_ms", "x_m", "y_m"):
+        np.testing.assert_array_equal(tracks["plan"].column(column).to_numpy(),
+                                      tracks["trace"].column(column).to_numpy())
+    res = runner.invoke(main, ["localize", bundles, str(plan), "-o", str(tmp_path / "given"),
+                               "--no-plot", "--method", "pdr", "--start", "10,10"])
+    assert res.exit_code == 0 and "quiet: " in res.output and "start given" in res.output
+    scored = runner.invoke(main, ["evaluate", bundles, str(plan), "--method", "pdr"])
+    assert "(walk quiet): no waypoints, skipped" in scored.output
+    assert "no walk was evaluated" in scored.output
 
 
 def test_walk_plans_are_walks_to_localize_and_evaluate(truth_bundles, tmp_path):  # noqa: F811

@@ -182,6 +182,33 @@ def test_plan_errors_name_file_and_feature(tmp_path, feature, message):
     assert "plan.geojson (feature 0)" in str(info.value)
 
 
+def test_a_walk_without_ground_truth_has_no_waypoints(tmp_path):
+    """A feature without geometry is a walk recorded with no ground truth (a production
+    walk to localize): it was refused ("walk geometry must be a LineString"), so such a walk
+    could only be localized by inventing a line. It reads with no waypoints, at the time its
+    start_ms and end_ms give, or else at its sensor log's median time (a row 13 h from it is
+    a stray)."""
+    _csv(tmp_path / "a.csv")
+    with (tmp_path / "a.csv").open("a") as f:
+        f.write(f"{T0 + 13 * 3_600_000},0,0,9.8,1,1,1,0,0,0,1,1,1,0,0,0\n")
+    bare = {"type": "Feature", "geometry": None, "properties": {"walk_id": "a",
+                                                                "sensor_log": "a.csv"}}
+    timed = json.loads(json.dumps(bare))
+    timed["properties"].update(walk_id="b", start_ms=T0, end_ms=T0 + 1980)
+    (a, _, _), (b, _, _) = read_walk_plan(_plan(tmp_path, [bare, timed]))
+    for trace in (a, b):
+        assert trace.waypoints.empty and trace.header.floor_name == "F2"
+        assert trace.sensors["t_ms"].max() == T0 + 1980
+        assert trace.report.bad == {"time_outlier": 1}
+    assert (a.header.start_ms, b.header.start_ms, b.header.end_ms) == (None, T0, T0 + 1980)
+    for times, message in (({"start_ms": T0, "end_ms": T0 - 1}, "the start not after the end"),
+                           ({"start_ms": "noon", "end_ms": T0}, "must be numbers")):
+        bad = json.loads(json.dumps(bare))
+        bad["properties"].update(times)
+        with pytest.raises(SurveyFormatError, match=message):
+            read_walk_plan(_plan(tmp_path, [bad]))
+
+
 def test_csv_errors(tmp_path):
     (tmp_path / "a.csv").write_text("time,acc_x\n1,2\n")
     plan = _plan(tmp_path, [_feature("a", [[0, 0], [1, 0]], start_ms=T0, end_ms=T0 + 1980)])
@@ -304,6 +331,28 @@ def test_a_row_far_in_time_is_a_time_outlier(tmp_path):
     with pytest.raises(SurveyFormatError, match=r"a.csv: every row's t_ms is over 12 h from "
                                                 r"the walk plan's vertex times"):
         read_walk_plan(tmp_path / "plan.geojson")
+
+
+@pytest.mark.parametrize("scale, offset, message", [
+    (1e-3, 0, r"the log's t_ms \(median 1\.565e\+09\) are a thousandth of the walk plan's "
+              r"vertex times \(median 1565000000490 ms\): the log in seconds, or the plan in "
+              r"microseconds\? Both are Unix milliseconds"),
+    (1e3, 0, r"are a thousand times the walk plan's vertex times .*: the log in microseconds, "
+             r"or the plan in seconds\?"),
+    (1e6, 0, r"are a million times .*: the log in nanoseconds\?"),  # beyond 2^53: unusable
+    (1.0, 3.6e6 * 13, r"every row's t_ms is over 12 h from the walk plan's vertex times"),
+])
+def test_a_log_in_another_time_unit_says_which(tmp_path, scale, offset, message):
+    """A log stamped in seconds, microseconds or nanoseconds was refused as on 'different
+    clocks' (nanoseconds: every row out of range, then 'no sample'); the ratio of its times
+    to the plan's now names the unit. A log 13 h off is still on another clock."""
+    t0 = 1_565_000_000_000
+    rows = "".join(f"{(t0 + 20 * i) * scale + offset:.0f},1,2,3\n" for i in range(50))
+    (tmp_path / "a.csv").write_text("t_ms,acc_x,acc_y,acc_z\n" + rows)
+    _plan(tmp_path, [_feature("a", [[0, 0], [1, 0]], start_ms=t0, end_ms=t0 + 980)])
+    with pytest.raises(SurveyFormatError, match=message) as err:
+        read_walk_plan(tmp_path / "plan.geojson")
+    assert err.value.reason == "clock" and "a.csv" in str(err.value)
 
 
 def test_a_row_of_the_wrong_width_is_one_bad_line(tmp_path):

@@ -179,6 +179,8 @@ def test_ble_log_rows_are_read_as_the_trace_reader_reads_beacons():
      r"w.csv: Wi-Fi log has no usable row: none of its 2 rows is usable \(bad_bssid 1, "
      r"out_of_range 1; the first: w.csv:2: bssid is not a MAC address: column bssid", "empty"),
     ("t_ms,bssid,rssi_dbm\n1000,aa:bb:cc:00:00:01,-60\n", "different clocks", "clock"),
+    (f"t_ms,bssid,rssi_dbm\n{T0 // 1000},aa:bb:cc:00:00:01,-60\n", "the log in seconds",
+     "clock"),
 ])
 def test_a_wifi_log_that_cannot_be_read_is_refused_naming_it(text, match, reason):
     with pytest.raises(SurveyFormatError, match=match) as err:
