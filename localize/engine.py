@@ -174,8 +174,12 @@ class MultiUserEngine:
         return ids
 
     def remove_users(self, ids: ArrayLike) -> None:
-        """Drop users (their filters, and their alignments when guided, are freed)."""
-        keep = ~np.isin(self.user_ids, np.asarray(ids))
+        """Drop users (their filters, and their alignments when guided, are freed); a
+        :class:`LocalizationError` naming ids the engine does not hold (a user removed twice,
+        an id of another engine), before any is removed."""
+        gone = self.rows_of(ids, "remove_users")
+        keep = np.ones(len(self.user_ids), dtype=bool)
+        keep[gone] = False
         if self.state is not None:
             self.state.data = self.state.data[:, keep]
             for name in self.state.obs:
@@ -188,9 +192,11 @@ class MultiUserEngine:
         self.consecutive = self.consecutive[keep]
         self.n_recoveries = self.n_recoveries[keep]
 
-    def rows_of(self, ids: ArrayLike) -> NDArray[np.intp]:
-        """Rows of user ids (raises for unknown ids)."""
+    def rows_of(self, ids: ArrayLike, what: str = "tick") -> NDArray[np.intp]:
+        """Rows of user ids (raises for unknown ids, naming ``what`` they were given to)."""
         ids = np.asarray(ids, dtype=np.int64).ravel()
+        if not len(ids):
+            return np.empty(0, dtype=np.intp)
         order = np.argsort(self.user_ids)
         pos = np.searchsorted(self.user_ids, ids, sorter=order)
         pos = np.minimum(pos, len(order) - 1) if len(order) else pos
@@ -198,7 +204,7 @@ class MultiUserEngine:
         if len(order) == 0 or not np.array_equal(self.user_ids[rows], ids):
             known = set(self.user_ids.tolist())
             unknown = [i for i in ids.tolist() if i not in known]
-            raise LocalizationError(f"unknown user ids in tick: {unknown[:10]}")
+            raise LocalizationError(f"unknown user ids in {what}: {unknown[:10]}")
         return rows
 
     @property

@@ -28,6 +28,9 @@ from survey.errors import require_type
 
 __all__ = ["MAX_STEP_M", "WEIGHT_MODES", "FeatureParams", "FilterParams"]
 
+#: Most particles a filter may have (``indoormap localize --particles`` allows as many): a
+#: million particles of one user take about 100 MB.
+MAX_PARTICLES = 1_000_000
 #: Field features with their own FeatureParams.
 FEATURE_NAMES = ("strength", "azimuth", "polar", "deviation")
 #: Magnetic weight updates the filter knows.
@@ -363,6 +366,15 @@ class FilterParams:
                                         f"{getattr(self, name)}")
         if self.n_particles < 1:
             raise LocalizationError(f"n_particles must be >= 1, got {self.n_particles}")
+        for name in ("n_particles", "n_particles_start"):
+            if getattr(self, name) > MAX_PARTICLES:  # 1e9 asked for tens of GB, then died
+                raise LocalizationError(f"{name} must be at most {MAX_PARTICLES:,}, got "
+                                        f"{getattr(self, name):,}")
+        if self.recovery_max_half_width_m < self.recovery_half_width_m:
+            raise LocalizationError(
+                f"recovery_max_half_width_m ({self.recovery_max_half_width_m:g} m) must be at "
+                f"least recovery_half_width_m ({self.recovery_half_width_m:g} m): recoveries "
+                "widen from the one to the other")
         if self.step_model not in ("frequency", "weinberg"):
             raise LocalizationError(f"step_model must be 'frequency' or 'weinberg', got "
                                     f"{self.step_model!r}")

@@ -156,6 +156,11 @@ def test_engine_matches_single_user_and_scales(f1_bundle, sim_walks):  # noqa: F
                                    for c in cols)))
     eng.remove_users(ids[:1])
     assert eng.n_users == len(walks) - 1
+    # a user removed twice, or an id never given, is refused, and nobody is removed
+    with pytest.raises(LocalizationError, match=rf"unknown user ids in remove_users: "
+                                                rf"\[{ids[0]}, 99\]"):
+        eng.remove_users([ids[1], ids[0], 99])
+    assert eng.n_users == len(walks) - 1
     with pytest.raises(LocalizationError):
         eng.tick(ids[:1], StepInputs(*(np.zeros(1) for _ in cols)))
 
@@ -283,7 +288,15 @@ def test_other_bad_calls(f1_bundle, sim_walks):  # noqa: F811
                        (dict(genome_b_range=(0.1,)), "genome_b_range must be 2 finite numbers"),
                        (dict(heading_bias_sd_deg="3"), "heading_bias_sd_deg must be a finite"),
                        (dict(n_particles=True), "n_particles must be a whole number"),
-                       (dict(step_length_nominal_m=float("inf")), "must be a finite number")]:
+                       (dict(step_length_nominal_m=float("inf")), "must be a finite number"),
+                       # a billion particles asked for tens of GB before failing
+                       (dict(n_particles=10**9), "n_particles must be at most 1,000,000"),
+                       (dict(n_particles_start=2 * 10**6), "n_particles_start must be at most"),
+                       # recoveries widen from the one to the other: a smaller maximum
+                       # narrowed them instead
+                       (dict(recovery_half_width_m=8.0, recovery_max_half_width_m=5.0),
+                        r"recovery_max_half_width_m \(5 m\) must be at least "
+                        r"recovery_half_width_m \(8 m\)")]:
         with pytest.raises(LocalizationError, match=match):
             FilterParams(**bad)
     with pytest.raises(LocalizationError, match="n_particles must be a whole number"):
