@@ -260,7 +260,8 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
             err = np.empty(0)
         err = err[np.isfinite(err)]  # the walk's recorded waypoints, where it has them
         scored = (f"error at its {len(err)} waypoints median {np.median(err):.1f} m, max "
-                  f"{err.max():.1f} m" if len(err) else "")
+                  f"{err.max():.1f} m" + (" (waypoint times at a steady pace)" * paced(trace))
+                  if len(err) else "")
         ran, used, choice = loc.label, method, loc.auto_choice
         if choice is not None:  # what ran (the guide needs a radio fix to start from)
             used = f"auto: {ran}, as {choice.why}"
@@ -373,6 +374,7 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
     ran: dict[str, set[str]] = {}  # what each row ran ("auto": what it chose per bundle)
 
     seen = TraceIds()
+    paced_walks: set[str] = set()  # walk-line walks timed by start_ms/end_ms only
 
     def one(where: str, trace: Trace) -> None:
         seen.claim(trace.trace_id, where)
@@ -380,6 +382,8 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
         if len(t_wp) == 0:
             click.echo(f"{where}: no waypoints, skipped", err=True)
             return
+        if paced(trace):
+            paced_walks.add(trace.trace_id)
         wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp, floors_said)
         _warn_if_outside_map(bundle, trace.trace_id, xy_wp)
         if wr.kind == "ble":  # the scores of this walk are BLE's, not Wi-Fi's
@@ -424,6 +428,11 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
         s = summarize(np.concatenate(v) if v else np.empty(0))
         click.echo(f"{label[m]:<{w}}{s['n']:>6}{s['median']:>9.2f}{s['p80']:>9.2f}"
                    f"{s['mean']:>9.2f}")
+    if paced_walks & evaluated:
+        click.echo(f"note: {len(paced_walks & evaluated)} of the {n_walks} walks give start_ms "
+                   "and end_ms, not vertex times: their waypoint times are spread at a steady "
+                   "pace along the line, so their errors include the walkers' changes of pace",
+                   err=True)
     if csv_path is not None:
         import pyarrow as pa
 
@@ -441,6 +450,14 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
         else:
             click.echo("(no plot: matplotlib not installed)", err=True)
     failures.exit_if_any(total)
+
+
+def paced(trace: Trace) -> bool:
+    """Whether a walk's waypoint times are its walk plan's start and end spread at a steady
+    pace (:data:`survey.walkline.PACED`), not clicks."""
+    from survey.walkline import PACED, WAYPOINT_TIMES
+
+    return trace.header.extra.get(WAYPOINT_TIMES) == PACED
 
 
 def main() -> None:  # pragma: no cover - convenience entry for python -m localize.cli

@@ -66,6 +66,10 @@ STREAM_COLUMNS: dict[str, tuple[str, str | None]] = {
     "magnetic_field_uncalibrated": ("mag_uncal", "mag_bias"),
 }
 _AXES = ("x", "y", "z")
+#: ``Trace.header.extra`` key and value of a walk whose waypoint times are not clicks but its
+#: plan's ``start_ms``..``end_ms`` spread at a steady pace: errors scored at them include
+#: the walker's changes of pace (``localize`` and ``evaluate`` say so).
+WAYPOINT_TIMES, PACED = "waypoint_times", "steady pace"
 #: Largest walk-plan GeoJSON read (bytes): a plan of thousands of walks is a few MB.
 MAX_PLAN_BYTES = 256 * 2**20
 # Finite float64 values at or beyond this become infinite as float32 (round to nearest even).
@@ -245,6 +249,8 @@ class PlanWalk:
         if len(xy):
             trace.waypoints = pd.DataFrame({"t_ms": times.astype(np.int64), "x_m": xy[:, 0],
                                             "y_m": xy[:, 1]})
+            if self.props.get("vertex_times_ms") is None:  # times from start_ms and end_ms
+                trace.header.extra[WAYPOINT_TIMES] = PACED
         return trace
 
 

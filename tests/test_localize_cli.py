@@ -452,6 +452,32 @@ def test_a_walk_without_ground_truth_is_localized(built, tmp_path):  # noqa: F81
     assert "no walk was evaluated" in scored.output
 
 
+def test_errors_at_paced_waypoint_times_say_so(truth_bundles, tmp_path):  # noqa: F811
+    """A walk plan with start_ms and end_ms only has waypoint times spread at a steady pace,
+    not clicks: localize and evaluate scored against them without a word, so a walker's
+    pause read as the localizer's error. Both say it now; vertex times say nothing."""
+    import json
+
+    plan = _as_walk_plan(min(F1_WALKS.glob("*.txt.gz")), tmp_path / "plan")
+    doc = json.loads(plan.read_text())
+    props = doc["features"][0]["properties"]
+    times = props.pop("vertex_times_ms")
+    props.update(start_ms=times[0], end_ms=times[-1])
+    paced = tmp_path / "plan" / "paced.geojson"
+    paced.write_text(json.dumps(doc))
+    bundles, runner = str(truth_bundles["F1"].parent), CliRunner()
+    for path, said in ((plan, False), (paced, True)):
+        res = runner.invoke(main, ["localize", bundles, str(path), "-o",
+                                   str(tmp_path / path.stem), "--no-plot", "--method", "pdr",
+                                   "--start", "waypoint"])
+        assert res.exit_code == 0, res.output
+        assert ("m (waypoint times at a steady pace) ->" in res.output) == said
+        res = runner.invoke(main, ["evaluate", bundles, str(path), "--method", "pdr"])
+        assert res.exit_code == 0, res.output
+        assert ("note: 1 of the 1 walks give start_ms and end_ms, not vertex times: their "
+                "waypoint times are spread at a steady pace" in res.output) == said
+
+
 def test_walk_plans_are_walks_to_localize_and_evaluate(truth_bundles, tmp_path):  # noqa: F811
     """A walk of a walk plan (indoormap's walk-line format, which ``ingest`` and ``build``
     take) is localized and scored like the trace it was written from; before, ``localize``
