@@ -151,6 +151,14 @@ def floors_of(path: Path) -> list[Path]:
     return floors
 
 
+def walks_folder(floor: Path) -> Path:
+    """Where a floor folder's walks are read from: its ``path_data_files/`` (the ILC
+    layout), else the floor folder itself (walk plans and trace files anywhere in it; floor
+    plans and planned routes are no walks)."""
+    data = floor / "path_data_files"
+    return data if data.is_dir() else floor
+
+
 def check_floor_bundle_name(name: str, what: str) -> None:
     """A usage error unless ``name`` can name a floor's bundle folder (not the site bundle's
     ``_site``, nor a name no folder can have); ``what`` says where the name came from."""
@@ -404,10 +412,10 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
                   plan_file: Path | None, dxf_layers: tuple[str, ...], floor_name: str | None,
                   exclude: tuple[str, ...], overwrite: bool) -> None:
     """Build map bundles from a floor folder (floor_info.json, geojson_map.json,
-    path_data_files/), a site folder of floors, or (with --plan) a folder of one floor's
-    traces: ingest, process, level, interpolate, publish atomically. Writes OUT/<floor> per
-    floor (rasters, Wi-Fi/BLE fingerprints, device table) and OUT/_site (floor model, device
-    table, AP selection report)."""
+    path_data_files/ or walk plans), a site folder of floors, or (with --plan) a folder of
+    one floor's traces: ingest, process, level, interpolate, publish atomically. Writes
+    OUT/<floor> per floor (rasters, Wi-Fi/BLE fingerprints, device table) and OUT/_site
+    (floor model, device table, AP selection report)."""
     from survey.ingest import ingest
     from survey.process_store import process_store
     from survey.progress import progress
@@ -430,7 +438,7 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
             raise click.UsageError("--floor names the floor of a --plan build; a floor folder "
                                    "is named by itself")
         floors = floors_of(source)
-        inputs = [f / "path_data_files" for f in floors]
+        inputs = [walks_folder(f) for f in floors]
         floor_names = {folder: f.name for f, folder in zip(floors, inputs)}
         # a bad plan fails before the work; a plan of several floors gives the folder's
         read_from = {f: read_floor_plan(f, level=f.name) for f in floors}

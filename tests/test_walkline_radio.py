@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 from click.testing import CliRunner
+from radio_fixtures import built  # noqa: F401  (fixture)
 
 from survey.cli import main
 from survey.errors import SurveyFormatError
@@ -186,6 +187,27 @@ def test_a_wifi_log_that_cannot_be_read_is_refused_naming_it(text, match, reason
     with pytest.raises(SurveyFormatError, match=match) as err:
         parse_wifi_csv(text.encode(), reference_ms=T0, report=ParseReport(), path="w.csv")
     assert err.value.reason == reason
+
+
+def test_a_site_of_floor_folders_holding_walk_plans_builds(built, tmp_path):  # noqa: F811
+    """A site whose floor folders hold their plan and a walk-line survey (no
+    path_data_files/): ``build SITE`` said "F1/path_data_files: no such file or folder".
+    It reads each floor folder's walk plans, and builds the maps the traces build."""
+    import shutil
+
+    for floor in ("F1", "F2"):
+        (tmp_path / "site" / floor).mkdir(parents=True)
+        for name in ("geojson_map.json", "floor_info.json", "planned_routes.geojson"):
+            shutil.copy(SITE / floor / name, tmp_path / "site" / floor / name)
+        write_walk_plan(tmp_path / "site" / floor / "survey", _traces(floor))
+    result = CliRunner().invoke(main, ["build", str(tmp_path / "site"), "-o",
+                                       str(tmp_path / "out")])
+    assert result.exit_code == 0, result.output
+    for floor in ("F1", "F2"):
+        a, b = built / floor, tmp_path / "out" / floor
+        layers = sorted(p.relative_to(a) for p in a.rglob("*.npy"))
+        assert len(layers) > 10
+        assert [m for m in layers if (a / m).read_bytes() != (b / m).read_bytes()] == []
 
 
 def test_a_header_only_radio_log_is_a_walk_that_heard_nothing():
