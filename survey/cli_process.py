@@ -122,9 +122,10 @@ def survey_report_command(store_dir: str, site: str | None, floor: str | None,
     """Per-walk QA, a row per walk: status; steps; length_m (positioned track, m); legs and
     flagged legs (between waypoints; reasons at the end); step_k (the walk's Weinberg step
     factor K, step length = K (a_max - a_min)^(1/4), m / (m/s2)^(1/4)); calibration (the
-    magnetometer calibration used; for a skipped walk, why it was skipped);
-    heading_offset_deg (median compass minus walking direction, deg); ufh_share (share of
-    steps with the phone held flat and forward); session (calibration session).
+    magnetometer calibration used); heading_offset_deg (median compass minus walking
+    direction, deg); ufh_share (share of steps with the phone held flat and forward); session
+    (calibration session). Why each skipped walk was skipped follows the table (and is the
+    CSV's reason column).
 
     With --legs, a row per flagged leg: trace_id, leg (0 = from the first waypoint to the
     second, as validate counts them), its start time (t_start_ms, Unix ms) and duration_s,
@@ -155,10 +156,10 @@ def survey_report_command(store_dir: str, site: str | None, floor: str | None,
             "steps": s.get("n_steps", ""), "length_m": round(s.get("walk_length_m", 0), 1),
             "legs": s.get("n_legs", ""), "flagged": s.get("n_flagged_legs", ""),
             "step_k": round(s.get("step_model", {}).get("k", float("nan")), 3),
-            "calibration": s.get("calibration", r.reason),
+            "calibration": s.get("calibration", ""),
             "heading_offset_deg": round(s.get("heading_offset_median_deg", float("nan")), 1),
             "ufh_share": round(s.get("attitude_share", {}).get("UFH", 0.0), 2),
-            "session": r.session})
+            "session": r.session, "reason": r.reason if r.status == "skipped" else ""})
     import pandas as pd
 
     table = pd.DataFrame(rows)
@@ -167,7 +168,9 @@ def survey_report_command(store_dir: str, site: str | None, floor: str | None,
                            overwrite=overwrite)
     with pd.option_context("display.max_rows", None, "display.width", 200,
                            "display.max_colwidth", 40):
-        click.echo(table.to_string(index=False))
+        click.echo(table.drop(columns="reason").to_string(index=False))
+    for r in table[table["status"] == "skipped"].itertuples():  # a sentence each, not a cell
+        click.echo(f"skipped {r.trace_id}: {r.reason}")
     try:
         legs = processed_table(store, "legs", site=site, floor=floor)
         flags = legs["flags"][legs["flags"] != ""].str.split(",").explode().value_counts()

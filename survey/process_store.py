@@ -479,9 +479,10 @@ def process_store(store: SurveyStore | str, *, site: str | None = None,
                 walk = process_walk(row.trace_id, tables["sensors"], tables["waypoints"], params,
                                     reachable=(reachable or {}).get((row.site, row.floor)),
                                     session_fit=fits.get(key))
-            except ProcessingError as err:
-                report.skipped[row.trace_id] = str(err)
-                new_rows.append({**base, "status": "skipped", "reason": str(err),
+            except ProcessingError as err:  # kept without the walk's id, which it is of
+                why = str(err).removeprefix(f"{row.trace_id}: ")
+                report.skipped[row.trace_id] = why
+                new_rows.append({**base, "status": "skipped", "reason": why,
                                  "summary_json": "{}"})
                 continue
             stray = walk.summary["waypoints_outside_sensors_t_ms"]

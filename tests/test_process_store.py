@@ -69,6 +69,12 @@ def test_process_cli_and_report(tmp_path):
     assert report.exit_code == 0, report.output
     assert "device-calibrated" in report.output and "flagged legs by reason" in report.output
     assert (tmp_path / "qa.csv").read_text().startswith("trace_id,floor,status,steps")
+    # why a walk was skipped is a sentence after the table (it filled the calibration cell,
+    # and the walk's id was said twice), and the CSV's reason column
+    assert "\nskipped single: a walk needs at least two waypoints" in report.output
+    qa = pd.read_csv(tmp_path / "qa.csv", keep_default_na=False)
+    assert qa.set_index("trace_id").loc["single", "reason"].startswith("a walk needs at least")
+    assert (qa["calibration"] != qa["reason"]).all()
     again = runner.invoke(main, ["survey-report", "--store", str(tmp_path / "store"),
                                  "--csv", str(tmp_path / "qa.csv")])
     assert again.exit_code == 1 and "qa.csv exists; pass --overwrite" in again.output
