@@ -158,17 +158,20 @@ def refuse_output_inside_data(out: Path, param_hint: str = "-o") -> None:
 
 def read_walks(path: Path) -> list[tuple[str, Callable[[], Trace]]]:
     """``(where, walk)`` of each walk in ``path``, ``walk()`` reading and checking its
-    trace: a trace file's one walk (:func:`read_walk`, ``where`` the file) or a walk plan's
-    walks (``where``: ``plan.geojson (walk ID)``), the plan read here, each walk's sensor log
+    trace: a trace file's one walk (:func:`read_walk`, ``where`` the file), a walk-line
+    sensor CSV's (:func:`survey.walkline.sensor_log_walk`), or a walk plan's walks (``where``: ``plan.geojson (walk ID)``), the plan read here, each walk's sensor log
     when asked and checked as :func:`read_walk` checks a trace, so that one walk's failure
     leaves the plan's others to run (and one walk's log is in memory at a time)."""
-    if not path.name.endswith(".geojson"):
-        return [(str(path), lambda: read_walk(path))]
-    from survey.walkline import plan_walks
+    from survey.walkline import plan_walks, sensor_log_walk
 
     def read(walk) -> Trace:
         logs = walk.log_bytes()  # not its identity: ingest's, to hash
         return _checked_walk(walk.parse(logs), Path(logs.source))
+
+    if path.name.lower().endswith(".csv"):  # a walk-line sensor log alone: no ground truth
+        return [(str(path), lambda: read(sensor_log_walk(path)))]
+    if not path.name.endswith(".geojson"):
+        return [(str(path), lambda: read_walk(path))]
 
     walks = plan_walks(path)
     ids = Counter(walk.walk_id for walk in walks)

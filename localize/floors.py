@@ -329,9 +329,11 @@ class SiteMaps:
             return deferred[0], deferred[1] + _lacks(deferred[2]) + _also(missing)
         if len(self.bundles) == 1:
             return next(iter(self.bundles.values())), "the only floor bundle"
+        floors = ", ".join(sorted(self._by_name))
         raise LocalizationError(f"{where}: the walk names no floor (no floor id or known floor "
                                 f"name in its header) and no floor model decided: "
-                                f"{'; '.join(missing)}; floors: {', '.join(sorted(self._by_name))}")
+                                f"{'; '.join(missing)}; floors: {floors} (give its floor's "
+                                "bundle, or its floor as a walk plan's floor_name)")
 
 
 #: A header's floor is doubted (:meth:`SiteMaps.choose`) when the Wi-Fi floor model puts at

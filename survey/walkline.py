@@ -369,6 +369,22 @@ def _untruthed_walk(props: dict, where: str, folder: Path, feature: dict) -> Pla
     return PlanWalk(walk_id, log, where, folder, props, feature, np.empty((0, 2)), times)
 
 
+def sensor_log_walk(path: str | os.PathLike) -> PlanWalk:
+    """A sensor CSV given alone (``indoormap localize BUNDLE walk.csv``) as a walk without
+    ground truth: its id the file's name without ``.csv``, its Wi-Fi and BLE logs the files
+    beside it named as :mod:`survey.walkline_writer` names them (``walk.wifi.csv``,
+    ``walk.ble.csv``) when they exist, no floor (the floor model or a one-floor map decides)."""
+    path = Path(path)
+    stem = path.name[:-len(".csv")] if path.name.lower().endswith(".csv") else path.name
+    props = {"walk_id": stem, "sensor_log": path.name}
+    for prop, suffix in (("wifi_log", ".wifi.csv"), ("ble_log", ".ble.csv")):
+        if (path.parent / f"{stem}{suffix}").is_file():
+            props[prop] = f"{stem}{suffix}"
+    feature = {"type": "Feature", "geometry": None, "properties": props}
+    return PlanWalk(stem, path.name, str(path), path.parent, props, feature, np.empty((0, 2)),
+                    np.empty(0))
+
+
 def identity_sha256(identity: bytes) -> str:
     return hashlib.sha256(identity).hexdigest()
 

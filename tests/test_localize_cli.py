@@ -450,6 +450,26 @@ def test_a_walk_without_ground_truth_is_localized(built, tmp_path):  # noqa: F81
     scored = runner.invoke(main, ["evaluate", bundles, str(plan), "--method", "pdr"])
     assert "(walk quiet): no waypoints, skipped" in scored.output
     assert "no walk was evaluated" in scored.output
+    # a sensor CSV given alone is such a walk, its radio logs found beside it by name (it
+    # was read as a trace file: "expected 'timestamp<TAB>TYPE...'")
+    log = plan.parent / "logs" / f"{trace.trace_id}.csv"
+    res = runner.invoke(main, ["localize", bundles, str(log), "-o", str(tmp_path / "csv"),
+                               "--no-plot", "--method", "indoormap"])
+    assert res.exit_code == 0 and "start first Wi-Fi fix" in res.output, res.output
+    alone = pq.read_table(tmp_path / "csv" / f"{trace.trace_id}.parquet")
+    # the same track but for the phone's RSSI calibration (a log alone names no phone model)
+    xy = {name: np.column_stack([t.column("x_m").to_numpy(), t.column("y_m").to_numpy()])
+          for name, t in (("alone", alone), ("plan", tracks["plan"]))}
+    apart = np.hypot(*(xy["alone"] - xy["plan"]).T)
+    assert len(apart) == len(tracks["plan"]) and np.median(apart) < 1.0
+    # without scans nor a floor in a header, the floor's bundle is given
+    res = runner.invoke(main, ["localize", bundles, str(plan.parent / "logs" / "quiet.csv"),
+                               "-o", str(tmp_path / "csv"), "--no-plot", "--start", "10,10"])
+    assert res.exit_code == 1 and "give its floor's bundle" in res.output
+    res = runner.invoke(main, ["localize", str(built / "F1"),
+                               str(plan.parent / "logs" / "quiet.csv"), "-o",
+                               str(tmp_path / "csv"), "--no-plot", "--start", "10,10"])
+    assert res.exit_code == 0 and "quiet: " in res.output
 
 
 def test_errors_at_paced_waypoint_times_say_so(truth_bundles, tmp_path):  # noqa: F811
