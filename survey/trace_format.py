@@ -231,9 +231,12 @@ class Trace:
     def empty_reason(self) -> str:
         """Why :attr:`is_empty` holds, with the reader's first problem line."""
         r = self.report
+        csv = str(r.path or "").lower().endswith(".csv")
         return (f"no sensor sample, waypoint or scan in {r.lines_total} lines ({r.bad_total} "
                 "bad): empty, or not a trace file"
-                + (f" (first problem: {r.messages[0]})" if r.messages else ""))
+                + (f" (first problem: {r.messages[0]})" if r.messages else "")
+                + ("; a walk-line sensor CSV is ingested through the walk plan naming it "
+                   "(docs/walkline_format.md)" if csv else ""))
 
     def clock_mismatch(self, tolerance_ms: float = CLOCK_TOLERANCE_MS) -> str | None:
         """Why the streams cannot share one clock, or None: the Wi-Fi scans, BLE rows or

@@ -209,6 +209,15 @@ def test_a_walk_without_ground_truth_has_no_waypoints(tmp_path):
             read_walk_plan(_plan(tmp_path, [bad]))
 
 
+def test_a_sensor_csv_ingested_alone_says_how_it_is_read(tmp_path):
+    """A walk-line sensor CSV given to ingest without its plan is no trace file; the error
+    says it is read through its walk plan (it said only "not a trace file")."""
+    _csv(tmp_path / "a.csv")
+    failed, = ingest([tmp_path / "a.csv"], tmp_path / "store").failed
+    assert "not a trace file" in failed.detail
+    assert "a walk-line sensor CSV is ingested through the walk plan naming it" in failed.detail
+
+
 def test_csv_errors(tmp_path):
     (tmp_path / "a.csv").write_text("time,acc_x\n1,2\n")
     plan = _plan(tmp_path, [_feature("a", [[0, 0], [1, 0]], start_ms=T0, end_ms=T0 + 1980)])
