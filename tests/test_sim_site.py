@@ -254,3 +254,22 @@ def test_sample_is_small(sample):
     for p in out.rglob("*.txt.gz"):
         with gzip.open(p, "rb") as fh:
             assert fh.read(2) == b"#\t"
+
+
+@pytest.mark.parametrize("override, message", [
+    ({"width_m": -40.0}, r"floor size -40.0 x 25.0 m: each side must be 10 to 2000 m"),
+    ({"height_m": float("nan")}, "each side must be 10 to 2000 m"),
+    ({"ew_corridor_widths_m": (5.0, 0.0)}, "corridor widths must be positive metres"),
+    ({"marker_spacing_m": 0.0}, "marker_spacing_m must be > 0"),
+    ({"walks_without_wifi": -1}, "walks_without_wifi must be >= 0"),
+    ({"epoch_ms": -5}, "epoch_ms must be a Unix time in ms"),
+])
+def test_nonsense_site_parameters_are_refused_before_any_work(tmp_path, override, message):
+    """A corridor of no width or an epoch before 1970 made a site; a marker spacing of 0 or
+    a negative count crashed deep in the generator (OverflowError, ValueError), and a
+    negative floor size was refused for its corridors. Each is refused by name."""
+    from survey.errors import SimulationError
+
+    with pytest.raises(SimulationError, match=message):
+        simulate_site(SiteParams(**override), tmp_path / "site")
+    assert not (tmp_path / "site").exists()

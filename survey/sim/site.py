@@ -173,6 +173,21 @@ class SiteParams:
             raise SimulationError(f"walk_duration_s must satisfy 10 <= lo <= hi: {lo}, {hi}")
         if self.walks_without_wifi > self.n_floors * self.walks_per_floor:
             raise SimulationError("walks_without_wifi exceeds the number of walks")
+        if self.walks_without_wifi < 0:
+            raise SimulationError("walks_without_wifi must be >= 0")
+        if not (np.isfinite(self.width_m) and np.isfinite(self.height_m)
+                and 10.0 <= min(self.width_m, self.height_m)
+                and max(self.width_m, self.height_m) <= 2000.0):
+            raise SimulationError(f"floor size {self.width_m} x {self.height_m} m: each side "
+                                  "must be 10 to 2000 m")
+        corridors = (*self.ew_corridor_widths_m, *self.ns_corridor_widths_m)
+        if not corridors or not all(np.isfinite(w) and w > 0 for w in corridors):
+            raise SimulationError(f"corridor widths must be positive metres, got "
+                                  f"{list(corridors)}")
+        if not (self.marker_spacing_m > 0 and self.click_spacing_m >= 0):
+            raise SimulationError("marker_spacing_m must be > 0 and click_spacing_m >= 0")
+        if not 0 <= self.epoch_ms < 2**53:
+            raise SimulationError(f"epoch_ms must be a Unix time in ms, got {self.epoch_ms}")
 
     def to_dict(self) -> dict:
         """JSON-able form (tuples become lists)."""
