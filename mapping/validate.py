@@ -526,13 +526,14 @@ def floor_dir_problem(floor_dir: Path, manifest: dict) -> str | None:
 
 
 def floor_dir_of(fd: FloorData | None) -> Path | None:
-    """The floor folder the walks were ingested from (``<floor>/path_data_files/<trace>``),
-    when it still exists and holds a plan."""
+    """The floor folder the walks were ingested from, when it still exists and holds a
+    plan: the nearest folder above a walk's source holding one, up to three levels
+    (``<floor>/path_data_files/<trace>``, or a walk-line log's
+    ``<floor>/<survey>/logs/<walk>.csv``)."""
     if fd is None or not len(fd.catalog):
         return None
     for src in fd.catalog["source_path"]:
-        p = Path(str(src)).parent
-        for cand in (p.parent, p):
+        for cand in Path(str(src)).parents[:3]:
             if (cand / "geojson_map.json").exists() or (cand / "floor_image.png").exists():
                 return cand
     return None

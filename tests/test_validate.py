@@ -602,3 +602,22 @@ def test_a_floor_image_too_large_or_without_a_floor_size_is_left_out(tmp_path):
     (tmp_path / "floor_info.json").write_text('{"map_info": {"width": NaN, "height": 25}}')
     assert "left out (floor size not positive" in floor_image(tmp_path)[2]
     assert floor_image(None) == (None, None, None)
+
+
+def test_the_floor_folder_of_walk_line_walks_is_found(tmp_path):
+    """The report finds the floor folder (for its plan and image) above the walks' sources:
+    a trace in ``<floor>/path_data_files/``, and a walk-line log in
+    ``<floor>/<survey>/logs/`` (it looked two levels up only, so walk-line surveys had none)."""
+    from types import SimpleNamespace
+
+    from mapping.validate import floor_dir_of
+
+    floor = tmp_path / "F1"
+    (floor / "survey" / "logs").mkdir(parents=True)
+    (floor / "path_data_files").mkdir()
+    (floor / "geojson_map.json").write_text("{}")
+    for source in (floor / "path_data_files" / "a.txt", floor / "survey" / "logs" / "a.csv"):
+        found = floor_dir_of(SimpleNamespace(catalog=pd.DataFrame({"source_path": [source]})))
+        assert found == floor
+    far = tmp_path / "x" / "y" / "z" / "w.csv"
+    assert floor_dir_of(SimpleNamespace(catalog=pd.DataFrame({"source_path": [far]}))) is None
