@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from survey.errors import BundleError, BundleIntegrityError, RegistryError
+from survey.errors import BundleError, BundleIntegrityError, BundleReplaced, RegistryError
 from survey.publish import file_sha256, finish_interrupted_publication
 from survey.regular_files import NotRegularFile, read_regular
 
@@ -291,7 +291,19 @@ class MapBundle:
         return meta
 
     def verify(self) -> None:
-        """Re-check every member against the manifest (raises BundleIntegrityError)."""
+        """Re-check the folder against the manifest loaded: its ``manifest.json`` (whose id
+        is its content's hash) and every member (a :class:`BundleIntegrityError` for any
+        change). A folder that now holds another bundle (``build --overwrite`` since it was
+        loaded) raises :class:`BundleReplaced` instead, naming both ids: the arrays loaded
+        are intact, and it is a deployment, not damage (it was reported as a member not
+        matching its checksum)."""
+        on_disk = read_manifest(self.path)
+        if on_disk.get("bundle_id") != self.bundle_id:
+            raise BundleReplaced(f"{self.path}: now holds bundle "
+                                 f"{str(on_disk.get('bundle_id'))[:16]}, not the "
+                                 f"{self.bundle_id[:16]} loaded from it (rebuilt or replaced "
+                                 "since; what was loaded is unchanged in memory): load it "
+                                 "again to use the new bundle")
         verify_bundle_dir(self.path, self.manifest)
 
     def table(self, name: str) -> pa.Table:

@@ -91,6 +91,11 @@ class BundleIntegrityError(BundleError):
     """A map bundle's content does not match its manifest (changed, missing or extra bytes)."""
 
 
+class BundleReplaced(BundleError):
+    """The folder a map bundle was loaded from now holds another bundle (rebuilt with
+    ``--overwrite``): the loaded one is intact in memory; load the folder again for the new."""
+
+
 class RegistryError(IndoormapError):
     """A bundle registry operation is refused (unknown version, silent rollback, ...)."""
 

@@ -53,6 +53,30 @@ def bundle_dir(tmp_path):
     return tmp_path / "b"
 
 
+def test_verify_after_a_rebuild_says_replaced_not_corrupted(bundle_dir):
+    """A service holding a loaded bundle calls verify() as a health check after the map team
+    rebuilt the folder with --overwrite: it said a member "does not match its checksum
+    (changed or corrupted)". It says the folder now holds another bundle, naming both ids;
+    what was loaded still samples as before. A manifest edited under the same id is damage."""
+    from survey.errors import BundleReplaced
+
+    b = load_bundle(bundle_dir)
+    before = b.sample("strength", 15.0, 25.0)
+    b.verify()
+    new_id = write_bundle(bundle_dir, _content(offset=1.0), overwrite=True)
+    with pytest.raises(BundleReplaced, match=rf"now holds bundle {new_id[:16]}, not the "
+                                             rf"{b.bundle_id[:16]} loaded from it"):
+        b.verify()
+    assert b.sample("strength", 15.0, 25.0) == before
+    fresh = load_bundle(bundle_dir)
+    fresh.verify()
+    manifest = json.loads((bundle_dir / "manifest.json").read_text())
+    manifest["site_name"] = "edited"
+    (bundle_dir / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(BundleIntegrityError, match="bundle id does not match the manifest"):
+        fresh.verify()
+
+
 def test_round_trip_and_lookup(bundle_dir):
     b = load_bundle(bundle_dir)
     assert b.manifest["floor_name"] == "F1" and b.grid == Grid(10.0, 20.0, 0.5, 24, 16)
