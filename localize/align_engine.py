@@ -99,9 +99,16 @@ class MultiUserAligner:
         return ids
 
     def remove_users(self, ids: ArrayLike) -> None:
-        """Drop users (their alignments are freed); unknown ids are ignored."""
-        for i in np.asarray(ids, dtype=np.int64).ravel().tolist():
-            self._aligners.pop(i, None)
+        """Drop users (their alignments are freed); a LocalizationError for an id that is
+        no whole number or no user of this server (a user removed twice), before any is
+        removed (unknown ids were ignored, and 1.7 removed user 1)."""
+        ids = tick_ids(ids, "remove_users").tolist()
+        unknown = [i for i in ids if i not in self._aligners]
+        if unknown:
+            raise LocalizationError(f"unknown user ids in remove_users: {unknown[:10]}; "
+                                    "nobody was removed")
+        for i in ids:
+            del self._aligners[i]
 
     def tick(self, ids: ArrayLike | None, t_ms: ArrayLike, inputs: StepInputs,
              fix_xy_m: ArrayLike | None = None, fix_t_ms: ArrayLike | None = None

@@ -177,7 +177,7 @@ class MultiUserEngine:
         """Drop users (their filters, and their alignments when guided, are freed); a
         :class:`LocalizationError` naming ids the engine does not hold (a user removed twice,
         an id of another engine), before any is removed."""
-        gone = self.rows_of(ids, "remove_users")
+        gone = self.rows_of(tick_ids(ids, "remove_users"), "remove_users")
         keep = np.ones(len(self.user_ids), dtype=bool)
         keep[gone] = False
         if self.state is not None:

@@ -17,19 +17,21 @@ from localize.stepper import StepInputs
 __all__ = ["check_tick_inputs", "checked_tick_fixes", "per_user", "start_points", "tick_ids"]
 
 
-def tick_ids(ids: ArrayLike) -> NDArray[np.int64]:
-    """The users of a tick as int64 ids (k,); a LocalizationError when one is not a whole
-    number (1.7 was taken as user 1) or appears twice."""
+def tick_ids(ids: ArrayLike, what: str = "tick") -> NDArray[np.int64]:
+    """The users of a tick (or of another call, ``what``: ``"remove_users"``) as int64 ids
+    (k,); a LocalizationError when one is not a whole number (1.7 was taken as user 1) or
+    appears twice."""
     raw = np.asarray(ids)
     whole = raw.dtype.kind in "iu" or raw.dtype.kind == "f" and bool(
         np.all(np.isfinite(raw)) and np.all(raw == np.round(raw))
         and np.all(np.abs(raw) < 2.0 ** 62))
+    nobody = "nobody was advanced" if what == "tick" else "nobody was removed"
     if not whole:
         raise LocalizationError(f"user ids must be whole numbers (the ids add_users gave), "
-                                f"got {raw.ravel()[:5].tolist()}; nobody was advanced")
+                                f"got {raw.ravel()[:5].tolist()}; {nobody}")
     ids = raw.astype(np.int64).ravel()
     if len(np.unique(ids)) != len(ids):
-        raise LocalizationError("a user id appears twice in one tick")
+        raise LocalizationError(f"a user id appears twice in one {what}; {nobody}")
     return ids
 
 

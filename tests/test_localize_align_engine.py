@@ -123,7 +123,21 @@ def test_bad_ticks_move_nobody(f1_bundle, sim_walks):  # noqa: F811
         eng.add_users([w.start_xy], t_ms=np.nan)
     with pytest.raises(LocalizationError, match="sigma_m is negative"):
         eng.add_users([w.start_xy], t_ms=t, sigma_m=-3.0)
+    assert eng.n_users == 2  # the refused adds added nobody
+    # removals are checked as ticks are: 1.7 removed user 1, and an unknown id or a user
+    # removed twice went unnoticed (the filter engine refuses them too)
+    with pytest.raises(LocalizationError, match=r"whole numbers .*got \[1.7\]; nobody was "
+                                                r"removed"):
+        eng.remove_users([1.7])
+    with pytest.raises(LocalizationError, match=r"unknown user ids in remove_users: \[999\]; "
+                                                r"nobody was removed"):
+        eng.remove_users([ids[0], 999])
     assert eng.n_users == 2
+    eng.remove_users([ids[0]])
+    with pytest.raises(LocalizationError, match=rf"unknown user ids in remove_users: "
+                                                rf"\[{ids[0]}\]"):
+        eng.remove_users([ids[0]])
+    assert eng.user_ids.tolist() == [ids[1]]
 
 
 def test_guided_engine_users_get_the_single_user_guided_filter(f1_bundle, sim_walks):  # noqa: F811

@@ -160,6 +160,8 @@ def test_engine_matches_single_user_and_scales(f1_bundle, sim_walks):  # noqa: F
     with pytest.raises(LocalizationError, match=rf"unknown user ids in remove_users: "
                                                 rf"\[{ids[0]}, 99\]"):
         eng.remove_users([ids[1], ids[0], 99])
+    with pytest.raises(LocalizationError, match=r"whole numbers .*nobody was removed"):
+        eng.remove_users([ids[1] + 0.7])  # was taken as ids[1]
     assert eng.n_users == len(walks) - 1
     with pytest.raises(LocalizationError):
         eng.tick(ids[:1], StepInputs(*(np.zeros(1) for _ in cols)))
