@@ -772,8 +772,9 @@ def read_registry_history(floor_dir: str | os.PathLike) -> list[dict]:
 
 
 def read_registry_pointer(floor_dir: str | os.PathLike) -> dict | None:
-    """A registry floor folder's ``CURRENT`` pointer as written, ``{"bundle_id", "seq"}``,
-    not yet checked against the history (:func:`registry_current` does); None when the folder
+    """A registry floor folder's ``CURRENT`` pointer as written, ``{"bundle_id", "seq"}``
+    (and ``rolled_back_from``, the newest version a rollback withdrew, after one), not yet
+    checked against the history (:func:`registry_current` does); None when the folder
     has none.
 
     Raises
@@ -786,9 +787,10 @@ def read_registry_pointer(floor_dir: str | os.PathLike) -> dict | None:
         return None
     cur = read_registry_record(path)
     if not isinstance(cur, dict) or not isinstance(cur.get("bundle_id"), str) \
-            or type(cur.get("seq")) is not int:
+            or type(cur.get("seq")) is not int \
+            or type(cur.get("rolled_back_from", 0)) is not int:
         raise RegistryError(f"{path}: not a registry pointer (an object with bundle_id and "
-                            "seq)")
+                            "seq, and a whole rolled_back_from after a rollback)")
     return cur
 
 

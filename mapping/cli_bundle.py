@@ -13,7 +13,8 @@ import click
 import numpy as np
 
 from localize.bundle import MapBundle, bundle_dirs, is_registry_floor_dir, load_bundle
-from survey.errors import IndoormapError, RegistryError, RollbackRefused, at_path
+from survey.errors import IndoormapError, RegistryError, RollbackRefused, WithdrawnVersion, \
+    at_path
 
 from .bundle_report import bundle_differences, metric_lines, plan_text
 from .registry import Registry
@@ -174,15 +175,20 @@ def bundle_publish(paths: tuple[Path, ...], registry_dir: Path, no_current: bool
     for p in _bundle_paths(paths):
         try:
             e = reg.publish(p, make_current=not no_current)
-        except RollbackRefused as err:  # an older version published again
+        except RollbackRefused as err:  # an older or a withdrawn version published again
             raise RegistryError(already_published_text(p, registry_dir, err)) from err
         click.echo(f"{p}: {e['bundle_id'][:16]} #{e['seq']}"
                    + ("" if no_current else " (current)"))
 
 
 def already_published_text(path: Path, registry_dir: Path, err: RollbackRefused) -> str:
-    """What publishing a bundle the registry holds as an older version than the current one
-    says: which version it is and the command that makes it current."""
+    """What publishing a bundle the registry holds as an older version than the current one,
+    or as one a rollback withdrew, says: which version it is and the command that makes it
+    current."""
+    if isinstance(err, WithdrawnVersion):
+        return (f"{path}: already published as #{err.seq}, which was rolled back from (the "
+                f"current is #{err.current_seq}); to make it current again: indoormap bundle "
+                f"use {registry_dir} {err.where} '#{err.seq}'")
     return (f"{path}: already published as #{err.seq}, older than {err.current_text}; to make "
             f"it current: indoormap bundle use {registry_dir} {err.where} '#{err.seq}' "
             "--rollback")

@@ -9,7 +9,9 @@ Layout::
 A version is copied in with an atomic folder rename, then ``history.json`` and ``CURRENT`` are
 replaced atomically, so a reader that follows ``CURRENT`` always finds a complete, verified
 bundle; a crash leaves the previous current version in place. Versions only move forward:
-pointing ``CURRENT`` at an older version needs ``allow_rollback=True``. Readers check that
+pointing ``CURRENT`` at an older version needs ``allow_rollback=True``, and the versions a
+rollback withdrew (``CURRENT``'s ``rolled_back_from``) are not made current again by
+publishing them again (:class:`~survey.errors.WithdrawnVersion`), only by ``set_current``. Readers check that
 ``CURRENT`` is an entry of ``history.json`` (its seq and bundle id) whose folder exists, so a
 pointer edited by hand is refused, not followed (:func:`localize.bundle.registry_current`);
 ``set_current`` repairs it (anything but the newest version then counts as a rollback).
@@ -40,7 +42,7 @@ from localize.bundle import (
     registry_current,
     safe_name,
 )
-from survey.errors import RegistryError, RollbackRefused
+from survey.errors import RegistryError, RollbackRefused, WithdrawnVersion
 from survey.publish import atomic_directory, atomic_write_bytes, crash_point
 
 try:
@@ -100,7 +102,16 @@ class Registry:
         read it already) or its version folder is missing
         (:func:`localize.bundle.registry_current`)."""
         found = registry_current(self._floor(site, floor), history)
-        return None if found is None else found[1]
+        return None if found is None else {k: found[1][k] for k in ("bundle_id", "seq")}
+
+    def _withdrawn(self, site: str, floor: str) -> int:
+        """The newest version a rollback withdrew (``CURRENT``'s ``rolled_back_from``), 0
+        when none is (or the pointer cannot be read: it is repaired as a rollback)."""
+        try:
+            pointer = read_registry_pointer(self._floor(site, floor))
+        except RegistryError:
+            return 0
+        return 0 if pointer is None else pointer.get("rolled_back_from", 0)
 
     def open(self, site: str, floor: str, bundle_id: str | None = None) -> MapBundle:
         """Load (and verify) the current version, or a given one."""
@@ -164,6 +175,8 @@ class Registry:
             load_bundle(target)  # the copy, or the version already there, is intact
             crash_point("registry:after-copy")
             entry = next((h for h in history if h["bundle_id"] == bundle.bundle_id), None)
+            if entry is not None and make_current:
+                self._refuse_withdrawn(site, floor, entry, history)
             if entry is None:
                 entry = {"seq": (history[-1]["seq"] + 1) if history else 1,
                          "bundle_id": bundle.bundle_id}
@@ -175,6 +188,19 @@ class Registry:
                 self._point(site, floor, bundle.bundle_id, allow_rollback=False, verify=False,
                             history=history)
         return entry
+
+    def _refuse_withdrawn(self, site: str, floor: str, entry: dict, history: list[dict]
+                          ) -> None:
+        """A :class:`WithdrawnVersion` when ``entry`` (a version published before) is newer
+        than the current one and a rollback moved the pointer back from it (the pointer's
+        ``rolled_back_from``); a publish that crashed before pointing at it is finished."""
+        try:
+            cur = self.current(site, floor, history)
+        except RegistryError:
+            return  # a damaged pointer: _point repairs it, a non-newest target a rollback
+        if cur is not None and cur["seq"] < entry["seq"] <= self._withdrawn(site, floor):
+            raise WithdrawnVersion(f"{site}/{floor}", entry["bundle_id"], seq=entry["seq"],
+                                   current_seq=cur["seq"])
 
     def set_current(self, site: str, floor: str, bundle_id: str, *,
                     allow_rollback: bool = False) -> None:
@@ -206,6 +232,12 @@ class Registry:
                                   current_seq=cur["seq"], current_known=known)
         if verify:
             load_bundle(self._floor(site, floor) / "versions" / bundle_id)  # intact, or refused
-        atomic_write_bytes(self._floor(site, floor) / "CURRENT",
-                           json.dumps({"bundle_id": bundle_id, "seq": entry["seq"]}).encode(),
+        pointer = {"bundle_id": bundle_id, "seq": entry["seq"]}
+        # the versions a rollback left stay withdrawn until one of them is chosen again: a
+        # publish of the same bytes (a nightly build) does not make them current
+        withdrawn = max(cur["seq"] if cur is not None and entry["seq"] < cur["seq"] else 0,
+                        self._withdrawn(site, floor))
+        if withdrawn > entry["seq"]:
+            pointer["rolled_back_from"] = withdrawn
+        atomic_write_bytes(self._floor(site, floor) / "CURRENT", json.dumps(pointer).encode(),
                            overwrite=True)

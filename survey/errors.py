@@ -124,6 +124,20 @@ class RollbackRefused(RegistryError):
                                     self.current_seq, self.current_known))
 
 
+class WithdrawnVersion(RollbackRefused):
+    """Publishing again a version that a rollback moved the current pointer back from (a
+    nightly build of unchanged inputs makes the same bytes): making it current would undo
+    the rollback without a word. ``seq`` is the withdrawn version's number, ``current_seq``
+    the current one's."""
+
+    def __init__(self, where: str, bundle_id: str, *, seq: int, current_seq: int,
+                 current_known: bool = True) -> None:
+        super().__init__(where, bundle_id, seq=seq, current_seq=current_seq,
+                         current_known=current_known)
+        self.args = (f"{where}: version {bundle_id[:12]} (#{seq}) was rolled back from (the "
+                     f"current is #{current_seq}); making it current again needs set_current",)
+
+
 def _rollback_refused(cls: type, where: str, bundle_id: str, seq: int, current_seq: int,
                       current_known: bool) -> RollbackRefused:
     return cls(where, bundle_id, seq=seq, current_seq=current_seq, current_known=current_known)

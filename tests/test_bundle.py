@@ -459,6 +459,43 @@ def test_registry_versions_move_forward(tmp_path):
         reg.open("site", "F1", e2["bundle_id"])
 
 
+def test_a_rollback_sticks_when_the_withdrawn_version_is_published_again(tmp_path):
+    """After ``bundle use '#1' --rollback``, a nightly build of unchanged inputs publishes
+    #2's bytes again: that made #2 current again, exit 0, no word. It is refused (the CLI
+    names the command that makes it current), and stays so until it is chosen by hand; a
+    publish that crashed before pointing at its version is still finished by a retry."""
+    from survey.errors import WithdrawnVersion
+
+    reg = Registry(tmp_path / "reg")
+    for k in (1, 2, 3):
+        write_bundle(tmp_path / f"v{k}", _content(float(k)))
+    e1, e2 = reg.publish(tmp_path / "v1"), reg.publish(tmp_path / "v2")
+    reg.set_current("site", "F1", e1["bundle_id"], allow_rollback=True)
+    with pytest.raises(WithdrawnVersion, match=r"\(#2\) was rolled back from \(the current is "
+                                               r"#1\)") as refused:
+        reg.publish(tmp_path / "v2")
+    assert type(pickle.loads(pickle.dumps(refused.value))) is WithdrawnVersion
+    assert reg.current("site", "F1")["seq"] == 1
+    res = CliRunner().invoke(main, ["bundle", "publish", str(tmp_path / "v2"), "--registry",
+                                    str(tmp_path / "reg")])
+    assert res.exit_code == 1 and "already published as #2, which was rolled back from (the " \
+        f"current is #1); to make it current again: indoormap bundle use {tmp_path / 'reg'} " \
+        "site/F1 '#2'" in res.output
+    assert reg.publish(tmp_path / "v2", make_current=False) == e2  # adding it is no harm
+    e3 = reg.publish(tmp_path / "v3")  # a new version goes forward, and ends the rollback
+    assert reg.current("site", "F1") == {"bundle_id": e3["bundle_id"], "seq": 3}
+    reg.set_current("site", "F1", e1["bundle_id"], allow_rollback=True)
+    reg.set_current("site", "F1", e2["bundle_id"])  # chosen by hand: #3 stays withdrawn
+    with pytest.raises(WithdrawnVersion, match=r"\(#3\) was rolled back from"):
+        reg.publish(tmp_path / "v3")
+    reg.set_current("site", "F1", e3["bundle_id"])
+    pointer = tmp_path / "reg" / "site" / "F1" / "CURRENT"
+    assert reg.publish(tmp_path / "v3") == e3 and json.loads(pointer.read_text()) == e3
+    # a publish killed after writing the history, before the pointer: the retry points
+    pointer.write_text(json.dumps({"bundle_id": e2["bundle_id"], "seq": 2}))
+    assert reg.publish(tmp_path / "v3") == e3 and reg.current("site", "F1")["seq"] == 3
+
+
 def test_bundle_diff_names_every_kind_of_change(tmp_path):
     """Grid origin, a walk re-ingested with other content, the seed, a layer's unit and a
     layer's values: each is a line of ``bundle diff`` (and of ``bundle_differences``)."""
