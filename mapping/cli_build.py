@@ -602,7 +602,9 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
                     click.echo("warning: not made current: "
                                + already_published_text(out / name, registry_dir, err), err=True)
                     continue
-                click.echo(f"  published as {site_id}/{name} #{entry['seq']}")
+                click.echo(f"  published as {site_id}/{name} #{entry['seq']}"
+                           + ("; its damaged copy in the registry was replaced"
+                              if entry.get("repaired") else ""))
         for warning in thin:
             click.echo(warning, err=True)
 

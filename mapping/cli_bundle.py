@@ -178,7 +178,9 @@ def bundle_publish(paths: tuple[Path, ...], registry_dir: Path, no_current: bool
         except RollbackRefused as err:  # an older or a withdrawn version published again
             raise RegistryError(already_published_text(p, registry_dir, err)) from err
         click.echo(f"{p}: {e['bundle_id'][:16]} #{e['seq']}"
-                   + ("" if no_current else " (current)"))
+                   + ("" if no_current else " (current)")
+                   + ("; its damaged copy in the registry was replaced" if e.get("repaired")
+                      else ""))
 
 
 def already_published_text(path: Path, registry_dir: Path, err: RollbackRefused) -> str:

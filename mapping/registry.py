@@ -42,7 +42,7 @@ from localize.bundle import (
     registry_current,
     safe_name,
 )
-from survey.errors import RegistryError, RollbackRefused, WithdrawnVersion
+from survey.errors import BundleError, BundleIntegrityError, RegistryError, RollbackRefused, WithdrawnVersion
 from survey.publish import atomic_directory, atomic_write_bytes, crash_point
 
 try:
@@ -54,6 +54,16 @@ except ImportError:  # pragma: no cover - Windows
 SITE_BUNDLE = "_site"
 """Name under which a site's site-level bundle (floor model, device table) is kept, in a
 registry and beside the floor bundles of ``indoormap build``."""
+
+
+def _damaged(version: Path) -> bool:
+    """Whether a version folder fails the bundle checks (a member changed, missing or
+    added, no manifest: a :class:`~survey.errors.BundleError`) or holds another bundle than
+    the one it is named after."""
+    try:
+        return load_bundle(version).bundle_id != version.name
+    except BundleError:
+        return True
 
 
 class Registry:
@@ -154,8 +164,10 @@ class Registry:
         return out
 
     def publish(self, bundle_dir: str | os.PathLike, *, make_current: bool = True) -> dict:
-        """Copy a verified bundle in as a new version (a version already present is reused)
-        and, by default, make it current. Returns ``{"bundle_id", "seq"}``."""
+        """Copy a verified bundle in as a new version (a version already present is reused;
+        one whose copy fails its checks is replaced by this intact one, and ``"repaired":
+        True`` is added to the result) and, by default, make it current. Returns
+        ``{"bundle_id", "seq"}``."""
         bundle = load_bundle(bundle_dir)  # verify before anything is copied
         source = bundle.path  # the bundle itself, also when bundle_dir is a registry floor
         site = bundle.site_id  # strings: load_bundle checked them
@@ -163,8 +175,11 @@ class Registry:
         with self._writing(site, floor) as base:
             history = self.writable_history(site, floor)  # writers hold the lock: it stays so
             target = base / "versions" / bundle.bundle_id
-            if not target.exists():
-                with atomic_directory(target, crash_prefix="registry") as tmp:
+            damaged = target.exists() and _damaged(target)
+            if not target.exists() or damaged:
+                # a damaged copy of this very bundle (its id is its content's hash) is replaced
+                # by the intact one given: publishing it again is the repair
+                with atomic_directory(target, overwrite=True, crash_prefix="registry") as tmp:
                     for src in sorted(source.rglob("*")):
                         rel = src.relative_to(source)
                         if src.is_dir():
@@ -172,7 +187,10 @@ class Registry:
                         else:
                             (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
                             shutil.copyfile(src, tmp / rel)
-            load_bundle(target)  # the copy, or the version already there, is intact
+                if _damaged(target):  # the copy is intact (the version already there was)
+                    load_bundle(target)  # raises what is wrong
+                    raise BundleIntegrityError(f"{target}: holds another bundle than "
+                                               f"{target.name}")
             crash_point("registry:after-copy")
             entry = next((h for h in history if h["bundle_id"] == bundle.bundle_id), None)
             if entry is not None and make_current:
@@ -187,7 +205,7 @@ class Registry:
             if make_current:
                 self._point(site, floor, bundle.bundle_id, allow_rollback=False, verify=False,
                             history=history)
-        return entry
+        return {**entry, "repaired": True} if damaged else entry
 
     def _refuse_withdrawn(self, site: str, floor: str, entry: dict, history: list[dict]
                           ) -> None:

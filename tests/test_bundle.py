@@ -457,6 +457,14 @@ def test_registry_versions_move_forward(tmp_path):
     v.write_bytes(v.read_bytes()[:-1] + b"\x07")
     with pytest.raises(BundleIntegrityError):
         reg.open("site", "F1", e2["bundle_id"])
+    # publishing the intact bundle again repairs it (the id is the content's hash); it
+    # failed with the same checksum error, leaving only a hand deletion
+    res = CliRunner().invoke(main, ["bundle", "publish", str(tmp_path / "v2"), "--registry",
+                                    str(tmp_path / "reg"), "--no-current"])
+    assert res.exit_code == 0 and "#2; its damaged copy in the registry was replaced" in \
+        res.output, res.output
+    assert reg.open("site", "F1", e2["bundle_id"]).bundle_id == e2["bundle_id"]
+    assert reg.publish(tmp_path / "v2", make_current=False) == e2  # intact now: reused
 
 
 def test_a_rollback_sticks_when_the_withdrawn_version_is_published_again(tmp_path):
@@ -730,8 +738,8 @@ def test_a_reader_that_has_gone_ends_the_command_quietly(bundle_dir):
 
 
 def test_registry_refuses_a_version_that_is_not_the_one_current_names(tmp_path):
-    """A version folder swapped for another (valid) bundle, a damaged version reused by a new
-    publish or a rollback: refused, not served."""
+    """A version folder swapped for another (valid) bundle, or a damaged version pointed at
+    by a rollback: refused, not served; publishing the intact bundle again repairs it."""
     write_bundle(tmp_path / "v1", _content(0.0))
     write_bundle(tmp_path / "v2", _content(1.0))
     reg = Registry(tmp_path / "reg")
@@ -744,9 +752,15 @@ def test_registry_refuses_a_version_that_is_not_the_one_current_names(tmp_path):
     mask = versions / e1["bundle_id"] / "mask.npy"
     mask.write_bytes(mask.read_bytes()[:-1] + b"\x07")
     with pytest.raises(BundleIntegrityError):
-        reg.publish(tmp_path / "v1")
-    with pytest.raises(BundleIntegrityError):
         reg.set_current("site", "F1", e1["bundle_id"], allow_rollback=True)
+    # publishing the intact bundles again repairs both versions (the swapped one was kept,
+    # as a valid bundle, under the other's id)
+    assert reg.publish(tmp_path / "v2") == {**e2, "repaired": True}
+    assert load_bundle(tmp_path / "reg" / "site" / "F1").bundle_id == e2["bundle_id"]
+    with pytest.raises(RollbackRefused):  # repaired, but older than the current one
+        reg.publish(tmp_path / "v1")
+    reg.set_current("site", "F1", e1["bundle_id"], allow_rollback=True)
+    assert load_bundle(tmp_path / "reg" / "site" / "F1").bundle_id == e1["bundle_id"]
 
 
 def test_publishing_a_registry_floor_folder_copies_its_current_bundle(tmp_path):
