@@ -525,6 +525,7 @@ class WalkAligner(BaseLocalizer):
         track = (self._offline(steps, start, later) if smooth
                  else self._real_time(steps, start, later))
         track.info["seen_by_map"] = self.seen_by_map(steps)
+        track.info.update(self.provenance())
         return track
 
     def _real_time(self, steps: StepSummaries, start: Estimate, later: list) -> Track:

@@ -269,10 +269,13 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
                 used += (" (not guided: a given start)" if start_xy is not None
                          else " (not guided: no radio model)")
         table = track.to_arrow()
-        if fmt == "csv":  # a CSV has no metadata: the walk, floor and method as columns
+        if fmt == "csv":  # a CSV has no metadata: the walk, floor, method, what ran and
+            # the bundle as columns
             for i, (column, value) in enumerate((("trace_id", track.trace_id),
                                                  ("floor_id", track.floor_id),
-                                                 ("method", track.method))):
+                                                 ("method", track.method),
+                                                 ("ran", ran),
+                                                 ("bundle_id", bundle.bundle_id))):
                 table = table.add_column(i, column, pa.array([str(value)] * len(table)))
         _write_table(table, target, fmt, overwrite=overwrite)
         # an earlier run's other outputs go now: a plot that then fails leaves none of them

@@ -368,7 +368,19 @@ class BaseLocalizer:
         track = Track.from_estimates(start, est, method=self.method, trace_id=steps.trace_id,
                                      floor_id=self.bundle.floor_id)
         track.info.update(smoothed=bool(smooth), seen_by_map=self.seen_by_map(steps))
-        return self._smoothed(track) if smooth else track
+        out = self._smoothed(track) if smooth else track
+        out.info.update(self.provenance())
+        return out
+
+    def provenance(self) -> dict:
+        """What a track of this localizer records of its making (``Track.info``, and the
+        metadata of a written track): ``ran``, the run's :attr:`label` (``indoormap guided by
+        align``: the method alone does not tell a guided filter); ``bundle_id``; and for
+        ``auto``, ``auto``, why it chose this."""
+        out = {"ran": self.label, "bundle_id": self.bundle.bundle_id}
+        if self.auto_choice is not None:
+            out["auto"] = self.auto_choice.why
+        return out
 
     def seen_by_map(self, steps: StepSummaries) -> bool:
         """Whether the bundle was built from this walk (``track.info["seen_by_map"]``; its

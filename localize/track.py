@@ -121,11 +121,15 @@ class Track:
 
     def metadata(self) -> dict:
         """What a written track carries beside its columns: method, smoothed (True for an
-        offline smoothed track), trace id, floor id, start position (m) and recoveries."""
+        offline smoothed track), trace id, floor id, start position (m) and recoveries; and,
+        for a track of a localizer's ``run``, what ran (``indoormap guided by align``), the
+        bundle id and, for ``auto``, why it chose it
+        (:meth:`localize.filter.BaseLocalizer.provenance`)."""
         return {"method": self.method, "smoothed": bool(self.info.get("smoothed")),
                 "trace_id": self.trace_id, "floor_id": self.floor_id,
                 "start_x_m": float(self.start.x_m), "start_y_m": float(self.start.y_m),
-                "n_recoveries": int(self.n_recoveries)}
+                "n_recoveries": int(self.n_recoveries),
+                **{k: self.info[k] for k in ("ran", "bundle_id", "auto") if k in self.info}}
 
     def to_frame(self) -> pd.DataFrame:
         """The track as a pandas DataFrame, one row per step (the columns of

@@ -31,6 +31,12 @@ def test_localize_writes_positions_and_plots(truth_bundles, tmp_path):  # noqa: 
     assert table.num_rows > 20 and np.isfinite(table.column("x_m").to_numpy()).all()
     assert table.schema.metadata[b"method"] == b"indoormap"
     assert table.schema.metadata[b"smoothed"] == b"false"
+    # what ran and on which map: auto's guided filter and the plain one wrote the same
+    # metadata (method: indoormap), and no bundle id
+    assert table.schema.metadata[b"ran"] == b"indoormap"
+    assert table.schema.metadata[b"bundle_id"] == \
+        load_bundle(truth_bundles["F1"]).bundle_id.encode()
+    assert table.schema.metadata[b"auto"] == b"the bundle records no held-out map quality"
     assert (tmp_path / "out" / f"{tid}.png").stat().st_size > 1000
     assert "start first waypoint" in res.output
     # the walk's error at its waypoints is said (and in the plot's title), as evaluate scores it
@@ -74,8 +80,10 @@ def test_localize_csv_on_a_folder_of_bundles(truth_bundles, tmp_path):  # noqa: 
     assert len(list(tmp_path.glob("*.csv"))) == 1 and not list(tmp_path.glob("*.png"))
     # a CSV has no metadata: which walk, floor and method are columns (session 40)
     rows = pd.read_csv(next(tmp_path.glob("*.csv")), dtype={"trace_id": str})
-    assert list(rows.columns[:4]) == ["trace_id", "floor_id", "method", "step"]
+    assert list(rows.columns[:6]) == ["trace_id", "floor_id", "method", "ran", "bundle_id",
+                                      "step"]
     assert set(rows["trace_id"]) == {walk.name.split(".")[0]} and set(rows["method"]) == {"pdr"}
+    assert set(rows["bundle_id"]) == {load_bundle(bundles / "F2").bundle_id}
     assert set(rows["floor_id"]) == {load_bundle(bundles / "F2").floor_id}
 
 
@@ -462,6 +470,15 @@ def test_a_walk_without_ground_truth_is_localized(built, tmp_path):  # noqa: F81
           for name, t in (("alone", alone), ("plan", tracks["plan"]))}
     apart = np.hypot(*(xy["alone"] - xy["plan"]).T)
     assert len(apart) == len(tracks["plan"]) and np.median(apart) < 1.0
+    # auto's guided filter is told from the plain one in the written track (both said
+    # method: indoormap)
+    res = runner.invoke(main, ["localize", bundles, str(log), "-o", str(tmp_path / "auto"),
+                               "--no-plot"])
+    meta = pq.read_table(tmp_path / "auto" / f"{trace.trace_id}.parquet").schema.metadata
+    assert (meta[b"method"], meta[b"ran"]) == (b"indoormap", b"indoormap guided by align")
+    assert meta[b"auto"].startswith(b"the magnetic map's held-out 5 m change correlation")
+    assert alone.schema.metadata[b"ran"] == b"indoormap" and b"auto" not in \
+        alone.schema.metadata
     # without scans nor a floor in a header, the floor's bundle is given
     res = runner.invoke(main, ["localize", bundles, str(plan.parent / "logs" / "quiet.csv"),
                                "-o", str(tmp_path / "csv"), "--no-plot", "--start", "10,10"])
