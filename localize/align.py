@@ -46,7 +46,7 @@ from localize.filter import BaseLocalizer, check_step, check_within_reach
 from localize.params import MAX_STEP_M
 from localize.radio import RadioModel
 from localize.steps import (AttitudeCode, RadioScan, StepSummaries, StepSummary,
-                            check_step_numbers)
+                            check_step_numbers, fix_time_problem)
 from localize.track import Estimate, Track
 
 __all__ = ["AlignParams", "WalkAligner", "distance_from_mask_m", "walk_shape"]
@@ -401,10 +401,14 @@ class WalkAligner(BaseLocalizer):
     def _checked_fix(self, t_ms: float, fix: tuple[float, float, float] | None
                      ) -> tuple[float, tuple[float, float]] | None:
         """A step's fix ``(x_m, y_m, t_ms)`` as :meth:`_advance` takes it, ``(t_ms, (x, y))``;
-        a LocalizationError for one not finite or far off the map (not taken)."""
+        a LocalizationError for one not finite, far off the map or stamped later than its
+        step (:func:`~localize.steps.fix_time_problem`) (not taken)."""
         if fix is None:
             return None
         x, y, t = (float(v) for v in fix)
+        late = "time 0 is no Unix time in ms" if t == 0 else fix_time_problem(t, t_ms)
+        if late and np.isfinite(t):
+            raise LocalizationError(f"step at {t_ms:g} ms: fix {late}; the step was not taken")
         check_within_reach(self.bundle.grid, x if np.isfinite(t) else np.nan, y,
                            f"step at {t_ms:g} ms: fix ({x:g}, {y:g}, {t:g}) (x, y m, t ms)",
                            "; the step was not taken")

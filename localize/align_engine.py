@@ -30,8 +30,8 @@ from localize.errors import LocalizationError
 from localize.filter import BUNDLE_HINT
 from localize.steps import AttitudeCode
 from localize.stepper import StepInputs, StepOutputs
-from localize.ticks import (check_tick_inputs, checked_tick_fixes, per_user, start_points,
-                            tick_ids)
+from localize.ticks import (check_tick_inputs, checked_fix_times, checked_tick_fixes, per_user,
+                            start_points, tick_ids)
 from survey.errors import require_type
 
 __all__ = ["MultiUserAligner"]
@@ -148,7 +148,7 @@ class MultiUserAligner:
         check_step_times(users, t, ids)
         fix_xy = (None if fix_xy_m is None else
                   checked_tick_fixes(fix_xy_m, None, k, 0.0, self.bundle.grid, ids)[0])
-        fix_t = None if fix_t_ms is None else per_user(fix_t_ms, k, "fix_t_ms")
+        fix_t = None if fix_t_ms is None else checked_fix_times(fix_t_ms, t, ids)
         return advance_aligners(users, t, step_columns(inputs, k), fix_xy, fix_t)
 
     def aligners_of(self, ids: NDArray[np.int64]) -> list[WalkAligner]:

@@ -42,8 +42,8 @@ from localize.params import FilterParams
 from localize.particles import (ParticleState, estimate, init_state, inject_around_fix,
                                 inject_around_guide, needed_layers, start_half_width_m)
 from localize.stepper import StepInputs, StepOutputs, advance
-from localize.ticks import (check_tick_inputs, checked_tick_fixes, per_user, start_points,
-                            tick_ids)
+from localize.ticks import (check_tick_inputs, checked_fix_times, checked_tick_fixes, per_user,
+                            start_points, tick_ids)
 from localize.update import position_update
 from survey.errors import require_type
 
@@ -270,7 +270,8 @@ class MultiUserEngine:
             t = per_user(t_ms, k, "t_ms")[guided]
             aligners = self.guide.aligners_of(self.guide_ids[rows][guided])
             check_step_times(aligners, t, users[guided])  # named by the engine's user ids
-            fix_t = None if fix_t_ms is None else per_user(fix_t_ms, k, "fix_t_ms")[guided]
+            fix_t = None if fix_t_ms is None else \
+                checked_fix_times(per_user(fix_t_ms, k, "fix_t_ms")[guided], t, users[guided])
             if fix_xy_m is None:  # the guides' positions go in here
                 fix_xy, sigma = np.full((k, 2), np.nan), np.full(k, p.radio_sigma_floor_m)
             g = advance_aligners(aligners, t, tuple(c[guided] for c in step_columns(inputs, k)),

@@ -268,6 +268,33 @@ def check_step_values(s: StepSummary, numbers_read: Sequence[str] = STEP_NUMBER_
     if s.scan is not None and not isinstance(s.scan, RadioScan):
         raise LocalizationError(f"{at}: scan must be None or a RadioScan, not "
                                 f"{type(s.scan).__name__}; the step was not taken")
+    if s.scan is not None:
+        problem = fix_time_problem(s.scan.t_ms, s.t_ms)
+        if problem:
+            raise LocalizationError(f"{at}: its scan {problem}; the step was not taken")
+
+
+#: How far (ms) a step's scan or fix may be stamped after the step: a scan belongs to the
+#: first step at or after it (:func:`survey.step_summaries.step_summaries`), and a streaming
+#: app's clocks may differ by a little. One stamped an hour ahead (a time zone, a server's
+#: receipt time) was kept by the alignment for the rest of the walk, pulling every position.
+MAX_FIX_AFTER_STEP_MS = 2_000.0
+
+
+def fix_time_problem(fix_t_ms: object, step_t_ms: float) -> str | None:
+    """Why a scan's or fix's time cannot be a step's (a phrase), or None: not a finite
+    time at or after 0 (0 or None: no time of its own), or more than
+    :data:`MAX_FIX_AFTER_STEP_MS` after the step's time ``step_t_ms``."""
+    if fix_t_ms is None or (_is_real(fix_t_ms) and float(fix_t_ms) == 0):
+        return None
+    if not _is_real(fix_t_ms) or not 0 < float(fix_t_ms) < 2.0 ** 53:
+        return f"time {fix_t_ms!r} is no Unix time in ms"
+    ahead = float(fix_t_ms) - float(step_t_ms)
+    if ahead > MAX_FIX_AFTER_STEP_MS:
+        return (f"is stamped {float(fix_t_ms):.0f} ms, {ahead / 1000:.3g} s after the step "
+                "(another clock, or a receipt time?): a scan is its step's when it comes "
+                "at or before it")
+    return None
 #: The per-step columns a table of step summaries holds
 #: (:func:`survey.step_summaries.summaries_table`, :meth:`StepSummaries.from_table`).
 TABLE_COLUMNS = ("t_ms", *_FLOAT_COLUMNS, "attitude")

@@ -13,8 +13,10 @@ from localize.bundle import Grid
 from localize.errors import LocalizationError
 from localize.filter import MAX_START_OFF_MAP_M, within_reach
 from localize.stepper import StepInputs
+from localize.steps import fix_time_problem
 
-__all__ = ["check_tick_inputs", "checked_tick_fixes", "per_user", "start_points", "tick_ids"]
+__all__ = ["check_tick_inputs", "checked_fix_times", "checked_tick_fixes", "per_user",
+           "start_points", "tick_ids"]
 
 
 def tick_ids(ids: ArrayLike, what: str = "tick") -> NDArray[np.int64]:
@@ -110,6 +112,22 @@ def start_points(start_xy: ArrayLike) -> NDArray[np.float64]:
         raise LocalizationError(f"start_xy has shape {xy.shape}, expected (k, 2): an (x, y) "
                                 "pair (m) per new user; nobody was added")
     return xy
+
+
+def checked_fix_times(fix_t_ms: ArrayLike, t_ms: NDArray[np.float64], users: NDArray[np.int64]
+                      ) -> NDArray[np.float64]:
+    """A tick's scan times of its fixes, one per user (k,) (NaN: the step's own), or a
+    LocalizationError naming every user whose fix is stamped no Unix time or more than
+    :data:`~localize.steps.MAX_FIX_AFTER_STEP_MS` after its step (``t_ms``, (k,)): a fix
+    dated an hour ahead was held by the alignment for the rest of the walk."""
+    fix_t = per_user(fix_t_ms, len(users), "fix_t_ms")
+    bad = [(int(u), problem) for u, f, t in zip(users, fix_t, t_ms) if not np.isnan(f)
+           if (problem := "time 0 is no Unix time in ms" if f == 0 else
+               fix_time_problem(float(f), float(t)))]
+    if bad:
+        raise LocalizationError(f"users {[u for u, _ in bad][:10]}: fix_t_ms: the first's fix "
+                                f"{bad[0][1]}; nobody was advanced")
+    return fix_t
 
 
 def per_user(values: ArrayLike, k: int, name: str) -> NDArray[np.float64]:

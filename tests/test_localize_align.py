@@ -117,8 +117,8 @@ def test_streaming_from_a_scan_equals_batch(f1_bundle, sim_walks):  # noqa: F811
 
 
 def test_a_refused_step_leaves_the_stream_going(f1_bundle, sim_walks, monkeypatch):  # noqa: F811
-    """A step without a compass heading (NaN, inf, text), or with a fix in other units, is
-    refused with a LocalizationError and not taken: the next steps give the track of a
+    """A step without a compass heading (NaN, inf, text), or with a fix in other units or
+    stamped after it, is refused with a LocalizationError and not taken: the next steps give the track of a
     stream that never saw it (a NaN compass used to poison the window, and every later step
     of the user failed with an IndexError). So does a step whose alignment fails."""
     from dataclasses import replace
@@ -141,6 +141,18 @@ def test_a_refused_step_leaves_the_stream_going(f1_bundle, sim_walks, monkeypatc
     with pytest.raises(LocalizationError, match="more than 200 m off the floor's map"):
         loc.step_values(s.t_ms, s.compass_deg, s.relative_heading_deg, s.delta_acc_ms2,
                         fix=(1e6, 1e6, s.t_ms))
+    # a scan or fix stamped an hour after its step (another clock, a receipt time) was held
+    # by the alignment for the rest of the walk, pulling every later position
+    scan = next(x for x in w.steps.scans[3:] if x is not None)
+    late = replace(scan, t_ms=int(s.t_ms) + 3_600_000)
+    with pytest.raises(LocalizationError, match=r"its scan is stamped \d+ ms, 3.6e\+03 s after "
+                                                r"the step .* the step was not taken"):
+        loc.step(replace(s, scan=late))
+    with pytest.raises(LocalizationError, match="its scan time -5 is no Unix time in ms"):
+        loc.step(replace(s, scan=replace(scan, t_ms=-5)))
+    with pytest.raises(LocalizationError, match=r"fix is stamped .* after the step"):
+        loc.step_values(s.t_ms, s.compass_deg, s.relative_heading_deg, s.delta_acc_ms2,
+                        fix=(*w.start_xy, s.t_ms + 3_600_000))
     real = align.WalkAligner._align_window
     monkeypatch.setattr(align.WalkAligner, "_align_window",
                         lambda self, local: (_ for _ in ()).throw(MemoryError("no room")))

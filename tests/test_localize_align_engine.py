@@ -110,6 +110,13 @@ def test_bad_ticks_move_nobody(f1_bundle, sim_walks):  # noqa: F811
         with pytest.raises(LocalizationError, match=rf"users \[{ids[1]}\]: fix_xy_m .* not "
                            "two finite numbers within 200 m .*nobody was advanced"):
             eng.tick(ids, [t, t], good, fix_xy_m=[[np.nan, np.nan], fix])
+    # fixes dated an hour ahead, ten years ahead or before 1970 were held for good; every
+    # user with one is named
+    near = [list(w.start_xy)] * 2
+    for late in ([t + 3.6e6, t + 3.15e11], [-5.0, np.inf]):
+        with pytest.raises(LocalizationError, match=rf"users \[{ids[0]}, {ids[1]}\]: "
+                                                    r"fix_t_ms: .*nobody was advanced"):
+            eng.tick(ids, [t, t], good, fix_xy_m=near, fix_t_ms=late)
     bad = StepInputs(**{**{c: getattr(good, c) for c in COLUMNS},
                         "frequency_hz": np.array(["1.8", "x"])})
     with pytest.raises(LocalizationError, match="frequency_hz is not numeric"):
@@ -197,6 +204,11 @@ def test_guided_engine_users_get_the_single_user_guided_filter(f1_bundle, sim_wa
     assert eng.guide.n_users == 1 and list(eng.guide_ids) == [1, -1]
     with pytest.raises(LocalizationError, match="need their step times"):
         eng.tick(ids[1:2], _inputs(walks[1:2], 0))
+    t_next = eng.guide.aligners_of(eng.guide_ids[:1])[0].last_t_ms + 600.0
+    with pytest.raises(LocalizationError, match=rf"users \[{ids[1]}\]: fix_t_ms: the first's "
+                                                r"fix is stamped .* after the step"):
+        eng.tick(ids[1:2], _inputs(walks[1:2], 0), fix_xy_m=[walks[1].start_xy],
+                 t_ms=[t_next], fix_t_ms=[t_next + 3.6e6])
     drawn = eng.rng.bit_generator.state
     with pytest.raises(LocalizationError, match="need their start times"):
         eng.add_users(xy[:1], fix_sigma_m=[3.0])
