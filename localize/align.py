@@ -34,7 +34,7 @@ either way along it, and the rotations are searched around 180 deg as well as ar
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from weakref import WeakKeyDictionary
 
 import numpy as np
@@ -345,7 +345,11 @@ class WalkAligner(BaseLocalizer):
         self._start_given = False
         self._start_scan: RadioScan | None = None  # the scan the start was located from
         self._pos = 0j          # current estimate (complex m)
-        self._spread = 0.0
+        self._spread = self._full_spread = 0.0
+        #: The RMS of the last search's finest shift grid (m; about 0.5): what the guided
+        #: filter weighs the alignment with (``max(it, guide_sigma_m)``), as before the
+        #: estimates' ``spread_m`` became the coarse grid's (session 50).
+        self.search_spread_m = 0.0
         #: last alignment: (absolute rotation rad, scale, first index of its window in _t,
         #: its positions from there on)
         self._fit: tuple[float, float, int, NDArray[np.complex128]] | None = None
@@ -468,7 +472,10 @@ class WalkAligner(BaseLocalizer):
         best = self._align(shape, times, fix_t[keep], fix_z[keep], start_given, both_ways,
                            around)
         pos = best.shift + best.factor * shape
-        self._pos, self._spread = pos[-1], best.spread_m
+        if around is None:  # a full search: its spread holds until the next one
+            self._full_spread = best.spread_m
+        self._pos, self._spread = pos[-1], max(best.spread_m, self._full_spread)
+        self.search_spread_m = best.fine_spread_m
         self._fit = (float(np.angle(best.factor)) + anchor, abs(best.factor), first, pos)
         self._stale = False
         return first
@@ -573,6 +580,8 @@ class _Best:
     shift: complex
     spread_m: float
     inside_share: float
+    #: the spread over the finest grid searched (what spread_m was before session 50)
+    fine_spread_m: float = 0.0
 
 
 #: Log-likelihood below the best within which shifts are still placed for the spread.
@@ -643,7 +652,11 @@ class _Search:
         fine_scale = s0 + np.arange(-2, 3) * p.scale_step / 5
         fine = self._grid(fine_rot, fine_scale[fine_scale > 0], p.shift_step_m,
                           p.shift_step_m / 2, centre=best.shift)
-        return fine if fine.score >= best.score else best
+        # the spread is the coarse grid's, which spans the shifts the fixes and walls allow:
+        # the fine grid's +-1 step gave about 0.5 m whatever the error
+        chosen = fine if fine.score >= best.score else best
+        return replace(chosen, spread_m=max(fine.spread_m, best.spread_m),
+                       fine_spread_m=chosen.spread_m)
 
     def _grid(self, rot_deg: NDArray, scale: NDArray, half_width_m: float, step_m: float,
               centre: complex | None = None) -> _Best:

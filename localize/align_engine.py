@@ -179,11 +179,14 @@ def check_step_times(aligners: list[WalkAligner], t_ms: NDArray, names: NDArray)
 
 
 def advance_aligners(aligners: list[WalkAligner], t_ms: NDArray, columns: tuple[NDArray, ...],
-                     fix_xy: NDArray | None, fix_t_ms: NDArray | None) -> StepOutputs:
+                     fix_xy: NDArray | None, fix_t_ms: NDArray | None, *,
+                     search_spread: bool = False) -> StepOutputs:
     """One step of each aligner (inputs checked with the tick, before anyone moves:
     :func:`check_tick_inputs`, :func:`check_step_times`, :func:`checked_tick_fixes`, so not
     again per user): its time (Unix ms), its :func:`step_columns`, its fix (k, 2) (m; NaN
-    rows or None: none) and the fix's scan time (NaN or None: the step's)."""
+    rows or None: none) and the fix's scan time (NaN or None: the step's). ``spread_m`` is
+    the estimates' (or with ``search_spread`` the search's finest grid's,
+    :attr:`WalkAligner.search_spread_m`, what a guided filter weighs with)."""
     k = len(aligners)
     fix_t = t_ms if fix_t_ms is None else np.where(np.isfinite(fix_t_ms), fix_t_ms, t_ms)
     has_fix = np.zeros(k, bool) if fix_xy is None else np.isfinite(fix_xy).all(axis=1)
@@ -193,5 +196,5 @@ def advance_aligners(aligners: list[WalkAligner], t_ms: NDArray, columns: tuple[
         fix = (float(fix_t[r]), (float(fix_xy[r, 0]), float(fix_xy[r, 1]))) \
             if has_fix[r] else None
         est = aligner._advance(t_ms[r], compass[r], gyro[r], swing[r], bool(carried[r]), fix)
-        out[r] = est.x_m, est.y_m, est.spread_m
+        out[r] = est.x_m, est.y_m, aligner.search_spread_m if search_spread else est.spread_m
     return StepOutputs(out[:, 0], out[:, 1], out[:, 2], np.ones(k), np.zeros(k, bool))

@@ -275,7 +275,7 @@ class MultiUserEngine:
             if fix_xy_m is None:  # the guides' positions go in here
                 fix_xy, sigma = np.full((k, 2), np.nan), np.full(k, p.radio_sigma_floor_m)
             g = advance_aligners(aligners, t, tuple(c[guided] for c in step_columns(inputs, k)),
-                                 fix_xy[guided], fix_t)
+                                 fix_xy[guided], fix_t, search_spread=True)
             fix_xy[guided] = np.column_stack([g.x_m, g.y_m])
             sigma[guided] = np.fmax(g.spread_m, p.guide_sigma_m)
         extra = (None if fix_xy_m is None and not guided.any() else

@@ -549,7 +549,7 @@ class Localizer(BaseLocalizer):
         """Weight update and/or particle injection around the walk alignment's position
         (``radio_guide="align"``)."""
         p = self.params
-        sigma = max(guide.spread_m, p.guide_sigma_m)
+        sigma = max(self.guide.search_spread_m, p.guide_sigma_m)
         if p.radio_update:
             position_update(st, 0, guide.x_m, guide.y_m, sigma, p.radio_outlier)
         if p.radio_inject_fraction > 0 and np.hypot(

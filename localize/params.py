@@ -255,7 +255,8 @@ class FilterParams:
         ``"align"``: the walk alignment's real-time position
         (:class:`~localize.align.WalkAligner` run beside the filter on the same steps and
         fixes: the step track fitted to all the walk's fixes so far and to the walls), at every
-        step, as a Gaussian of ``max(its spread, guide_sigma_m)``, with the injection when it is
+        step, as a Gaussian of ``max(its search's spread, guide_sigma_m)``
+        (:attr:`~localize.align.WalkAligner.search_spread_m`), with the injection when it is
         ``guide_inject_distance_m`` or more from the estimate (``radio_sigma_floor_m``,
         ``radio_inject_distance_m`` and ``radio_inject_rule`` are then not used); it costs
         the alignment's time (about 6 ms per step). Better on the simulated site with built
