@@ -26,12 +26,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from localize.align import AlignParams, WalkAligner
 from localize.bundle import MapBundle
-from localize.errors import LocalizationError
+from localize.errors import LocalizationError, TickRefused
 from localize.filter import BUNDLE_HINT
 from localize.steps import AttitudeCode
 from localize.stepper import StepInputs, StepOutputs
-from localize.ticks import (check_tick_inputs, checked_fix_times, checked_tick_fixes, per_user,
-                            start_points, tick_ids)
+from localize.ticks import (check_tick_inputs, check_user_step_times, checked_fix_times,
+                            checked_tick_fixes, per_user, start_points, tick_ids)
 from survey.errors import require_type
 
 __all__ = ["MultiUserAligner"]
@@ -140,7 +140,8 @@ class MultiUserAligner:
         ids = self.user_ids if ids is None else tick_ids(ids)
         unknown = [i for i in ids.tolist() if i not in self._aligners]
         if unknown:
-            raise LocalizationError(f"unknown user ids in tick: {unknown[:10]}")
+            raise TickRefused(f"unknown user ids in tick: {unknown[:10]}; nobody was advanced",
+                              unknown)
         k = len(ids)
         check_tick_inputs(inputs, ids)
         t = per_user(t_ms, k, "t_ms")
@@ -169,13 +170,22 @@ def step_columns(inputs: StepInputs, k: int) -> tuple[NDArray, ...]:
 
 
 def check_step_times(aligners: list[WalkAligner], t_ms: NDArray, names: NDArray) -> None:
-    """Every step time after its aligner's last one, checked before anyone moves; the error
-    names the user (``names``: the ids the caller knows the users by)."""
+    """Every step time after its aligner's last one, checked before anyone moves; the
+    :class:`~localize.errors.TickRefused` names every user refused (``names``: the ids the
+    caller knows the users by)."""
+    check_user_step_times(step_time_problems(aligners, t_ms, names))
+
+
+def step_time_problems(aligners: list[WalkAligner], t_ms: NDArray, names: NDArray
+                       ) -> list[tuple[int, str]]:
+    """``(name, why)`` of each step time (k,) its aligner cannot take next."""
+    problems = []
     for name, aligner, t in zip(names.tolist(), aligners, t_ms):
         try:
             aligner.check_next(t)
         except LocalizationError as err:
-            raise LocalizationError(f"user {name}: {err}; nobody was advanced") from err
+            problems.append((name, str(err)))
+    return problems
 
 
 def advance_aligners(aligners: list[WalkAligner], t_ms: NDArray, columns: tuple[NDArray, ...],

@@ -32,18 +32,18 @@ from collections.abc import Mapping
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from localize.align_engine import (MultiUserAligner, advance_aligners, check_step_times,
+from localize.align_engine import (MultiUserAligner, advance_aligners, step_time_problems,
                                    step_columns)
 from localize.bundle import MapBundle
-from localize.errors import LocalizationError
+from localize.errors import LocalizationError, TickRefused
 from localize.filter import BUNDLE_HINT, make_rng
 from localize.maps import FilterMap
 from localize.params import FilterParams
 from localize.particles import (ParticleState, estimate, init_state, inject_around_fix,
                                 inject_around_guide, needed_layers, start_half_width_m)
 from localize.stepper import StepInputs, StepOutputs, advance
-from localize.ticks import (check_tick_inputs, checked_fix_times, checked_tick_fixes, per_user,
-                            start_points, tick_ids)
+from localize.ticks import (check_tick_inputs, check_user_step_times, checked_fix_times,
+                            checked_tick_fixes, later_than, per_user, start_points, tick_ids)
 from localize.update import position_update
 from survey.errors import require_type
 
@@ -108,6 +108,8 @@ class MultiUserEngine:
         self.user_ids = np.empty(0, dtype=np.int64)   # row -> user id
         self.guide_ids = np.empty(0, dtype=np.int64)  # row -> id in self.guide, -1: none
         self.last_xy = np.empty((0, 2))
+        #: each user's last step (or start) time (Unix ms; NaN: never given)
+        self.last_t_ms = np.empty(0)
         self.consecutive = np.empty(0, dtype=np.int64)
         self.n_recoveries = np.empty(0, dtype=np.int64)
         self._next_id = 0
@@ -133,7 +135,8 @@ class MultiUserEngine:
             For starts that are radio fixes: their accuracy (m; NaN: a known position). On a
             guided engine those users are guided (class docstring).
         t_ms : array_like (k,), optional
-            The starts' times (Unix ms); needed for guided users.
+            The starts' times (Unix ms); needed for guided users. Given, a tick's step times
+            (``tick(t_ms=...)``) are checked to come after them.
         """
         p = self.params
         xy = start_points(start_xy)
@@ -144,11 +147,11 @@ class MultiUserEngine:
             per_user(half_width_m, k, "half_width_m")
         guided = np.isfinite(sigma) & (self.guide is not None)
         guide_ids = np.full(k, -1, dtype=np.int64)
+        t = np.full(k, np.nan) if t_ms is None else per_user(t_ms, k, "t_ms")
         if guided.any():  # first: it checks the starts and times, and draws nothing
             if t_ms is None:
                 raise LocalizationError("add_users: users started from a fix on a guided "
                                         "engine need their start times (t_ms)")
-            t = per_user(t_ms, k, "t_ms")
             guide_ids[guided] = self.guide.add_users(xy[guided], t[guided], sigma[guided])
         try:
             new = init_state(self.fmap, p, self.rng, xy, hw, dtype=self.dtype)
@@ -169,6 +172,7 @@ class MultiUserEngine:
         self.user_ids = np.concatenate([self.user_ids, ids])
         self.guide_ids = np.concatenate([self.guide_ids, guide_ids])
         self.last_xy = np.concatenate([self.last_xy, np.column_stack([mx, my])])
+        self.last_t_ms = np.concatenate([self.last_t_ms, t])
         self.consecutive = np.concatenate([self.consecutive, np.zeros(k, dtype=np.int64)])
         self.n_recoveries = np.concatenate([self.n_recoveries, np.zeros(k, dtype=np.int64)])
         return ids
@@ -189,6 +193,7 @@ class MultiUserEngine:
         self.user_ids = self.user_ids[keep]
         self.guide_ids = self.guide_ids[keep]
         self.last_xy = self.last_xy[keep]
+        self.last_t_ms = self.last_t_ms[keep]
         self.consecutive = self.consecutive[keep]
         self.n_recoveries = self.n_recoveries[keep]
 
@@ -204,6 +209,9 @@ class MultiUserEngine:
         if len(order) == 0 or not np.array_equal(self.user_ids[rows], ids):
             known = set(self.user_ids.tolist())
             unknown = [i for i in ids.tolist() if i not in known]
+            if what == "tick":
+                raise TickRefused(f"unknown user ids in tick: {unknown[:10]}; nobody was "
+                                  "advanced", unknown)
             raise LocalizationError(f"unknown user ids in {what}: {unknown[:10]}")
         return rows
 
@@ -264,12 +272,17 @@ class MultiUserEngine:
         rows = slice(None) if ids is None else self.rows_of(ids)
         last = self.last_xy[rows]
         guided = self.guide_ids[rows] >= 0
-        if guided.any():  # the alignments step first (and check their times): their
-            if t_ms is None:  # positions are these users' radio evidence at this step
-                raise LocalizationError("tick: guided users need their step times (t_ms)")
-            t = per_user(t_ms, k, "t_ms")[guided]
-            aligners = self.guide.aligners_of(self.guide_ids[rows][guided])
-            check_step_times(aligners, t, users[guided])  # named by the engine's user ids
+        if guided.any() and t_ms is None:  # the alignments need them
+            raise LocalizationError("tick: guided users need their step times (t_ms)")
+        step_t = None if t_ms is None else per_user(t_ms, k, "t_ms")
+        if step_t is not None:  # every user's time checked at once, named by engine ids
+            aligners = self.guide.aligners_of(self.guide_ids[rows][guided]) \
+                if guided.any() else []
+            check_user_step_times(
+                later_than(step_t[~guided], self.last_t_ms[rows][~guided], users[~guided])
+                + step_time_problems(aligners, step_t[guided], users[guided]))
+        if guided.any():  # the alignments step first: their positions are these users'
+            t = step_t[guided]  # radio evidence at this step
             fix_t = None if fix_t_ms is None else \
                 checked_fix_times(per_user(fix_t_ms, k, "fix_t_ms")[guided], t, users[guided])
             if fix_xy_m is None:  # the guides' positions go in here
@@ -291,6 +304,8 @@ class MultiUserEngine:
             self.state.put(rows, sub)
             self.consecutive[rows] = cons
         self.last_xy[rows] = np.column_stack([out.x_m, out.y_m])
+        if step_t is not None:
+            self.last_t_ms[rows] = step_t
         self.n_recoveries[rows] += out.recovered
         return out
 

@@ -10,4 +10,17 @@ class LocalizationError(IndoormapError, ValueError):
     bundle of another site, bad filter parameters or weights."""
 
 
-__all__ = ["LocalizationError"]
+class TickRefused(LocalizationError):
+    """A multi-user tick refused for some of its users, before anyone moved: ``user_ids``
+    names every one of them (the message shows the first reason), so that a server can drop
+    them and tick the others again at once (it had to parse the text, one user a retry)."""
+
+    def __init__(self, message: str, user_ids) -> None:
+        super().__init__(message)
+        self.user_ids = [int(u) for u in user_ids]
+
+    def __reduce__(self):
+        return (TickRefused, (self.args[0], self.user_ids))
+
+
+__all__ = ["LocalizationError", "TickRefused"]

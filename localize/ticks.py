@@ -10,13 +10,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from localize.bundle import Grid
-from localize.errors import LocalizationError
+from localize.errors import LocalizationError, TickRefused
 from localize.filter import MAX_START_OFF_MAP_M, within_reach
 from localize.stepper import StepInputs
 from localize.steps import fix_time_problem
 
-__all__ = ["check_tick_inputs", "checked_fix_times", "checked_tick_fixes", "per_user",
-           "start_points", "tick_ids"]
+__all__ = ["check_tick_inputs", "check_user_step_times", "checked_fix_times",
+           "checked_tick_fixes", "later_than", "per_user", "start_points", "tick_ids"]
 
 
 def tick_ids(ids: ArrayLike, what: str = "tick") -> NDArray[np.int64]:
@@ -56,10 +56,10 @@ def checked_tick_fixes(fix_xy_m: ArrayLike, fix_sigma_m: ArrayLike | None, k: in
     none = np.isnan(xy).all(axis=1)
     bad = ~none & ~within_reach(grid, xy[:, 0], xy[:, 1])
     if bad.any():
-        raise LocalizationError(
+        raise TickRefused(
             f"users {ids[bad][:10].tolist()}: fix_xy_m {xy[bad][0].tolist()} is not two "
             f"finite numbers within {MAX_START_OFF_MAP_M:g} m of the floor's map (NaN, NaN "
-            "for no fix; wrong floor or units?); nobody was advanced")
+            "for no fix; wrong floor or units?); nobody was advanced", ids[bad])
     sigma = (np.full(k, np.nan) if fix_sigma_m is None else
              _floats(fix_sigma_m, "fix_sigma_m").reshape(-1))
     if sigma.shape != (k,):
@@ -98,8 +98,8 @@ def check_tick_inputs(inputs: StepInputs, ids: NDArray[np.int64]) -> None:
                                     "nobody was advanced")
     bad = ~np.isfinite(np.asarray(inputs.compass_deg, dtype=float).reshape(-1))
     if bad.any():
-        raise LocalizationError(f"users {ids[bad][:10].tolist()}: no compass heading "
-                                "(NaN or infinite compass_deg); nobody was advanced")
+        raise TickRefused(f"users {ids[bad][:10].tolist()}: no compass heading (NaN or "
+                          "infinite compass_deg); nobody was advanced", ids[bad])
 
 
 def start_points(start_xy: ArrayLike) -> NDArray[np.float64]:
@@ -125,9 +125,35 @@ def checked_fix_times(fix_t_ms: ArrayLike, t_ms: NDArray[np.float64], users: NDA
            if (problem := "time 0 is no Unix time in ms" if f == 0 else
                fix_time_problem(float(f), float(t)))]
     if bad:
-        raise LocalizationError(f"users {[u for u, _ in bad][:10]}: fix_t_ms: the first's fix "
-                                f"{bad[0][1]}; nobody was advanced")
+        raise TickRefused(f"users {[u for u, _ in bad][:10]}: fix_t_ms: the first's fix "
+                          f"{bad[0][1]}; nobody was advanced", [u for u, _ in bad])
     return fix_t
+
+
+def later_than(t_ms: NDArray[np.float64], last_t_ms: NDArray[np.float64],
+               users: NDArray[np.int64]) -> list[tuple[int, str]]:
+    """``(user, why)`` for each step time of ``t_ms`` (k,) that is not a finite time after
+    the user's last one (``last_t_ms``, NaN: none known): a step sent twice (a network
+    retry) was walked twice by an engine that took the times and ignored them."""
+    out = []
+    for u, t, last in zip(users.tolist(), t_ms.tolist(), last_t_ms.tolist()):
+        if not np.isfinite(t):
+            out.append((u, f"step time {t} is not finite"))
+        elif t == last:
+            out.append((u, f"step at {t:.0f} ms has the last step's time: the same step sent "
+                           "twice?"))
+        elif t < last:
+            out.append((u, f"step at {t:.0f} ms comes before the last one ({last:.0f} ms)"))
+    return out
+
+
+def check_user_step_times(problems: list[tuple[int, str]]) -> None:
+    """A :class:`TickRefused` naming every user of ``problems`` (``(user id, why their
+    step's time cannot be taken)``, in tick order), none raised without one."""
+    if problems:
+        shown = "" if len(problems) == 1 else f" (and {len(problems) - 1} more user(s))"
+        raise TickRefused(f"user {problems[0][0]}: {problems[0][1]}{shown}; nobody was "
+                          "advanced", [u for u, _ in problems])
 
 
 def per_user(values: ArrayLike, k: int, name: str) -> NDArray[np.float64]:

@@ -224,3 +224,50 @@ def test_guided_engine_users_get_the_single_user_guided_filter(f1_bundle, sim_wa
     assert eng.guide_ids[-1] != late
     with pytest.raises(LocalizationError, match=f"^user {late}: .*nobody was advanced"):
         eng.tick([late], _inputs(walks[:1], 0), t_ms=[t0[0] - 1000.0])
+
+
+def test_a_tick_refused_names_every_bad_user_for_a_server(f1_bundle, sim_walks):  # noqa: F811
+    """Three of five users resend their last step (a network retry): the tick named only
+    the first of them in its text, so a server needed four attempts and had to parse
+    English; the unguided filter engine took the step times and ignored them, walking the
+    resent steps twice. Every server now refuses with a TickRefused whose user_ids are all
+    of them, and the others tick at the next attempt."""
+    from localize.engine import MultiUserEngine
+    from localize.errors import TickRefused
+
+    w = _f1_with_scans(sim_walks)[0]
+    t0 = w.steps.t_ms[0] - 500.0
+    for make in (lambda: MultiUserAligner(f1_bundle),
+                 lambda: MultiUserEngine(f1_bundle, {"n_particles": 50}, rng=1)):
+        eng = make()
+        ids = eng.add_users([w.start_xy] * 5, t_ms=t0)
+        steps = [_inputs([w] * 5, i) for i in range(2)]
+
+        def tick(who, i):
+            rows = np.searchsorted(ids, who)
+            inputs = StepInputs(*(getattr(steps[i], c)[rows] for c in COLUMNS))
+            t = [w.steps.t_ms[i]] * len(who)
+            return (eng.tick(who, t, inputs) if isinstance(eng, MultiUserAligner)
+                    else eng.tick(who, inputs, t_ms=t))
+
+        tick(ids, 0)
+        resent = ids[[1, 3, 4]]
+        mixed = np.concatenate([resent, ids[[0, 2]]])
+        with pytest.raises(TickRefused, match=rf"user {resent[0]}: .*the same step sent twice"
+                                              r".* \(and 2 more user\(s\)\); nobody was "
+                                              r"advanced") as refused:
+            # the resent users send step 0 again, the others step 1
+            rows = np.searchsorted(ids, mixed)
+            inputs = StepInputs(*(getattr(steps[1], c)[rows] for c in COLUMNS))
+            t = [w.steps.t_ms[0]] * 3 + [w.steps.t_ms[1]] * 2
+            (eng.tick(mixed, t, inputs) if isinstance(eng, MultiUserAligner)
+             else eng.tick(mixed, inputs, t_ms=t))
+        assert refused.value.user_ids == resent.tolist()
+        good = [u for u in mixed.tolist() if u not in refused.value.user_ids]
+        out = tick(np.array(good), 1)  # the others, at once
+        assert len(out.x_m) == 2
+        with pytest.raises(TickRefused) as unknown:
+            t = [w.steps.t_ms[1] + 600.0] * 2
+            (eng.tick([ids[0], 99], t, _inputs([w] * 2, 1)) if isinstance(eng, MultiUserAligner)
+             else eng.tick([ids[0], 99], _inputs([w] * 2, 1), t_ms=t))
+        assert unknown.value.user_ids == [99]
