@@ -140,6 +140,8 @@ class SiteMaps:
         subs = [load_bundle(path)] if is_bundle_dir(path) or is_registry_floor_dir(path) \
             else [load_bundle(p) for p in bundle_dirs(path)]
         if not subs:
+            if not path.exists():
+                raise LocalizationError(f"{path}: no such file or folder")
             raise LocalizationError(f"{path}: neither a bundle nor a folder of bundles (nor a "
                                     "registry's site folder)")
         site = [b for b in subs if b.manifest.get("kind") == "site"]

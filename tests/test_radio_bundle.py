@@ -581,6 +581,8 @@ def test_site_maps_open_a_bundle_a_build_folder_or_nothing(built, tmp_path):
     for nothing in (tmp_path, tmp_path / "a_file"):
         with pytest.raises(LocalizationError, match="neither a bundle nor a folder of bundles"):
             SiteMaps.open(nothing)
+    with pytest.raises(LocalizationError, match="typo: no such file or folder"):
+        SiteMaps.open(tmp_path / "typo")  # it said "neither a bundle nor a folder ..."
     only_site = tmp_path / "only_site"
     only_site.mkdir()
     shutil.copytree(built / "_site", only_site / "_site")
