@@ -13,7 +13,7 @@ from localize.bundle import Grid
 from localize.errors import LocalizationError, TickRefused
 from localize.filter import MAX_START_OFF_MAP_M, within_reach
 from localize.stepper import StepInputs
-from localize.steps import fix_time_problem
+from localize.steps import MAX_FIX_AFTER_STEP_MS, fix_time_problem
 
 __all__ = ["check_tick_inputs", "check_user_step_times", "checked_fix_times",
            "checked_tick_fixes", "later_than", "per_user", "start_points", "tick_ids"]
@@ -121,9 +121,10 @@ def checked_fix_times(fix_t_ms: ArrayLike, t_ms: NDArray[np.float64], users: NDA
     :data:`~localize.steps.MAX_FIX_AFTER_STEP_MS` after its step (``t_ms``, (k,)): a fix
     dated an hour ahead was held by the alignment for the rest of the walk."""
     fix_t = per_user(fix_t_ms, len(users), "fix_t_ms")
-    bad = [(int(u), problem) for u, f, t in zip(users, fix_t, t_ms) if not np.isnan(f)
-           if (problem := "time 0 is no Unix time in ms" if f == 0 else
-               fix_time_problem(float(f), float(t)))]
+    suspect = ~np.isnan(fix_t) & ~((fix_t > 0) & (fix_t <= t_ms + MAX_FIX_AFTER_STEP_MS))
+    bad = [(int(u), "time 0 is no Unix time in ms" if f == 0 else fix_time_problem(f, t))
+           for u, f, t in zip(users[suspect].tolist(), fix_t[suspect].tolist(),
+                              t_ms[suspect].tolist())]
     if bad:
         raise TickRefused(f"users {[u for u, _ in bad][:10]}: fix_t_ms: the first's fix "
                           f"{bad[0][1]}; nobody was advanced", [u for u, _ in bad])
@@ -135,14 +136,15 @@ def later_than(t_ms: NDArray[np.float64], last_t_ms: NDArray[np.float64],
     """``(user, why)`` for each step time of ``t_ms`` (k,) that is not a finite time after
     the user's last one (``last_t_ms``, NaN: none known): a step sent twice (a network
     retry) was walked twice by an engine that took the times and ignored them."""
+    bad = ~np.isfinite(t_ms) | (t_ms <= last_t_ms)  # NaN last: never bad by it
     out = []
-    for u, t, last in zip(users.tolist(), t_ms.tolist(), last_t_ms.tolist()):
+    for u, t, last in zip(users[bad].tolist(), t_ms[bad].tolist(), last_t_ms[bad].tolist()):
         if not np.isfinite(t):
             out.append((u, f"step time {t} is not finite"))
         elif t == last:
             out.append((u, f"step at {t:.0f} ms has the last step's time: the same step sent "
                            "twice?"))
-        elif t < last:
+        else:
             out.append((u, f"step at {t:.0f} ms comes before the last one ({last:.0f} ms)"))
     return out
 
