@@ -248,6 +248,9 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
     roles = [_role(f, geo, i) if mine else "ignore"
              for i, (f, mine) in enumerate(zip(feats, on_floor))]
     first = on_floor.index(True)
+    if floor_name:  # a floor picked from several: its outline is the one naming it
+        first = next((i for i, mine in enumerate(on_floor)
+                      if mine and _named_floor([feats[i]])), first)
     outline_at = [i for i, r in enumerate(roles) if r == "outline"] or [first]  # union of them
     if "outline" not in roles and roles[first] is not None:
         raise FloorPlanError(f"{geo}: no feature has role 'outline', and feature {first} (the "
@@ -335,9 +338,8 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
 
 
 def feature_level(feature: dict) -> str:
-    """The floor a GeoJSON feature says it is on: its first :data:`LEVEL_PROPERTIES`
-    property (a text or a number), else the ``name`` of a feature that is a floor (``type``
-    or ``category`` ``"floor"``); empty when it says none."""
+    """The floor a GeoJSON feature is tagged with: its first :data:`LEVEL_PROPERTIES`
+    property (a text or a number); empty without one."""
     props = feature.get("properties") or {}
     by_key = {str(k).lower(): v for k, v in props.items()}
     for key in LEVEL_PROPERTIES:
@@ -345,15 +347,21 @@ def feature_level(feature: dict) -> str:
         if isinstance(value, (str, int, float)) and not isinstance(value, bool) \
                 and str(value).strip():
             return str(value).strip()
-    return _named_floor([feature])
+    return ""
 
 
 def _features_of_level(feats: list[dict], level: str | None, path: Path,
                        repairs: list[str]) -> tuple[list[bool], str]:
     """Which features are read (all, or for a plan of several floors those of ``level``
     and those of no floor) and the floor they were picked for (empty when all are read);
-    a :class:`FloorPlanError` for a plan of several floors without one of them named."""
+    a :class:`FloorPlanError` for a plan of several floors without one of them named.
+
+    A plan's floors are its features' :data:`LEVEL_PROPERTIES` tags; in a plan without
+    any, the names of its floor outlines (``type`` or ``category`` ``"floor"``). The two are
+    not mixed: an outline named ``F1`` among shops tagged ``level: 1`` is one floor."""
     levels = [feature_level(f) for f in feats]
+    if not any(levels):
+        levels = [_named_floor([f]) for f in feats]
     named = sorted(set(levels) - {""})
     if len(named) < 2:
         return [True] * len(feats), ""
@@ -367,13 +375,16 @@ def _features_of_level(feats: list[dict], level: str | None, path: Path,
             f"{'/'.join(LEVEL_PROPERTIES)} or a floor outline's name; a floor's plan is of "
             f"one floor{asked}: name the floor to read (`indoormap build TRACES --plan FILE "
             "--floor NAME`, a floor folder named after it, `read_floor_plan(..., level=NAME)`)")
+    mine = [lv in ("", *picked) for lv in levels]
     untagged = [i for i, lv in enumerate(levels) if not lv and feats[i].get("geometry")]
+    said = (f"{path}: read for floor {picked[0]} of {', '.join(named)}: "
+            f"{mine.count(False)} feature(s) of the other floors left out")
     if untagged:
         shown = ", ".join(map(str, untagged[:5])) + (", ..." if len(untagged) > 5 else "")
-        repairs.append(f"{path}: read for floor {picked[0]} of {', '.join(named)}: "
-                       f"{len(untagged)} feature(s) name no floor (feature {shown}) and are "
-                       "read as part of it")
-    return [lv in ("", *picked) for lv in levels], picked[0]
+        said += (f", {len(untagged)} naming no floor (feature {shown}) read as part of "
+                 f"{picked[0]}")
+    repairs.append(said)
+    return mine, picked[0]
 
 
 def _warn_overlapping_outlines(path: Path, parts: list[shapely.Geometry], at: list[int],

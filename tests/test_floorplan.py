@@ -441,7 +441,9 @@ def test_a_plan_of_several_floors_is_read_one_floor_at_a_time(tmp_path):
                            _features_of(f1, "F1") + _features_of(f2, "F2"))
     alone = read_floor_plan(_collection(tmp_path / "F1.geojson", _features_of(f1, None)))
     picked = read_floor_plan(building, level="F1")
-    assert picked.floor_name == "F1" and not picked.repairs
+    assert picked.floor_name == "F1" and picked.repairs == (
+        f"{building}: read for floor F1 of F1, F2: {len(_features_of(f2, 'F2'))} feature(s) "
+        "of the other floors left out",)
     assert picked.reachable.symmetric_difference(alone.reachable).area < 1e-6
     assert picked.reachable.area == pytest.approx(f1.reachable.area)
     assert read_floor_plan(building, level="F2").reachable.area == \
@@ -459,14 +461,38 @@ def test_a_plan_of_several_floors_is_read_one_floor_at_a_time(tmp_path):
     shared = _features_of(f1, "F1") + _features_of(f2, "F2")
     del shared[1]["properties"]["level"]
     plan = read_floor_plan(_collection(tmp_path / "shared.geojson", shared), level="F2")
-    assert "1 feature(s) name no floor (feature 1) and are read as part of it" in \
-        plan.repairs[0]
+    assert "feature(s) of the other floors left out, 1 naming no floor (feature 1) read as " \
+        "part of F2" in plan.repairs[0]
     assert plan.reachable.area < f2.reachable.area
     # a plan of one tagged floor reads as before, whatever floor is asked for (its tag is
     # not taken for the floor's name: a "floor": 1 would refuse walks of "F1")
     one = read_floor_plan(_collection(tmp_path / "one.geojson", _features_of(f1, "F1")),
                           level="anything")
     assert one.reachable.area == pytest.approx(f1.reachable.area) and one.floor_name == ""
+
+
+def test_floor_outline_names_and_level_tags_are_not_mixed(tmp_path):
+    """An outline named F1 (``type: floor``) among shops tagged ``level: 1`` (an export
+    numbering its floors) was read as two floors "1" and "F1": read for F1, every shop was
+    dropped without a word; read for 1, a shop became the outline. The tags decide; the
+    outline naming no tag is read with them. Without tags, the floor outlines' names decide,
+    and the picked floor's outline is the one naming it, not the first feature."""
+    f1, f2 = read_floor_plan(SITE / "F1"), read_floor_plan(SITE / "F2")
+    floor_outline = {"type": "Feature", "geometry": shapely.geometry.mapping(f1.outline),
+                     "properties": {"type": "floor", "name": "F1"}}
+    shops = _features_of(f1, "1")[1:]
+    mixed = read_floor_plan(_collection(tmp_path / "mixed.geojson", [floor_outline, *shops]),
+                            level="F1")
+    assert mixed.reachable.area == pytest.approx(f1.reachable.area) and not mixed.repairs
+    # two ILC-style floors (no roles, no tags), F2's outline and shops first
+    f2_outline = {**floor_outline, "geometry": shapely.geometry.mapping(f2.outline),
+                  "properties": {"type": "floor", "name": "F2"}}
+    ilc = [f2_outline, *_features_of(f2, None)[1:], floor_outline]
+    for f in ilc[1:-1]:
+        f["properties"] = {}
+    plan = read_floor_plan(_collection(tmp_path / "ilc.geojson", ilc), level="F1")
+    assert plan.outline.equals(f1.outline)  # not F2's shop 0
+    assert "1 feature(s) of the other floors left out" in plan.repairs[0]
 
 
 def test_stacked_outlines_without_floor_tags_are_warned_of(tmp_path):
