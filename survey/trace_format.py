@@ -87,9 +87,11 @@ def far_from_median_time(t_ms: np.ndarray, group: np.ndarray, n_groups: int, *,
     return np.abs(t - median[group]) > MAX_FROM_MEDIAN_TIME_MS
 
 
-#: Largest |coordinate| (m) of a waypoint or walk-plan vertex: a building is kilometres across
-#: at most, and 1e155 m crashed the processing of every walk of the store.
-WAYPOINT_LIMIT_M = 1e6
+#: Largest |coordinate| (m) of a waypoint or walk-plan vertex: the map bundle's limit
+#: (``localize.bundle.MAX_COORD_M``), so that plans and walks in a projected CRS (a UTM
+#: northing is 4,000 km or more) are read; 1e155 m crashed the processing of every walk of
+#: the store. (1e6 m before session 50: no walk at a UTM northing could be read.)
+WAYPOINT_LIMIT_M = 1e8
 
 
 def sensor_limit(stream: str) -> tuple[float, str]:

@@ -583,14 +583,16 @@ def test_a_plan_in_site_coordinates_builds_the_maps_of_the_floor_at_the_origin(t
     """A floor drawn at (3000, 1000) in a site grid's metres, its walks recorded there: the
     map frame ran from (0, 0), so the 40 x 25 m floor asked for 3040 x 1025 m and was refused
     (at (2000, 1000) it built a 391 MB bundle in 6 minutes). The frame starts at the plan's
-    corner: the bundle is the size of the one at the origin, with the same maps, moved."""
+    corner: the bundle is the size of the one at the origin, with the same maps, moved; so at
+    a UTM easting and northing (500 km, 4,000 km), whose walks were refused beyond 1,000 km."""
     from survey.trace_reader import read_trace
     from survey.walkline_writer import write_walk_plan
 
     plan = read_floor_plan(SITE / "F2")
     traces = [read_trace(p) for p in sorted((SITE / "F2" / "path_data_files").glob("*.txt.gz"))]
     bundles = {}
-    for name, (dx, dy) in (("origin", (0.0, 0.0)), ("site", (3000.0, 1000.0))):
+    for name, (dx, dy) in (("origin", (0.0, 0.0)), ("site", (3000.0, 1000.0)),
+                           ("utm", (500_000.0, 4_000_000.0))):
         moved = dataclasses.replace(
             plan, outline=shapely.affinity.translate(plan.outline, dx, dy),
             obstacles=shapely.affinity.translate(plan.obstacles, dx, dy))
@@ -603,17 +605,32 @@ def test_a_plan_in_site_coordinates_builds_the_maps_of_the_floor_at_the_origin(t
                                         str(tmp_path / f"{name}_out")])
         assert res.exit_code == 0, res.output
         bundles[name] = load_bundle(tmp_path / f"{name}_out" / "F2")
-    near, far = bundles["origin"], bundles["site"]
-    assert (far.grid.width, far.grid.height) == (near.grid.width, near.grid.height)
-    assert (far.grid.x0_m - near.grid.x0_m, far.grid.y0_m - near.grid.y0_m) == (3000, 1000)
-    np.testing.assert_array_equal(far.mask, near.mask)
-    for layer in ("strength", "vertical", "heading_offset"):
-        a, b = near.layers[layer], far.layers[layer]
-        np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
-        np.testing.assert_allclose(b, a, atol=1e-3, equal_nan=True)  # uT, deg
-    x, y = np.array([10.0, 20.0, 30.0]), np.array([5.0, 12.5, 20.0])
-    np.testing.assert_allclose(far.sample("strength", x + 3000, y + 1000),
-                               near.sample("strength", x, y), atol=1e-3, equal_nan=True)
+    near = bundles["origin"]
+    for name, (dx, dy) in (("site", (3000, 1000)), ("utm", (500_000, 4_000_000))):
+        far = bundles[name]
+        assert (far.grid.width, far.grid.height) == (near.grid.width, near.grid.height)
+        assert (far.grid.x0_m - near.grid.x0_m, far.grid.y0_m - near.grid.y0_m) == (dx, dy)
+        np.testing.assert_array_equal(far.mask, near.mask)
+        for layer in ("strength", "vertical", "heading_offset"):
+            a, b = near.layers[layer], far.layers[layer]
+            np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+            np.testing.assert_allclose(b, a, atol=1e-3, equal_nan=True)  # uT, deg
+        x, y = np.array([10.0, 20.0, 30.0]), np.array([5.0, 12.5, 20.0])
+        np.testing.assert_allclose(far.sample("strength", x + dx, y + dy),
+                                   near.sample("strength", x, y), atol=1e-3, equal_nan=True)
+    # and a walk is localized there as at the origin (float64 particles: no loss at 4,000 km)
+    tracks = {}
+    for name in ("origin", "utm"):
+        res = CliRunner().invoke(main, ["localize", str(tmp_path / f"{name}_out" / "F2"),
+                                        str(tmp_path / name / "plan.geojson"), "-o",
+                                        str(tmp_path / f"{name}_loc"), "--no-plot",
+                                        "--start", "waypoint", "--method", "indoormap"])
+        assert res.exit_code == 0, res.output
+        tracks[name] = pd.concat([pd.read_parquet(f) for f in
+                                  sorted((tmp_path / f"{name}_loc").glob("*.parquet"))])
+    apart = np.hypot(tracks["utm"]["x_m"].to_numpy() - 500_000 - tracks["origin"]["x_m"],
+                     tracks["utm"]["y_m"].to_numpy() - 4_000_000 - tracks["origin"]["y_m"])
+    assert len(apart) > 100 and np.median(apart) < 0.01
 
 
 def test_a_plan_of_the_whole_building_builds_the_floor_named(tmp_path):
