@@ -149,7 +149,8 @@ class MultiUserAligner:
         check_step_times(users, t, ids)
         fix_xy = (None if fix_xy_m is None else
                   checked_tick_fixes(fix_xy_m, None, k, 0.0, self.bundle.grid, ids)[0])
-        fix_t = None if fix_t_ms is None else checked_fix_times(fix_t_ms, t, ids)
+        fix_t = None if fix_t_ms is None else checked_fix_times(
+            fix_t_ms, t, ids, None if fix_xy is None else np.isfinite(fix_xy).all(axis=1))
         return advance_aligners(users, t, step_columns(inputs, k), fix_xy, fix_t)
 
     def aligners_of(self, ids: NDArray[np.int64]) -> list[WalkAligner]:

@@ -108,8 +108,10 @@ class MultiUserEngine:
         self.user_ids = np.empty(0, dtype=np.int64)   # row -> user id
         self.guide_ids = np.empty(0, dtype=np.int64)  # row -> id in self.guide, -1: none
         self.last_xy = np.empty((0, 2))
-        #: each user's last step (or start) time (Unix ms; NaN: never given)
+        #: each user's last step (or start) time (Unix ms; NaN: never given), and whether it
+        #: is a step's (a first step may come at the start's time)
         self.last_t_ms = np.empty(0)
+        self.stepped = np.empty(0, dtype=bool)
         self.consecutive = np.empty(0, dtype=np.int64)
         self.n_recoveries = np.empty(0, dtype=np.int64)
         self._next_id = 0
@@ -148,6 +150,9 @@ class MultiUserEngine:
         guided = np.isfinite(sigma) & (self.guide is not None)
         guide_ids = np.full(k, -1, dtype=np.int64)
         t = np.full(k, np.nan) if t_ms is None else per_user(t_ms, k, "t_ms")
+        if not np.isfinite(t).all() and t_ms is not None:
+            raise LocalizationError("add_users: a start time is not finite (t_ms); nobody was "
+                                    "added")
         if guided.any():  # first: it checks the starts and times, and draws nothing
             if t_ms is None:
                 raise LocalizationError("add_users: users started from a fix on a guided "
@@ -173,6 +178,7 @@ class MultiUserEngine:
         self.guide_ids = np.concatenate([self.guide_ids, guide_ids])
         self.last_xy = np.concatenate([self.last_xy, np.column_stack([mx, my])])
         self.last_t_ms = np.concatenate([self.last_t_ms, t])
+        self.stepped = np.concatenate([self.stepped, np.zeros(k, dtype=bool)])
         self.consecutive = np.concatenate([self.consecutive, np.zeros(k, dtype=np.int64)])
         self.n_recoveries = np.concatenate([self.n_recoveries, np.zeros(k, dtype=np.int64)])
         return ids
@@ -194,6 +200,7 @@ class MultiUserEngine:
         self.guide_ids = self.guide_ids[keep]
         self.last_xy = self.last_xy[keep]
         self.last_t_ms = self.last_t_ms[keep]
+        self.stepped = self.stepped[keep]
         self.consecutive = self.consecutive[keep]
         self.n_recoveries = self.n_recoveries[keep]
 
@@ -279,12 +286,14 @@ class MultiUserEngine:
             aligners = self.guide.aligners_of(self.guide_ids[rows][guided]) \
                 if guided.any() else []
             check_user_step_times(
-                later_than(step_t[~guided], self.last_t_ms[rows][~guided], users[~guided])
+                later_than(step_t[~guided], self.last_t_ms[rows][~guided],
+                           self.stepped[rows][~guided], users[~guided])
                 + step_time_problems(aligners, step_t[guided], users[guided]))
         if guided.any():  # the alignments step first: their positions are these users'
             t = step_t[guided]  # radio evidence at this step
-            fix_t = None if fix_t_ms is None else \
-                checked_fix_times(per_user(fix_t_ms, k, "fix_t_ms")[guided], t, users[guided])
+            fix_t = None if fix_t_ms is None else checked_fix_times(
+                per_user(fix_t_ms, k, "fix_t_ms")[guided], t, users[guided],
+                None if fix_xy_m is None else np.isfinite(fix_xy[guided]).all(axis=1))
             if fix_xy_m is None:  # the guides' positions go in here
                 fix_xy, sigma = np.full((k, 2), np.nan), np.full(k, p.radio_sigma_floor_m)
             g = advance_aligners(aligners, t, tuple(c[guided] for c in step_columns(inputs, k)),
@@ -306,6 +315,7 @@ class MultiUserEngine:
         self.last_xy[rows] = np.column_stack([out.x_m, out.y_m])
         if step_t is not None:
             self.last_t_ms[rows] = step_t
+        self.stepped[rows] = True
         self.n_recoveries[rows] += out.recovered
         return out
 

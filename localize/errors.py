@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 from survey.errors import IndoormapError
 
 
@@ -12,14 +14,16 @@ class LocalizationError(IndoormapError, ValueError):
 
 class TickRefused(LocalizationError):
     """A multi-user tick refused for some of its users, before anyone moved: ``user_ids``
-    names every one of them (the message shows the first reason), so that a server can drop
-    them and tick the others again at once (it had to parse the text, one user a retry)."""
+    names every user the failing check refused (the message shows the first reason), so that
+    a server can drop them and tick the others again (it had to parse the text, one user a
+    retry). The checks run in turn (compass, fixes off the map, unknown ids, step times, fix
+    times): users refused for another kind of problem are named by the next attempt."""
 
-    def __init__(self, message: str, user_ids) -> None:
+    def __init__(self, message: str, user_ids: Iterable[int]) -> None:
         super().__init__(message)
         self.user_ids = [int(u) for u in user_ids]
 
-    def __reduce__(self):
+    def __reduce__(self) -> tuple[type, tuple[str, list[int]]]:
         return (TickRefused, (self.args[0], self.user_ids))
 
 

@@ -114,14 +114,19 @@ def start_points(start_xy: ArrayLike) -> NDArray[np.float64]:
     return xy
 
 
-def checked_fix_times(fix_t_ms: ArrayLike, t_ms: NDArray[np.float64], users: NDArray[np.int64]
-                      ) -> NDArray[np.float64]:
+def checked_fix_times(fix_t_ms: ArrayLike, t_ms: NDArray[np.float64], users: NDArray[np.int64],
+                      has_fix: NDArray[np.bool_] | None) -> NDArray[np.float64]:
     """A tick's scan times of its fixes, one per user (k,) (NaN: the step's own), or a
-    LocalizationError naming every user whose fix is stamped no Unix time or more than
-    :data:`~localize.steps.MAX_FIX_AFTER_STEP_MS` after its step (``t_ms``, (k,)): a fix
-    dated an hour ahead was held by the alignment for the rest of the walk."""
+    LocalizationError naming every user with a fix (``has_fix``, (k,); None: none has one)
+    stamped at no Unix time or more than :data:`~localize.steps.MAX_FIX_AFTER_STEP_MS` after
+    its step (``t_ms``, (k,)): a fix dated an hour ahead was held by the alignment for the
+    rest of the walk. The times of users without a fix are not read (0 or a stale time is a
+    server's "none")."""
     fix_t = per_user(fix_t_ms, len(users), "fix_t_ms")
-    suspect = ~np.isnan(fix_t) & ~((fix_t > 0) & (fix_t <= t_ms + MAX_FIX_AFTER_STEP_MS))
+    if has_fix is None:
+        return fix_t
+    suspect = has_fix & ~np.isnan(fix_t) & ~((fix_t > 0)
+                                             & (fix_t <= t_ms + MAX_FIX_AFTER_STEP_MS))
     bad = [(int(u), "time 0 is no Unix time in ms" if f == 0 else fix_time_problem(f, t))
            for u, f, t in zip(users[suspect].tolist(), fix_t[suspect].tolist(),
                               t_ms[suspect].tolist())]
@@ -132,11 +137,12 @@ def checked_fix_times(fix_t_ms: ArrayLike, t_ms: NDArray[np.float64], users: NDA
 
 
 def later_than(t_ms: NDArray[np.float64], last_t_ms: NDArray[np.float64],
-               users: NDArray[np.int64]) -> list[tuple[int, str]]:
+               stepped: NDArray[np.bool_], users: NDArray[np.int64]) -> list[tuple[int, str]]:
     """``(user, why)`` for each step time of ``t_ms`` (k,) that is not a finite time after
-    the user's last one (``last_t_ms``, NaN: none known): a step sent twice (a network
-    retry) was walked twice by an engine that took the times and ignored them."""
-    bad = ~np.isfinite(t_ms) | (t_ms <= last_t_ms)  # NaN last: never bad by it
+    the user's last step (``last_t_ms``, NaN: none known; a first step, ``stepped`` False,
+    may come at the start's time, as the single-user localizers take it): a step sent twice
+    (a network retry) was walked twice by an engine that took the times and ignored them."""
+    bad = ~np.isfinite(t_ms) | (t_ms < last_t_ms) | (stepped & (t_ms == last_t_ms))
     out = []
     for u, t, last in zip(users[bad].tolist(), t_ms[bad].tolist(), last_t_ms[bad].tolist()):
         if not np.isfinite(t):
@@ -145,13 +151,15 @@ def later_than(t_ms: NDArray[np.float64], last_t_ms: NDArray[np.float64],
             out.append((u, f"step at {t:.0f} ms has the last step's time: the same step sent "
                            "twice?"))
         else:
-            out.append((u, f"step at {t:.0f} ms comes before the last one ({last:.0f} ms)"))
+            out.append((u, f"step at {t:.0f} ms comes before the last step or start "
+                           f"({last:.0f} ms)"))
     return out
 
 
 def check_user_step_times(problems: list[tuple[int, str]]) -> None:
     """A :class:`TickRefused` naming every user of ``problems`` (``(user id, why their
-    step's time cannot be taken)``, in tick order), none raised without one."""
+    step's time cannot be taken)``; the message shows the first), none raised without
+    one."""
     if problems:
         shown = "" if len(problems) == 1 else f" (and {len(problems) - 1} more user(s))"
         raise TickRefused(f"user {problems[0][0]}: {problems[0][1]}{shown}; nobody was "

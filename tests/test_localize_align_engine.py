@@ -226,6 +226,30 @@ def test_guided_engine_users_get_the_single_user_guided_filter(f1_bundle, sim_wa
         eng.tick([late], _inputs(walks[:1], 0), t_ms=[t0[0] - 1000.0])
 
 
+def test_fix_times_of_users_without_a_fix_and_first_steps_at_the_start(
+        f1_bundle, sim_walks):  # noqa: F811
+    """A server puts 0 (an int array's "none") in fix_t_ms for users without a fix: the tick
+    was refused. And a user's first step at its start's time, which the single-user
+    localizers and the aligner take, was refused by the unguided engine as sent twice."""
+    from localize.engine import MultiUserEngine
+
+    w = _f1_with_scans(sim_walks)[0]
+    t0 = w.steps.t_ms[0]
+    aligner = MultiUserAligner(f1_bundle)
+    ids = aligner.add_users([w.start_xy] * 2, t_ms=t0 - 500.0)
+    fixes = np.array([[np.nan, np.nan], list(w.start_xy)])
+    out = aligner.tick(ids, [t0, t0], _inputs([w, w], 0), fix_xy_m=fixes,
+                       fix_t_ms=np.array([0, int(t0)]))
+    assert np.isfinite(out.x_m).all()
+    engine = MultiUserEngine(f1_bundle, {"n_particles": 50}, rng=1)
+    ids = engine.add_users([w.start_xy] * 2, t_ms=t0)
+    engine.tick(ids, _inputs([w, w], 0), t_ms=[t0, t0])  # the first step at the start time
+    with pytest.raises(LocalizationError, match="the same step sent twice"):
+        engine.tick(ids, _inputs([w, w], 0), t_ms=[t0, t0])
+    with pytest.raises(LocalizationError, match="a start time is not finite"):
+        engine.add_users([w.start_xy], t_ms=np.inf)
+
+
 def test_a_tick_refused_names_every_bad_user_for_a_server(f1_bundle, sim_walks):  # noqa: F811
     """Three of five users resend their last step (a network retry): the tick named only
     the first of them in its text, so a server needed four attempts and had to parse
