@@ -297,7 +297,13 @@ class MapBundle:
         loaded) raises :class:`BundleReplaced` instead, naming both ids: the arrays loaded
         are intact, and it is a deployment, not damage (it was reported as a member not
         matching its checksum)."""
-        on_disk = read_manifest(self.path)
+        try:
+            on_disk = read_manifest(self.path)
+        except BundleIntegrityError:
+            raise
+        except BundleError as err:  # moved or deleted since it was loaded: its members are gone
+            raise BundleIntegrityError(f"{self.path}: the bundle's folder no longer holds it "
+                                       f"({err})") from err
         if on_disk.get("bundle_id") != self.bundle_id:
             raise BundleReplaced(f"{self.path}: now holds bundle "
                                  f"{str(on_disk.get('bundle_id'))[:16]}, not the "

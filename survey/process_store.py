@@ -701,8 +701,9 @@ def processed_floors_text(store: SurveyStore | str) -> str:
         cat = processed_catalog(store)
         skipped = cat[cat["status"] == "skipped"]
         if len(skipped):  # processed, and every one refused: say why, not to process them
-            return (f"the store has no walk that processed: {len(skipped)} skipped (the first: "
-                    f"{skipped['reason'].iloc[0]})")
+            first = skipped.iloc[0]
+            return (f"the store has no walk that processed: {len(skipped)} skipped (the first, "
+                    f"{first['trace_id']}: {first['reason']})")
         return "the store has no processed walks (indoormap process --store STORE)"
     parts = []
     for site, walks in ok.groupby("site", sort=True):

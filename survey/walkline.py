@@ -300,14 +300,19 @@ def plan_walks(path: str | os.PathLike) -> list[PlanWalk]:
     for k, feature in enumerate(features):
         where = f"{path} (feature {k})"
         own = feature.get("properties") if isinstance(feature, dict) else None
-        geom = (feature.get("geometry") or {}) if isinstance(feature, dict) else None
-        if not isinstance(own or {}, dict) or not isinstance(geom, dict):
+        if not isinstance(feature, dict) or not isinstance(own or {}, dict) \
+                or "geometry" not in feature:  # a missing key is a typo, not "no line"
             raise SurveyFormatError("feature must be an object with object 'properties' and "
-                                    "'geometry'", path=where, reason="plan")
+                                    "'geometry' (null for a walk without ground truth)",
+                                    path=where, reason="plan")
         props = {**defaults, **(own or {})}
-        if not geom:  # no ground truth: a walk to localize, not to map
+        geom = feature["geometry"]
+        if geom is None:  # no ground truth: a walk to localize, not to map
             walks.append(_untruthed_walk(props, where, path.parent, feature))
             continue
+        if not isinstance(geom, dict):
+            raise SurveyFormatError("walk geometry must be a LineString (or null: a walk "
+                                    "without ground truth)", path=where, reason="plan")
         if geom.get("type") != "LineString":
             raise SurveyFormatError("walk geometry must be a LineString (or null: a walk "
                                     "without ground truth)", path=where, reason="plan")
@@ -356,7 +361,11 @@ def _untruthed_walk(props: dict, where: str, folder: Path, feature: dict) -> Pla
     ``end_ms``, when given, are its time; otherwise its sensor log's median time is."""
     walk_id, log = _walk_logs(props, where)
     times = np.empty(0)
-    if props.get("start_ms") is not None or props.get("end_ms") is not None:
+    if (props.get("start_ms") is None) != (props.get("end_ms") is None):
+        raise SurveyFormatError("a walk without geometry gives both start_ms and end_ms, or "
+                                "neither (its sensor log's times are then its time)",
+                                path=where, reason="plan")
+    if props.get("start_ms") is not None:
         try:
             times = np.round(np.array([props.get("start_ms"), props.get("end_ms")],
                                       dtype=np.float64))
@@ -426,6 +435,23 @@ def _vertex_times(xy: np.ndarray, props: dict, where: str) -> np.ndarray:
     return times
 
 
+#: Unix ms of 2000-01-01 and 2100-01-01: where a log's times lie when they are Unix ms.
+UNIX_MS_SPAN = (946_684_800_000.0, 4_102_444_800_000.0)
+
+
+def unix_ms_unit(t: NDArray[np.float64]) -> str:
+    """The unit a log's times (positive, finite) look like when their median is no Unix ms
+    of this century but would be in seconds, microseconds or nanoseconds; else empty (Unix
+    ms, or times since the phone booted, which no unit explains)."""
+    if not len(t):
+        return ""
+    median, (lo, hi) = float(np.median(t)), UNIX_MS_SPAN
+    for unit, to_ms in (("seconds", 1e3), ("microseconds", 1e-3), ("nanoseconds", 1e-6)):
+        if not lo <= median <= hi and lo <= median * to_ms <= hi:
+            return unit
+    return ""
+
+
 def parse_sensor_csv(data: bytes, *, reference_ms: float | None, path: str = "<input>",
                      strict: bool = False) -> Trace:
     """Parse a walk-line sensor CSV into a :class:`Trace` (sensors only). ``reference_ms``:
@@ -437,7 +463,12 @@ def parse_sensor_csv(data: bytes, *, reference_ms: float | None, path: str = "<i
     columns = log.columns
     t = log.numbers("t_ms")
     bad_t = ~np.isfinite(t) | (t < 0)
-    if reference_ms is None:
+    if reference_ms is None:  # no plan's times to compare with: the log's own, in ms?
+        unit = unix_ms_unit(t[np.isfinite(t) & (t > 0)])
+        if unit:
+            raise SurveyFormatError(f"the log's t_ms (median {np.median(t[np.isfinite(t)]):.6g})"
+                                    f" look like {unit}, not Unix milliseconds", path=path,
+                                    reason="clock")
         timed = ~bad_t & (t < MAX_TIME_MS)
         reference_ms = float(np.median(t[timed])) if timed.any() else 0.0
     parts = []

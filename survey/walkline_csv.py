@@ -201,11 +201,15 @@ def _time_unit(t_ms: NDArray[np.float64], reference_ms: float) -> tuple[str, str
     return _TIME_UNITS.get(power) if abs(ratio / 10.0 ** power - 1) <= 0.25 else None
 
 
+#: What a walk's time is, as the messages say it.
+_WALK_TIME = "the median of its plan's vertex times, or of its sensor log's when it has none"
+
+
 def time_check(log: LogTable, t_ms: NDArray[np.float64], usable: NDArray[np.bool_],
                reference_ms: float) -> RowCheck:
     """The ``time_outlier`` rows among the ``usable`` ones: ``t_ms`` more than
     :data:`MAX_FROM_MEDIAN_TIME_MS` from the walk's time ``reference_ms`` (Unix ms; the median
-    of its plan's vertex times), a wrong clock or a stray row, as the trace reader's (one row
+    of its plan's vertex times, or of its sensor log's for a walk without them), a wrong clock or a stray row, as the trace reader's (one row
     at time 0 made step detection ask for hundreds of GiB).
 
     Raises
@@ -220,14 +224,13 @@ def time_check(log: LogTable, t_ms: NDArray[np.float64], usable: NDArray[np.bool
     unit = _time_unit(t_ms[timed], reference_ms) if timed.any() else None
     if unit is not None and not (usable & ~outlier).any():
         raise SurveyFormatError(
-            f"the log's t_ms (median {np.median(t_ms[timed]):.6g}) are {unit[0]} the walk "
-            f"plan's vertex times (median {reference_ms:.0f} ms): {unit[1]}? Both are Unix "
+            f"the log's t_ms (median {np.median(t_ms[timed]):.6g}) are {unit[0]} the walk's "
+            f"time ({reference_ms:.0f} ms, {_WALK_TIME}): {unit[1]}? Both are Unix "
             "milliseconds", path=log.path, reason="clock")
     if usable.any() and (outlier == usable).all():
         raise SurveyFormatError(
-            f"every row's t_ms is over {_HOURS} h from the walk plan's vertex times (median "
-            f"{reference_ms:.0f} ms): the log and the plan are on different clocks",
-            path=log.path, reason="clock")
+            f"every row's t_ms is over {_HOURS} h from the walk's time ({reference_ms:.0f} ms, "
+            f"{_WALK_TIME}): the log is on another clock", path=log.path, reason="clock")
     return RowCheck("time_outlier", f"t_ms is over {_HOURS} h from the walk's time (a wrong "
                     "clock or a stray row)", outlier, [("t_ms", outlier)])
 

@@ -948,5 +948,5 @@ def test_a_survey_logged_in_gauss_is_refused_saying_so(tmp_path):
     assert res.exit_code == 1 and not (tmp_path / "out" / "F1").exists()
     assert res.output.count("where the Earth's field is 25-65 uT: in gauss (1 G = 100 uT)? "
                             "indoormap reads uT") == 3  # two walks, then the summary
-    assert "the store has no walk that processed: 2 skipped (the first: " in res.output
+    assert "the store has no walk that processed: 2 skipped (the first, " in res.output
     assert "indoormap process" not in res.output

@@ -75,6 +75,9 @@ def test_verify_after_a_rebuild_says_replaced_not_corrupted(bundle_dir):
     (bundle_dir / "manifest.json").write_text(json.dumps(manifest))
     with pytest.raises(BundleIntegrityError, match="bundle id does not match the manifest"):
         fresh.verify()
+    shutil.rmtree(bundle_dir)  # moved or deleted: still an integrity error, as before
+    with pytest.raises(BundleIntegrityError, match="the bundle's folder no longer holds it"):
+        fresh.verify()
 
 
 def test_round_trip_and_lookup(bundle_dir):

@@ -202,11 +202,37 @@ def test_a_walk_without_ground_truth_has_no_waypoints(tmp_path):
         assert trace.report.bad == {"time_outlier": 1}
     assert (a.header.start_ms, b.header.start_ms, b.header.end_ms) == (None, T0, T0 + 1980)
     for times, message in (({"start_ms": T0, "end_ms": T0 - 1}, "the start not after the end"),
-                           ({"start_ms": "noon", "end_ms": T0}, "must be numbers")):
+                           ({"start_ms": "noon", "end_ms": T0}, "must be numbers"),
+                           ({"start_ms": T0}, "gives both start_ms and end_ms, or neither")):
         bad = json.loads(json.dumps(bare))
         bad["properties"].update(times)
         with pytest.raises(SurveyFormatError, match=message):
             read_walk_plan(_plan(tmp_path, [bad]))
+    # only an explicit null means no ground truth: a missing key (a typo, "geom") or an
+    # empty object is refused, not read as a walk that then drops out of the map
+    for broken in ({k: v for k, v in bare.items() if k != "geometry"},
+                   {**bare, "geometry": {}}, {**bare, "geometry": []}):
+        with pytest.raises(SurveyFormatError, match="geometry"):
+            read_walk_plan(_plan(tmp_path, [broken]))
+
+
+@pytest.mark.parametrize("scale, unit", [(1e-3, "seconds"), (1e3, "microseconds"),
+                                         (1e6, "nanoseconds")])
+def test_a_sensor_csv_alone_in_another_time_unit_says_which(tmp_path, scale, unit):
+    """A walk without a plan's times (a sensor CSV given alone, a feature without geometry)
+    is placed by its own times: in seconds they were read as January 1970 ms, most rows
+    dropped as repeats, and the walk ended in "no steps detected"."""
+    from survey.walkline import sensor_log_walk
+
+    _csv(tmp_path / "a.csv", t0=int(T0 * scale) if scale < 1 else T0)
+    if scale > 1:
+        text = (tmp_path / "a.csv").read_text().splitlines()
+        rows = [f"{int(int(r.split(',', 1)[0]) * scale)},{r.split(',', 1)[1]}" for r in text[1:]]
+        (tmp_path / "a.csv").write_text("\n".join([text[0], *rows]) + "\n")
+    with pytest.raises(SurveyFormatError, match=rf"a.csv: the log's t_ms .* look like {unit}, "
+                                                r"not Unix milliseconds") as err:
+        sensor_log_walk(tmp_path / "a.csv").read()
+    assert err.value.reason == "clock"
 
 
 def test_a_sensor_csv_ingested_alone_says_how_it_is_read(tmp_path):
@@ -338,18 +364,20 @@ def test_a_row_far_in_time_is_a_time_outlier(tmp_path):
     # a log wholly on another clock than its plan is refused, named
     (tmp_path / "a.csv").write_text("t_ms,acc_x,acc_y,acc_z\n" + rows.replace("15650", "15750"))
     with pytest.raises(SurveyFormatError, match=r"a.csv: every row's t_ms is over 12 h from "
-                                                r"the walk plan's vertex times"):
+                                                r"the walk's time \(\d+ ms, the median of its "
+                                                r"plan's vertex times"):
         read_walk_plan(tmp_path / "plan.geojson")
 
 
 @pytest.mark.parametrize("scale, offset, message", [
-    (1e-3, 0, r"the log's t_ms \(median 1\.565e\+09\) are a thousandth of the walk plan's "
-              r"vertex times \(median 1565000000490 ms\): the log in seconds, or the plan in "
-              r"microseconds\? Both are Unix milliseconds"),
-    (1e3, 0, r"are a thousand times the walk plan's vertex times .*: the log in microseconds, "
+    (1e-3, 0, r"the log's t_ms \(median 1\.565e\+09\) are a thousandth of the walk's time "
+              r"\(1565000000490 ms, the median of its plan's vertex times.*\): the log in "
+              r"seconds, or the plan in microseconds\? Both are Unix milliseconds"),
+    (1e3, 0, r"are a thousand times the walk's time .*: the log in microseconds, "
              r"or the plan in seconds\?"),
     (1e6, 0, r"are a million times .*: the log in nanoseconds\?"),  # beyond 2^53: unusable
-    (1.0, 3.6e6 * 13, r"every row's t_ms is over 12 h from the walk plan's vertex times"),
+    (1.0, 3.6e6 * 13, r"every row's t_ms is over 12 h from the walk's time .*: the log is on "
+                      r"another clock"),
 ])
 def test_a_log_in_another_time_unit_says_which(tmp_path, scale, offset, message):
     """A log stamped in seconds, microseconds or nanoseconds was refused as on 'different
