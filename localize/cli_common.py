@@ -157,11 +157,12 @@ def refuse_output_inside_data(out: Path, param_hint: str = "-o") -> None:
 
 
 def read_walks(path: Path) -> list[tuple[str, Callable[[], Trace]]]:
-    """``(where, walk)`` of each walk in ``path``, ``walk()`` reading and checking its
-    trace: a trace file's one walk (:func:`read_walk`, ``where`` the file), a walk-line
-    sensor CSV's (:func:`survey.walkline.sensor_log_walk`), or a walk plan's walks (``where``: ``plan.geojson (walk ID)``), the plan read here, each walk's sensor log
-    when asked and checked as :func:`read_walk` checks a trace, so that one walk's failure
-    leaves the plan's others to run (and one walk's log is in memory at a time)."""
+    """``(where, walk)`` of each walk in ``path``, ``walk()`` reading and checking its trace: a
+    trace file's one walk (:func:`read_walk`, ``where`` the file), a walk-line sensor CSV's
+    (:func:`survey.walkline.sensor_log_walk`), or a walk plan's walks (``where``:
+    ``plan.geojson (walk ID)``), the plan read here, each walk's sensor log when asked and
+    checked as :func:`read_walk` checks a trace, so that one walk's failure leaves the
+    plan's others to run (and one walk's log is in memory at a time)."""
     from survey.walkline import plan_walks, sensor_log_walk
 
     def read(walk) -> Trace:

@@ -15,9 +15,10 @@ selects among them by properties), ``role: "wall"`` lines are walls :data:`WALL_
 thick, ``role: "walkable"`` (or ``corridor``, ``open``, ``passage``) polygons are open floor
 cut out of the obstacles, and ``role: "ignore"`` features are left out. Lines without a wall
 role are left out too, said in :attr:`FloorPlan.repairs`. A GeoJSON export of several floors
-(features tagged by a :data:`LEVEL_PROPERTIES` property such as ``level``) is read one floor at
-a time, named by ``level``; outline features that overlap are warned of (two floors stacked). DXF drawings are read by
-:mod:`mapping.floorplan_dxf` (``read_floor_plan`` dispatches on the ``.dxf`` suffix).
+(features tagged by a :data:`LEVEL_PROPERTIES` property such as ``level``) is read one floor
+at a time, named by ``level``; outline features that overlap are warned of (two floors
+stacked). DXF drawings are read by :mod:`mapping.floorplan_dxf` (``read_floor_plan``
+dispatches on the ``.dxf`` suffix).
 """
 
 from __future__ import annotations

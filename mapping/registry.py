@@ -11,9 +11,10 @@ replaced atomically, so a reader that follows ``CURRENT`` always finds a complet
 bundle; a crash leaves the previous current version in place. Versions only move forward:
 pointing ``CURRENT`` at an older version needs ``allow_rollback=True``, and the versions a
 rollback withdrew (``CURRENT``'s ``rolled_back_from``) are not made current again by
-publishing them again (:class:`~survey.errors.WithdrawnVersion`), only by ``set_current``. Readers check that
-``CURRENT`` is an entry of ``history.json`` (its seq and bundle id) whose folder exists, so a
-pointer edited by hand is refused, not followed (:func:`localize.bundle.registry_current`);
+publishing them again (:class:`~survey.errors.WithdrawnVersion`), only by ``set_current``.
+Readers check that ``CURRENT`` is an entry of ``history.json`` (its seq and bundle id) whose
+folder exists, so a pointer edited by hand is refused, not followed
+(:func:`localize.bundle.registry_current`);
 ``set_current`` repairs it (anything but the newest version then counts as a rollback).
 
 Writers of one floor take turns: ``publish`` and ``set_current`` hold an exclusive lock on
@@ -42,7 +43,8 @@ from localize.bundle import (
     registry_current,
     safe_name,
 )
-from survey.errors import BundleError, BundleIntegrityError, RegistryError, RollbackRefused, WithdrawnVersion
+from survey.errors import (BundleError, BundleIntegrityError, RegistryError, RollbackRefused,
+                           WithdrawnVersion)
 from survey.publish import atomic_directory, atomic_write_bytes, crash_point
 
 try:

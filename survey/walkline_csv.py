@@ -208,9 +208,10 @@ _WALK_TIME = "the median of its plan's vertex times, or of its sensor log's when
 def time_check(log: LogTable, t_ms: NDArray[np.float64], usable: NDArray[np.bool_],
                reference_ms: float) -> RowCheck:
     """The ``time_outlier`` rows among the ``usable`` ones: ``t_ms`` more than
-    :data:`MAX_FROM_MEDIAN_TIME_MS` from the walk's time ``reference_ms`` (Unix ms; the median
-    of its plan's vertex times, or of its sensor log's for a walk without them), a wrong clock or a stray row, as the trace reader's (one row
-    at time 0 made step detection ask for hundreds of GiB).
+    :data:`MAX_FROM_MEDIAN_TIME_MS` from the walk's time ``reference_ms`` (Unix ms; the
+    median of its plan's vertex times, or of its sensor log's for a walk without them), a
+    wrong clock or a stray row, as the trace reader's (one row at time 0 made step detection
+    ask for hundreds of GiB).
 
     Raises
     ------

@@ -137,9 +137,10 @@ def test_streaming_from_a_scan_equals_batch(f1_bundle, sim_walks):  # noqa: F811
 
 def test_a_refused_step_leaves_the_stream_going(f1_bundle, sim_walks, monkeypatch):  # noqa: F811
     """A step without a compass heading (NaN, inf, text), or with a fix in other units or
-    stamped after it, is refused with a LocalizationError and not taken: the next steps give the track of a
-    stream that never saw it (a NaN compass used to poison the window, and every later step
-    of the user failed with an IndexError). So does a step whose alignment fails."""
+    stamped after it, is refused with a LocalizationError and not taken: the next steps give
+    the track of a stream that never saw it (a NaN compass used to poison the window, and
+    every later step of the user failed with an IndexError). So does a step whose alignment
+    fails."""
     from dataclasses import replace
 
     import localize.align as align
