@@ -113,12 +113,20 @@ class Registry:
         RegistryError when it is no entry of the history (``history``: as :meth:`history`
         read it already) or its version folder is missing
         (:func:`localize.bundle.registry_current`)."""
+        pointer = self._pointer(site, floor, history)
+        return None if pointer is None else {k: pointer[k] for k in ("bundle_id", "seq")}
+
+    def _pointer(self, site: str, floor: str, history: list[dict] | None = None
+                 ) -> dict | None:
+        """:meth:`current`'s pointer as ``CURRENT`` holds it (with ``rolled_back_from``
+        after a rollback), read and checked once."""
         found = registry_current(self._floor(site, floor), history)
-        return None if found is None else {k: found[1][k] for k in ("bundle_id", "seq")}
+        return None if found is None else found[1]
 
     def _withdrawn(self, site: str, floor: str) -> int:
-        """The newest version a rollback withdrew (``CURRENT``'s ``rolled_back_from``), 0
-        when none is (or the pointer cannot be read: it is repaired as a rollback)."""
+        """The newest version a rollback withdrew (``CURRENT``'s ``rolled_back_from``) of a
+        pointer that is no entry of the history, 0 when none is (or the pointer cannot be
+        read: it is repaired as a rollback)."""
         try:
             pointer = read_registry_pointer(self._floor(site, floor))
         except RegistryError:
@@ -215,10 +223,10 @@ class Registry:
         than the current one and a rollback moved the pointer back from it (the pointer's
         ``rolled_back_from``); a publish that crashed before pointing at it is finished."""
         try:
-            cur = self.current(site, floor, history)
+            cur = self._pointer(site, floor, history)
         except RegistryError:
             return  # a damaged pointer: _point repairs it, a non-newest target a rollback
-        if cur is not None and cur["seq"] < entry["seq"] <= self._withdrawn(site, floor):
+        if cur is not None and cur["seq"] < entry["seq"] <= cur.get("rolled_back_from", 0):
             raise WithdrawnVersion(f"{site}/{floor}", entry["bundle_id"], seq=entry["seq"],
                                    current_seq=cur["seq"])
 
@@ -240,13 +248,15 @@ class Registry:
         entry = next((h for h in history if h["bundle_id"] == bundle_id), None)
         if entry is None:
             raise RegistryError(f"{site}/{floor}: version {bundle_id} is not published")
-        known = True
         try:
-            cur = self.current(site, floor, history)
+            cur = self._pointer(site, floor, history)
+            withdrawn = 0 if cur is None else cur.get("rolled_back_from", 0)
+            known = True
         except RegistryError:
             # a damaged or dangling pointer is repaired by pointing it at a version; which one
             # was current is unknown, so anything but the newest counts as a rollback
             cur, known = {"seq": max(h["seq"] for h in history)}, False
+            withdrawn = self._withdrawn(site, floor)
         if cur is not None and entry["seq"] < cur["seq"] and not allow_rollback:
             raise RollbackRefused(f"{site}/{floor}", bundle_id, seq=entry["seq"],
                                   current_seq=cur["seq"], current_known=known)
@@ -256,7 +266,7 @@ class Registry:
         # the versions a rollback left stay withdrawn until one of them is chosen again: a
         # publish of the same bytes (a nightly build) does not make them current
         withdrawn = max(cur["seq"] if cur is not None and entry["seq"] < cur["seq"] else 0,
-                        self._withdrawn(site, floor))
+                        withdrawn)
         if withdrawn > entry["seq"]:
             pointer["rolled_back_from"] = withdrawn
         atomic_write_bytes(self._floor(site, floor) / "CURRENT", json.dumps(pointer).encode(),
