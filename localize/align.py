@@ -410,7 +410,7 @@ class WalkAligner(BaseLocalizer):
         if fix is None:
             return None
         x, y, t = (float(v) for v in fix)
-        late = "time 0 is no Unix time in ms" if t == 0 else fix_time_problem(t, t_ms)
+        late = fix_time_problem(t, t_ms, zero_is_none=False)
         if late and np.isfinite(t):
             raise LocalizationError(f"step at {t_ms:g} ms: fix {late}; the step was not taken")
         check_within_reach(self.bundle.grid, x if np.isfinite(t) else np.nan, y,

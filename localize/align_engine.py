@@ -146,7 +146,7 @@ class MultiUserAligner:
         check_tick_inputs(inputs, ids)
         t = per_user(t_ms, k, "t_ms")
         users = self.aligners_of(ids)
-        check_step_times(users, t, ids)
+        check_user_step_times(step_time_problems(users, t, ids))
         fix_xy = (None if fix_xy_m is None else
                   checked_tick_fixes(fix_xy_m, None, k, 0.0, self.bundle.grid, ids)[0])
         fix_t = None if fix_t_ms is None else checked_fix_times(
@@ -170,16 +170,10 @@ def step_columns(inputs: StepInputs, k: int) -> tuple[NDArray, ...]:
     return compass, gyro, swing, carried
 
 
-def check_step_times(aligners: list[WalkAligner], t_ms: NDArray, names: NDArray) -> None:
-    """Every step time after its aligner's last one, checked before anyone moves; the
-    :class:`~localize.errors.TickRefused` names every user refused (``names``: the ids the
-    caller knows the users by)."""
-    check_user_step_times(step_time_problems(aligners, t_ms, names))
-
-
 def step_time_problems(aligners: list[WalkAligner], t_ms: NDArray, names: NDArray
                        ) -> list[tuple[int, str]]:
-    """``(name, why)`` of each step time (k,) its aligner cannot take next."""
+    """``(name, why)`` of each step time (k,) its aligner cannot take next (``names``: the
+    ids the caller knows the users by), checked before anyone moves."""
     problems = []
     for name, aligner, t in zip(names.tolist(), aligners, t_ms):
         try:
@@ -193,7 +187,7 @@ def advance_aligners(aligners: list[WalkAligner], t_ms: NDArray, columns: tuple[
                      fix_xy: NDArray | None, fix_t_ms: NDArray | None, *,
                      search_spread: bool = False) -> StepOutputs:
     """One step of each aligner (inputs checked with the tick, before anyone moves:
-    :func:`check_tick_inputs`, :func:`check_step_times`, :func:`checked_tick_fixes`, so not
+    :func:`check_tick_inputs`, :func:`step_time_problems`, :func:`checked_tick_fixes`, so not
     again per user): its time (Unix ms), its :func:`step_columns`, its fix (k, 2) (m; NaN
     rows or None: none) and the fix's scan time (NaN or None: the step's). ``spread_m`` is
     the estimates' (or with ``search_spread`` the search's finest grid's,

@@ -161,6 +161,16 @@ class Grid:
         if self.width < 1 or self.height < 1:
             raise BundleError(f"grid: width and height must be positive, got {self}")
 
+    @property
+    def x1_m(self) -> float:
+        """East edge of the grid (m)."""
+        return self.x0_m + self.width * self.cell_m
+
+    @property
+    def y1_m(self) -> float:
+        """North edge of the grid (m)."""
+        return self.y0_m + self.height * self.cell_m
+
     @classmethod
     def from_dict(cls, d: dict) -> Grid:
         try:

@@ -106,8 +106,7 @@ def _warn_if_off_floor(bundle, start_xy: tuple[float, float] | None) -> None:
         g = bundle.grid
         click.echo(f"warning: start {start_xy[0]:g},{start_xy[1]:g} is off the reachable area "
                    f"of {bundle.manifest.get('floor_name') or bundle.floor_id} (x {g.x0_m:g} to "
-                   f"{g.x0_m + g.width * g.cell_m:g} m, y {g.y0_m:g} to "
-                   f"{g.y0_m + g.height * g.cell_m:g} m)", err=True)
+                   f"{g.x1_m:g} m, y {g.y0_m:g} to {g.y1_m:g} m)", err=True)
 
 
 def _warn_if_outside_map(bundle, trace_id: str, waypoints_xy: np.ndarray) -> None:

@@ -87,8 +87,7 @@ class MultiUserEngine:
         self.bundle = bundle
         self.rng = make_rng(rng)
         g = bundle.grid
-        reach_m = max(abs(g.x0_m), abs(g.y0_m), abs(g.x0_m + g.width * g.cell_m),
-                      abs(g.y0_m + g.height * g.cell_m))
+        reach_m = max(abs(g.x0_m), abs(g.y0_m), abs(g.x1_m), abs(g.y1_m))
         if np.dtype(dtype).itemsize < 8 and reach_m > FLOAT32_REACH_M:
             raise LocalizationError(
                 f"the map's coordinates reach {reach_m:,.0f} m, where {np.dtype(dtype).name} "

@@ -603,6 +603,6 @@ def within_reach(grid: Grid, x: ArrayLike, y: ArrayLike) -> NDArray[np.bool_] | 
     given fix that is not. A bool for scalars."""
     m = MAX_START_OFF_MAP_M
     x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
-    ok = ((grid.x0_m - m <= x) & (x <= grid.x0_m + grid.width * grid.cell_m + m)
-          & (grid.y0_m - m <= y) & (y <= grid.y0_m + grid.height * grid.cell_m + m))
+    ok = ((grid.x0_m - m <= x) & (x <= grid.x1_m + m)
+          & (grid.y0_m - m <= y) & (y <= grid.y1_m + m))
     return bool(ok) if ok.ndim == 0 else ok

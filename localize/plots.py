@@ -49,7 +49,7 @@ def plot_track(path: str | Path, bundle: MapBundle, tracks: Mapping[str, Track],
     except ImportError:
         return False
     g = bundle.grid
-    x1, y1 = g.x0_m + g.width * g.cell_m, g.y0_m + g.height * g.cell_m
+    x1, y1 = g.x1_m, g.y1_m
     lines = {name: (np.r_[tr.start.x_m, tr.x_m], np.r_[tr.start.y_m, tr.y_m])
              for name, tr in tracks.items()}  # each track from its start
     pts = [np.column_stack(xy) for xy in lines.values()]

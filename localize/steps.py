@@ -281,12 +281,14 @@ def check_step_values(s: StepSummary, numbers_read: Sequence[str] = STEP_NUMBER_
 MAX_FIX_AFTER_STEP_MS = 2_000.0
 
 
-def fix_time_problem(fix_t_ms: object, step_t_ms: float) -> str | None:
+def fix_time_problem(fix_t_ms: object, step_t_ms: float, *, zero_is_none: bool = True
+                     ) -> str | None:
     """Why a scan's or fix's time cannot be a step's (a phrase), or None: not a finite
-    time at or after 0 (0 or None: no time of its own), or more than
+    time at or after 0 (0 or None: no time of its own, a :class:`RadioScan`'s way; with
+    ``zero_is_none`` False, as a fix's time, 0 is no time), or more than
     :data:`MAX_FIX_AFTER_STEP_MS` after the step's time ``step_t_ms``."""
     if fix_t_ms is None or (_is_real(fix_t_ms) and float(fix_t_ms) == 0):
-        return None
+        return None if zero_is_none else "time 0 is no Unix time in ms"
     if not _is_real(fix_t_ms) or not 0 < float(fix_t_ms) < 2.0 ** 53:
         return f"time {fix_t_ms!r} is no Unix time in ms"
     ahead = float(fix_t_ms) - float(step_t_ms)
@@ -295,6 +297,8 @@ def fix_time_problem(fix_t_ms: object, step_t_ms: float) -> str | None:
                 "(another clock, or a receipt time?): a scan is its step's when it comes "
                 "at or before it")
     return None
+
+
 #: The per-step columns a table of step summaries holds
 #: (:func:`survey.step_summaries.summaries_table`, :meth:`StepSummaries.from_table`).
 TABLE_COLUMNS = ("t_ms", *_FLOAT_COLUMNS, "attitude")

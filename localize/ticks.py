@@ -127,7 +127,7 @@ def checked_fix_times(fix_t_ms: ArrayLike, t_ms: NDArray[np.float64], users: NDA
         return fix_t
     suspect = has_fix & ~np.isnan(fix_t) & ~((fix_t > 0)
                                              & (fix_t <= t_ms + MAX_FIX_AFTER_STEP_MS))
-    bad = [(int(u), "time 0 is no Unix time in ms" if f == 0 else fix_time_problem(f, t))
+    bad = [(int(u), fix_time_problem(f, t, zero_is_none=False))
            for u, f, t in zip(users[suspect].tolist(), fix_t[suspect].tolist(),
                               t_ms[suspect].tolist())]
     if bad:

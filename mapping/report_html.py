@@ -106,7 +106,7 @@ class FloorCanvas:
         self.grid = b.grid
         self.mask = np.asarray(b.mask, dtype=bool)
         g = self.grid
-        self.extent = (g.x0_m, g.x0_m + g.width * g.cell_m, g.y0_m, g.y0_m + g.height * g.cell_m)
+        self.extent = (g.x0_m, g.x1_m, g.y0_m, g.y1_m)
         self.image, self.image_extent, self.image_source = floor_image(result.floor_dir)
 
     @property
@@ -135,7 +135,7 @@ class FloorCanvas:
                vmax: float | None = None, norm: Normalize | None = None, label: str = "",
                alpha: float = 0.9, cax: Axes | None = None) -> AxesImage:
         g = grid or self.grid
-        ext = (g.x0_m, g.x0_m + g.width * g.cell_m, g.y0_m, g.y0_m + g.height * g.cell_m)
+        ext = (g.x0_m, g.x1_m, g.y0_m, g.y1_m)
         im = ax.imshow(np.ma.masked_invalid(np.asarray(values, dtype=float)), origin="lower",
                        extent=ext, cmap=cmap, vmin=None if norm else vmin,
                        vmax=None if norm else vmax, norm=norm, interpolation="nearest",
