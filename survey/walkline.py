@@ -310,10 +310,7 @@ def plan_walks(path: str | os.PathLike) -> list[PlanWalk]:
         if geom is None:  # no ground truth: a walk to localize, not to map
             walks.append(_untruthed_walk(props, where, path.parent, feature))
             continue
-        if not isinstance(geom, dict):
-            raise SurveyFormatError("walk geometry must be a LineString (or null: a walk "
-                                    "without ground truth)", path=where, reason="plan")
-        if geom.get("type") != "LineString":
+        if not isinstance(geom, dict) or geom.get("type") != "LineString":
             raise SurveyFormatError("walk geometry must be a LineString (or null: a walk "
                                     "without ground truth)", path=where, reason="plan")
         coords = geom.get("coordinates")
@@ -366,13 +363,8 @@ def _untruthed_walk(props: dict, where: str, folder: Path, feature: dict) -> Pla
                                 "neither (its sensor log's times are then its time)",
                                 path=where, reason="plan")
     if props.get("start_ms") is not None:
-        try:
-            times = np.round(np.array([props.get("start_ms"), props.get("end_ms")],
-                                      dtype=np.float64))
-        except (TypeError, ValueError, OverflowError) as err:
-            raise SurveyFormatError("start_ms and end_ms must be numbers", path=where,
-                                    reason="plan") from err
-        if not (np.isfinite(times).all() and 0 <= times[0] <= times[1] < MAX_TIME_MS):
+        times = np.round(np.array(_start_end_ms(props, where)))
+        if not times[0] <= times[1]:
             raise SurveyFormatError("start_ms and end_ms must be within [0, 2^53) ms, the "
                                     "start not after the end", path=where, reason="plan")
     return PlanWalk(walk_id, log, where, folder, props, feature, np.empty((0, 2)), times)
@@ -398,6 +390,19 @@ def identity_sha256(identity: bytes) -> str:
     return hashlib.sha256(identity).hexdigest()
 
 
+def _start_end_ms(props: dict, where: str) -> tuple[float, float]:
+    """A feature's ``start_ms`` and ``end_ms`` (Unix ms), each a number within [0, 2^53)."""
+    try:
+        start, end = float(props["start_ms"]), float(props["end_ms"])
+    except (TypeError, ValueError, OverflowError) as err:
+        raise SurveyFormatError("start_ms and end_ms must be numbers", path=where,
+                                reason="plan") from err
+    if not (0 <= start < MAX_TIME_MS and 0 <= end < MAX_TIME_MS):
+        raise SurveyFormatError("start_ms and end_ms must be within [0, 2^53) ms", path=where,
+                                reason="plan")
+    return start, end
+
+
 def _vertex_times(xy: np.ndarray, props: dict, where: str) -> np.ndarray:
     if props.get("vertex_times_ms") is not None:
         try:
@@ -409,14 +414,7 @@ def _vertex_times(xy: np.ndarray, props: dict, where: str) -> np.ndarray:
             raise SurveyFormatError(f"vertex_times_ms has {times.size} values for {len(xy)} "
                                     "vertices", path=where, reason="plan")
     elif props.get("start_ms") is not None and props.get("end_ms") is not None:
-        try:
-            start, end = float(props["start_ms"]), float(props["end_ms"])
-        except (TypeError, ValueError, OverflowError) as err:
-            raise SurveyFormatError("start_ms and end_ms must be numbers", path=where,
-                                    reason="plan") from err
-        if not (0 <= start < MAX_TIME_MS and 0 <= end < MAX_TIME_MS):
-            raise SurveyFormatError("start_ms and end_ms must be within [0, 2^53) ms",
-                                    path=where, reason="plan")
+        start, end = _start_end_ms(props, where)
         # Huge coordinates overflow to an infinite length or time, refused below.
         with np.errstate(over="ignore", invalid="ignore"):
             dist = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])

@@ -203,7 +203,8 @@ def test_a_walk_without_ground_truth_has_no_waypoints(tmp_path):
     assert (a.header.start_ms, b.header.start_ms, b.header.end_ms) == (None, T0, T0 + 1980)
     for times, message in (({"start_ms": T0, "end_ms": T0 - 1}, "the start not after the end"),
                            ({"start_ms": "noon", "end_ms": T0}, "must be numbers"),
-                           ({"start_ms": T0}, "gives both start_ms and end_ms, or neither")):
+                           ({"start_ms": T0}, "gives both start_ms and end_ms, or neither"),
+                           ({"start_ms": [T0], "end_ms": T0}, "must be numbers")):
         bad = json.loads(json.dumps(bare))
         bad["properties"].update(times)
         with pytest.raises(SurveyFormatError, match=message):
