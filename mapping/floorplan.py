@@ -251,7 +251,7 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
     first = on_floor.index(True)
     if floor_name:  # a floor picked from several: its outline is the one naming it
         first = next((i for i, mine in enumerate(on_floor)
-                      if mine and _named_floor([feats[i]])), first)
+                      if mine and _named_floor(feats[i])), first)
     outline_at = [i for i, r in enumerate(roles) if r == "outline"] or [first]  # union of them
     if "outline" not in roles and roles[first] is not None:
         raise FloorPlanError(f"{geo}: no feature has role 'outline', and feature {first} (the "
@@ -334,7 +334,8 @@ def read_floor_plan(floor_dir_or_geojson: str | os.PathLike, *,
         obstacle_union = shapely.difference(obstacle_union, shapely.union_all(walkable))
     return checked_plan(FloorPlan(outline, obstacle_union, width, height, tuple(repairs),
                                   x0, y0, tuple(sources),
-                                  floor_name or _named_floor([feats[i] for i in outline_at])),
+                                  floor_name or next((n for i in outline_at
+                                                      if (n := _named_floor(feats[i]))), "")),
                         geo)
 
 
@@ -362,7 +363,7 @@ def _features_of_level(feats: list[dict], level: str | None, path: Path,
     not mixed: an outline named ``F1`` among shops tagged ``level: 1`` is one floor."""
     levels = [feature_level(f) for f in feats]
     if not any(levels):
-        levels = [_named_floor([f]) for f in feats]
+        levels = [_named_floor(f) for f in feats]
     named = sorted(set(levels) - {""})
     if len(named) < 2:
         return [True] * len(feats), ""
@@ -404,15 +405,13 @@ def _warn_overlapping_outlines(path: Path, parts: list[shapely.Geometry], at: li
                        "their floor (property \"level\") and name it")
 
 
-def _named_floor(outline_features: list[dict]) -> str:
-    """The floor name the first outline feature saying it is a floor (``type`` or
-    ``category`` ``"floor"``) gives as its ``name``; empty without one."""
-    for f in outline_features:
-        props = f.get("properties") or {}
-        name = props.get("name")
-        if "floor" in (props.get("type"), props.get("category")) and isinstance(name, str) \
-                and name.strip():
-            return name.strip()
+def _named_floor(feature: dict) -> str:
+    """The floor name a feature saying it is a floor (``type`` or ``category``
+    ``"floor"``) gives as its ``name``; empty for any other."""
+    props = feature.get("properties") or {}
+    name = props.get("name")
+    if "floor" in (props.get("type"), props.get("category")) and isinstance(name, str):
+        return name.strip()
     return ""
 
 

@@ -696,9 +696,9 @@ def processed_floors_text(store: SurveyStore | str) -> str:
     """``"the store has processed walks of site S floors F1 (3), F2 (1)"``, or says it has
     none (and why, when every walk was skipped in processing): what a selection that matched
     nothing names, so a misspelt floor is plain."""
-    ok = processed_walks(store)
+    cat = processed_catalog(store)  # read once: the walks that processed and those skipped
+    ok = cat[cat["status"] == "ok"]
     if not len(ok):
-        cat = processed_catalog(store)
         skipped = cat[cat["status"] == "skipped"]
         if len(skipped):  # processed, and every one refused: say why, not to process them
             first = skipped.iloc[0]

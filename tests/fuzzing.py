@@ -1179,10 +1179,10 @@ def run_fuzz(seed: int, workdir: Path, *, texts: int = 0, gz_cases: int = 0,
             kind, data = "plan", mutate_plan(rng)
             write_walk_case(walk_dir, plan=data)
         else:  # a sensor CSV stands in as a.csv, a radio log as walk a's
-            role, seed = rng.choice([("csv_a", CSV_A), ("csv_a", CSV_B), ("wifi_a", WIFI_A),
-                                     ("ble_a", BLE_A)])
+            role, base = rng.choice([("csv_a", CSV_A), ("csv_a", CSV_B), ("wifi_a", WIFI_A),
+                                     ("ble_a", BLE_A)])  # not `seed`: the run's, recorded
             kind, data = {"csv_a": "csv", "wifi_a": "wifi.csv", "ble_a": "ble.csv"}[role], \
-                mutate_csv(seed, rng)
+                mutate_csv(base, rng)
             write_walk_case(walk_dir, **{role: data})
         stats.tried["walkline"] += 1
         problems = check_walk_plan(walk_dir)
