@@ -686,7 +686,10 @@ class _Tables:
         return f
 
     def drop(self, name: str, files: np.ndarray) -> None:
-        self.dropped[name] = np.bincount(files, minlength=self.n_files)
+        """Count rows dropped under ``name`` per file (``files``: each row's file index;
+        nothing is counted when it is empty)."""
+        if len(files):
+            self.dropped[name] = np.bincount(files, minlength=self.n_files)
 
     def sensors(self, blocks: list[dict | None], bad: _Collector) -> list[pd.DataFrame]:
         parts = []
@@ -746,29 +749,18 @@ class _Tables:
         if cols is None:
             return [empty_table(WIFI_COLUMNS, WIFI_DTYPES) for _ in range(self.n_files)]
         cols["bssid"], refused = wifi_row_checks(cols)
-        for reason, detail, rows in refused:
-            bad.add(cols["gline"][rows], reason, f"TYPE_WIFI: {detail}")
-        keep = ~np.logical_or.reduce([rows for _, _, rows in refused])
-        if not keep.all():
-            cols = _take(cols, np.flatnonzero(keep))
+        cols = _refused_out(cols, refused, bad, "TYPE_WIFI")
         frame, files, dropped = wifi_table(self.count(cols), cols)
-        if len(dropped):
-            self.drop("duplicate_bssid_in_scan", dropped)
+        self.drop("duplicate_bssid_in_scan", dropped)
         return _split(frame, _file_ranges(files, self.n_files))
 
     def ble(self, cols: dict | None, bad: _Collector) -> list[pd.DataFrame]:
         if cols is None:
             return [empty_table(BLE_COLUMNS, BLE_DTYPES) for _ in range(self.n_files)]
-        refused = beacon_row_checks(cols)
-        for reason, detail, rows in refused:
-            bad.add(cols["gline"][rows], reason, f"TYPE_BEACON: {detail}")
-        keep = ~np.logical_or.reduce([rows for _, _, rows in refused])
-        if not keep.all():
-            cols = _take(cols, np.flatnonzero(keep))
+        cols = _refused_out(cols, beacon_row_checks(cols), bad, "TYPE_BEACON")
         frame, files = beacon_table(self.count(cols), cols)
         frame, files, dropped = drop_repeats(frame, files)
-        if len(dropped):
-            self.drop("duplicate_beacon", dropped)
+        self.drop("duplicate_beacon", dropped)
         return _split(frame, _file_ranges(files, self.n_files))
 
     def waypoints(self, cols: dict | None, bad: _Collector) -> list[pd.DataFrame]:
@@ -784,9 +776,18 @@ class _Tables:
         frame = pd.DataFrame({"t_ms": cols["t_ms"][order], "x_m": cols["x_m"][order],
                               "y_m": cols["y_m"][order]})
         frame, files, dropped = drop_repeats(frame, files[order])
-        if len(dropped):
-            self.drop("duplicate_waypoint", dropped)
+        self.drop("duplicate_waypoint", dropped)
         return _split(frame, _file_ranges(files, self.n_files))
+
+
+def _refused_out(cols: dict, refused: list[tuple[str, str, np.ndarray]], bad: _Collector,
+                 record: str) -> dict:
+    """``cols`` without the rows a row check refused (``(reason, detail, rows)`` each), those
+    counted in ``bad`` as ``record`` lines (``TYPE_WIFI``)."""
+    for reason, detail, rows in refused:
+        bad.add(cols["gline"][rows], reason, f"{record}: {detail}")
+    keep = ~np.logical_or.reduce([rows for _, _, rows in refused])
+    return cols if keep.all() else _take(cols, np.flatnonzero(keep))
 
 
 # --------------------------------------------------------------------------------------------
