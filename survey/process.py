@@ -221,18 +221,23 @@ def field_strengths_ut(sensors: pd.DataFrame) -> dict[str, float]:
     return out
 
 
-def check_sensor_units(trace_id: str, sensors: pd.DataFrame, acc_xyz: NDArray[np.float64],
-                       compass: tuple[NDArray, NDArray],
-                       gyro: tuple[NDArray, NDArray] | None) -> None:
-    """A :class:`ProcessingError` naming the walk when a sensor's values are in another unit
-    than indoormap reads (:mod:`survey.sensor_units`: accelerometer ``acc_xyz`` (n, 3) not in
-    m/s^2, magnetometer not in uT, gyroscope not in rad/s by its turns against the
-    ``compass`` track)."""
+def unit_checked_headings(trace_id: str, sensors: pd.DataFrame, acc_xyz: NDArray[np.float64],
+                          rot_t: NDArray, rot: NDArray
+                          ) -> tuple[tuple[NDArray, NDArray], tuple[NDArray, NDArray] | None]:
+    """The walk's compass and gyroscope heading tracks (:func:`compass_track_deg`,
+    :func:`gyro_heading_deg`), once its sensors are known to be in the units indoormap
+    reads: else a :class:`ProcessingError` naming the walk (:mod:`survey.sensor_units`:
+    accelerometer ``acc_xyz`` (n, 3) not in m/s^2, magnetometer not in uT, gyroscope not in
+    rad/s by its turns against the compass). Before step detection, which finds no step in
+    an accelerometer in g."""
+    compass = compass_track_deg(trace_id, rot_t, rot)
+    gyro = gyro_heading_deg(sensors, rot_t, rot)
     problem = (acceleration_unit_problem(acc_xyz)
                or field_unit_problem(field_strengths_ut(sensors))
                or (gyro_turn_problem(compass, gyro) if gyro is not None else None))
     if problem:
         raise ProcessingError(f"{trace_id}: {problem}")
+    return compass, gyro
 
 
 def compass_track_deg(trace_id: str, rot_t: NDArray, rot: NDArray
@@ -363,9 +368,7 @@ def process_walk(trace_id: str, sensors: pd.DataFrame, waypoints: pd.DataFrame,
     rot = rv[["x", "y", "z"]].to_numpy(np.float64)
 
     # Headings: gyro (relative, immune to magnetic anomalies) and compass (rotation vector).
-    compass = compass_track_deg(trace_id, rot_t, rot)
-    gyro = gyro_heading_deg(sensors, rot_t, rot)
-    check_sensor_units(trace_id, sensors, acc_xyz, compass, gyro)
+    compass, gyro = unit_checked_headings(trace_id, sensors, acc_xyz, rot_t, rot)
 
     steps = detect_steps(acc_t, acc_xyz)
     st = steps.t_ms

@@ -38,7 +38,7 @@ from survey.carried_heading import CarriedHeadingParams, carried_heading_deg
 from survey.errors import ProcessingError, require_type
 from survey.field_features import field_features
 from survey.process import MAGNETOMETER_STREAMS, _stream, accelerometer_stream, calibrated_field, \
-    check_sensor_units, compass_track_deg, gyro_heading_deg, waypoints_off_sensors
+    unit_checked_headings, waypoints_off_sensors
 from survey.rotation import interpolate_rotation_vector, rotation_matrices
 from survey.steps import detect_steps
 from survey.trace_format import Trace
@@ -184,9 +184,7 @@ def step_summaries(trace: Trace, params: StepSummaryParams = StepSummaryParams()
     else:  # the steps' field is NaN: methods without the magnetic update still localize it
         mag_t, mag_dev, decision = np.empty(0), np.empty((0, 3)), "no-magnetometer"
 
-    compass = compass_track_deg(tid, rot_t, rot)
-    gyro = gyro_heading_deg(trace.sensors, rot_t, rot)
-    check_sensor_units(tid, trace.sensors, acc_xyz, compass, gyro)
+    compass, gyro = unit_checked_headings(tid, trace.sensors, acc_xyz, rot_t, rot)
     steps = detect_steps(acc_t, acc_xyz)
     st = steps.t_ms
     if len(st) == 0:
