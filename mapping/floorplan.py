@@ -352,6 +352,23 @@ def feature_level(feature: dict) -> str:
     return ""
 
 
+def plan_levels(path: str | os.PathLike) -> list[str]:
+    """The floors a GeoJSON plan holds, sorted (as :func:`read_floor_plan` reads them by
+    ``level``); empty for a plan of one floor and for a DXF drawing."""
+    file = plan_file(path)
+    if file.suffix.lower() == ".dxf":
+        return []
+    named = sorted(set(_floor_tags(_features(file, []))) - {""})
+    return named if len(named) > 1 else []
+
+
+def _floor_tags(feats: list[dict]) -> list[str]:
+    """Each feature's floor: its :data:`LEVEL_PROPERTIES` tag, or in a plan without any,
+    the name of a floor outline (``type`` or ``category`` ``"floor"``); empty for none."""
+    levels = [feature_level(f) for f in feats]
+    return levels if any(levels) else [_named_floor(f) for f in feats]
+
+
 def _features_of_level(feats: list[dict], level: str | None, path: Path,
                        repairs: list[str]) -> tuple[list[bool], str]:
     """Which features are read (all, or for a plan of several floors those of ``level``
@@ -361,9 +378,7 @@ def _features_of_level(feats: list[dict], level: str | None, path: Path,
     A plan's floors are its features' :data:`LEVEL_PROPERTIES` tags; in a plan without
     any, the names of its floor outlines (``type`` or ``category`` ``"floor"``). The two are
     not mixed: an outline named ``F1`` among shops tagged ``level: 1`` is one floor."""
-    levels = [feature_level(f) for f in feats]
-    if not any(levels):
-        levels = [_named_floor(f) for f in feats]
+    levels = _floor_tags(feats)
     named = sorted(set(levels) - {""})
     if len(named) < 2:
         return [True] * len(feats), ""

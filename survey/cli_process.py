@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from localize.names import floor_key
+
 from .process_store import process_store, processed_catalog, processed_table
 from .progress import progress
 from .publish import atomic_write_bytes, refuse_to_replace
@@ -23,6 +25,22 @@ def _require_walks(selected, everything, site: str | None, floor: str | None) ->
         param_hint="--site/--floor")
 
 
+def _plan_floors(path: str, floors: list[str]) -> list[str]:
+    """The floors a ``--floor-plan`` is read for: each floor of a plan of several floors
+    that the walks are on, else the one its name gives; a warning for a plan of no walks'
+    floor (``floors``: the walks' floor keys)."""
+    from mapping.floorplan import plan_floor_name, plan_levels
+
+    levels = plan_levels(path)
+    named = [name for name in levels or [plan_floor_name(path)] if floor_key(name) in floors]
+    if not named:
+        of = (f"any of its floors ({', '.join(levels)})" if levels
+              else f"floor {plan_floor_name(path)!r}")
+        click.echo(f"warning: {path}: no walks of {of} to check against this plan (floors: "
+                   f"{', '.join(floors)})", err=True)
+    return named
+
+
 @click.command("process")
 @click.option("--store", "store_dir", required=True, type=click.Path(file_okay=False,
                                                                      exists=True))
@@ -31,13 +49,14 @@ def _require_walks(selected, everything, site: str | None, floor: str | None) ->
 @click.option("--floor-plan", "floor_plans", multiple=True, type=click.Path(exists=True),
               help="A floor plan whose reachable area flags legs leaving it: a floor folder "
                    "(geojson_map.json [+ floor_info.json]; the folder's name is the floor) or "
-                   "a plan file (GeoJSON, DXF; the file's name without suffix is the floor). "
+                   "a plan file (GeoJSON, DXF; the file's name without suffix is the floor, or a "
+                   "GeoJSON's features tagged 'level' give its floors). "
                    "Repeatable; two plans of one floor are refused.")
 def process_command(store_dir: str, site: str | None, floor: str | None,
                     floor_plans: tuple[str, ...]) -> None:
     """Position every sample, scan and beacon row along its walk, calibrate the magnetometer,
     rotate the field into the map frame, and store the results (new or changed walks only)."""
-    from mapping.floorplan import plan_file, plan_floor_name, read_floor_plan
+    from mapping.floorplan import plan_file, read_floor_plan
 
     store = SurveyStore.open(store_dir)
     reachable = {}
@@ -49,31 +68,30 @@ def process_command(store_dir: str, site: str | None, floor: str | None,
                                    f"{store_dir})")
     _require_walks(cat, everything, site, floor)
     plan_of: dict[tuple[str, str], str] = {}  # (site, floor) -> the plan given for it
+    floors = sorted(cat["floor"].astype(str).unique())
     for fp in floor_plans:
-        name = plan_floor_name(fp)
-        plan = read_floor_plan(fp, level=name)
-        for repair in plan.repairs:
-            click.echo(f"warning: {repair}", err=True)
-        sites = cat.loc[cat["floor"] == name, "site"].unique()
-        if not len(sites):
-            click.echo(f"warning: {fp}: no walks of floor {name!r} to check against this plan "
-                       f"(floors: {', '.join(sorted(cat['floor'].astype(str).unique()))})",
-                       err=True)
-        if len(sites) > 1:
-            folder = Path(fp).resolve()
-            site_dir = (folder if folder.is_dir() else folder.parent).parent.name
-            if site_dir in sites:  # an ILC-style site/floor folder names its site
-                sites = [site_dir]
-            else:
-                click.echo(f"warning: {fp}: used for floor {name!r} of every site that has one "
-                           f"({', '.join(sorted(sites))}); give --site to pick one", err=True)
-        for s in sites:
-            other = plan_of.setdefault((s, name), fp)
-            if plan_file(other).resolve() != plan_file(fp).resolve():  # the last one won
-                raise click.BadParameter(f"{other} and {fp} are both plans of floor {name!r} "
-                                         f"of site {s} (by their names); give one",
-                                         param_hint="--floor-plan")
-            reachable[(s, name)] = plan.reachable
+        for name in _plan_floors(fp, floors):
+            plan = read_floor_plan(fp, level=name)
+            for repair in plan.repairs:
+                click.echo(f"warning: {repair}", err=True)
+            key = floor_key(name)
+            sites = cat.loc[cat["floor"] == key, "site"].unique()
+            if len(sites) > 1:
+                folder = Path(fp).resolve()
+                site_dir = (folder if folder.is_dir() else folder.parent).parent.name
+                if site_dir in sites:  # an ILC-style site/floor folder names its site
+                    sites = [site_dir]
+                else:
+                    click.echo(f"warning: {fp}: used for floor {name!r} of every site that "
+                               f"has one ({', '.join(sorted(sites))}); give --site to pick one",
+                               err=True)
+            for s in sites:
+                other = plan_of.setdefault((s, key), fp)
+                if plan_file(other).resolve() != plan_file(fp).resolve():  # the last one won
+                    raise click.BadParameter(f"{other} and {fp} are both plans of floor "
+                                             f"{name!r} of site {s} (by their names); give one",
+                                             param_hint="--floor-plan")
+                reachable[(s, key)] = plan.reachable
     with progress("process", len(cat), unit="walks") as update:
         report = process_store(store, site=site, floor=floor, reachable=reachable,
                                progress=update)

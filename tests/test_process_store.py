@@ -142,6 +142,51 @@ def test_floor_plan_files_name_their_floor(tmp_path):
     assert res.exit_code == 0, res.output
 
 
+def test_a_plan_of_several_floors_serves_each_of_its_floors(tmp_path):
+    """``--floor-plan building.geojson`` holding every floor (features tagged ``level``) is
+    read for each floor the walks are on; it was read for the floor its file name gives
+    (``building``), which it does not hold, and refused."""
+    import json
+
+    import shapely
+
+    from mapping.floorplan import plan_levels, read_floor_plan
+
+    square = shapely.box(0, 0, 2, 2)  # F1: a 2 m square in a corner, every leg leaves it
+    f2 = read_floor_plan(SITE / "F2")
+    feats = [{"type": "Feature", "geometry": shapely.geometry.mapping(g),
+              "properties": {"role": "outline", "level": level}}
+             for g, level in ((square, "F1"), (f2.outline, "F2"), (square, "F9"))]
+    feats += [{"type": "Feature", "geometry": shapely.geometry.mapping(p),
+               "properties": {"level": "F2"}} for p in shapely.get_parts(f2.obstacles)]
+    building = tmp_path / "building.geojson"
+    building.write_text(json.dumps({"type": "FeatureCollection", "features": feats}))
+    assert plan_levels(building) == ["F1", "F2", "F9"] and plan_levels(SITE / "F1") == []
+    ingest([sorted((SITE / floor / "path_data_files").glob("*.txt.gz"))[0]
+            for floor in ("F1", "F2")], tmp_path / "store")
+    res = CliRunner().invoke(main, ["process", "--store", str(tmp_path / "store"),
+                                    "--floor-plan", str(building)])
+    assert res.exit_code == 0, res.output
+    assert f"{building}: read for floor F1 of F1, F2, F9" in res.output
+    assert f"{building}: read for floor F2 of F1, F2, F9" in res.output
+    off = {floor: processed_table(tmp_path / "store", "legs", floor=floor)["flags"]
+           .str.contains("off_floor").mean() for floor in ("F1", "F2")}
+    assert off["F1"] == 1.0 and off["F2"] < 0.5  # each floor checked against its own plan
+    res = CliRunner().invoke(main, ["process", "--store", str(tmp_path / "store"),
+                                    "--floor-plan", str(building), "--floor", "F9"])
+    assert res.exit_code == 2  # no walks of F9 (a usage error, as before)
+    res = CliRunner().invoke(main, ["process", "--store", str(tmp_path / "store"),
+                                    "--floor", "F1", "--floor-plan", str(building)])
+    assert res.exit_code == 0 and "read for floor F2" not in res.output
+    other = tmp_path / "other.geojson"
+    other.write_text(json.dumps({"type": "FeatureCollection", "features": feats[2:3] + [
+        dict(feats[2], properties={"role": "outline", "level": "F8"})]}))
+    res = CliRunner().invoke(main, ["process", "--store", str(tmp_path / "store"),
+                                    "--floor-plan", str(other)])
+    assert res.exit_code == 0 and f"{other}: no walks of any of its floors (F8, F9) to check " \
+        "against this plan (floors: F1, F2)" in res.output
+
+
 PROCESS_OTHER_PARAMS = """
 import sys
 from survey.positions import PositionParams
