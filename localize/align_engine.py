@@ -26,12 +26,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from localize.align import AlignParams, WalkAligner
 from localize.bundle import MapBundle
-from localize.errors import LocalizationError, TickRefused
+from localize.errors import LocalizationError
 from localize.filter import BUNDLE_HINT
 from localize.steps import AttitudeCode
 from localize.stepper import StepInputs, StepOutputs
 from localize.ticks import (check_tick_inputs, check_user_step_times, checked_fix_times,
-                            checked_tick_fixes, per_user, start_points, tick_ids)
+                            checked_tick_fixes, per_user, start_points, tick_ids,
+                            unknown_ids_error)
 from survey.errors import require_type
 
 __all__ = ["MultiUserAligner"]
@@ -105,8 +106,7 @@ class MultiUserAligner:
         ids = tick_ids(ids, "remove_users").tolist()
         unknown = [i for i in ids if i not in self._aligners]
         if unknown:
-            raise LocalizationError(f"unknown user ids in remove_users: {unknown[:10]}; "
-                                    "nobody was removed")
+            raise unknown_ids_error(unknown, "remove_users")
         for i in ids:
             del self._aligners[i]
 
@@ -140,8 +140,7 @@ class MultiUserAligner:
         ids = self.user_ids if ids is None else tick_ids(ids)
         unknown = [i for i in ids.tolist() if i not in self._aligners]
         if unknown:
-            raise TickRefused(f"unknown user ids in tick: {unknown[:10]}; nobody was advanced",
-                              unknown)
+            raise unknown_ids_error(unknown)
         k = len(ids)
         check_tick_inputs(inputs, ids)
         t = per_user(t_ms, k, "t_ms")

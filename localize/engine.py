@@ -35,7 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 from localize.align_engine import (MultiUserAligner, advance_aligners, step_time_problems,
                                    step_columns)
 from localize.bundle import MapBundle
-from localize.errors import LocalizationError, TickRefused
+from localize.errors import LocalizationError
 from localize.filter import BUNDLE_HINT, make_rng
 from localize.maps import FilterMap
 from localize.params import FilterParams
@@ -43,7 +43,8 @@ from localize.particles import (ParticleState, estimate, init_state, inject_arou
                                 inject_around_guide, needed_layers, start_half_width_m)
 from localize.stepper import StepInputs, StepOutputs, advance
 from localize.ticks import (check_tick_inputs, check_user_step_times, checked_fix_times,
-                            checked_tick_fixes, later_than, per_user, start_points, tick_ids)
+                            checked_tick_fixes, later_than, per_user, start_points, tick_ids,
+                            unknown_ids_error)
 from localize.update import position_update
 from survey.errors import require_type
 
@@ -215,10 +216,7 @@ class MultiUserEngine:
         if len(order) == 0 or not np.array_equal(self.user_ids[rows], ids):
             known = set(self.user_ids.tolist())
             unknown = [i for i in ids.tolist() if i not in known]
-            if what == "tick":
-                raise TickRefused(f"unknown user ids in tick: {unknown[:10]}; nobody was "
-                                  "advanced", unknown)
-            raise LocalizationError(f"unknown user ids in {what}: {unknown[:10]}")
+            raise unknown_ids_error(unknown, what)
         return rows
 
     @property

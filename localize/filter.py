@@ -92,23 +92,29 @@ def first_radio_fix(radio: RadioModel | None, steps: StepSummaries) -> RadioFix 
     return None
 
 
-def check_step_time(t_ms: float, last_t_ms: float, *, after_step: bool) -> None:
-    """A streaming step's time (ms) must be finite and after the last step's, or not before
-    the start's (``after_step`` false: no step yet); else a LocalizationError (estimates
-    would go back in time; a step sent twice would be walked twice, where :meth:`run`
-    refuses steps that are not strictly increasing)."""
+def step_time_problem(t_ms: float, last_t_ms: float, *, after_step: bool) -> str | None:
+    """Why a streaming step's time (ms) cannot be taken, or None: it must be finite and
+    after the last step's (``last_t_ms``), or not before the start's (``after_step`` false:
+    no step yet). Estimates would go back in time, and a step sent twice would be walked
+    twice, where :meth:`run` refuses steps that are not strictly increasing."""
     if not np.isfinite(t_ms):
-        raise LocalizationError(f"step at {t_ms} ms has no time")
+        return f"step at {t_ms} ms has no time"
     if after_step and t_ms == last_t_ms:
-        raise LocalizationError(f"step at {t_ms} ms has the last step's time: the same step "
-                                "sent twice? (steps must be strictly increasing in time)")
+        return (f"step at {t_ms:.0f} ms has the last step's time: the same step sent twice? "
+                "(steps must be strictly increasing in time)")
     if after_step and t_ms < last_t_ms:
-        raise LocalizationError(f"step at {t_ms} ms comes before the last one ({last_t_ms} ms)")
+        return f"step at {t_ms:.0f} ms comes before the last one ({last_t_ms:.0f} ms)"
     if t_ms < last_t_ms:  # the first step; begin(scan=...) starts at the scan's time
-        raise LocalizationError(
-            f"step at {t_ms} ms comes before the start ({last_t_ms} ms; a start from a scan "
-            "takes the scan's time): skip the steps before it, or start earlier (a start "
-            "time, start(..., t_ms=), at most the first step's)")
+        return (f"step at {t_ms:.0f} ms comes before the start ({last_t_ms:.0f} ms; a start "
+                "from a scan takes the scan's time): skip the steps before it, or start "
+                "earlier (a start time, start(..., t_ms=), at most the first step's)")
+    return None
+
+
+def check_step_time(t_ms: float, last_t_ms: float, *, after_step: bool) -> None:
+    """A LocalizationError for a step time :func:`step_time_problem` refuses."""
+    if (problem := step_time_problem(t_ms, last_t_ms, after_step=after_step)) is not None:
+        raise LocalizationError(problem)
 
 
 def check_compass(t_ms: float, compass_deg: float) -> None:

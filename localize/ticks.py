@@ -11,12 +11,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from localize.bundle import Grid
 from localize.errors import LocalizationError, TickRefused
-from localize.filter import MAX_START_OFF_MAP_M, within_reach
+from localize.filter import MAX_START_OFF_MAP_M, step_time_problem, within_reach
 from localize.stepper import StepInputs
 from localize.steps import MAX_FIX_AFTER_STEP_MS, fix_time_problem
 
 __all__ = ["check_tick_inputs", "check_user_step_times", "checked_fix_times",
-           "checked_tick_fixes", "later_than", "per_user", "start_points", "tick_ids"]
+           "checked_tick_fixes", "later_than", "per_user", "start_points", "tick_ids",
+           "unknown_ids_error"]
 
 
 def tick_ids(ids: ArrayLike, what: str = "tick") -> NDArray[np.int64]:
@@ -27,7 +28,7 @@ def tick_ids(ids: ArrayLike, what: str = "tick") -> NDArray[np.int64]:
     whole = raw.dtype.kind in "iu" or raw.dtype.kind == "f" and bool(
         np.all(np.isfinite(raw)) and np.all(raw == np.round(raw))
         and np.all(np.abs(raw) < 2.0 ** 62))
-    nobody = "nobody was advanced" if what == "tick" else "nobody was removed"
+    nobody = _nobody(what)
     if not whole:
         raise LocalizationError(f"user ids must be whole numbers (the ids add_users gave), "
                                 f"got {raw.ravel()[:5].tolist()}; {nobody}")
@@ -35,6 +36,17 @@ def tick_ids(ids: ArrayLike, what: str = "tick") -> NDArray[np.int64]:
     if len(np.unique(ids)) != len(ids):
         raise LocalizationError(f"a user id appears twice in one {what}; {nobody}")
     return ids
+
+
+def _nobody(what: str) -> str:
+    return "nobody was advanced" if what == "tick" else "nobody was removed"
+
+
+def unknown_ids_error(unknown: list[int], what: str = "tick") -> LocalizationError:
+    """The error for ids given to a tick (a :class:`TickRefused` naming them) or to another
+    call (``what``: ``"remove_users"``) that are no user of the server."""
+    message = f"unknown user ids in {what}: {unknown[:10]}; {_nobody(what)}"
+    return TickRefused(message, unknown) if what == "tick" else LocalizationError(message)
 
 
 def checked_tick_fixes(fix_xy_m: ArrayLike, fix_sigma_m: ArrayLike | None, k: int,
@@ -143,17 +155,9 @@ def later_than(t_ms: NDArray[np.float64], last_t_ms: NDArray[np.float64],
     may come at the start's time, as the single-user localizers take it): a step sent twice
     (a network retry) was walked twice by an engine that took the times and ignored them."""
     bad = ~np.isfinite(t_ms) | (t_ms < last_t_ms) | (stepped & (t_ms == last_t_ms))
-    out = []
-    for u, t, last in zip(users[bad].tolist(), t_ms[bad].tolist(), last_t_ms[bad].tolist()):
-        if not np.isfinite(t):
-            out.append((u, f"step time {t} is not finite"))
-        elif t == last:
-            out.append((u, f"step at {t:.0f} ms has the last step's time: the same step sent "
-                           "twice?"))
-        else:
-            out.append((u, f"step at {t:.0f} ms comes before the last step or start "
-                           f"({last:.0f} ms)"))
-    return out
+    return [(u, step_time_problem(t, last, after_step=after))
+            for u, t, last, after in zip(users[bad].tolist(), t_ms[bad].tolist(),
+                                         last_t_ms[bad].tolist(), stepped[bad].tolist())]
 
 
 def check_user_step_times(problems: list[tuple[int, str]]) -> None:
