@@ -228,16 +228,32 @@ def unit_checked_headings(trace_id: str, sensors: pd.DataFrame, acc_xyz: NDArray
     :func:`gyro_heading_deg`), once its sensors are known to be in the units indoormap
     reads: else a :class:`ProcessingError` naming the walk (:mod:`survey.sensor_units`:
     accelerometer ``acc_xyz`` (n, 3) not in m/s^2, magnetometer not in uT, gyroscope not in
-    rad/s by its turns against the compass). Before step detection, which finds no step in
+    rad/s by its turns against the rotation vector's). Before step detection, which finds no step in
     an accelerometer in g."""
     compass = compass_track_deg(trace_id, rot_t, rot)
     gyro = gyro_heading_deg(sensors, rot_t, rot)
     problem = (acceleration_unit_problem(acc_xyz)
                or field_unit_problem(field_strengths_ut(sensors))
-               or (gyro_turn_problem(compass, gyro) if gyro is not None else None))
+               or (gyro_turn_problem(rotation_vector_turn_deg(rot_t, rot), gyro)
+                   if gyro is not None and len(rot_t) > 1 else None))
     if problem:
         raise ProcessingError(f"{trace_id}: {problem}")
     return compass, gyro
+
+
+def rotation_vector_turn_deg(rot_t: NDArray, rot: NDArray
+                             ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """How far the rotation vector turns the phone about the vertical, as a heading track
+    (deg clockwise, unwrapped, arbitrary origin; ``(t_ms, heading_deg)``): the up component
+    of each rotation from one sample to the next, summed. It is what
+    :func:`gyro_heading_deg` integrates from the gyroscope, whatever way the phone is held:
+    the compass heading (the y axis's azimuth) of a phone swinging in the hand spins by
+    hundreds of degrees as its y axis passes the vertical, where the phone hardly turns."""
+    r = rotation_matrices(rot)
+    step = np.einsum("nij,nkj->nik", r[1:], r[:-1])  # earth-frame rotation R[k+1] R[k]^T
+    turn = np.arctan2(step[:, 1, 0] - step[:, 0, 1], step[:, 0, 0] + step[:, 1, 1])
+    return (np.asarray(rot_t, dtype=np.float64),
+            -np.degrees(np.concatenate([[0.0], np.cumsum(turn)])))
 
 
 def compass_track_deg(trace_id: str, rot_t: NDArray, rot: NDArray

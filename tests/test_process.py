@@ -338,6 +338,26 @@ def test_sensors_in_another_unit_are_named(walks, prefix, factor, message):
         step_summaries(dataclasses.replace(tr, sensors=wrong))
 
 
+def test_a_phone_swinging_in_the_hand_passes_the_gyroscope_check(tmp_path):
+    """The gyroscope's turns are compared with the rotation vector's about the vertical, not
+    with its compass heading: a phone swinging in the hand spins its y axis's azimuth by
+    hundreds of degrees as the axis passes the vertical, and a simulated swinging walk was
+    refused as "gyroscope in another unit" (seed 4's second walk: 0.098 times as far). A
+    swinging walk's gyroscope in deg/s is still refused."""
+    from survey.sim.site import SiteParams, simulate_site
+    from survey.step_summaries import step_summaries
+
+    params = SiteParams(seed=4, n_floors=1, walks_per_floor=2, walks_without_wifi=0,
+                        holding_modes=(("swinging", 1.0),))
+    simulate_site(params, tmp_path / "site")
+    for trace in map(read_trace, sorted((tmp_path / "site").rglob("*.txt.gz"))):
+        assert process_walk(trace.trace_id, trace.sensors, trace.waypoints).summary["n_steps"]
+        assert len(step_summaries(trace).t_ms)
+        wrong = _scaled(trace.sensors, "gyroscope", 180 / np.pi)
+        with pytest.raises(ProcessingError, match=r"turns 5\d\.\d times as far .*in deg/s\?"):
+            process_walk(trace.trace_id, wrong, trace.waypoints)
+
+
 def test_unit_checks_leave_what_a_phone_logs():
     """The checks judge units only: a phone's field out of range in no other unit (a
     magnet nearby) is left to the calibration, one plausible field of two is enough, and a
