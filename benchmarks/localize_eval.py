@@ -326,7 +326,7 @@ def processed_store(name: str, floor_dirs: list[Path], work: Path):
     """A survey store with the floors' traces ingested and processed (made once)."""
     from mapping.floorplan import read_floor_plan
     from survey.ingest import ingest
-    from survey.process_store import process_store
+    from survey.process_store import process_store, processed_catalog
     from survey.store import SurveyStore
 
     path = work / "stores" / f"{name}_{source_digest('survey')}"
@@ -343,6 +343,10 @@ def processed_store(name: str, floor_dirs: list[Path], work: Path):
                 reach[(site, f.name)] = plan.reachable
         process_store(store, reachable=reach)
         done.write_text(f"{time.time() - t0:.0f} s\n")
+    cat = processed_catalog(path)
+    for _, walk in cat[cat["status"] != "ok"].iterrows():  # left out of every map: say so
+        print(f"note: {walk['floor']} walk {walk['trace_id']} {walk['status']} in processing: "
+              f"{walk['reason']}", file=sys.stderr)
     return SurveyStore.open(path)
 
 
