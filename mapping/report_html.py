@@ -136,17 +136,28 @@ class FloorCanvas:
                alpha: float = 0.9, cax: Axes | None = None) -> AxesImage:
         g = grid or self.grid
         ext = (g.x0_m, g.x1_m, g.y0_m, g.y1_m)
-        im = ax.imshow(np.ma.masked_invalid(np.asarray(values, dtype=float)), origin="lower",
-                       extent=ext, cmap=cmap, vmin=None if norm else vmin,
-                       vmax=None if norm else vmax, norm=norm, interpolation="nearest",
-                       alpha=alpha, zorder=2)
+        values = np.ma.masked_invalid(np.asarray(values, dtype=float))
+        im = ax.imshow(values, origin="lower", extent=ext, cmap=cmap,
+                       vmin=None if norm else vmin, vmax=None if norm else vmax, norm=norm,
+                       interpolation="nearest", alpha=alpha, zorder=2)
         cax = cax if cax is not None else getattr(ax, "_cax", None)
-        cb = ax.figure.colorbar(im, cax=cax) if cax is not None else \
-            ax.figure.colorbar(im, ax=ax, fraction=0.035, pad=0.02)
+        extend = _clipped(values, im.norm)  # an arrow where cells lie beyond the scale
+        cb = ax.figure.colorbar(im, cax=cax, extend=extend) if cax is not None else \
+            ax.figure.colorbar(im, ax=ax, fraction=0.035, pad=0.02, extend=extend)
         cb.ax.tick_params(labelsize=7)
         if label:
             cb.set_label(label, fontsize=7)
         return im
+
+
+def _clipped(values: np.ma.MaskedArray, norm: Normalize) -> str:
+    """The colour bar's ``extend`` for values a scale clips: ``"max"`` when some lie above
+    its top, ``"min"`` below its bottom, ``"both"``, or ``"neither"``."""
+    if values.count() == 0 or norm.vmin is None or norm.vmax is None:
+        return "neither"
+    under, over = values.min() < norm.vmin, values.max() > norm.vmax
+    return {(True, True): "both", (False, True): "max", (True, False): "min"}.get(
+        (bool(under), bool(over)), "neither")
 
 
 # fixed layout (inches): matplotlib's tight/constrained layout dominates the drawing time
@@ -449,8 +460,8 @@ def fig_heldout_maps(result: ValidationResult, canvas: FloorCanvas) -> bytes | N
         canvas.base(axes[-1])
         canvas.raster(axes[-1], radio, grid=result.report_grid, cmap="YlOrRd", vmin=0,
                       vmax=10, label="median error (m)")
-        axes[-1].set_title(f"held-out radio error\n(median per {result.report_grid.cell_m:g} m "
-                           "cell)", fontsize=8.5)
+        axes[-1].set_title(f"held-out {_kind_name(result.metrics)} error\n(median per "
+                           f"{result.report_grid.cell_m:g} m cell)", fontsize=8.5)
     th = result.thresholds
     for ax, name in zip(axes, names):
         canvas.base(ax)
@@ -499,28 +510,44 @@ def fig_cdfs(result: ValidationResult) -> bytes | None:
         ax.set_xlim(0, max(tails) if tails else None)
         ax.set_ylim(0, 1)
         ax.grid(alpha=0.3)
-        ax.set_xlabel(f"|held-out error| ({unit})", fontsize=8)
+        ax.set_xlabel(f"|held-out error| ({unit}; axis to the largest 99th percentile)",
+                      fontsize=8)
         ax.set_ylabel("share of samples", fontsize=8)
         ax.set_title(f"{layer}: error CDF", fontsize=9)
         ax.legend(fontsize=6.5, loc="lower right")
         ax.tick_params(labelsize=7)
     if radio is not None:
         ax = axes[-1]
-        curves = (("scan by scan", radio, "#2c7bb6"),
-                  ("whole walk", result.arrays.get("radio_walk_errors_m"), "#d7191c"))
-        for label, errors, color in curves:
-            if errors is None or not len(errors):
-                continue
-            vs = np.sort(np.asarray(errors, dtype=float))
-            ax.plot(vs, np.arange(1, len(vs) + 1) / len(vs), color=color,
-                    label=f"{label}: median {np.median(vs):.1f} m, p80 "
-                          f"{np.percentile(vs, 80):.1f} m")
+        a = result.arrays
+        kinds = [k for k in ("wifi", "ble") if f"{k}_errors_m" in a] or [None]
+        for kind in kinds:  # every kind measured, not only the one the maps above show
+            name = "" if kind is None else f"{_KIND_NAMES[kind]} "
+            pre = "radio" if kind is None else kind
+            curves = ((f"{name}scan by scan", a.get(f"{pre}_errors_m"), "-"),
+                      (f"{name}whole walk", a.get(f"{pre}_walk_errors_m"), "--"))
+            color = "#2c7bb6" if kind != "ble" else "#1a9641"
+            for label, errors, style in curves:
+                if errors is None or not len(errors):
+                    continue
+                vs = np.sort(np.asarray(errors, dtype=float))
+                ax.plot(vs, np.arange(1, len(vs) + 1) / len(vs), color=color, ls=style,
+                        label=f"{label}: median {np.median(vs):.1f} m, p80 "
+                              f"{np.percentile(vs, 80):.1f} m")
         ax.set_xlabel("radio positioning error (m)", fontsize=8)
-        ax.set_title("Wi-Fi/BLE held-out error CDF", fontsize=9)
+        ax.set_title(" and ".join(_KIND_NAMES.get(k, "radio") for k in kinds)
+                     + " held-out error CDF", fontsize=9)
         ax.legend(fontsize=6.5, loc="lower right")
         ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
     return _png(fig)
+
+
+_KIND_NAMES = {"wifi": "Wi-Fi", "ble": "BLE"}
+
+
+def _kind_name(metrics: dict) -> str:
+    """The name of the radio kind whose errors the report's maps show (``Wi-Fi``)."""
+    return _KIND_NAMES.get((metrics.get("radio") or {}).get("primary_kind"), "radio")
 
 
 def fig_predicted(result: ValidationResult, canvas: FloorCanvas) -> bytes | None:

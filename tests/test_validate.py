@@ -621,3 +621,19 @@ def test_the_floor_folder_of_walk_line_walks_is_found(tmp_path):
         assert found == floor
     far = tmp_path / "x" / "y" / "z" / "w.csv"
     assert floor_dir_of(SimpleNamespace(catalog=pd.DataFrame({"source_path": [far]}))) is None
+
+
+def test_a_colour_scale_that_clips_cells_says_so():
+    """Colour bars whose scale clips cells (the uncertainty at its 98th percentile, radio
+    errors at 10 m) drew them as the top colour, with nothing to tell a cell at 10 m from one
+    at 40 m; the bar now ends in an arrow on the side it clips."""
+    from matplotlib.colors import Normalize
+
+    from mapping.report_html import _clipped
+
+    values = np.ma.masked_invalid(np.array([[0.5, 3.0], [np.nan, 40.0]]))
+    assert _clipped(values, Normalize(0, 10)) == "max"
+    assert _clipped(values, Normalize(1, 50)) == "min"
+    assert _clipped(values, Normalize(1, 10)) == "both"
+    assert _clipped(values, Normalize(0, 40)) == "neither"
+    assert _clipped(np.ma.masked_invalid(np.full((2, 2), np.nan)), Normalize(0, 1)) == "neither"
