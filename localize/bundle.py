@@ -272,6 +272,20 @@ class MapBundle:
         self.tables = tables if tables is not None else {}
         self._source_walk_ids: frozenset[str] | None = None
 
+    def __repr__(self) -> str:  # what the bundle is, not its arrays
+        if self.grid is None:
+            what = f"site bundle of {self.site_id!r}"
+        else:
+            g = self.grid
+            layers = ", ".join(f"{name} ({meta.get('unit', '?')})"
+                               for name, meta in self.manifest.get("layers", {}).items())
+            what = (f"floor {self.manifest.get('floor_name') or self.floor_id!r} of site "
+                    f"{self.site_id!r}, {g.width} x {g.height} cells of {g.cell_m:g} m, "
+                    f"layers {layers or 'none'}")
+        tables = ", ".join(self.manifest.get("tables", {})) or "none"
+        return (f"MapBundle({str(self.path)!r}, {what}, tables {tables}, id "
+                f"{self.bundle_id[:16]})")
+
     @property
     def bundle_id(self) -> str:
         return self.manifest["bundle_id"]

@@ -100,6 +100,13 @@ class SiteMaps:
         self.devices = dict(devices or {})
         self._by_name = {b.manifest.get("floor_name", ""): b for b in self.bundles.values()}
 
+    def __repr__(self) -> str:
+        floors = ", ".join(b.manifest.get("floor_name") or f for f, b in self.bundles.items())
+        models = ", ".join(name for name, m in (("Wi-Fi", self.floor_model),
+                                                ("BLE", self.ble_floor_model)) if m is not None)
+        return (f"SiteMaps(site {self.site_id!r}, floors {floors}, floor models "
+                f"{models or 'none'}{f' from {self.site_bundle}' if self.site_bundle else ''})")
+
     def floor_bundle(self, floor: str) -> MapBundle | None:
         """The bundle of a floor named as the floor models name them (the floor name the
         survey recorded, else the floor id); None when there is none."""

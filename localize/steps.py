@@ -98,6 +98,10 @@ class RadioScan:
     rssi_dbm: NDArray[np.float64]
     age_ms: NDArray[np.float64] | None = None
 
+    def __repr__(self) -> str:  # what the scan is, not its arrays
+        strongest = f", strongest {np.max(self.rssi_dbm):.0f} dBm" if len(self.keys) else ""
+        return f"RadioScan(t_ms={self.t_ms}, {len(self.keys)} transmitters{strongest})"
+
     def __post_init__(self) -> None:
         keys = np.asarray(self.keys)
         if keys.ndim != 1:  # a key given alone ("ab") is no list of keys
@@ -204,7 +208,7 @@ class StepSummary:
     polar_deg: float
     attitude: int = int(AttitudeCode.UNKNOWN)
     relative_heading_deg: float = float("nan")
-    mag_strength_ut: NDArray[np.float64] | None = None
+    mag_strength_ut: NDArray[np.float64] | None = field(default=None, repr=False)
     scan: RadioScan | None = None
 
 

@@ -85,6 +85,13 @@ class Track:
     def __len__(self) -> int:
         return len(self.t_ms)
 
+    def __repr__(self) -> str:  # what the track is, not its arrays
+        span = f", {(self.t_ms[-1] - self.t_ms[0]) / 1000:.0f} s" if len(self) else ""
+        smoothed = ", smoothed" if self.info.get("smoothed") else ""
+        return (f"Track(method={self.method!r}, trace_id={self.trace_id!r}, "
+                f"floor_id={self.floor_id!r}, {len(self)} steps{span}{smoothed}, "
+                f"{self.n_recoveries} recoveries)")
+
     @property
     def n_recoveries(self) -> int:
         """How many steps re-drew the particles after all had died."""

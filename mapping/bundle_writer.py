@@ -62,6 +62,12 @@ class BundleContent:
     build: dict = field(default_factory=dict)  # params, seed, source walks, build_time, ...
     metrics: dict = field(default_factory=dict)
 
+    def __repr__(self) -> str:  # what it holds, not its arrays
+        grid = f", {self.grid}" if self.grid is not None else ""
+        return (f"BundleContent({self.kind} {self.site_id!r}/{self.floor_name or self.floor_id!r}"
+                f"{grid}, layers {', '.join(self.layers) or 'none'}, tables "
+                f"{', '.join(self.tables) or 'none'})")
+
 
 def _npy_bytes(array: np.ndarray) -> bytes:
     buf = io.BytesIO()

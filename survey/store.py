@@ -256,6 +256,14 @@ class SurveyStore:
     def __init__(self, root: str | os.PathLike) -> None:
         self.root = Path(root)
 
+    def __repr__(self) -> str:  # where, and what it holds by site and floor
+        try:
+            counts = self.catalog().groupby(["site", "floor"], observed=True).size()
+            held = ", ".join(f"{s}/{f} {n}" for (s, f), n in counts.items()) or "none"
+        except (OSError, StoreError) as err:  # a repr does not raise: it says why
+            held = f"unreadable: {err}"
+        return f"SurveyStore({str(self.root)!r}, walks: {held})"
+
     # ---- opening ----------------------------------------------------------------------------
 
     @classmethod
@@ -363,9 +371,15 @@ class SurveyStore:
               trace_ids: str | list[str] | None = None) -> pd.DataFrame:
         """Rows of one table (``sensors``, ``wifi``, ``ble``, ``waypoints``) for the selected
         traces (``trace_ids``: one id or a list), with a ``trace_id`` column, in catalog
-        order then time order."""
+        order then time order. The processed tables (positions and calibrated field of every
+        sample, steps, legs, positioned scans) are read by
+        :func:`survey.process_store.processed_table`."""
         if name not in TABLES:
-            raise StoreError(f"unknown table {name!r}; expected one of {TABLES}")
+            from .process_store import PROCESSED_TABLES
+
+            hint = (f"; the processed {name!r} is read by survey.process_store."
+                    f"processed_table(store, {name!r})" if name in PROCESSED_TABLES else "")
+            raise StoreError(f"unknown table {name!r}; expected one of {TABLES}{hint}")
         cat = self.traces(site, floor)
         if trace_ids is not None:
             if isinstance(trace_ids, str):  # one id, not its characters

@@ -688,3 +688,47 @@ def test_evaluate_warns_about_waypoints_where_the_map_has_no_data(built, tmp_pat
         "data (no survey sample within 3 m)" in res.stderr  # the build's raster reach
     plain = runner.invoke(main, ["evaluate", str(built), str(walk), "--method", "pdr"])
     assert plain.exit_code == 0 and "has no map data" not in plain.stderr
+
+
+def test_a_notebook_shows_what_each_object_is_not_its_arrays(built, sample_store):
+    """Printed in a notebook, a bundle, the site's maps and a store showed only ``<...
+    object at 0x...>``, and a track, a step and a bundle's content printed thousands of
+    characters of arrays. Each is now one line saying what it is."""
+    from localize.filter import Localizer
+    from localize.walk_radio import walk_radio
+    from mapping.build import BuildParams, build_floor
+    from mapping.floorplan import read_floor_plan
+    from survey.step_summaries import step_summaries
+    from survey.store import SurveyStore
+    from survey.trace_reader import read_trace
+
+    bundle = load_bundle(built / "F1")
+    text = repr(bundle)
+    assert text.startswith(f"MapBundle('{built / 'F1'}', floor 'F1' of site ")
+    assert "160 x 100 cells of 0.25 m, layers azimuth (deg), heading_offset (deg), " in text
+    assert "strength (uT)" in text and ", wifi_fp, " in text
+    assert text.endswith(f"id {bundle.bundle_id[:16]})") and len(text) < 500
+    assert "site bundle of" in repr(load_bundle(built / "_site"))
+    maps = SiteMaps.open(built)
+    assert repr(maps) == (f"SiteMaps(site {bundle.site_id!r}, floors F1, F2, floor models "
+                          f"Wi-Fi, BLE from {built / '_site'})")
+    store = SurveyStore.open(sample_store)
+    assert repr(store) == f"SurveyStore('{sample_store}', walks: {bundle.site_id}/F1 6, " \
+                          f"{bundle.site_id}/F2 6)"
+    with pytest.raises(Exception, match=r"processed 'samples' is read by survey\.process_store"
+                                        r"\.processed_table\(store, 'samples'\)"):
+        store.table("samples")
+    trace = read_trace(sorted((SITE / "F1" / "path_data_files").glob("*.txt.gz"))[0])
+    steps = step_summaries(trace)
+    wr = walk_radio(bundle, trace.header.model, steps)
+    track = Localizer(bundle, radio=wr.radio, rng=1).run(wr.steps)
+    assert repr(track) == (f"Track(method='indoormap', trace_id={trace.trace_id!r}, floor_id="
+                           f"{bundle.floor_id!r}, {len(track)} steps, "
+                           f"{(track.t_ms[-1] - track.t_ms[0]) / 1000:.0f} s, "
+                           f"{track.n_recoveries} recoveries)")
+    step = steps[next(i for i, s in enumerate(steps.scans) if s is not None)]
+    assert len(repr(step)) < 600 and "transmitters, strongest -" in repr(step)
+    content = build_floor(store, read_floor_plan(SITE / "F1"), floor="F1",
+                          params=BuildParams(radio=None))
+    assert repr(content).startswith(f"BundleContent(floor {bundle.site_id!r}/'F1', Grid(")
+    assert len(repr(content)) < 400
