@@ -1,15 +1,21 @@
-"""Plots of localization results (PNG, matplotlib's object API: no pyplot state, so a
-notebook's backend is left alone; every function returns False when matplotlib is missing).
+"""Plots of localization results (matplotlib's object API: no pyplot state, so a notebook's
+backend is left alone).
 
-- :func:`plot_track`: trajectories over a bundle's reachable mask, with waypoints;
-- :func:`plot_cdfs`: error CDFs per method.
+- :func:`track_figure`: trajectories over a bundle's reachable mask, with waypoints;
+- :func:`cdf_figure`: error CDFs per method;
+- :func:`draw_floor`: a bundle's floor under a caller's own drawing.
+
+Each figure is a matplotlib ``Figure`` (a notebook shows it); :func:`plot_track` and
+:func:`plot_cdfs` write them as PNG files, and return False when matplotlib is missing.
 """
 
 from __future__ import annotations
 
 import io
+import textwrap
 from collections.abc import Mapping
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -19,7 +25,11 @@ from localize.evaluate import xy_rows
 from localize.track import Track
 from survey.publish import atomic_write_bytes
 
-__all__ = ["plot_cdfs", "plot_track"]
+if TYPE_CHECKING:  # annotations only: matplotlib is optional
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
+
+__all__ = ["cdf_figure", "draw_floor", "plot_cdfs", "plot_track", "track_figure"]
 
 
 #: Colour of the cells off a bundle's reachable area, in every figure over a floor.
@@ -37,19 +47,28 @@ def _save_png(fig, path: str | Path) -> None:
 def plot_track(path: str | Path, bundle: MapBundle, tracks: Mapping[str, Track],
                waypoints_xy: ArrayLike | None = None, title: str = "", *,
                margin_m: float = 8.0) -> bool:
-    """Trajectories over the bundle's reachable mask (cells off it grey) as a PNG, zoomed to
-    the tracks and waypoints (``margin_m`` around them, within the floor): start (circle) and
-    end (square) of each track, recoveries (x), waypoints with their order; False without
-    matplotlib.
-
-    ``tracks``: label -> track; ``waypoints_xy``: shape (k, 2), m, in time order."""
-    try:  # the object API: no pyplot state, the caller's backend (a notebook's) untouched
-        from matplotlib.colors import ListedColormap
-        from matplotlib.figure import Figure
+    """:func:`track_figure` as a PNG at ``path``; False without matplotlib."""
+    try:
+        fig = track_figure(bundle, tracks, waypoints_xy, title, margin_m=margin_m)
     except ImportError:
         return False
+    _save_png(fig, path)
+    return True
+
+
+def track_figure(bundle: MapBundle, tracks: Mapping[str, Track],
+                 waypoints_xy: ArrayLike | None = None, title: str = "", *,
+                 margin_m: float = 8.0) -> Figure:
+    """Trajectories over the bundle's reachable mask (cells off it grey), zoomed to the
+    tracks and waypoints (``margin_m`` around them, within the floor): start (circle) and end
+    (square) of each track, recoveries (x), waypoints with their order. A matplotlib
+    ``Figure`` (its object API: a notebook shows it, ``fig.axes[0]`` takes more drawing);
+    ImportError without matplotlib.
+
+    ``tracks``: label -> track; ``waypoints_xy``: shape (k, 2), m, in time order."""
+    from matplotlib.figure import Figure
+
     g = bundle.grid
-    x1, y1 = g.x1_m, g.y1_m
     lines = {name: (np.r_[tr.start.x_m, tr.x_m], np.r_[tr.start.y_m, tr.y_m])
              for name, tr in tracks.items()}  # each track from its start
     pts = [np.column_stack(xy) for xy in lines.values()]
@@ -58,18 +77,15 @@ def plot_track(path: str | Path, bundle: MapBundle, tracks: Mapping[str, Track],
         pts.append(waypoints_xy)
     pts = np.concatenate(pts) if pts else np.empty((0, 2))
     pts = pts[np.isfinite(pts).all(axis=1)]
-    lo, hi = np.array([g.x0_m, g.y0_m]), np.array([x1, y1])
+    lo, hi = np.array([g.x0_m, g.y0_m]), np.array([g.x1_m, g.y1_m])
     if len(pts):  # every point in view; the margin around them stops at the floor's edge
         p_lo, p_hi = pts.min(axis=0), pts.max(axis=0)
         lo = np.maximum(p_lo - margin_m, np.minimum(lo, p_lo))
         hi = np.minimum(p_hi + margin_m, np.maximum(hi, p_hi))
     span = np.maximum(hi - lo, 1.0)
-    fig = Figure(figsize=(8, min(8 * span[1] / span[0], 14) + 0.8))
+    fig = Figure(figsize=(8, min(8 * span[1] / span[0], 14) + 1.6))
     ax = fig.subplots()
-    # cells off the reachable area shaded grey, as in the validation report's figures
-    ax.imshow(np.where(np.asarray(bundle.mask, dtype=bool), np.nan, 1.0), origin="lower",
-              cmap=ListedColormap([OFF_MASK_GREY]), alpha=0.8, interpolation="nearest",
-              extent=(g.x0_m, x1, g.y0_m, y1))
+    draw_floor(ax, bundle)
     for name, tr in tracks.items():
         xs, ys = lines[name]
         (line,) = ax.plot(xs, ys, lw=1.2, label=name)
@@ -88,14 +104,25 @@ def plot_track(path: str | Path, bundle: MapBundle, tracks: Mapping[str, Track],
     ax.plot([], [], "s", color=OFF_MASK_GREY, alpha=0.8, ms=8, label="off the reachable area")
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
+    ax.set_title("\n".join(textwrap.wrap(title, 95)), fontsize=9)
+    # below the map, not over it (loc="best" covered a corridor of the track)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=3)
+    fig.tight_layout()
+    return fig
+
+
+def draw_floor(ax: Axes, bundle: MapBundle) -> None:
+    """The bundle's floor on ``ax``: cells off its reachable area grey (as in the validation
+    report's figures), axes in metres (x east, y north), equal aspect."""
+    from matplotlib.colors import ListedColormap
+
+    g = bundle.grid
+    ax.imshow(np.where(np.asarray(bundle.mask, dtype=bool), np.nan, 1.0), origin="lower",
+              cmap=ListedColormap([OFF_MASK_GREY]), alpha=0.8, interpolation="nearest",
+              extent=(g.x0_m, g.x1_m, g.y0_m, g.y1_m))
     ax.set_xlabel("x east (m)")
     ax.set_ylabel("y north (m)")
     ax.set_aspect("equal")
-    ax.set_title(title, fontsize=9)
-    ax.legend(fontsize=7, loc="best")
-    fig.tight_layout()
-    _save_png(fig, path)
-    return True
 
 
 def _waypoint_labels(waypoints_xy: NDArray[np.float64], within_m: float = 0.5
@@ -116,12 +143,20 @@ def _waypoint_labels(waypoints_xy: NDArray[np.float64], within_m: float = 0.5
 
 def plot_cdfs(path: str | Path, errors: Mapping[str, NDArray[np.float64]], title: str = ""
               ) -> bool:
-    """Error CDFs per method as a PNG (``errors``: label -> errors in m, NaN ignored); False
-    without matplotlib."""
-    try:  # the object API: no pyplot state, the caller's backend (a notebook's) untouched
-        from matplotlib.figure import Figure
+    """:func:`cdf_figure` as a PNG at ``path``; False without matplotlib."""
+    try:
+        fig = cdf_figure(errors, title)
     except ImportError:
         return False
+    _save_png(fig, path)
+    return True
+
+
+def cdf_figure(errors: Mapping[str, NDArray[np.float64]], title: str = "") -> Figure:
+    """Error CDFs per method (``errors``: label -> errors in m, NaN ignored), a matplotlib
+    ``Figure``; ImportError without matplotlib."""
+    from matplotlib.figure import Figure
+
     fig = Figure(figsize=(6, 4))
     ax = fig.subplots()
     # distinct line styles: a curve equal to another (auto and what it ran) shows through it
@@ -135,7 +170,6 @@ def plot_cdfs(path: str | Path, errors: Mapping[str, NDArray[np.float64]], title
     ax.set_ylabel("share of waypoints")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    ax.set_title(title, fontsize=9)
+    ax.set_title("\n".join(textwrap.wrap(title, 70)), fontsize=9)
     fig.tight_layout()
-    _save_png(fig, path)
-    return True
+    return fig

@@ -240,6 +240,19 @@ def test_plot_track_refuses_transposed_waypoints(f1_bundle, sim_walks, tmp_path)
     assert plot_track(tmp_path / "t.png", f1_bundle, {"pdr": track}, xy)
     assert (tmp_path / "t.png").stat().st_size > 1000
     assert plot_track(tmp_path / "none.png", f1_bundle, {"pdr": track}, [])  # no waypoints
+    # a notebook takes the figure itself, and draws on it (it only got a file)
+    from localize.plots import draw_floor, track_figure
+
+    fig = track_figure(f1_bundle, {"pdr": track}, xy, "a title " * 30)
+    ax = fig.axes[0]
+    assert [line.get_label() for line in ax.get_lines()][0] == "pdr"
+    assert ax.get_title().count("\n") >= 2  # a long title wrapped, not cut at the edge
+    assert ax.get_legend().get_bbox_to_anchor().y0 < ax.bbox.y0  # below the map, not on it
+    from matplotlib.figure import Figure
+
+    own = Figure().subplots()
+    draw_floor(own, f1_bundle)
+    assert own.get_aspect() == 1 and len(own.get_images()) == 1
 
 
 def test_bundle_of_another_floor_or_site(truth_bundles, sim_walks):  # noqa: F811
