@@ -42,6 +42,9 @@ from .steps import detect_steps, fit_weinberg, segment_ids, weinberg_length
 if TYPE_CHECKING:  # an annotation only
     import shapely
 
+#: A gap (s) in the gyroscope's stream over which its rate is not integrated (ILC site1's
+#: longest is 0.104 s; a phone's gyroscope samples at 50-500 Hz).
+GYRO_GAP_S = 0.25
 #: Weinberg constant used when a walk has too few legs to fit its own.
 DEFAULT_WEINBERG_K = 0.4
 #: A waypoint more than this (s) before a walk's first accelerometer row or after its last is
@@ -277,7 +280,12 @@ def compass_track_deg(trace_id: str, rot_t: NDArray, rot: NDArray
 def gyro_heading_deg(sensors: pd.DataFrame, rot_t: NDArray, rot: NDArray
                      ) -> tuple[NDArray, NDArray] | None:
     """Heading (deg clockwise from north, unwrapped, arbitrary origin) integrated from the
-    gyroscope's rate about the vertical axis; None without a gyroscope stream."""
+    gyroscope's rate about the vertical axis; None without a gyroscope stream.
+
+    Nothing is integrated over a gap in the stream longer than :data:`GYRO_GAP_S` (or five
+    times its usual interval): a logging pause or a clock step of 30 s, integrated as one
+    trapezoid, turned the heading by up to 1,270 deg; the turn in such a gap is unknown, and
+    the compass anchors the heading again after it."""
     gyro = _stream(sensors, "gyroscope")
     if len(gyro) < 2:
         return None
@@ -287,6 +295,7 @@ def gyro_heading_deg(sensors: pd.DataFrame, rot_t: NDArray, rot: NDArray
     omega_up = np.einsum("nij,nj->ni", r, gyro[["x", "y", "z"]].to_numpy(np.float64))[:, 2]
     rate = -np.degrees(omega_up)  # counter-clockwise about up is a decreasing heading
     dt = np.diff(t) / 1000.0
+    dt[dt > max(GYRO_GAP_S, 5 * float(np.median(dt)))] = 0.0
     return t, np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * dt)])
 
 

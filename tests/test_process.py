@@ -358,6 +358,34 @@ def test_a_phone_swinging_in_the_hand_passes_the_gyroscope_check(tmp_path):
             process_walk(trace.trace_id, wrong, trace.waypoints)
 
 
+def test_a_clock_step_in_the_log_adds_no_gyroscope_turn(walks):
+    """Every record from mid-walk on stamped 30 s later (an NTP step, a logging pause): the
+    gyroscope's rate was integrated over the 30 s as one trapezoid, turning the heading by
+    tens to hundreds of degrees, every later leg off its waypoints (blamed on the clicks)."""
+    from survey.process import _stream, gyro_heading_deg
+
+    tr = _walk(walks)
+    mid = float(tr.sensors["t_ms"].median())
+    stepped = tr.sensors.copy()
+    stepped.loc[stepped["t_ms"] > mid, "t_ms"] += 30_000
+    waypoints = tr.waypoints.copy()
+    waypoints.loc[waypoints["t_ms"] > mid, "t_ms"] += 30_000
+
+    def heading(sensors):
+        rv = _stream(sensors, "rotation_vector")
+        return gyro_heading_deg(sensors, rv["t_ms"].to_numpy(float),
+                                rv[["x", "y", "z"]].to_numpy(float))
+
+    (t0, h0), (t1, h1) = heading(tr.sensors), heading(stepped)
+    assert np.allclose(h1[t1 <= mid], h0[t0 <= mid])
+    # after the step the heading goes on as it would have, less the one usual interval lost
+    assert np.abs((h1 - h0)[t1 > mid]).max() < 3.0
+    plain = process_walk("w", tr.sensors, tr.waypoints).legs
+    jumped = process_walk("w", stepped, waypoints).legs
+    assert (jumped["flags"].str.contains("heading|waypoint")).sum() <= \
+        (plain["flags"].str.contains("heading|waypoint")).sum()
+
+
 def test_unit_checks_leave_what_a_phone_logs():
     """The checks judge units only: a phone's field out of range in no other unit (a
     magnet nearby) is left to the calibration, one plausible field of two is enough, and a
