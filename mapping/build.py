@@ -206,14 +206,23 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
     if not mask.any():
         raise BuildError(f"floor {floor}: the reachable area is empty at {params.cell_m} m cells")
     say(f"{floor}: {len(pcat)} walks")
+    calibration = np.array([json.loads(sj).get("calibration", "") for sj in pcat["summary_json"]])
+    raw = calibration == "not-calibrated"
+    # a raw magnetometer reads the phone's hard iron (tens of uT, turning with the phone) as
+    # field: such walks stay out of the magnetic layers while calibrated walks make them
+    field_walks = pcat[~raw] if (~raw).any() else pcat
+    if raw.any():
+        say(f"{floor}: {int(raw.sum())} walk(s) not calibrated "
+            + ("left out of the magnetic layers" if (~raw).any() else
+               "make the magnetic layers: no walk of the floor is calibrated"))
     residuals = None
     if params.level:
         residuals = fit_session_residuals(
-            levelling_samples(store, pcat, params.levelling.subsample),
+            levelling_samples(store, field_walks, params.levelling.subsample),
             replace(params.levelling, subsample=1))
         say(f"{floor}: levelled {int((residuals['n_pairs'] > 0).sum())} of "
             f"{len(residuals)} sessions")
-    reduction = reduce_field(store, pcat, grid, residuals,
+    reduction = reduce_field(store, field_walks, grid, residuals,
                          progress=lambda i, n: say(f"{floor}: read walk {i}/{n}")
                          if i == n or i % 100 == 0 else None)
     release_free_memory()  # the walks' freed buffers
@@ -223,7 +232,7 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
     if not (reduction.support & mask).any() or on_plan < MIN_SAMPLES_ON_PLAN:
         raise BuildError(
             f"floor {floor}: {'none' if on_plan == 0 else f'only {100 * on_plan:.0f} %'} of "
-            f"the {reduction.n_samples} samples of its {len(pcat)} walks lie within "
+            f"the {reduction.n_samples} samples of its {len(field_walks)} walks lie within "
             f"{ON_PLAN_M:g} m of the plan's reachable area (is the plan this floor's, whole, "
             "and in the walks' frame, in metres?)")
     raster_params, heading_params, smoothing_scores = params.raster, params.heading_raster, {}
@@ -250,7 +259,7 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
             grid = fine
             mask = reachable_mask(grid, plan.reachable)
             near_plan = None
-            reduction = reduce_field(store, pcat, grid, residuals)
+            reduction = reduce_field(store, field_walks, grid, residuals)
             release_free_memory()
             raster_params, smoothing_scores = choose_smoothing(
                 grid, mask, reduction.cv_x_m, reduction.cv_y_m, reduction.cv_strength_ut,
@@ -279,7 +288,7 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
     say(f"{floor}: layers {', '.join(layers)}")
     walks = pcat[["trace_id", "session"]].copy()
     walks["sha256"] = walks["trace_id"].map(cat["sha256"])
-    walks["calibration"] = [json.loads(sj).get("calibration", "") for sj in pcat["summary_json"]]
+    walks["calibration"] = calibration
     walks["heading_offset_median_deg"] = walks["trace_id"].map(walk_median).astype(float)
     walks = walks.sort_values("trace_id").reset_index(drop=True)
     lev = residuals.reset_index().rename(columns={"index": "session"})
@@ -296,6 +305,10 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
                "smoothing_cv_shape_rmse_ut": {  # inf: a candidate that predicted nothing
                    k: v if np.isfinite(v) else None for k, v in smoothing_scores.items()},
                "n_samples": reduction.n_samples, "heading_offset_floor_median_deg": global_offset}
+    if raw.any():  # (only then: the bundles of calibrated surveys keep their bytes)
+        metrics["not_calibrated_walks"] = {
+            "trace_ids": sorted(pcat.loc[raw, "trace_id"].astype(str)),
+            "in_magnetic_layers": not (~raw).any()}
     quality = heldout_quality(grid, mask, reduction.cv_x_m, reduction.cv_y_m,
                               reduction.cv_strength_ut, reduction.cv_walk, raster_params)
     if quality:  # how well the strength layer predicts walks it did not see

@@ -562,6 +562,19 @@ def build_command(source: Path, out: Path, store_dir: Path | None, registry_dir:
                             f"samples lie more than {ON_PLAN_M:g} m outside the plan's "
                             "reachable area; is the plan the whole floor, in the walks' "
                             "frame?")
+            raw = content.metrics.get("not_calibrated_walks")
+            if raw:
+                ids = raw["trace_ids"]
+                shown = ", ".join(ids[:3]) + (", ..." if len(ids) > 3 else "")
+                thin.append(
+                    f"warning: {name}: the magnetic layers are made of {len(ids)} walk(s) whose "
+                    f"magnetometer is not calibrated ({shown}), no walk of the floor being "
+                    "calibrated: they are off by the phones' hard iron; see `indoormap "
+                    "survey-report --store STORE` (calibration, session)"
+                    if raw["in_magnetic_layers"] else
+                    f"warning: {name}: {len(ids)} walk(s) left out of the magnetic layers, "
+                    f"their magnetometer not calibrated ({shown}; `indoormap survey-report "
+                    "--store STORE` says why); their radio rows are used")
             if cov["within_2m"] < THIN_COVERAGE:
                 thin.append(f"warning: {name}: only {100 * cov['within_2m']:.0f} % of the "
                             "reachable area lies within 2 m of a surveyed sample, so the "

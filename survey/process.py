@@ -106,14 +106,20 @@ def accelerometer_stream(sensors: pd.DataFrame, min_rows: int = 1) -> pd.DataFra
 
 def reported_bias(sensors: pd.DataFrame) -> NDArray[np.float64] | None:
     """The phone's own hard-iron estimate (uT): the median bias of the uncalibrated
-    magnetometer stream, or None when the stream or its bias is missing."""
+    magnetometer stream, or None when the stream or its bias is missing (:func:`_has_bias`)."""
     unc = _stream(sensors, "magnetic_field_uncalibrated")
     if not len(unc):
         return None
     bias = unc[["bx", "by", "bz"]].to_numpy(np.float64)
-    if not np.isfinite(bias).all():
-        return None
-    return np.median(bias, axis=0)
+    return np.median(bias, axis=0) if _has_bias(bias) else None
+
+
+def _has_bias(bias: NDArray[np.float64]) -> bool:
+    """Whether an uncalibrated stream's bias columns (n, 3) (uT) are an estimate: finite,
+    and not 0 on every axis of every row, which a phone that estimates no hard iron (or a
+    log converted from raw values) reports. Taken for the estimate, such a walk's raw field
+    was "calibrated" and its sessions merged into one, leaving the map 20-45 uT off."""
+    return bool(np.isfinite(bias).all() and np.any(bias != 0))
 
 
 def calibration_sessions(models: list[str], biases: list[NDArray[np.float64] | None],
@@ -187,7 +193,7 @@ def calibrated_field(sensors: pd.DataFrame, session_fit: MagCalResult | None = N
     if len(unc):
         raw = unc[["x", "y", "z"]].to_numpy(np.float64)
         bias = unc[["bx", "by", "bz"]].to_numpy(np.float64)
-        if np.isfinite(bias).all():
+        if _has_bias(bias):
             m = raw - bias
             ok, s = plausible(m)
             if ok:

@@ -160,6 +160,46 @@ def test_excluded_walks_stay_out_of_the_map(store):
         build_floor(store, plan, floor="F1", exclude_walks=[walks[1], f"{walks[0]}.txt.gz"])
 
 
+def test_walks_without_a_calibrated_magnetometer_stay_out_of_the_magnetic_layers(tmp_path):
+    """Two F1 walks logging only an uncalibrated magnetometer whose bias is 0, 0, 0 (a phone
+    that estimates no hard iron, a log converted from raw values): the zero bias was taken
+    for the phone's estimate, the walks for calibrated, and the map was 45 uT off. They are
+    now not calibrated (a flat phone's own fit is ill-conditioned), and the magnetic layers
+    are those of the other walks, as if the two were excluded; their radio rows are used."""
+    from survey.process_store import processed_catalog
+    from survey.trace_reader import read_trace
+    from survey.trace_writer import write_trace
+
+    traces = sorted((SITE / "F1" / "path_data_files").glob("*.txt.gz"))
+    for i, path in enumerate(traces):
+        trace = read_trace(path)
+        if i < 2:
+            sensors = trace.sensors[trace.sensors["stream"] != "magnetic_field"].copy()
+            sensors.loc[sensors["stream"] == "magnetic_field_uncalibrated",
+                        ["bx", "by", "bz"]] = 0.0
+            trace = dataclasses.replace(trace, sensors=sensors.reset_index(drop=True))
+        write_trace(tmp_path / "in" / path.name, trace)
+    ingest([tmp_path / "in"], tmp_path / "store")
+    process_store(tmp_path / "store")
+    cat = processed_catalog(tmp_path / "store").sort_values("trace_id")
+    raw = [t for t, d in zip(cat["trace_id"], cat["summary"]) if d["calibration"] ==
+           "not-calibrated"]
+    assert len(raw) == 2 and all(s.endswith("|no-bias") for s in
+                                 cat.loc[cat["trace_id"].isin(raw), "session"])
+    plan = read_floor_plan(SITE / "F1")
+    params = BuildParams(radio=None)
+    built = build_floor(tmp_path / "store", plan, floor="F1", params=params)
+    without = build_floor(tmp_path / "store", plan, floor="F1", params=params,
+                          exclude_walks=raw)
+    assert built.metrics["not_calibrated_walks"] == {"trace_ids": sorted(raw),
+                                                     "in_magnetic_layers": False}
+    for name in ("strength", "vertical", "azimuth"):
+        assert np.array_equal(built.layers[name].values, without.layers[name].values,
+                              equal_nan=True)
+    assert built.metrics["n_walks"] == 6  # every walk is a source (its steps, its radio)
+    assert "not_calibrated_walks" not in without.metrics  # calibrated surveys: as before
+
+
 def test_release_free_memory_runs_twice():
     from survey.memory import release_free_memory
 
