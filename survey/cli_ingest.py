@@ -40,7 +40,7 @@ def format_summary(s: IngestSummary) -> str:
                  f"beacon rows, {r['waypoints']} waypoints")
     for title, counts in (("skipped (undocumented types)", s.skipped),
                           ("bad lines (by reason)", s.bad),
-                          ("dropped rows (by rule)", s.dropped)):
+                          ("rows dropped or mended (by rule)", s.dropped)):
         total = sum(counts.values())
         lines.append(f"{title}: {total}")
         lines.extend(f"  {k:<44} {v:>10}" for k, v in sorted(counts.items()))

@@ -48,6 +48,12 @@ SENSOR_LIMIT_OF_STREAM: dict[str, tuple[float, str]] = {
 #: times hours after their scan; such a row is an ``out_of_range`` bad line (its age would
 #: be negative, and the radio maps weigh rows by age).
 MAX_WIFI_SEEN_AFTER_SCAN_MS = 1000
+#: A Wi-Fi row last seen longer than this (ms) before its scan has its last-seen time on
+#: another clock (0, or Android's ``ScanResult.timestamp``, microseconds since boot): its age
+#: is unknown and taken as 0, as for a log without last-seen times, and counted under the
+#: rule ``wifi_last_seen_other_clock``. Taken as decades old, every such row was dropped by
+#: the maps and the localizer, silently. The ILC rows are at most 32 s old.
+MAX_WIFI_AGE_MS = 3_600_000
 
 #: How far (ms) outside the sensor samples' time span a walk's scans, beacon rows or
 #: waypoints may all lie before :meth:`Trace.clock_mismatch` calls the clocks different.

@@ -23,6 +23,10 @@ Rules applied after parsing (counted in ``report.dropped``):
   (latest last-seen time), then the strongest RSSI, then the first in file order.
 - ``duplicate_beacon``, ``duplicate_waypoint``: a beacon or waypoint row that repeats an earlier
   row of the same trace in every value (a file joined to a copy of itself) is dropped.
+
+And one that keeps its rows (counted there too): ``wifi_last_seen_other_clock``, a Wi-Fi row
+last seen more than :data:`~survey.trace_format.MAX_WIFI_AGE_MS` before its scan has its age
+taken as 0 (unknown).
 """
 
 from __future__ import annotations
@@ -52,6 +56,7 @@ from .trace_format import (
     BLE_DTYPES,
     CALIBRATED_STREAMS,
     MAX_FROM_MEDIAN_TIME_MS,
+    MAX_WIFI_AGE_MS,
     MAX_WIFI_SEEN_AFTER_SCAN_MS,
     SENSOR_COLUMNS,
     SENSOR_DTYPES,
@@ -587,7 +592,8 @@ def beacon_row_checks(cols: dict) -> list[tuple[str, str, np.ndarray]]:
             ("out_of_range", "major/minor outside [0, 65535] or absurd tx power", ok & ~ok_id)]
 
 
-def wifi_table(files: np.ndarray, cols: dict) -> tuple[pd.DataFrame, np.ndarray, np.ndarray]:
+def wifi_table(files: np.ndarray, cols: dict
+               ) -> tuple[pd.DataFrame, np.ndarray, np.ndarray, np.ndarray]:
     """Checked Wi-Fi rows as the store's table (:data:`WIFI_COLUMNS`), sorted by file, scan
     time and BSSID; a scan that lists a BSSID more than once keeps the freshest row (latest
     last-seen time), then the strongest RSSI, then the first in file order.
@@ -595,7 +601,9 @@ def wifi_table(files: np.ndarray, cols: dict) -> tuple[pd.DataFrame, np.ndarray,
     ``files`` (n,): each row's file; ``cols``: ``t_ms`` (scan time), ``last_seen_ms``,
     ``rssi_dbm``, ``freq_mhz`` (integer arrays, n,), ``ssid`` and ``bssid`` (pyarrow string
     arrays, BSSIDs normalized by :func:`normalize_bssids`), rows in file order. Returns the
-    table, each of its rows' file and the files of the rows dropped as repeated."""
+    table, each of its rows' file, the files of the rows dropped as repeated and those of the
+    rows whose age was taken as 0, their last-seen times on another clock
+    (:data:`MAX_WIFI_AGE_MS`)."""
     enc = pc.dictionary_encode(cols["bssid"])
     dictionary = enc.dictionary.to_numpy(zero_copy_only=False)
     rank = np.argsort(np.argsort(dictionary, kind="stable"))
@@ -610,13 +618,16 @@ def wifi_table(files: np.ndarray, cols: dict) -> tuple[pd.DataFrame, np.ndarray,
         order, files, scan = order[~dup], files[~dup], scan[~dup]
     take = pa.array(order, type=pa.int64())
     seen = cols["last_seen_ms"][order]
+    age = scan - seen
+    other_clock = age > MAX_WIFI_AGE_MS
+    age[other_clock] = 0
     frame = pd.DataFrame({
         "scan_t_ms": scan, "ssid": _str_array(cols["ssid"].take(take)),
         "bssid": _str_array(cols["bssid"].take(take)),
         "rssi_dbm": cols["rssi_dbm"][order].astype(np.int16),
         "freq_mhz": cols["freq_mhz"][order].astype(np.int32),
-        "last_seen_ms": seen, "age_ms": scan - seen})
-    return frame, files, dropped
+        "last_seen_ms": seen, "age_ms": age})
+    return frame, files, dropped, files[other_clock]
 
 
 def beacon_table(files: np.ndarray, cols: dict) -> tuple[pd.DataFrame, np.ndarray]:
@@ -750,8 +761,9 @@ class _Tables:
             return [empty_table(WIFI_COLUMNS, WIFI_DTYPES) for _ in range(self.n_files)]
         cols["bssid"], refused = wifi_row_checks(cols)
         cols = _refused_out(cols, refused, bad, "TYPE_WIFI")
-        frame, files, dropped = wifi_table(self.count(cols), cols)
+        frame, files, dropped, other_clock = wifi_table(self.count(cols), cols)
         self.drop("duplicate_bssid_in_scan", dropped)
+        self.drop("wifi_last_seen_other_clock", other_clock)
         return _split(frame, _file_ranges(files, self.n_files))
 
     def ble(self, cols: dict | None, bad: _Collector) -> list[pd.DataFrame]:

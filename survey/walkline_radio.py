@@ -146,12 +146,14 @@ def parse_wifi_csv(data: bytes, *, reference_ms: float, report: ParseReport,
     if not good.any():
         return empty_table(WIFI_COLUMNS, WIFI_DTYPES)
     keep = pa.array(np.flatnonzero(good))
-    table, _, dropped = wifi_table(np.zeros(int(good.sum()), dtype=np.int64), {
+    table, _, dropped, other_clock = wifi_table(np.zeros(int(good.sum()), dtype=np.int64), {
         "t_ms": t[good].astype(np.int64), "last_seen_ms": seen[good].astype(np.int64),
         "rssi_dbm": rssi[good].astype(np.int64), "freq_mhz": freq[good].astype(np.int64),
         "ssid": log.texts("ssid").take(keep), "bssid": bssid.take(keep)})
     if len(dropped):
         report.dropped["duplicate_bssid_in_scan"] = len(dropped)
+    if len(other_clock):
+        report.dropped["wifi_last_seen_other_clock"] = len(other_clock)
     return table
 
 

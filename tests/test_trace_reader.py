@@ -76,6 +76,22 @@ def test_duplicate_bssid_in_scan_keeps_freshest_then_strongest():
     assert t.report.records == {"TYPE_WIFI": 5}
 
 
+def test_last_seen_times_on_another_clock_give_unknown_ages():
+    """Last-seen times of 0, or in microseconds since boot (Android's raw
+    ``ScanResult.timestamp``), read as decades old: the maps and the localizer dropped
+    every row, silently. Over 1 h before the scan, the age is unknown: taken as 0, counted,
+    the row kept; a row 30 s old keeps its age."""
+    t0 = 1_700_000_000_000
+    text = "\n".join([
+        f"{t0}\tTYPE_WIFI\tA\t00:11:22:33:44:55\t-70\t2412\t0",
+        f"{t0}\tTYPE_WIFI\tB\taa:bb:cc:dd:ee:ff\t-60\t2412\t{86_400_000_000}",  # us since boot
+        f"{t0}\tTYPE_WIFI\tC\taa:bb:cc:dd:ee:00\t-75\t2412\t{t0 - 30_000}",
+    ]).encode()
+    t = parse_trace_bytes(text)
+    assert sorted(t.wifi["age_ms"]) == [0, 0, 30_000] and len(t.wifi) == 3
+    assert t.report.dropped == {"wifi_last_seen_other_clock": 2}
+
+
 def test_ble_key_and_normalisation():
     line = ("5\tTYPE_BEACON\t0A1B2C3D-4E5F-4A6B-8C7D-9E0F1A2B3C4D\t10\t7\t-59\t-70\t1.5\t"
             "E0:78:A3:3D:B5:D6\t5")
