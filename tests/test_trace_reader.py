@@ -132,6 +132,10 @@ BAD_LINES = [
     ("10\tgarbage\t1", "unknown_record", "not a TYPE_ name"),
     ("10\tTYPE_WIFI\tssid\tnot-a-mac\t-50\t2412\t5", "bad_bssid", "not a MAC"),
     ("10\tTYPE_WIFI\tssid\t00:11:22:33:44:55\t-500\t2412\t5", "out_of_range", "rssi"),
+    # 0 dBm: a driver's "no reading", which read as the strongest signal of the walk
+    ("10\tTYPE_WIFI\tssid\t00:11:22:33:44:55\t0\t2412\t5", "out_of_range", "'no reading'"),
+    ("5\tTYPE_BEACON\tAB\t10\t7\t-59\t0\t1.5\tE0:78:A3:3D:B5:D6\t5", "out_of_range",
+     "'no reading'"),
     # heard hours after the scan that reports it: a negative age (a damaged file gave such)
     ("10\tTYPE_WIFI\tssid\t00:11:22:33:44:55\t-50\t2412\t3600010", "out_of_range",
      "TYPE_WIFI: last-seen time more than 1000 ms after the scan"),
