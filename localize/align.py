@@ -150,7 +150,7 @@ def _shape(compass_deg: NDArray, gyro_deg: NDArray, delta_acc_ms2: NDArray, p: A
             both_ways)
 
 
-def _steps_shape(steps: StepSummaries, p: AlignParams
+def steps_shape(steps: StepSummaries, p: AlignParams
                  ) -> tuple[NDArray[np.complex128], float, bool]:
     """:func:`_shape` of a whole walk's summaries."""
     return _shape(steps.compass_deg, steps.relative_heading_deg, steps.delta_acc_ms2, p,
@@ -162,7 +162,7 @@ def walk_shape(steps: StepSummaries, params: AlignParams = AlignParams()
     """The walk's step track in map orientation, up to the transform :class:`WalkAligner`
     fits: ``(m + 1,)`` complex positions (x east + i y north, m), 0 before the first step
     and after each step (module docstring: how)."""
-    return _steps_shape(steps, params)[0]
+    return steps_shape(steps, params)[0]
 
 
 def _fix_covariance(t_s: NDArray, start_given: bool, p: AlignParams) -> NDArray[np.float64]:
@@ -554,7 +554,7 @@ class WalkAligner(BaseLocalizer):
 
     def _offline(self, steps: StepSummaries, start: Estimate, later: list) -> Track:
         """One alignment of the whole walk; ``later``: its fixes after the start's."""
-        shape, _, both_ways = _steps_shape(steps, self.params)
+        shape, _, both_ways = steps_shape(steps, self.params)
         times = np.concatenate([[start.t_ms], steps.t_ms])
         fix_t = np.asarray(self._fix_t + [t for _, t, _ in later])
         fix_z = np.asarray(self._fix_z + [complex(f[0], f[1]) for _, _, f in later])

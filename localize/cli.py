@@ -21,6 +21,7 @@ the command then exits with status 1.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 from pathlib import Path
@@ -42,6 +43,9 @@ if TYPE_CHECKING:
 START_HELP = ("auto (the walk's first Wi-Fi fix; for a walk without one, its first BLE fix; "
               "else its first waypoint), waypoint, radio, or X,Y (m).")
 PARTICLES_HELP = "Particles of the particle filters (default 300)."
+COMPASS_HELP = ("auto: a walk whose step track fits its radio fixes only turned by 60 deg or "
+                "more (a phone held in landscape, a rotation vector in another frame) has its "
+                "compass turned so, with a warning; as-logged: warned, not turned.")
 #: Method names of ``evaluate --method`` (comma-separated, or the option repeated).
 DEFAULT_EVALUATE_METHODS = ("auto", "indoormap", "align", "pf_no_mag", "pdr")
 
@@ -142,16 +146,19 @@ def _write_table(table, target: Path, fmt: str, overwrite: bool = False) -> None
 
 
 def _prepare_walk(trace, maps, start_opt: str | tuple[float, float], waypoints_xy,
-                  floors_said: FloorChoices):
+                  floors_said: FloorChoices, compass: str = "auto"):
     """What both commands do before localizing a walk: its steps, its floor's bundle (the
     header's floor, else the site's Wi-Fi floor model, else its BLE floor model:
     :meth:`localize.floors.SiteMaps.choose`, said on standard error by ``floors_said`` when a
     model chose), the
     radio model for its phone (Wi-Fi, else BLE: :func:`localize.walk_radio.walk_radio`; the
     steps then carry the walk's BLE windows), and its start (with a warning when it is off the
-    floor). Returns ``(wr, bundle, start_xy, how)``, ``wr`` the
+    floor), with its compass turned where its step track fits its radio fixes only turned
+    (``compass`` ``"auto"``; :mod:`localize.compass_check`, said either way). Returns
+    ``(wr, bundle, start_xy, how)``, ``wr`` the
     :class:`~localize.walk_radio.WalkRadio` (its ``steps`` and ``radio`` are what to localize
     with); ``how`` names BLE and why when BLE is used."""
+    from localize.compass_check import compass_turn
     from localize.walk_radio import walk_radio
     from survey.step_summaries import ble_scans_of, step_summaries
 
@@ -164,6 +171,14 @@ def _prepare_walk(trace, maps, start_opt: str | tuple[float, float], waypoints_x
     wr = walk_radio(bundle, trace.header.model, steps, ble)
     start_xy, how = _start_of(start_opt, wr, waypoints_xy)
     _warn_if_off_floor(bundle, start_xy)
+    check = compass_turn(wr.steps, wr.radio)
+    if check is not None and check.turned:
+        if compass == "auto":
+            wr = dataclasses.replace(wr, steps=check.mended(wr.steps))
+        click.echo(f"warning: {trace.trace_id}: {check.sentence()}; "
+                   + ("its compass is turned so (--compass as-logged keeps it)"
+                      if compass == "auto" else "kept as logged (--compass as-logged)"),
+                   err=True)
     return wr, bundle, start_xy, how
 
 
@@ -196,6 +211,8 @@ def _params(particles: int | None):
 @click.option("--particles", type=click.IntRange(1, 1_000_000), default=None,
               help=PARTICLES_HELP)
 @click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--compass", type=click.Choice(["auto", "as-logged"]), default="auto",
+              show_default=True, help=COMPASS_HELP)
 @click.option("--format", "fmt", type=click.Choice(["parquet", "csv"]), default="parquet",
               show_default=True)
 @click.option("--plot/--no-plot", default=True, show_default=True,
@@ -208,7 +225,7 @@ def _params(particles: int | None):
               help="Replace a walk's outputs of an earlier run in OUT: its table in either "
                    "format and its plot (one not made this run is removed).")
 def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, method: str,
-                     start: str, particles: int | None, seed: int, fmt: str,
+                     start: str, particles: int | None, seed: int, compass: str, fmt: str,
                      plot: bool, smooth: bool, overwrite: bool) -> None:
     """Localize survey walks (trace files, walk plans or folders) on BUNDLE (a floor bundle
     or a folder of floor bundles): positions per step as Parquet/CSV and a trajectory plot.
@@ -248,7 +265,8 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
         for existing in earlier:
             refuse_to_replace(existing, overwrite)  # before the work, not after
         t_wp, xy_wp = waypoints_of(trace)
-        wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp, floors_said)
+        wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp, floors_said,
+                                                  compass)
         loc = make_localizer(method, bundle, _params(particles), radio=wr.radio, rng=seed,
                              magnetometer=wr.steps.has_magnetometer)
         track = loc.run(wr.steps, start_xy=start_xy, smooth=smooth)
@@ -323,6 +341,8 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
 @click.option("--particles", type=click.IntRange(1, 1_000_000), default=None,
               help=PARTICLES_HELP)
 @click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--compass", type=click.Choice(["auto", "as-logged"]), default="auto",
+              show_default=True, help=COMPASS_HELP)
 @click.option("--plot-file", "--plot", "plot_path", cls=AliasedOption, old_names=("--plot",),
               type=click.Path(dir_okay=False, path_type=Path), default=None, metavar="FILE",
               help="Write the error CDFs as a PNG to FILE (folders are created).")
@@ -337,7 +357,8 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
 @click.option("--overwrite", is_flag=True,
               help="Replace an existing --plot-file or --csv file.")
 def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[str, ...],
-                     start: str, particles: int | None, seed: int, plot_path: Path | None,
+                     start: str, particles: int | None, seed: int, compass: str,
+                     plot_path: Path | None,
                      csv_path: Path | None, smooth: bool, overwrite: bool) -> None:
     """Error at the waypoints of WALKS (trace files, walk plans or folders) on BUNDLE (a
     floor bundle or a folder of floor bundles), median, p80 and mean per method. The bundles
@@ -386,7 +407,8 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
             return
         if paced(trace):
             paced_walks.add(trace.trace_id)
-        wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp, floors_said)
+        wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp, floors_said,
+                                                  compass)
         _warn_if_outside_map(bundle, trace.trace_id, xy_wp)
         if wr.kind == "ble":  # the scores of this walk are BLE's, not Wi-Fi's
             click.echo(f"{trace.trace_id}: start {how}", err=True)

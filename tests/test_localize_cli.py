@@ -691,3 +691,29 @@ def test_a_trace_and_a_walk_plan_with_one_id_keep_the_trace_as_ingest_does(
     assert alone.exit_code == 0, alone.output  # what was written is the trace's track
     assert (tmp_path / "out" / f"{tid}.parquet").read_bytes() == \
         (tmp_path / "alone" / f"{tid}.parquet").read_bytes()
+
+
+def test_a_walk_whose_compass_is_turned_is_said_and_turned_back(built, monkeypatch):  # noqa: F811
+    """The command line turns the compass of a walk whose step track fits its fixes only
+    turned (a phone held in landscape: every heading 90 deg off), says so, and keeps it as
+    logged with --compass as-logged."""
+    import dataclasses
+
+    import survey.step_summaries as summaries
+
+    plain = summaries.step_summaries
+    monkeypatch.setattr(summaries, "step_summaries", lambda trace: dataclasses.replace(
+        s := plain(trace), compass_deg=(s.compass_deg + 90) % 360))
+    walk = sorted((SAMPLE / "F1" / "path_data_files").glob("*.txt.gz"))[0]
+    medians = {}
+    for compass in ("auto", "as-logged"):
+        res = CliRunner().invoke(main, ["evaluate", str(built), str(walk), "--method", "align",
+                                        "--compass", compass])
+        assert res.exit_code == 0, res.output
+        said = re.search(r"radio fixes only turned (\d+) deg anticlockwise of its compass.*; "
+                         r"(its compass is turned so|kept as logged)", res.output)
+        assert said and 80 <= int(said.group(1)) <= 100, res.output
+        assert said.group(2) == ("its compass is turned so" if compass == "auto"
+                                 else "kept as logged")
+        medians[compass] = float(re.search(r"^align\s+\d+\s+([\d.]+)", res.output, re.M)[1])
+    assert medians["as-logged"] > 3 * medians["auto"], medians
