@@ -188,7 +188,11 @@ def step_summaries(trace: Trace, params: StepSummaryParams = StepSummaryParams()
     steps = detect_steps(acc_t, acc_xyz)
     st = steps.t_ms
     if len(st) == 0:
-        raise ProcessingError(f"{tid}: no steps detected")
+        span = (acc_t[-1] - acc_t[0]) / 1000 if len(acc_t) else 0.0
+        raise ProcessingError(f"{tid}: no steps detected in its {span:.0f} s of accelerometer "
+                              "(the phone was not carried by a walker?): the localizers move "
+                              "by steps; `indoormap wifi-locate` places a walk by its radio "
+                              "scans alone")
     start = _cycle_bounds(st, params.max_cycle_ms)
     mid = 0.5 * (start + st)
 

@@ -386,6 +386,20 @@ def test_a_clock_step_in_the_log_adds_no_gyroscope_turn(walks):
         (plain["flags"].str.contains("heading|waypoint")).sum()
 
 
+def test_a_walk_without_steps_points_to_wifi_locate(walks):
+    """A phone lying still (or the first seconds of an app) has no steps: the localizers,
+    which move by steps, refuse it, and say what places it from its scans alone."""
+    from survey.step_summaries import step_summaries
+
+    tr = _walk(walks)
+    still = tr.sensors.copy()
+    acc = still["stream"] == "accelerometer"
+    still.loc[acc, ["x", "y", "z"]] = [0.0, 0.0, 9.81]
+    with pytest.raises(ProcessingError, match=r"no steps detected in its \d+ s of "
+                                              r"accelerometer .*`indoormap wifi-locate` places"):
+        step_summaries(dataclasses.replace(tr, sensors=still))
+
+
 def test_unit_checks_leave_what_a_phone_logs():
     """The checks judge units only: a phone's field out of range in no other unit (a
     magnet nearby) is left to the calibration, one plausible field of two is enough, and a
