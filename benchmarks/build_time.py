@@ -11,6 +11,7 @@ on this 2-core machine is under 60 s.
 
 from __future__ import annotations
 
+import argparse
 import filecmp
 import subprocess
 import sys
@@ -31,7 +32,10 @@ def same_tree(a: Path, b: Path) -> bool:
 
 
 def main() -> int:
-    floor = Path(sys.argv[1]) if len(sys.argv) > 1 else DEFAULT
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("floor", nargs="?", type=Path, default=DEFAULT, metavar="FLOOR_DIR",
+                    help=f"a floor folder (default {DEFAULT})")
+    floor = ap.parse_args().floor
     if not (floor / "path_data_files").is_dir():
         print(f"skipped: {floor} not available")
         return 0

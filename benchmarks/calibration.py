@@ -18,6 +18,7 @@ vertical component. Lower is better: the map merges those walks.
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -63,7 +64,10 @@ def cross_walk_pairs(frame: pd.DataFrame, radius_m: float = 0.5, cols=("x_m", "y
 
 
 def main() -> int:
-    floors = [Path(a) for a in sys.argv[1:]] or [DEFAULT]
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("floors", nargs="*", type=Path, default=[DEFAULT], metavar="FLOOR_DIR",
+                    help=f"floor folders (default {DEFAULT})")
+    floors = ap.parse_args().floors
     if not all((f / "path_data_files").is_dir() for f in floors):
         print(f"skipped: {', '.join(map(str, floors))} not available")
         return 0

@@ -15,3 +15,7 @@ def run() -> None:
         print("Aborted!", file=sys.stderr)  # what click says for a Ctrl-C within a command
         sys.exit(1)
     main()
+
+
+if __name__ == "__main__":  # python -m survey.entry (it ran nothing and exited 0)
+    run()

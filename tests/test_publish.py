@@ -339,3 +339,18 @@ def test_ctrl_c_while_the_cli_loads_ends_like_ctrl_c_in_a_command(monkeypatch, c
     with pytest.raises(SystemExit) as end:
         run()
     assert end.value.code == 1 and capsys.readouterr().err == "Aborted!\n"
+
+
+@pytest.mark.parametrize("module", ["survey", "survey.entry"])
+def test_python_m_runs_the_command_line(module):
+    """``python -m survey.entry`` ran nothing and exited 0 (a scripted pipeline "succeeded"
+    with no output); it and ``python -m survey`` are the command line."""
+    import subprocess
+    import sys
+
+    res = subprocess.run([sys.executable, "-m", module, "--version"], capture_output=True,
+                         text=True, timeout=120)
+    assert res.returncode == 0 and res.stdout.startswith("indoormap, version "), res
+    res = subprocess.run([sys.executable, "-m", module, "no-such-command"], capture_output=True,
+                         text=True, timeout=120)
+    assert res.returncode == 2 and "No such command" in res.stderr
