@@ -347,9 +347,10 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
               type=click.Path(dir_okay=False, path_type=Path), default=None, metavar="FILE",
               help="Write the error CDFs as a PNG to FILE (folders are created).")
 @click.option("--csv", "csv_path", type=click.Path(dir_okay=False, path_type=Path),
-              default=None, help="Write every error as CSV: trace_id, method, waypoint (1 = "
-                                 "the walk's first), t_ms, "
-                                 "x_m, y_m (the waypoint), est_x_m, est_y_m, error_m.")
+              default=None, help="Write every error as CSV: trace_id, method, ran (what the "
+                                 "method ran: auto's choice), waypoint (1 = the walk's "
+                                 "first), t_ms, x_m, y_m (the waypoint), est_x_m, est_y_m, "
+                                 "error_m.")
 @click.option("--smooth", is_flag=True,
               help="Also score the offline track of every method that has one (particle "
                    "filters and align; rows '<method>+smoothed'), as localize --smooth "
