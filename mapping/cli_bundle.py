@@ -15,6 +15,7 @@ import numpy as np
 from localize.bundle import MapBundle, bundle_dirs, is_registry_floor_dir, load_bundle
 from survey.errors import IndoormapError, RegistryError, RollbackRefused, WithdrawnVersion, \
     at_path
+from survey.field_features import circular_mean_deg, wrap_deg
 
 from .bundle_report import bundle_differences, metric_lines, plan_text
 from .registry import Registry
@@ -77,10 +78,10 @@ def _say_bundle(b: MapBundle) -> None:
                    f"{int(b.mask.sum())} cells")
         for name, meta in m["layers"].items():
             v = b.layers[name]
-            finite = v[np.isfinite(v)]
+            finite = v[np.isfinite(v)].astype(np.float64)
             click.echo(f"  layer {name:<15} {meta['unit']:<4} {meta['kind']:<6} "
                        f"{100 * finite.size / max(int(b.mask.sum()), 1):5.1f} % of reachable "
-                       f"cells, range {finite.min():.1f} .. {finite.max():.1f}"
+                       f"cells, {_value_range(finite, meta['kind'] == 'angle')}"
                        if finite.size else f"  layer {name}: empty")
     width = max([15, *map(len, m.get("tables", {}))])  # ble_floor_intercept is 19 wide
     for name, meta in m.get("tables", {}).items():
@@ -90,6 +91,17 @@ def _say_bundle(b: MapBundle) -> None:
     click.echo(f"  built {m['build'].get('build_time')} from "
                f"{len(m['build'].get('source_walks', []))} walks"
                + ("" if m.get("kind") == "site" else f" on floor plan {plan_text(m)}"))
+
+
+def _value_range(values: np.ndarray, angle: bool) -> str:
+    """``range LO .. HI`` of a layer's values (n,); for angles (deg), which wrap at 360, the
+    circular mean and the deviations from it (a heading offset of -12 to +9 deg read as the
+    range 0.0 .. 360.0)."""
+    if not angle:
+        return f"range {values.min():.1f} .. {values.max():.1f}"
+    mean = float(circular_mean_deg(values))
+    dev = wrap_deg(values - mean)
+    return f"circular mean {wrap_deg(mean):.1f}, {dev.min():+.1f} .. {dev.max():+.1f} around it"
 
 
 def _bundle_paths(paths: tuple[Path, ...]) -> list[Path]:

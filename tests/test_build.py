@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -285,6 +286,10 @@ def test_build_cli_twice_identical_bytes(tmp_path):
     assert (tmp_path / "c" / "F2" / "notes.txt").read_text() == "keep me"
     info = runner.invoke(main, ["bundle", "info", str(a)])
     assert info.exit_code == 0 and "layer strength" in info.output and "floor F2" in info.output
+    # an angle layer's values around their circular mean, not "range 0.0 .. 360.0"
+    heading = re.search(r"layer heading_offset .* circular mean (-?[\d.]+), ([+-][\d.]+) \.\. "
+                        r"([+-][\d.]+) around it", info.output)
+    assert heading and -20 < float(heading[2]) <= 0 <= float(heading[3]) < 20, info.output
     assert "smoothing local_" in info.output and "bandwidth" in info.output  # what CV chose
     assert " % within 2 m" in info.output
     plan_sha = hashlib.sha256((SITE / "F2" / "geojson_map.json").read_bytes()).hexdigest()
