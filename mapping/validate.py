@@ -412,9 +412,13 @@ def _regions(grid: Grid, sel: NDArray[np.bool_], min_area_m2: float = 0.0) -> tu
         if sl is None or area < min_area_m2:
             continue
         r0, r1, c0, c1 = sl[0].start, sl[0].stop, sl[1].start, sl[1].stop
-        # the region's cell nearest its centroid (a centroid can lie outside an L-shaped region)
+        # the point said and marked: of the region's cells farthest from its edge, the one
+        # nearest its centroid (a centroid can lie outside an L-shaped region, and the cell
+        # nearest it on the region's edge, against a wall)
         cx, cy = sx[k] / counts[k], sy[k] / counts[k]
-        rr_k, cc_k = np.nonzero(lab[sl] == k)
+        inside = lab[sl] == k
+        depth = ndimage.distance_transform_edt(np.pad(inside, 1))[1:-1, 1:-1]
+        rr_k, cc_k = np.nonzero(inside & (depth >= depth.max()))
         px, py = xc[cc_k + c0], yc[rr_k + r0]
         i = int(np.argmin((px - cx) ** 2 + (py - cy) ** 2))
         out.append({"label": k, "area_m2": float(area),

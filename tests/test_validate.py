@@ -637,3 +637,23 @@ def test_a_colour_scale_that_clips_cells_says_so():
     assert _clipped(values, Normalize(1, 10)) == "both"
     assert _clipped(values, Normalize(0, 40)) == "neither"
     assert _clipped(np.ma.masked_invalid(np.full((2, 2), np.nan)), Normalize(0, 1)) == "neither"
+
+
+def test_a_regions_point_lies_inside_it_not_on_its_edge():
+    """An L-shaped unsupported area (a room joined to a corridor) was said and marked at its
+    cell nearest the centroid, on the region's edge against a wall; it is now a cell
+    farthest from the edge."""
+    from localize.bundle import Grid
+    from mapping.validate import _regions
+
+    grid = Grid(0.0, 0.0, 1.0, 40, 40)
+    sel = np.zeros((40, 40), dtype=bool)
+    sel[0:30, 0:3] = True  # a long corridor, 3 cells wide
+    sel[27:30, 0:30] = True  # and another, joined at a corner: the centroid lies outside
+    sel[5:15, 20:30] = True  # a room on its own
+    _, regions = _regions(grid, sel)
+    corridor, room = regions  # largest first
+    assert room["area_m2"] == 100 and (room["x_m"], room["y_m"]) in \
+        {(24.5, 9.5), (25.5, 9.5), (24.5, 10.5), (25.5, 10.5)}  # its middle
+    r, c = int(corridor["y_m"]), int(corridor["x_m"])
+    assert sel[r, c] and sel[r - 1:r + 2, c - 1:c + 2].all()  # inside, not on the edge
