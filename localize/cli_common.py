@@ -279,7 +279,8 @@ class SeenWalks:
 
     NAMED = 3
 
-    def __init__(self) -> None:
+    def __init__(self, results: str = "its track (and any error measured on it) is") -> None:
+        self.results = results  # what is better (wifi-locate makes fixes, not tracks)
         self.more: list[str] = []
         self._named = 0
 
@@ -291,8 +292,8 @@ class SeenWalks:
         if self._named < self.NAMED:
             self._named += 1
             click.echo(f"warning: {trace_id} was used to build {bundle.path}: the map has seen "
-                       "it, so its track (and any error measured on it) is better than an "
-                       "unseen walk's would be", err=True)
+                       f"it, so {self.results} better than an unseen walk's would be",
+                       err=True)
         else:
             self.more.append(trace_id)
 

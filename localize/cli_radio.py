@@ -277,7 +277,8 @@ def wifi_locate_command(bundle_path: Path, walks: tuple[str, ...], kind: str,
     # a mistyped path is said before the bundles load
     files = trace_files(walks, failures)
     maps = SiteMaps.open(bundle_path)
-    floors_said, in_build = FloorChoices(), SeenWalks()
+    floors_said, in_build = FloorChoices(), SeenWalks("its radio positions (and any error "
+                                                      "measured on them) are")
     out = _CsvRows(["trace_id", "floor", "t_ms", "n_known", "x_m", "y_m", "sigma_m", "error_m",
                     "kind"])
     seen = TraceIds("its rows would be printed under the other's id")
