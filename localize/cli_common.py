@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, TypeVar
 import click
 
 from localize.errors import LocalizationError
-from localize.floors import HEADER_DOUBT, LACKS_PHRASE, MODEL_LACKS
+from localize.floors import FLOOR_CHANGE, HEADER_DOUBT, LACKS_PHRASE, MODEL_LACKS
 
 if TYPE_CHECKING:
     import numpy as np
@@ -345,7 +345,8 @@ class FloorChoices:
             how = how.replace(lacks.group(0), f"{MODEL_LACKS} {lacks.group(1)} (warned above)")
         elif lacks is not None:
             self._lacks_warned.add(lacks.group(0))
-        if HEADER_DOUBT in how or (MODEL_LACKS in how and not repeated):  # said, not overruled
+        if HEADER_DOUBT in how or FLOOR_CHANGE in how or (MODEL_LACKS in how
+                                                          and not repeated):  # said, not overruled
             click.echo(f"warning: {trace_id}: floor {floor} by the {how}", err=True)
         elif "floor model" in how:
             click.echo(f"{trace_id}: floor {floor} by the {how}", err=True)

@@ -30,7 +30,7 @@ import numpy as np
 from localize.cli_common import (FloorChoices, SeenWalks, TraceIds, WalkFailures,
                                   each_walk, trace_files)
 from localize.errors import LocalizationError
-from localize.floors import ble_window_ms, device_table
+from localize.floors import ble_window_ms, device_table, walk_floor_index
 from localize.names import floor_key
 from localize.rssi_calibration import checked_rssi_calibration
 
@@ -104,7 +104,8 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
       trace_id, t_ms  the walk; the scan's time (Unix ms; empty on walk rows)
       n_known         scan: transmitters it hears that the model knows;
                       walk: scans that hear any
-      floor           the scan's (or, on walk rows, all its scans') most likely floor
+      floor           the scan's most likely floor; on walk rows the walk's, as localize
+                      decides it (the floor most Wi-Fi scans are on; BLE: summed)
       p_floor         the scan's probability of that floor (0-1)
       window_floor    most likely floor over the scan and the WINDOW-1 before it
       recorded_floor  the floor the trace file names (empty if none)
@@ -197,7 +198,8 @@ def floor_command(site_path: Path, walks: tuple[str, ...], window: int, kind: st
                          "p_floor": float(np.exp(lp[i].max())) if ok[i] else "",
                          "window_floor": str(model.floors[np.argmax(seq.sum(axis=0))])
                          if len(seq) else "", "recorded_floor": recorded, "kind": k})
-        walk_floor = str(model.floors[np.argmax(lp[ok].sum(axis=0))])
+        # as localize decides (a walk half on F1, half on F2 said F1 here and F2 there)
+        walk_floor = str(model.floors[walk_floor_index(lp[ok], summed=k == "ble")])
         mine.append({"level": "walk", "trace_id": trace.trace_id, "t_ms": "",
                      "n_known": int(ok.sum()), "floor": walk_floor, "p_floor": "",
                      "window_floor": "", "recorded_floor": recorded, "kind": k})

@@ -223,10 +223,11 @@ class SiteMaps:
         calibration, _ = self._wifi_calibration(heard, device_model)
         best, n_on, n_known = _walk_floor(model, heard, summed=False, calibration=calibration)
         other = self.floor_bundle(best) if best is not None else None
+        change = _floor_change(model, heard, calibration)
         if (other is None or other.floor_id == header_bundle.floor_id
                 or n_known < DOUBT_MIN_SCANS or n_on < DOUBT_SHARE * n_known):
-            return ""
-        return f"{HEADER_DOUBT} {n_on} of {n_known} Wi-Fi scans on floor {best}"
+            return change
+        return f"{HEADER_DOUBT} {n_on} of {n_known} Wi-Fi scans on floor {best}" + change
 
     def choose(self, trace_id: str, site_id: str, floor_id: str, floor_name: str,
                wifi_scans: Sequence[RadioScan | None] | None,
@@ -316,7 +317,8 @@ class SiteMaps:
             if found is None:
                 raise LocalizationError(f"{where}: the {name} floor model says floor {best}, "
                                         "which has no bundle")
-            how = f"{name} floor model ({n_on} of {n_known} {what} on it{calibrated})"
+            how = f"{name} floor model ({n_on} of {n_known} {what} on it{calibrated})" + (
+                _floor_change(model, heard, calibration) if name == "Wi-Fi" else "")
             lacking = self._lacking(model)
             if name == "Wi-Fi" and lacking and self.ble_floor_model is not None:
                 # it puts a walk on a floor it knows even when the walk is on one it lacks:
@@ -353,6 +355,46 @@ DOUBT_MIN_SCANS = 5
 #: How :meth:`SiteMaps.choose`'s phrase for a header's floor goes on when the Wi-Fi floor
 #: model doubts it (what a caller looks for to warn).
 HEADER_DOUBT = "; but the Wi-Fi floor model puts"
+
+#: How :meth:`SiteMaps.choose`'s phrase goes on when the walk's Wi-Fi scans change floor
+#: (:func:`_floor_change`; a warning).
+FLOOR_CHANGE = "; its Wi-Fi scans change floor"
+#: A change of floor is said when each part has this many scans, the floor model puts this
+#: share of all scans on their part's floor, and the two parts explain this many scans more
+#: than one floor does.
+CHANGE_MIN_SCANS, CHANGE_SHARE, CHANGE_GAIN_SCANS = 5, 0.8, 5
+
+
+def _floor_change(model: FloorModel, scans: Sequence[RadioScan],
+                  calibration: tuple[float, float] | None) -> str:
+    """``"; its Wi-Fi scans change floor, F1 to F2 at scan 18 of 37 (t ... ms): ..."`` when
+    the floor model's floor per scan splits the walk (in time order) into two parts on two
+    floors (:data:`CHANGE_MIN_SCANS`, :data:`CHANGE_SHARE`, :data:`CHANGE_GAIN_SCANS`): a
+    lift or stairs mid-walk, whose other part is localized on the wrong floor; else ``""``
+    (and for a model without ``log_proba``)."""
+    if not (hasattr(model, "log_proba") and hasattr(model, "scan_matrix")):
+        return ""
+    lp = np.asarray(model.log_proba(model.scan_matrix(scans, calibration)), dtype=np.float64)
+    ok = np.isfinite(lp).all(axis=1)
+    each = np.argmax(lp[ok], axis=1)
+    n, m = len(each), lp.shape[1]
+    if n < 2 * CHANGE_MIN_SCANS:
+        return ""
+    one_hot = np.eye(m, dtype=np.int64)[each]
+    before = np.cumsum(one_hot, axis=0)  # scans on each floor among the first i + 1
+    split = np.arange(CHANGE_MIN_SCANS, n - CHANGE_MIN_SCANS + 1)  # first scan of part two
+    head, tail = before[split - 1], before[-1] - before[split - 1]
+    a, b = head.argmax(axis=1), tail.argmax(axis=1)
+    agree = np.where(a != b, head.max(axis=1) + tail.max(axis=1), 0)
+    k = int(np.argmax(agree))
+    if agree[k] < CHANGE_SHARE * n or agree[k] < before[-1].max() + CHANGE_GAIN_SCANS:
+        return ""
+    at = split[k]
+    t_ms = [s.t_ms for s, good in zip(scans, ok) if good][at]
+    return (f"{FLOOR_CHANGE}, {model.floors[a[k]]} to {model.floors[b[k]]} at scan {at + 1} of "
+            f"{n} ({t_ms} ms): a walk is localized on one floor, so one part of it is on the "
+            "wrong one (localize the parts apart)")
+
 
 #: How :meth:`SiteMaps.choose`'s phrase goes on when the floor model that chose lacks some of
 #: the floors given (Wi-Fi surveyed on only some of them, or a folder whose site bundle was
@@ -400,6 +442,19 @@ def ble_window_ms(bundle: MapBundle) -> int:
     return value
 
 
+def walk_floor_index(log_proba: np.ndarray, *, summed: bool) -> int:
+    """The floor (column) of a walk from its classified scans' log-probabilities (k, floors),
+    in time order: with ``summed`` the largest summed log-probability (BLE windows), else
+    the floor most scans are put on, ties to the one met first in the walk (Wi-Fi scans).
+    What :meth:`SiteMaps.choose` and ``indoormap floor``'s walk row both decide by."""
+    if summed:
+        return int(np.argmax(log_proba.sum(axis=0)))
+    each = np.argmax(log_proba, axis=1)
+    counts = np.bincount(each, minlength=log_proba.shape[1])
+    tied = np.flatnonzero(counts == counts.max())
+    return int(each[np.isin(each, tied)][0])
+
+
 def unknown_phone_calibration(model: FloorModel, scans: Sequence[RadioScan],
                               floor_bundle: Callable[[str], MapBundle | None]
                               ) -> tuple[float, float] | None:
@@ -445,12 +500,7 @@ def _walk_floor(model: FloorModel, scans: Sequence[RadioScan], *, summed: bool,
         if not ok.any():
             return None, 0, 0
         each = np.argmax(lp[ok], axis=1)
-        if summed:
-            best = int(np.argmax(lp[ok].sum(axis=0)))
-        else:  # most scans; ties: the floor met first in the walk
-            counts = np.bincount(each, minlength=len(model.floors))
-            tied = np.flatnonzero(counts == counts.max())
-            best = int(each[np.isin(each, tied)][0])
+        best = walk_floor_index(lp[ok], summed=summed)
         return str(model.floors[best]), int((each == best).sum()), int(ok.sum())
     votes: dict[str, int] = {}
     for scan in scans:

@@ -401,3 +401,37 @@ def test_a_header_floor_the_wifi_floor_model_contradicts_is_said(built, tmp_path
     res = CliRunner().invoke(main, ["wifi-locate", str(built), str(wrong), str(walk)])
     assert res.exit_code == 0, res.output
     assert sum("but the Wi-Fi floor model" in line for line in res.output.splitlines()) == 1
+
+
+def test_a_walk_whose_scans_change_floor_is_said_and_floored_alike(built, tmp_path):
+    """A walk through a lift (its first scans on F1, its last on F2) was localized on one
+    floor without a word, and `indoormap floor`'s walk row (summed log-probabilities) and
+    `localize` (most scans) could name different floors for it. The change is said, and both
+    decide alike; a walk on one floor is not said."""
+    import gzip
+
+    from localize.floors import FLOOR_CHANGE
+
+    f1 = gzip.decompress(sorted((SITE / "F1" / "path_data_files").glob("*.txt.gz"))[0]
+                         .read_bytes()).decode().splitlines()
+    f2 = gzip.decompress(F2_WALKS[0].read_bytes()).decode().splitlines()
+    end = max(int(line.split("\t")[0]) for line in f1 if line[:1].isdigit())
+    f2_wifi = [line.split("\t") for line in f2 if "\tTYPE_WIFI\t" in line]
+    shift = end + 20_000 - int(f2_wifi[0][0])  # 20 s in the lift
+    moved = ["\t".join([str(int(p[0]) + shift), *p[1:6], str(int(p[6]) + shift)])
+             for p in f2_wifi]
+    both = tmp_path / "lift.txt"
+    both.write_text("\n".join(line for line in f1 if "FloorId:" not in line
+                              and "FloorName:" not in line) + "\n" + "\n".join(moved) + "\n")
+    maps = SiteMaps.open(built)
+    trace = read_trace(both)
+    scans = scans_of(trace)
+    _, how = maps.choose(trace.trace_id, "", "", "", scans)
+    assert FLOOR_CHANGE + ", F1 to F2 at scan " in how, how
+    plain = read_trace(sorted((SITE / "F1" / "path_data_files").glob("*.txt.gz"))[0])
+    assert FLOOR_CHANGE not in maps.choose(plain.trace_id, "", "", "", scans_of(plain))[1]
+    chosen = maps.choose(trace.trace_id, "", "", "", scans)[0].manifest["floor_name"]
+    res = CliRunner().invoke(main, ["floor", str(built / "_site"), str(both)])
+    assert res.exit_code == 0, res.output
+    rows = list(csv.DictReader(io.StringIO(res.stdout)))
+    assert [r["floor"] for r in rows if r["level"] == "walk"] == [chosen]
