@@ -41,7 +41,7 @@ from survey.process import MAGNETOMETER_STREAMS, _stream, accelerometer_stream, 
     unit_checked_headings, waypoints_off_sensors
 from survey.rotation import interpolate_rotation_vector, rotation_matrices
 from survey.steps import detect_steps
-from survey.trace_format import Trace
+from survey.trace_format import ParseReport, Trace
 
 __all__ = ["StepSummaryParams", "scans_of", "step_summaries", "summaries_table", "waypoints_of"]
 
@@ -144,6 +144,20 @@ def _cycle_bounds(st: NDArray[np.float64], max_cycle_ms: float) -> NDArray[np.fl
     return np.maximum(start, st - max_cycle_ms)
 
 
+def _rotation_vector_lines(report: ParseReport) -> str:
+    """What a trace without a usable rotation vector logged instead, for its refusal: its
+    ``TYPE_ROTATION_VECTOR`` lines refused as bad (the first's reason), or a game rotation
+    vector, which has no north (it was left out as an undocumented type, unsaid)."""
+    said = next((m for m in report.messages if "TYPE_ROTATION_VECTOR" in m), None)
+    if said is not None:
+        return f" (its TYPE_ROTATION_VECTOR lines were refused as bad lines, e.g. {said})"
+    game = report.skipped.get("TYPE_GAME_ROTATION_VECTOR", 0)
+    if game:
+        return (f" (it logs {game} TYPE_GAME_ROTATION_VECTOR lines, left out: a game rotation "
+                "vector has no north; log Android's TYPE_ROTATION_VECTOR)")
+    return ""
+
+
 def step_summaries(trace: Trace, params: StepSummaryParams = StepSummaryParams()
                    ) -> StepSummaries:
     """Per-step summaries of a trace for the localizer.
@@ -174,7 +188,8 @@ def step_summaries(trace: Trace, params: StepSummaryParams = StepSummaryParams()
         raise ProcessingError(f"{tid}: no accelerometer stream: no steps can be detected")
     rv = _stream(trace.sensors, "rotation_vector")
     if len(rv) < 2:
-        raise ProcessingError(f"{tid}: no rotation vector: no compass heading")
+        raise ProcessingError(f"{tid}: no rotation vector: no compass heading"
+                              + _rotation_vector_lines(trace.report))
     acc_t = acc["t_ms"].to_numpy(np.float64)
     acc_xyz = acc[["x", "y", "z"]].to_numpy(np.float64)
     rot_t = rv["t_ms"].to_numpy(np.float64)

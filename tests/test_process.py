@@ -400,6 +400,27 @@ def test_a_walk_without_steps_points_to_wifi_locate(walks):
         step_summaries(dataclasses.replace(tr, sensors=still))
 
 
+def test_a_walk_without_a_usable_rotation_vector_says_what_it_logged(walks):
+    """A rotation vector logged with its fourth component (every line a bad line) or a game
+    rotation vector alone: the walk was refused with "no rotation vector", which named
+    neither."""
+    from survey.step_summaries import step_summaries
+    from survey.trace_reader import parse_trace_bytes
+    from survey.trace_writer import render_trace
+
+    text = render_trace(_walk(walks))
+    five = "\n".join(line + "\t0.5" if "\tTYPE_ROTATION_VECTOR\t" in line else line
+                     for line in text.splitlines()).encode()
+    with pytest.raises(ProcessingError, match=r"no rotation vector: no compass heading \(its "
+                       r"TYPE_ROTATION_VECTOR lines were refused as bad lines, e\.g\. .*:\d+: "
+                       r"TYPE_ROTATION_VECTOR needs 4 values, got 5"):
+        step_summaries(parse_trace_bytes(five))
+    game = text.replace("\tTYPE_ROTATION_VECTOR\t", "\tTYPE_GAME_ROTATION_VECTOR\t").encode()
+    with pytest.raises(ProcessingError, match=r"it logs \d+ TYPE_GAME_ROTATION_VECTOR lines, "
+                                              r"left out: a game rotation vector has no north"):
+        step_summaries(parse_trace_bytes(game))
+
+
 def test_unit_checks_leave_what_a_phone_logs():
     """The checks judge units only: a phone's field out of range in no other unit (a
     magnet nearby) is left to the calibration, one plausible field of two is enough, and a
