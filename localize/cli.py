@@ -468,7 +468,9 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
 
         plot_path.parent.mkdir(parents=True, exist_ok=True)
         title = (f"{bundle_path.name}: {n_walks} walk(s), start {start}"
-                 + (f", {failures.count} failure(s)" if failures.count else ""))
+                 + (f", {failures.count} failure(s)" if failures.count else "")
+                 + (f"; {in_build.count} of the walks seen by the map (errors better than "
+                    "unseen walks')" if in_build.count else ""))
         if plot_cdfs(plot_path, {label[m]: np.concatenate(v) for m, v in errors.items() if v},
                      title=title):
             click.echo(f"plot: {plot_path}", err=True)

@@ -283,12 +283,14 @@ class SeenWalks:
         self.results = results  # what is better (wifi-locate makes fixes, not tracks)
         self.more: list[str] = []
         self._named = 0
+        self.count = 0  # walks of the run the bundles were built from
 
     def check(self, bundle: MapBundle, trace_id: str) -> None:
         """Warn (or count, past the first :attr:`NAMED`) when ``bundle`` was built from walk
         ``trace_id``."""
         if trace_id not in bundle.source_walk_ids():
             return
+        self.count += 1
         if self._named < self.NAMED:
             self._named += 1
             click.echo(f"warning: {trace_id} was used to build {bundle.path}: the map has seen "
