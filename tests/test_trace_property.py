@@ -70,7 +70,7 @@ def traces(draw):
         for bssid in draw(st.lists(mac, min_size=1, max_size=4, unique=True)):
             seen = scan - draw(st.integers(0, 60_000))
             rows.append({"scan_t_ms": scan, "ssid": draw(text), "bssid": bssid,
-                         "rssi_dbm": draw(st.integers(-127, 0)),
+                         "rssi_dbm": draw(st.integers(-127, -1)),  # 0 dBm: "no reading"
                          "freq_mhz": draw(st.sampled_from([2412, 2437, 5180, 5745])),
                          "last_seen_ms": seen, "age_ms": scan - seen})
     wifi = pd.DataFrame(rows, columns=["scan_t_ms", "ssid", "bssid", "rssi_dbm", "freq_mhz",
@@ -85,7 +85,7 @@ def traces(draw):
         major, minor = draw(st.integers(0, 65535)), draw(st.integers(0, 65535))
         brow.append({"t_ms": t, "uuid": uuid, "major": major, "minor": minor,
                      "key": f"{uuid}:{major}:{minor}", "tx_power_dbm": draw(st.integers(-100, 0)),
-                     "rssi_dbm": draw(st.integers(-127, 0)),
+                     "rssi_dbm": draw(st.integers(-127, -1)),  # 0 dBm: "no reading"
                      "distance_m": draw(st.floats(0, 1e4, allow_nan=False)), "mac": draw(mac),
                      "last_seen_ms": t})
     ble = (pd.DataFrame(brow, columns=list(BLE_COLUMNS)).astype(BLE_DTYPES)
