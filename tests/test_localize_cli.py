@@ -735,3 +735,19 @@ def test_the_cdf_plot_says_when_the_map_has_seen_the_walks(built, tmp_path,  # n
     assert res.exit_code == 0, res.output
     assert titles == [f"{built.name}: 2 walk(s), start auto; 2 of the walks seen by the map "
                       "(errors better than unseen walks')"]
+
+
+def test_evaluate_says_when_a_walk_starts_from_the_truth(built, tmp_path):  # noqa: F811
+    """A walk without radio starts at its first waypoint (--start auto's fallback): its
+    errors start from the truth, better than a user's would; evaluate said nothing."""
+    import gzip
+
+    walk = sorted((SAMPLE / "F1" / "path_data_files").glob("*.txt.gz"))[0]
+    text = gzip.decompress(walk.read_bytes()).decode()
+    quiet = tmp_path / "no_radio.txt"
+    quiet.write_text("\n".join(line for line in text.splitlines()
+                               if "\tTYPE_WIFI\t" not in line and "\tTYPE_BEACON\t" not in line))
+    res = CliRunner().invoke(main, ["evaluate", str(built), str(quiet), "--method", "pdr"])
+    assert res.exit_code == 0, res.output
+    assert re.search(r"note: \S+: start first waypoint \(no .* fix in the walk\): its errors "
+                     r"start from the truth", res.output), res.output
