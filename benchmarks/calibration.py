@@ -16,11 +16,11 @@ sample), it prints the median absolute and RMS difference of the earth-frame str
 vertical component. Lower is better: the map merges those walks.
 
 On the simulated sample (``data/sample_site/F1``) the naive sphere fit beats the chosen
-calibration (1.7 against 4.3 uT): the simulated phones' calibrated streams carry a residual
-hard iron per calibration session on purpose (what the build's levelling removes, before the
-maps, not in this comparison), and a simulated walk's field is an exact sphere around its
-hard iron, which a real phone's tilt range and soft iron do not allow. The comparison is
-meant for real traces.
+calibration (1.7 against 4.3 uT): the simulated phones report their hard iron with a residual
+of a few uT per calibration session on purpose (`survey.sim.devices.make_sessions`; what the
+build's levelling removes before the maps, not in this comparison), while a simulated walk's
+raw field, a known soft iron and hard iron applied to the true field, is what a sphere fit
+recovers. The comparison is meant for real traces.
 """
 
 from __future__ import annotations
