@@ -43,6 +43,7 @@ from numpy.typing import NDArray
 from localize.bundle import Grid, MapBundle
 from localize.errors import LocalizationError
 from localize.filter import BaseLocalizer, check_step, check_within_reach
+from localize.maps import mean_heading_offset_deg
 from localize.params import MAX_STEP_M
 from localize.radio import RadioModel
 from localize.steps import (AttitudeCode, RadioScan, StepSummaries, StepSummary,
@@ -150,19 +151,21 @@ def _shape(compass_deg: NDArray, gyro_deg: NDArray, delta_acc_ms2: NDArray, p: A
             both_ways)
 
 
-def steps_shape(steps: StepSummaries, p: AlignParams
-                 ) -> tuple[NDArray[np.complex128], float, bool]:
-    """:func:`_shape` of a whole walk's summaries."""
-    return _shape(steps.compass_deg, steps.relative_heading_deg, steps.delta_acc_ms2, p,
-                  steps.attitude == AttitudeCode.CARRIED)
+def steps_shape(steps: StepSummaries, p: AlignParams, heading_offset_deg: float = 0.0
+                ) -> tuple[NDArray[np.complex128], float, bool]:
+    """:func:`_shape` of a whole walk's summaries, their compass less the floor's
+    ``heading_offset_deg`` (:func:`localize.maps.mean_heading_offset_deg`)."""
+    return _shape(steps.compass_deg - heading_offset_deg, steps.relative_heading_deg,
+                  steps.delta_acc_ms2, p, steps.attitude == AttitudeCode.CARRIED)
 
 
-def walk_shape(steps: StepSummaries, params: AlignParams = AlignParams()
-               ) -> NDArray[np.complex128]:
+def walk_shape(steps: StepSummaries, params: AlignParams = AlignParams(),
+               heading_offset_deg: float = 0.0) -> NDArray[np.complex128]:
     """The walk's step track in map orientation, up to the transform :class:`WalkAligner`
     fits: ``(m + 1,)`` complex positions (x east + i y north, m), 0 before the first step
-    and after each step (module docstring: how)."""
-    return steps_shape(steps, params)[0]
+    and after each step (module docstring: how); the compass less ``heading_offset_deg``
+    (the floor's: :func:`localize.maps.mean_heading_offset_deg`)."""
+    return steps_shape(steps, params, heading_offset_deg)[0]
 
 
 def _fix_covariance(t_s: NDArray, start_given: bool, p: AlignParams) -> NDArray[np.float64]:
@@ -331,6 +334,10 @@ class WalkAligner(BaseLocalizer):
         super().__init__(bundle, radio=radio)
         self.params = params or AlignParams()
         self._walls = _bundle_walls(bundle, self.params.wall_cap_m)
+        #: The floor's compass heading less walking direction (deg), taken off every compass
+        #: heading: the rotations searched lie around the map's own north, not the compass's
+        #: (a plan drawn along a building turned 70 deg from north was never aligned).
+        self.heading_offset_deg = mean_heading_offset_deg(bundle)
         self._reset(0.0)
 
     # -- streaming -------------------------------------------------------------------------
@@ -425,7 +432,7 @@ class WalkAligner(BaseLocalizer):
         the user carries on with the next one."""
         n_fixes, stale = len(self._fix_t), self._stale
         self._t.append(float(t_ms))
-        self._compass.append(float(compass_deg))
+        self._compass.append(float(compass_deg) - self.heading_offset_deg)
         self._gyro.append(float(gyro_deg))
         self._swing.append(float(swing))
         self._axis.append(bool(axis))
@@ -554,7 +561,7 @@ class WalkAligner(BaseLocalizer):
 
     def _offline(self, steps: StepSummaries, start: Estimate, later: list) -> Track:
         """One alignment of the whole walk; ``later``: its fixes after the start's."""
-        shape, _, both_ways = steps_shape(steps, self.params)
+        shape, _, both_ways = steps_shape(steps, self.params, self.heading_offset_deg)
         times = np.concatenate([[start.t_ms], steps.t_ms])
         fix_t = np.asarray(self._fix_t + [t for _, t, _ in later])
         fix_z = np.asarray(self._fix_z + [complex(f[0], f[1]) for _, _, f in later])

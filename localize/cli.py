@@ -159,6 +159,7 @@ def _prepare_walk(trace, maps, start_opt: str | tuple[float, float], waypoints_x
     :class:`~localize.walk_radio.WalkRadio` (its ``steps`` and ``radio`` are what to localize
     with); ``how`` names BLE and why when BLE is used."""
     from localize.compass_check import compass_turn
+    from localize.maps import mean_heading_offset_deg
     from localize.walk_radio import walk_radio
     from survey.step_summaries import ble_scans_of, step_summaries
 
@@ -171,7 +172,7 @@ def _prepare_walk(trace, maps, start_opt: str | tuple[float, float], waypoints_x
     wr = walk_radio(bundle, trace.header.model, steps, ble)
     start_xy, how = _start_of(start_opt, wr, waypoints_xy)
     _warn_if_off_floor(bundle, start_xy)
-    check = compass_turn(wr.steps, wr.radio)
+    check = compass_turn(wr.steps, wr.radio, mean_heading_offset_deg(bundle))
     if check is not None and check.turned:
         if compass == "auto":
             wr = dataclasses.replace(wr, steps=check.mended(wr.steps))

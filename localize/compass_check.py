@@ -42,8 +42,9 @@ class CompassCheck:
     ----------
     turn_deg : float
         Rotation of the track onto the fixes, deg, counter-clockwise on the map (the walk
-        went this far anticlockwise of its compass), within (-180, 180] (within (-90, 90] for
-        a track that runs either way along its compass).
+        went this far anticlockwise of its compass, beyond the floor's heading offset),
+        within (-180, 180] (within [-90, 90) for a track that runs either way along its
+        compass).
     residual_share : float
         Squared residual of the turned fit over that of the best fit without a turn.
     n_fixes : int
@@ -64,7 +65,8 @@ class CompassCheck:
 
     def mended(self, steps: StepSummaries) -> StepSummaries:
         """``steps`` with their compass turned by :attr:`turn_deg` onto the fixes (headings
-        clockwise, so less the anticlockwise turn)."""
+        clockwise, so less the anticlockwise turn); the floor's heading offset stays in it,
+        for the localizers to take off."""
         return replace(steps, compass_deg=(steps.compass_deg - self.turn_deg) % 360.0)
 
     def sentence(self) -> str:
@@ -76,16 +78,19 @@ class CompassCheck:
                 "track is likely far off")
 
 
-def compass_turn(steps: StepSummaries, radio: RadioModel | None) -> CompassCheck | None:
-    """:class:`CompassCheck` of a walk's steps and the fixes ``radio`` gives its scans; None
-    without :data:`MIN_FIXES` fixes."""
+def compass_turn(steps: StepSummaries, radio: RadioModel | None,
+                 heading_offset_deg: float = 0.0) -> CompassCheck | None:
+    """:class:`CompassCheck` of a walk's steps and the fixes ``radio`` gives its scans, the
+    compass less the floor's ``heading_offset_deg`` (what the localizers take off it:
+    :func:`localize.maps.mean_heading_offset_deg` of the walk's bundle; a plan drawn 70 deg
+    from north is no turned phone); None without :data:`MIN_FIXES` fixes."""
     if radio is None or steps.scans is None or len(steps) < 2:
         return None
     fixes = [(scan.time_or(steps.t_ms[i]), f) for i, scan in enumerate(steps.scans)
              if scan is not None and (f := radio.locate(scan)) is not None]
     if len(fixes) < MIN_FIXES:
         return None
-    shape, _, both_ways = steps_shape(steps, AlignParams())
+    shape, _, both_ways = steps_shape(steps, AlignParams(), heading_offset_deg)
     times = np.concatenate([[steps.t_ms[0] - 500.0], steps.t_ms])
     fix_t = np.array([t for t, _ in fixes], dtype=np.float64)
     a = np.interp(fix_t, times, shape.real) + 1j * np.interp(fix_t, times, shape.imag)

@@ -29,7 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 from localize.bundle import MapBundle
 from localize.errors import LocalizationError
 
-__all__ = ["FilterMap", "LayerSpec"]
+__all__ = ["FilterMap", "LayerSpec", "mean_heading_offset_deg"]
 
 #: Padding (cells) around the grid: points this far outside still index without clipping.
 PAD = 8
@@ -50,6 +50,18 @@ def _floats(a) -> NDArray:
     """float32 and float64 arrays as they are, anything else as float64."""
     a = np.asarray(a)
     return a if a.dtype in (np.float32, np.float64) else a.astype(np.float64)
+
+
+def mean_heading_offset_deg(bundle: MapBundle) -> float:
+    """The floor's heading offset (deg, compass heading minus walking direction): the circular
+    mean of its ``heading_offset`` layer over the reachable cells (0 without one). The map's
+    turn from magnetic north and the declination, a few degrees on ILC site1 (lon/lat plans)
+    and any angle for a plan drawn along its building."""
+    if "heading_offset" not in bundle.layers:
+        return 0.0
+    v = np.asarray(bundle.layers["heading_offset"], dtype=np.float64)
+    v = np.radians(v[np.asarray(bundle.mask, dtype=bool) & np.isfinite(v)])
+    return float(np.degrees(np.arctan2(np.sin(v).sum(), np.cos(v).sum()))) if v.size else 0.0
 
 
 class FilterMap:
@@ -122,14 +134,8 @@ class FilterMap:
         self.n_channels = c
         self._packed = packed.reshape(c, -1)
         self._supports = [self._pad(s, False).ravel() for s in supports]
-        # Circular mean of the heading offset (deg): the fallback where the raster has no data.
-        self.mean_heading_offset_deg = 0.0
-        if "heading_offset" in bundle.layers:
-            v = np.asarray(bundle.layers["heading_offset"], dtype=np.float64)
-            v = np.radians(v[mask & np.isfinite(v)])
-            if v.size:
-                self.mean_heading_offset_deg = float(np.degrees(np.arctan2(np.sin(v).sum(),
-                                                                           np.cos(v).sum())))
+        # the fallback where the raster has no data
+        self.mean_heading_offset_deg = mean_heading_offset_deg(bundle)
         ys, xs = np.nonzero(mask.T)[::-1]  # ordered by column: x bands by searchsorted
         self.reachable_cells_xy = np.column_stack([self.x0 + (xs + 0.5) * self.cell,
                                                    self.y0 + (ys + 0.5) * self.cell])

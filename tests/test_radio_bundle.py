@@ -769,3 +769,40 @@ def test_a_compass_turned_against_the_fixes_is_found_and_turned_back(built):
     logged, turned, mended = (median_error(s) for s in
                               (wr.steps, landscape, check.mended(landscape)))
     assert turned > 3 * logged and mended < 1.5 * logged, (logged, turned, mended)
+
+
+@pytest.mark.filterwarnings("ignore::localize.evaluate.SeenWalkWarning")  # errors compared
+def test_a_map_drawn_turned_from_north_is_aligned_and_no_turned_phone(built):
+    """A plan drawn along its building, 70 deg from magnetic north: its heading offset layer
+    reads 70 deg more and so does every compass. The alignment searched rotations around the
+    compass's north (+-15 deg) and failed such a floor; the compass check took the map's turn
+    for a phone held in landscape. Both now take the floor's heading offset off the compass."""
+    import dataclasses
+
+    from localize.baselines import make_localizer
+    from localize.bundle import MapBundle
+    from localize.compass_check import compass_turn
+    from localize.evaluate import waypoint_errors
+    from localize.maps import mean_heading_offset_deg
+    from localize.walk_radio import walk_radio
+    from survey.step_summaries import step_summaries, waypoints_of
+    from survey.trace_reader import read_trace
+
+    bundle = load_bundle(built / "F1")
+    layers = dict(bundle.layers, heading_offset=(bundle.layers["heading_offset"] + 70.0) % 360)
+    turned_map = MapBundle(bundle.path, bundle.manifest, bundle.grid, bundle.mask, layers,
+                           bundle.std, bundle.tables)
+    assert mean_heading_offset_deg(turned_map) == pytest.approx(
+        mean_heading_offset_deg(bundle) + 70.0, abs=0.01)
+    trace = read_trace(sorted((SITE / "F1" / "path_data_files").glob("*.txt.gz"))[0])
+    wr = walk_radio(bundle, trace.header.model, step_summaries(trace))
+    turned = dataclasses.replace(wr.steps, compass_deg=(wr.steps.compass_deg + 70.0) % 360)
+    t_wp, xy_wp = waypoints_of(trace)
+    check = compass_turn(turned, wr.radio, mean_heading_offset_deg(turned_map))
+    assert not check.turned and abs(check.turn_deg) < 20
+    assert compass_turn(turned, wr.radio).turned  # what it said before
+    for method in ("align", "indoormap"):
+        errors = [float(np.median(waypoint_errors(
+            make_localizer(method, b, radio=wr.radio, rng=0).run(s), t_wp, xy_wp)))
+            for b, s in ((bundle, wr.steps), (turned_map, turned))]
+        assert errors[1] < 1.5 * errors[0] + 0.3, (method, errors)
