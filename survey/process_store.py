@@ -80,8 +80,10 @@ class ProcessReport:
 #: Version of what processing computes from the same inputs and parameters; part of every
 #: walk's inputs hash, so a store processed by an older version is processed again. 2: a
 #: waypoint far outside the walk's sensor rows is dropped
-#: (:data:`survey.process.MAX_WAYPOINT_OUTSIDE_SENSORS_S`).
-PROCESS_VERSION = 2
+#: (:data:`survey.process.MAX_WAYPOINT_OUTSIDE_SENSORS_S`). 3 (session 51): a bias of 0 on
+#: every axis is no estimate, no gyroscope turn is integrated over a gap, and sensors in
+#: another unit are refused (:mod:`survey.sensor_units`, session 50).
+PROCESS_VERSION = 3
 
 
 def params_sha256(params: ProcessParams) -> str:
