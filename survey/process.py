@@ -288,10 +288,11 @@ def gyro_heading_deg(sensors: pd.DataFrame, rot_t: NDArray, rot: NDArray
     """Heading (deg clockwise from north, unwrapped, arbitrary origin) integrated from the
     gyroscope's rate about the vertical axis; None without a gyroscope stream.
 
-    Nothing is integrated over a gap in the stream longer than :data:`GYRO_GAP_S` (or five
-    times its usual interval): a logging pause or a clock step of 30 s, integrated as one
-    trapezoid, turned the heading by up to 1,270 deg; the turn in such a gap is unknown, and
-    the compass anchors the heading again after it."""
+    Over a gap in the stream longer than :data:`GYRO_GAP_S` (or five times its usual
+    interval) the heading turns as the rotation vector does about the vertical
+    (:func:`rotation_vector_turn_deg` between the gap's two ends; 0 for a clock step, whose
+    two ends are one instant): a logging pause or a clock step of 30 s, integrated as one
+    trapezoid, turned the heading by up to 1,270 deg."""
     gyro = _stream(sensors, "gyroscope")
     if len(gyro) < 2:
         return None
@@ -301,8 +302,12 @@ def gyro_heading_deg(sensors: pd.DataFrame, rot_t: NDArray, rot: NDArray
     omega_up = np.einsum("nij,nj->ni", r, gyro[["x", "y", "z"]].to_numpy(np.float64))[:, 2]
     rate = -np.degrees(omega_up)  # counter-clockwise about up is a decreasing heading
     dt = np.diff(t) / 1000.0
-    dt[dt > max(GYRO_GAP_S, 5 * float(np.median(dt)))] = 0.0
-    return t, np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * dt)])
+    turn = 0.5 * (rate[1:] + rate[:-1]) * dt
+    gap = dt > max(GYRO_GAP_S, 5 * float(np.median(dt)))
+    if gap.any():
+        rt, rh = rotation_vector_turn_deg(rot_t, rot) if len(rot_t) > 1 else (t[:1], [0.0])
+        turn[gap] = np.interp(t[1:][gap], rt, rh) - np.interp(t[:-1][gap], rt, rh)
+    return t, np.concatenate([[0.0], np.cumsum(turn)])
 
 
 #: A phone whose y axis points within this angle (deg) of the walking direction points forward.

@@ -421,6 +421,26 @@ def test_a_walk_without_a_usable_rotation_vector_says_what_it_logged(walks):
         step_summaries(parse_trace_bytes(game))
 
 
+def test_a_turn_in_a_gap_of_the_gyroscope_is_the_rotation_vectors(walks):
+    """The gyroscope silent for 2 s while the walker turns a corner: the turn in the gap is
+    the rotation vector's about the vertical, so the heading after it stays right (left at
+    0, the rest of the walk kept the corner's turn as an error)."""
+    from survey.process import _stream, gyro_heading_deg
+
+    tr = _walk(walks)
+    rv = _stream(tr.sensors, "rotation_vector")
+    rot_t, rot = rv["t_ms"].to_numpy(float), rv[["x", "y", "z"]].to_numpy(float)
+    t0, h0 = gyro_heading_deg(tr.sensors, rot_t, rot)
+    turned = np.interp(t0 + 2000, t0, h0) - h0  # each 2 s window's turn
+    start = t0[int(np.argmax(np.abs(turned[t0 < t0[-1] - 2000])))]
+    assert abs(np.interp(start + 2000, t0, h0) - np.interp(start, t0, h0)) > 45  # a corner
+    gyro = tr.sensors["stream"] == "gyroscope"
+    silent = tr.sensors[~(gyro & tr.sensors["t_ms"].between(start, start + 2000))]
+    t1, h1 = gyro_heading_deg(silent, rot_t, rot)
+    after = t1 > start + 2000
+    assert np.abs(h1[after] - np.interp(t1[after], t0, h0)).max() < 5.0
+
+
 def test_unit_checks_leave_what_a_phone_logs():
     """The checks judge units only: a phone's field out of range in no other unit (a
     magnet nearby) is left to the calibration, one plausible field of two is enough, and a
