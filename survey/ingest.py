@@ -22,6 +22,7 @@ from .publish import crash_point
 from .regular_files import path_list
 from .store import IngestOutcome, SurveyStore, catalog_row, write_parts
 from .trace_bytes import trace_file_sha256
+from .trace_format import n_dropped
 from .trace_reader import BATCH_BYTES, ReadFailure, find_trace_files, iter_traces, \
     trace_id_from_path
 from .walkline import PlanWalk, WalkLogs, identity_sha256, is_walk_plan, plan_walks
@@ -48,7 +49,7 @@ class IngestSummary:
     def __repr__(self) -> str:  # the totals, not every outcome and message
         return (f"IngestSummary(files={self.status_counts()}, rows={dict(self.rows)}, "
                 f"bad={sum(self.bad.values())}, skipped={sum(self.skipped.values())}, "
-                f"dropped={sum(self.dropped.values())})")
+                f"dropped={n_dropped(self.dropped)})")
 
     def add_row(self, row: dict, max_messages: int = 20) -> None:
         import json

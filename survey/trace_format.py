@@ -54,6 +54,13 @@ MAX_WIFI_SEEN_AFTER_SCAN_MS = 1000
 #: rule ``wifi_last_seen_other_clock``. Taken as decades old, every such row was dropped by
 #: the maps and the localizer, silently. The ILC rows are at most 32 s old.
 MAX_WIFI_AGE_MS = 3_600_000
+#: Rules counted in :attr:`ParseReport.dropped` whose rows are kept, mended.
+KEPT_ROW_RULES = ("wifi_last_seen_other_clock",)
+
+
+def n_dropped(counts: dict[str, int]) -> int:
+    """Rows a ``dropped`` count (rule -> rows) removed: all but :data:`KEPT_ROW_RULES`'."""
+    return int(sum(v for k, v in counts.items() if k not in KEPT_ROW_RULES))
 
 #: How far (ms) outside the sensor samples' time span a walk's scans, beacon rows or
 #: waypoints may all lie before :meth:`Trace.clock_mismatch` calls the clocks different.
@@ -179,8 +186,9 @@ class ParseReport:
     ``lines_total == header_lines + blank_lines + sum(records) + sum(skipped) + sum(bad)`` where
     ``records`` counts parsed lines per documented type, ``skipped`` undocumented types
     (per type) and ``bad`` malformed lines (per reason). ``dropped`` counts rows removed after
-    parsing by a stated rule (duplicate sensor timestamps, duplicate BSSIDs in a scan); they are
-    already included in ``records``. ``messages`` keeps the first few ``file:line: reason``.
+    parsing by a stated rule (duplicate sensor timestamps, duplicate BSSIDs in a scan), and
+    rows kept but mended by one of :data:`KEPT_ROW_RULES`; they are already included in
+    ``records``. :meth:`n_dropped` counts those removed. ``messages`` keeps the first few ``file:line: reason``.
     """
 
     path: str = "<input>"
@@ -196,6 +204,10 @@ class ParseReport:
     @property
     def bad_total(self) -> int:
         return int(sum(self.bad.values()))
+
+    def n_dropped(self) -> int:
+        """Rows removed by a rule (those of :data:`KEPT_ROW_RULES` were kept)."""
+        return n_dropped(self.dropped)
 
     @property
     def skipped_total(self) -> int:
@@ -218,7 +230,8 @@ class Trace:
       the phone's bias estimate for uncalibrated streams (NaN otherwise), ``accuracy`` Android's
       accuracy flag. Sorted by (stream, t_ms).
     - ``wifi``: one row per (scan, BSSID) with RSSI (dBm), frequency (MHz), last-seen time and
-      ``age_ms = scan_t_ms - last_seen_ms``. Sorted by (scan_t_ms, bssid).
+      ``age_ms = scan_t_ms - last_seen_ms`` (0 when over :data:`MAX_WIFI_AGE_MS`: another
+      clock). Sorted by (scan_t_ms, bssid).
     - ``ble``: one row per beacon sighting, keyed ``uuid:major:minor``. Sorted by t_ms.
     - ``waypoints``: ground-truth clicks (x east, y north, metres). Sorted by t_ms.
     """

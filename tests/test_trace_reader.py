@@ -90,6 +90,7 @@ def test_last_seen_times_on_another_clock_give_unknown_ages():
     t = parse_trace_bytes(text)
     assert sorted(t.wifi["age_ms"]) == [0, 0, 30_000] and len(t.wifi) == 3
     assert t.report.dropped == {"wifi_last_seen_other_clock": 2}
+    assert t.report.n_dropped() == 0  # kept: the store's n_dropped_rows does not count them
 
 
 def test_ble_key_and_normalisation():
