@@ -502,6 +502,9 @@ def load_floor_data(store: SurveyStore | str | Path, bundle: MapBundle) -> Floor
         return table[~table["trace_id"].isin(not_in_bundle)].reset_index(drop=True)
 
     samples = holdout.floor_samples_with_baseline_positions(store, floor, site)
+    raw = m.get("metrics", {}).get("not_calibrated_walks") or {}
+    if raw and not raw.get("in_magnetic_layers", True):  # the build left their field out
+        samples = samples[~samples["trace_id"].isin(raw.get("trace_ids", []))]
     steps = processed_table(store, "steps", site=site, floor=floor)
     legs = processed_table(store, "legs", site=site, floor=floor)
     waypoints = store.table("waypoints", site=site, floor=floor)
@@ -1127,11 +1130,15 @@ def calibration_section(bundle: MapBundle, fd: FloorData | None, th: dict,
     out["decisions"] = counts
     bad = [w for w in out["walks"] if w.get("calibration") == "not-calibrated"]
     t = th.get("not_calibrated_walks_max")
+    raw = bundle.manifest.get("metrics", {}).get("not_calibrated_walks") or {}
+    left_out = bool(raw) and not raw.get("in_magnetic_layers", True)
     if t is not None and len(bad) > t:
-        for w in bad:
-            findings.append(Finding("not_calibrated", "fail",
+        for w in bad:  # a fail only where the walk's field is in the magnetic layers
+            findings.append(Finding("not_calibrated", "info" if left_out else "fail",
                                     f"walk {w['trace_id']}: magnetometer not calibrated "
-                                    f"({w.get('calibration_detail') or 'no detail'})",
+                                    f"({w.get('calibration_detail') or 'no detail'})"
+                                    + ("; left out of the magnetic layers by the build"
+                                       if left_out else ""),
                                     "calibration", walk=w["trace_id"], value=len(bad),
                                     threshold=t))
     out["rssi_devices"] = _rssi_devices(bundle)

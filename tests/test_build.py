@@ -199,6 +199,18 @@ def test_walks_without_a_calibrated_magnetometer_stay_out_of_the_magnetic_layers
                               equal_nan=True)
     assert built.metrics["n_walks"] == 6  # every walk is a source (its steps, its radio)
     assert "not_calibrated_walks" not in without.metrics  # calibrated surveys: as before
+    # the validation report scores the map the build made, and does not fail it for walks
+    # whose field it left out
+    from mapping.validate import load_floor_data, validate_bundle
+
+    write_bundle(tmp_path / "bundle", built)
+    bundle = load_bundle(tmp_path / "bundle")
+    samples = load_floor_data(tmp_path / "store", bundle).samples
+    assert set(samples["trace_id"]) == set(cat["trace_id"]) - set(raw)
+    report = validate_bundle(bundle, tmp_path / "store")
+    said = [f for f in report.findings if f.check == "not_calibrated"]
+    assert len(said) == 2 and {f.severity for f in said} == {"info"}
+    assert all("left out of the magnetic layers" in f.message for f in said)
 
 
 def test_release_free_memory_runs_twice():
