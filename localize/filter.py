@@ -107,7 +107,8 @@ def step_time_problem(t_ms: float, last_t_ms: float, *, after_step: bool) -> str
     if t_ms < last_t_ms:  # the first step; begin(scan=...) starts at the scan's time
         return (f"step at {t_ms:.0f} ms comes before the start ({last_t_ms:.0f} ms; a start "
                 "from a scan takes the scan's time): skip the steps before it, or start "
-                "earlier (a start time, start(..., t_ms=), at most the first step's)")
+                "earlier (a start time at most the first step's: start(..., t_ms=), or "
+                "add_users(..., t_ms=) for the multi-user servers)")
     return None
 
 
