@@ -374,7 +374,12 @@ def _parse_block(sc: ScanResult, g: int, cols: dict | None, bad: _Collector,
             finite &= np.isfinite(cols[c])
         elif kind == "i":  # not np.abs: it overflows for the int64 minimum
             finite &= (cols[c] > -_INT_LIMIT) & (cols[c] < _INT_LIMIT)
-    bad.add(glines[finite != keep], "non_finite", f"{what}: a value is NaN, infinite or too large")
+    refused = glines[finite != keep]
+    # the sensor groups hold several record types: each line's own (a walk refused for no
+    # rotation vector names its rotation-vector lines)
+    named = (np.asarray(_TYPE_LIST, dtype=object)[sc.type_idx[refused]] if g < 2
+             else np.full(len(refused), what, dtype=object))
+    bad.add(refused, "non_finite", named + ": a value is NaN, infinite or too large")
     cols["gline"] = glines
     return _take(cols, np.flatnonzero(finite)) if not finite.all() else cols
 

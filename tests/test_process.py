@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -415,6 +416,11 @@ def test_a_walk_without_a_usable_rotation_vector_says_what_it_logged(walks):
                        r"TYPE_ROTATION_VECTOR lines were refused as bad lines, e\.g\. .*:\d+: "
                        r"TYPE_ROTATION_VECTOR needs 4 values, got 5"):
         step_summaries(parse_trace_bytes(five))
+    nan = "\n".join(re.sub(r"(\tTYPE_ROTATION_VECTOR\t)[^\t]+", r"\1NaN", line)
+                    for line in text.splitlines()).encode()
+    with pytest.raises(ProcessingError, match=r"refused as bad lines, e\.g\. .*:\d+: "
+                                              r"TYPE_ROTATION_VECTOR: a value is NaN"):
+        step_summaries(parse_trace_bytes(nan))
     game = text.replace("\tTYPE_ROTATION_VECTOR\t", "\tTYPE_GAME_ROTATION_VECTOR\t").encode()
     with pytest.raises(ProcessingError, match=r"it logs \d+ TYPE_GAME_ROTATION_VECTOR lines, "
                                               r"left out: a game rotation vector has no north"):
