@@ -412,11 +412,11 @@ def evaluate_command(bundle_path: Path, walks: tuple[str, ...], methods: tuple[s
         wr, bundle, start_xy, how = _prepare_walk(trace, maps, start_opt, xy_wp, floors_said,
                                                   compass)
         _warn_if_outside_map(bundle, trace.trace_id, xy_wp)
-        if wr.kind == "ble":  # the scores of this walk are BLE's, not Wi-Fi's
-            click.echo(f"{trace.trace_id}: start {how}", err=True)
-        elif "(no " in how:  # auto fell back to the truth: errors a user could not get
+        if start_opt == "auto" and how.startswith("first waypoint"):  # fell back to the truth
             click.echo(f"note: {trace.trace_id}: start {how}: its errors start from the "
-                       "truth", err=True)
+                       "truth, as a user's could not", err=True)
+        elif wr.kind == "ble":  # the scores of this walk are BLE's, not Wi-Fi's
+            click.echo(f"{trace.trace_id}: start {how}", err=True)
         for m, sm in rows:  # a method failing on this walk leaves the others' rows alone
             def run(m=m, sm=sm):
                 loc = make_localizer(m, bundle, _params(particles), radio=wr.radio, rng=seed,

@@ -751,3 +751,6 @@ def test_evaluate_says_when_a_walk_starts_from_the_truth(built, tmp_path):  # no
     assert res.exit_code == 0, res.output
     assert re.search(r"note: \S+: start first waypoint \(no .* fix in the walk\): its errors "
                      r"start from the truth", res.output), res.output
+    res = CliRunner().invoke(main, ["evaluate", str(built), str(quiet), "--method", "pdr",
+                                    "--start", "waypoint"])  # asked for: no note
+    assert res.exit_code == 0 and "start from the truth" not in res.output
