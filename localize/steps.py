@@ -20,7 +20,7 @@ from enum import IntEnum
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from localize.bundle import RSSI_RANGE_DBM, rssi_in_range
+from localize.bundle import RSSI_RANGE_DBM, rssi_reading
 from localize.errors import LocalizationError
 from localize.params import is_number
 
@@ -126,13 +126,14 @@ class RadioScan:
         except (TypeError, ValueError) as err:
             raise LocalizationError(f"scan at {self.t_ms}: RSSI values are not numbers "
                                     f"({err})") from err
-        bad = ~rssi_in_range(rssi)
+        bad = ~rssi_reading(rssi)
         if bad.any():
             lo, hi = RSSI_RANGE_DBM
             i = int(np.flatnonzero(bad)[0])
+            why = ("is a driver's 'no reading', no signal a phone receives: leave such rows "
+                   "out" if rssi[i] == 0 else f"is not in [{lo:g}, {hi:g}) dBm (another unit?)")
             raise LocalizationError(f"scan at {self.t_ms}: RSSI {rssi[i]:g} dBm of "
-                                    f"{self.keys[i]} is not in [{lo:g}, {hi:g}] dBm (another "
-                                    "unit?)")
+                                    f"{self.keys[i]} {why}")
 
     def __len__(self) -> int:
         return len(self.keys)

@@ -46,7 +46,7 @@ import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 
 # one RSSI range (dBm) for the reader, the radio build and a bundle's radio tables
-from localize.bundle import RSSI_RANGE_DBM, rssi_in_range
+from localize.bundle import RSSI_RANGE_DBM, rssi_reading
 
 from .errors import SurveyFormatError
 from .regular_files import path_list
@@ -564,17 +564,9 @@ def _split(frame: pd.DataFrame, ranges: np.ndarray) -> list[pd.DataFrame]:
             for i in range(len(ranges) - 1)]
 
 
-#: Why a row's RSSI is refused: outside :data:`RSSI_RANGE_DBM`, or exactly 0 dBm, which no
-#: phone receives (the ILC traces' strongest Wi-Fi row is -7 dBm) and drivers report for "no
-#: reading": read as the strongest signal, a third of a walk's rows at 0 dBm took its median
-#: error from 1.7 to 6.1 m and put it on another floor.
+#: Why a row's RSSI is refused (:func:`localize.bundle.rssi_reading`).
 RSSI_REFUSED = (f"rssi outside [{RSSI_RANGE_DBM[0]:g}, {RSSI_RANGE_DBM[1]:g}) dBm (0: a "
                 "driver's 'no reading')")
-
-
-def _rssi_reading(rssi_dbm: np.ndarray) -> np.ndarray:
-    """Rows (n,) whose RSSI (dBm) is a reading: within :data:`RSSI_RANGE_DBM`, not 0."""
-    return rssi_in_range(rssi_dbm) & (np.asarray(rssi_dbm) != 0)
 
 
 def wifi_row_checks(cols: dict) -> tuple[pa.Array, list[tuple[str, str, np.ndarray]]]:
@@ -585,7 +577,7 @@ def wifi_row_checks(cols: dict) -> tuple[pa.Array, list[tuple[str, str, np.ndarr
     (pyarrow strings) and ``t_ms`` (scan time), ``last_seen_ms``, ``rssi_dbm``, ``freq_mhz``
     (numbers, n,)."""
     bssid, valid = normalize_bssids(cols["bssid"])
-    rssi_ok = _rssi_reading(cols["rssi_dbm"])
+    rssi_ok = rssi_reading(cols["rssi_dbm"])
     freq_ok = (cols["freq_mhz"] >= 1) & (cols["freq_mhz"] <= 100_000)
     seen_ok = cols["last_seen_ms"] <= cols["t_ms"] + MAX_WIFI_SEEN_AFTER_SCAN_MS
     return bssid, [
@@ -601,7 +593,7 @@ def beacon_row_checks(cols: dict) -> list[tuple[str, str, np.ndarray]]:
     order: RSSI outside :data:`RSSI_RANGE_DBM`, a major or minor outside [0, 65535] or an
     absurd TX power. ``cols``: ``rssi_dbm``, ``major``, ``minor``, ``tx_power_dbm`` (numbers,
     n,)."""
-    ok = _rssi_reading(cols["rssi_dbm"])
+    ok = rssi_reading(cols["rssi_dbm"])
     ok_id = ((cols["major"] >= 0) & (cols["major"] < 2**16) & (cols["minor"] >= 0)
              & (cols["minor"] < 2**16) & (np.abs(cols["tx_power_dbm"]) < 2**15))
     return [("out_of_range", RSSI_REFUSED, ~ok),

@@ -139,8 +139,12 @@ def test_localizer_positions_equal_the_mapping_matcher(built, wifi_obs):
     np.testing.assert_array_equal(pos.locate_scans(upper).xy_m, pos.locate_scans(one).xy_m)
     for bad in (5.0, np.inf, np.nan, -200.0):  # not an RSSI in dBm
         with pytest.raises(LocalizationError, match=rf"scan at 7: RSSI .* dBm of "
-                           rf"{one[0].keys[0]} is not in \[-127, 0\] dBm"):
+                           rf"{one[0].keys[0]} is not in \[-127, 0\) dBm"):
             RadioScan(7, np.char.upper(one[0].keys), np.r_[bad, one[0].rssi_dbm[1:]])
+    # 0 dBm, a driver's "no reading", read as the strongest signal: refused as ingest does
+    with pytest.raises(LocalizationError, match=r"RSSI 0 dBm of .* is a driver's 'no "
+                                                r"reading'"):
+        RadioScan(7, one[0].keys, np.r_[0.0, one[0].rssi_dbm[1:]])
     # whole walks: the same scores on both sides
     want_walk = default_walk_matcher().fit(db).predict(scans)
     walk = scans.scans["trace_id"].to_numpy().astype(str)
