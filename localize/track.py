@@ -119,8 +119,9 @@ class Track:
         return xy.reshape(-1, 2) if t.ndim <= 1 else xy
 
     def to_columns(self) -> dict[str, NDArray]:
-        """Plain columns for a table: step, t_ms (whole ms, rounded: a streamed step's time
-        may have a fraction), x_m, y_m, spread_m, alive_fraction, recovered."""
+        """Plain columns for a table: step, t_ms (whole ms, rounded to the nearest, halves to
+        even: a streamed step's time may have a fraction), x_m, y_m, spread_m,
+        alive_fraction, recovered."""
         return {"step": np.arange(len(self), dtype=np.int32),
                 "t_ms": np.rint(self.t_ms).astype(np.int64), "x_m": self.x_m, "y_m": self.y_m,
                 "spread_m": self.spread_m, "alive_fraction": self.alive_fraction,
