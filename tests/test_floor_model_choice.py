@@ -403,7 +403,7 @@ def test_a_header_floor_the_wifi_floor_model_contradicts_is_said(built, tmp_path
     assert sum("but the Wi-Fi floor model" in line for line in res.output.splitlines()) == 1
 
 
-def test_a_walk_whose_scans_change_floor_is_said_and_floored_alike(built, tmp_path):
+def test_a_walk_whose_scans_change_floor_is_said_and_floored_alike(built, tmp_path, capsys):
     """A walk through a lift (its first scans on F1, its last on F2) was localized on one
     floor without a word, and `indoormap floor`'s walk row (summed log-probabilities) and
     `localize` (most scans) could name different floors for it. The change is said, and both
@@ -430,6 +430,14 @@ def test_a_walk_whose_scans_change_floor_is_said_and_floored_alike(built, tmp_pa
     assert FLOOR_CHANGE + ", F1 to F2 at scan " in how, how
     plain = read_trace(sorted((SITE / "F1" / "path_data_files").glob("*.txt.gz"))[0])
     assert FLOOR_CHANGE not in maps.choose(plain.trace_id, "", "", "", scans_of(plain))[1]
+    # a header naming the first floor decides, and the change is still said, as a warning
+    f1_id = maps.floor_bundle("F1").floor_id
+    bundle, how = maps.choose(trace.trace_id, "", f1_id, "", scans)
+    assert bundle.floor_id == f1_id and FLOOR_CHANGE + ", F1 to F2" in how
+    FloorChoices().say(trace.trace_id, bundle, how)
+    assert capsys.readouterr().err.startswith(f"warning: {trace.trace_id}: floor F1 by the "
+                                              "floor id in the trace header; its Wi-Fi scans "
+                                              "change floor, F1 to F2")
     chosen = maps.choose(trace.trace_id, "", "", "", scans)[0].manifest["floor_name"]
     res = CliRunner().invoke(main, ["floor", str(built / "_site"), str(both)])
     assert res.exit_code == 0, res.output

@@ -773,6 +773,11 @@ def test_a_compass_turned_against_the_fixes_is_found_and_turned_back(built):
     logged, turned, mended = (median_error(s) for s in
                               (wr.steps, landscape, check.mended(landscape)))
     assert turned > 3 * logged and mended < 1.5 * logged, (logged, turned, mended)
+    other_way = dataclasses.replace(wr.steps, compass_deg=(wr.steps.compass_deg - 90) % 360)
+    check = compass_turn(other_way, wr.radio)
+    assert check.turned and check.turn_deg == pytest.approx(as_logged.turn_deg - 90, abs=1)
+    assert "deg clockwise of its compass" in check.sentence()
+    assert median_error(check.mended(other_way)) < 1.5 * logged
 
 
 @pytest.mark.filterwarnings("ignore::localize.evaluate.SeenWalkWarning")  # errors compared
