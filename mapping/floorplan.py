@@ -353,13 +353,13 @@ def feature_level(feature: dict) -> str:
 
 
 def plan_levels(path: str | os.PathLike) -> list[str]:
-    """The floors a GeoJSON plan holds, sorted (as :func:`read_floor_plan` reads them by
-    ``level``); empty for a plan of one floor and for a DXF drawing."""
+    """The floors a GeoJSON plan's features name, sorted (as :func:`read_floor_plan` reads
+    them by ``level``; one for a plan tagged with one floor); empty for a plan naming none
+    and for a DXF drawing."""
     file = plan_file(path)
     if file.suffix.lower() == ".dxf":
         return []
-    named = sorted(set(_floor_tags(_features(file, []))) - {""})
-    return named if len(named) > 1 else []
+    return sorted(set(_floor_tags(_features(file, []))) - {""})
 
 
 def _floor_tags(feats: list[dict]) -> list[str]:

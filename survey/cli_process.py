@@ -27,15 +27,16 @@ def _require_walks(selected, everything, site: str | None, floor: str | None) ->
 
 def _plan_floors(path: str, floors: list[str]) -> list[str]:
     """The floors a ``--floor-plan`` is read for: each floor of a plan of several floors
-    that the walks are on, else the one its name gives; a warning for a plan of no walks'
-    floor (``floors``: the walks' floor keys)."""
+    that the walks are on, else the one its name or its one floor tag gives; a warning for
+    a plan of no walks' floor (``floors``: the walks' floor keys)."""
     from mapping.floorplan import plan_floor_name, plan_levels
 
     levels = plan_levels(path)
-    named = [name for name in levels or [plan_floor_name(path)] if floor_key(name) in floors]
+    candidates = levels if len(levels) > 1 else [plan_floor_name(path), *levels]
+    named = list({floor_key(n): n for n in candidates if floor_key(n) in floors}.values())
     if not named:
-        of = (f"any of its floors ({', '.join(levels)})" if levels
-              else f"floor {plan_floor_name(path)!r}")
+        of = (f"any of its floors ({', '.join(levels)})" if len(levels) > 1
+              else " or ".join(f"floor {n!r}" for n in dict.fromkeys(candidates)))
         click.echo(f"warning: {path}: no walks of {of} to check against this plan (floors: "
                    f"{', '.join(floors)})", err=True)
     return named

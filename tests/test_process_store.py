@@ -161,7 +161,7 @@ def test_a_plan_of_several_floors_serves_each_of_its_floors(tmp_path):
                "properties": {"level": "F2"}} for p in shapely.get_parts(f2.obstacles)]
     building = tmp_path / "building.geojson"
     building.write_text(json.dumps({"type": "FeatureCollection", "features": feats}))
-    assert plan_levels(building) == ["F1", "F2", "F9"] and plan_levels(SITE / "F1") == []
+    assert plan_levels(building) == ["F1", "F2", "F9"] and plan_levels(SITE / "F1") == ["F1"]
     ingest([sorted((SITE / floor / "path_data_files").glob("*.txt.gz"))[0]
             for floor in ("F1", "F2")], tmp_path / "store")
     res = CliRunner().invoke(main, ["process", "--store", str(tmp_path / "store"),
@@ -185,6 +185,16 @@ def test_a_plan_of_several_floors_serves_each_of_its_floors(tmp_path):
                                     "--floor-plan", str(other)])
     assert res.exit_code == 0 and f"{other}: no walks of any of its floors (F8, F9) to check " \
         "against this plan (floors: F1, F2)" in res.output
+    # a file of one floor, its features tagged with it, serves that floor whatever its name
+    one = tmp_path / "level2.geojson"
+    one.write_text(json.dumps({"type": "FeatureCollection",
+                               "features": [f for f in feats if f["properties"]["level"] == "F2"]}))
+    assert plan_levels(one) == ["F2"]
+    res = CliRunner().invoke(main, ["process", "--store", str(tmp_path / "store"),
+                                    "--floor-plan", str(one)])
+    assert res.exit_code == 0 and "no walks of" not in res.output, res.output
+    assert not processed_table(tmp_path / "store", "legs", floor="F2")["flags"].str.contains(
+        "off_floor").any()
 
 
 PROCESS_OTHER_PARAMS = """
