@@ -211,6 +211,12 @@ def test_walks_without_a_calibrated_magnetometer_stay_out_of_the_magnetic_layers
     said = [f for f in report.findings if f.check == "not_calibrated"]
     assert len(said) == 2 and {f.severity for f in said} == {"info"}
     assert all("left out of the magnetic layers" in f.message for f in said)
+    res = CliRunner().invoke(main, ["build", str(tmp_path / "in"), "--plan",
+                                    str(SITE / "F1" / "geojson_map.json"), "-o",
+                                    str(tmp_path / "out")])
+    assert res.exit_code == 0, res.output
+    assert re.search(r"warning: F1: 2 walk\(s\) left out of the magnetic layers, their "
+                     r"magnetometer not calibrated \(\w+, \w+; `indoormap survey-report", res.output)
 
 
 def test_release_free_memory_runs_twice():
