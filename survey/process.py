@@ -223,7 +223,7 @@ def field_strengths_ut(sensors: pd.DataFrame) -> dict[str, float]:
     if len(unc):
         raw = unc[["x", "y", "z"]].to_numpy(np.float64)
         bias = unc[["bx", "by", "bz"]].to_numpy(np.float64)
-        if np.isfinite(bias).all():
+        if _has_bias(bias):
             out["uncalibrated minus bias"] = float(np.median(np.linalg.norm(raw - bias, axis=1)))
         else:
             out["uncalibrated"] = float(np.median(np.linalg.norm(raw, axis=1)))

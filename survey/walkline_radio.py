@@ -9,7 +9,7 @@ column         required  meaning
 =============  ========  ===========================================================
 t_ms           yes       scan time (Unix ms)
 bssid          yes       the access point's MAC address (``aa:bb:..``, ``AA-BB-..``, 12 hex)
-rssi_dbm       yes       received strength (dBm, within [-127, 0]; rounded to whole dBm)
+rssi_dbm       yes       received strength (dBm, within [-127, 0); 0 is no reading; rounded to whole dBm)
 freq_mhz       no        channel frequency (MHz); 0 in the store when absent or 0 (unknown)
 ssid           no        network name
 last_seen_ms   no        when the phone last heard it (Unix ms); the scan time when absent
@@ -23,7 +23,7 @@ column         required  meaning
 t_ms           yes       time (Unix ms)
 uuid           yes       proximity UUID
 major, minor   yes       within [0, 65535]
-rssi_dbm       yes       received strength (dBm, within [-127, 0]; rounded to whole dBm)
+rssi_dbm       yes       received strength (dBm, within [-127, 0); 0 is no reading; rounded to whole dBm)
 tx_power_dbm   no        the beacon's calibrated power (dBm); 0 in the store when absent
 distance_m     no        the phone's distance estimate (m); NaN when absent
 mac            no        the beacon's MAC address
