@@ -392,7 +392,7 @@ def _floor_change(model: FloorModel, scans: Sequence[RadioScan],
     at = split[k]
     t_ms = [s.t_ms for s, good in zip(scans, ok) if good][at]
     return (f"{FLOOR_CHANGE}, {model.floors[a[k]]} to {model.floors[b[k]]} at scan {at + 1} of "
-            f"{n} ({t_ms} ms): a walk is localized on one floor, so one part of it is on the "
+            f"{n} ({t_ms:.0f} ms): a walk is localized on one floor, so one part of it is on the "
             "wrong one (localize the parts apart)")
 
 

@@ -36,6 +36,13 @@ __all__ = ["cdf_figure", "draw_floor", "plot_cdfs", "plot_track", "track_figure"
 OFF_MASK_GREY = "#9e9e9e"
 
 
+def _have_matplotlib() -> bool:
+    """Whether matplotlib can be imported (an error inside a figure is not taken for it)."""
+    import importlib.util
+
+    return importlib.util.find_spec("matplotlib") is not None
+
+
 def _save_png(fig, path: str | Path) -> None:
     """The figure as a PNG at ``path``, written whole or not at all (a full disk or a killed
     process leaves the previous file, never a truncated one)."""
@@ -48,11 +55,9 @@ def plot_track(path: str | Path, bundle: MapBundle, tracks: Mapping[str, Track],
                waypoints_xy: ArrayLike | None = None, title: str = "", *,
                margin_m: float = 8.0) -> bool:
     """:func:`track_figure` as a PNG at ``path``; False without matplotlib."""
-    try:
-        fig = track_figure(bundle, tracks, waypoints_xy, title, margin_m=margin_m)
-    except ImportError:
+    if not _have_matplotlib():
         return False
-    _save_png(fig, path)
+    _save_png(track_figure(bundle, tracks, waypoints_xy, title, margin_m=margin_m), path)
     return True
 
 
@@ -144,11 +149,9 @@ def _waypoint_labels(waypoints_xy: NDArray[np.float64], within_m: float = 0.5
 def plot_cdfs(path: str | Path, errors: Mapping[str, NDArray[np.float64]], title: str = ""
               ) -> bool:
     """:func:`cdf_figure` as a PNG at ``path``; False without matplotlib."""
-    try:
-        fig = cdf_figure(errors, title)
-    except ImportError:
+    if not _have_matplotlib():
         return False
-    _save_png(fig, path)
+    _save_png(cdf_figure(errors, title), path)
     return True
 
 

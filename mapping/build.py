@@ -212,9 +212,9 @@ def build_floor(store: SurveyStore | str, plan: FloorPlan, *, floor: str,
     # field: such walks stay out of the magnetic layers while calibrated walks make them
     field_walks = pcat[~raw] if (~raw).any() else pcat
     if raw.any():
-        say(f"{floor}: {int(raw.sum())} walk(s) not calibrated "
+        say(f"{floor}: {int(raw.sum())} walk(s) with a magnetometer not calibrated: "
             + ("left out of the magnetic layers" if (~raw).any() else
-               "make the magnetic layers: no walk of the floor is calibrated"))
+               "they make the magnetic layers, no walk of the floor being calibrated"))
     residuals = None
     if params.level:
         residuals = fit_session_residuals(
