@@ -90,8 +90,11 @@ class AlignParams:
     #: wall term for walks whose shape is much better than the ILC phones' (on the simulated
     #: site 40 with ``wall_weight=0`` does better; docs/localize.md, "Walk alignment").
     wall_share_weight: float = 0.0
-    #: Real time: the alignment uses the last ``window_s`` of the walk (s).
+    #: Real time: the alignment uses the last ``window_s`` of the walk's walking (s): a gap
+    #: between steps counts for at most ``pause_counts_s``, so that a stop (a walker
+    #: standing two minutes at a shop) does not empty the window of the walk's shape.
     window_s: float = 120.0
+    pause_counts_s: float = 2.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -102,7 +105,8 @@ class AlignParams:
                                         f">= 0, got {v}")
         positive = ("rotation_step_deg", "scale_step", "heading_sd_deg", "scale_sd",
                     "step_length_nominal_m", "weinberg_nominal", "shift_step_m",
-                    "fix_ar_tau_s", "fix_white_sd_m", "start_sd_m", "window_s", "wall_cap_m")
+                    "fix_ar_tau_s", "fix_white_sd_m", "start_sd_m", "window_s", "pause_counts_s",
+                    "wall_cap_m")
         bad = [n for n in positive if not getattr(self, n) > 0]
         if bad:
             raise LocalizationError(f"align parameters {bad} must be positive")
@@ -464,8 +468,12 @@ class WalkAligner(BaseLocalizer):
         Returns the window's first step index (what :meth:`_forget` may drop before it)."""
         p = self.params
         t = np.asarray(self._t)
-        first = max(min(int(np.searchsorted(t, t[-1] - p.window_s * 1000.0)), len(t) - 1) - 1,
-                    0)
+        # walking time: a pause between steps counts for at most pause_counts_s (a 2 min
+        # stop emptied the window: align 1.6 -> 3.8 m median on a simulated held-out walk)
+        walked = np.concatenate([[0.0], np.cumsum(np.minimum(np.diff(t),
+                                                             p.pause_counts_s * 1000.0))])
+        first = max(min(int(np.searchsorted(walked, walked[-1] - p.window_s * 1000.0)),
+                        len(t) - 1) - 1, 0)
         shape, anchor, both_ways = _shape(
             np.asarray(self._compass[first:]), np.asarray(self._gyro[first:]),
             np.asarray(self._swing[first:]), p, np.asarray(self._axis[first:]))

@@ -815,3 +815,34 @@ def test_a_map_drawn_turned_from_north_is_aligned_and_no_turned_phone(built):
             make_localizer(method, b, radio=wr.radio, rng=0).run(s), t_wp, xy_wp)))
             for b, s in ((bundle, wr.steps), (turned_map, turned))]
         assert errors[1] < 1.5 * errors[0] + 0.3, (method, errors)
+
+
+def test_a_stop_mid_walk_keeps_the_walk_in_the_alignment_window(built):
+    """A walker standing two minutes (at a shop) mid-walk: the real-time alignment's window
+    of 120 s of time then held the steps after the stop alone (simulated held-out walks so
+    stopped: align 2.14 -> 3.04 m median). A pause counts for 2 s of the window now, and the
+    track after the stop is the walk's without it."""
+    import dataclasses
+
+    from localize.align import AlignParams, WalkAligner
+    from localize.walk_radio import walk_radio
+    from survey.step_summaries import step_summaries
+    from survey.trace_reader import read_trace
+
+    bundle = load_bundle(built / "F1")
+    trace = read_trace(sorted((SITE / "F1" / "path_data_files").glob("*.txt.gz"))[0])
+    wr = walk_radio(bundle, trace.header.model, step_summaries(trace))
+    steps, k, stop = wr.steps, len(wr.steps) // 2, 120_000
+    later = steps.t_ms >= (steps.t_ms[k - 1] + steps.t_ms[k]) / 2
+    scans = [s if s is None or not later[i] or not s.t_ms else
+             dataclasses.replace(s, t_ms=int(s.t_ms) + stop) for i, s in enumerate(steps.scans)]
+    stopped = dataclasses.replace(steps, t_ms=steps.t_ms + stop * later, scans=tuple(scans))
+    walked = WalkAligner(bundle, radio=wr.radio).run(steps)
+
+    def moved_m(pause_counts_s: float) -> float:
+        track = WalkAligner(bundle, AlignParams(pause_counts_s=pause_counts_s),
+                            radio=wr.radio).run(stopped)
+        return float(np.median(np.hypot(track.x_m - walked.x_m,
+                                        track.y_m - walked.y_m)[later]))
+
+    assert moved_m(2.0) < 0.2 < moved_m(1e6)  # counted in full, the stop moved the track
