@@ -42,7 +42,7 @@ from numpy.typing import NDArray
 
 from localize.bundle import Grid, MapBundle
 from localize.errors import LocalizationError
-from localize.filter import BaseLocalizer, check_step, check_within_reach
+from localize.filter import BaseLocalizer, check_step, check_within_reach, walk_fixes
 from localize.maps import mean_heading_offset_deg
 from localize.params import MAX_STEP_M
 from localize.radio import RadioModel
@@ -538,9 +538,7 @@ class WalkAligner(BaseLocalizer):
         """
         self.check_run(steps, smooth, start_t_ms)
         t0 = float(steps.t_ms[0]) - 500.0 if start_t_ms is None else float(start_t_ms)
-        fixes = [] if self.radio is None or steps.scans is None else [
-            (i, sc.time_or(steps.t_ms[i]), f) for i, sc in enumerate(steps.scans)
-            if sc is not None and (f := self.radio.locate(sc)) is not None]
+        fixes = walk_fixes(self.radio, steps)
         if start_xy is None and not fixes:
             raise LocalizationError(f"{steps.trace_id or 'walk'}: no start position given and "
                                     "no scan of the walk located by the radio model")

@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from localize.align import AlignParams, steps_shape
+from localize.filter import walk_fixes
 from localize.radio import RadioModel
 from localize.steps import StepSummaries
 
@@ -78,19 +79,6 @@ class CompassCheck:
                 "track is likely far off")
 
 
-def _fixes(steps: StepSummaries, radio: RadioModel) -> list[tuple[float, tuple]]:
-    """``(scan time, (x_m, y_m, ...))`` of each of the steps' scans the radio locates, in one
-    call of ``locate_scans`` where the radio has it (one at a time: 5 ms a scan on ILC)."""
-    at = [(scan.time_or(steps.t_ms[i]), scan) for i, scan in enumerate(steps.scans)
-          if scan is not None]
-    if not at:
-        return []
-    if hasattr(radio, "locate_scans"):
-        xy = radio.locate_scans([scan for _, scan in at]).xy_m
-        return [(t, tuple(p)) for (t, _), p in zip(at, xy) if np.isfinite(p).all()]
-    return [(t, f) for t, scan in at if (f := radio.locate(scan)) is not None]
-
-
 def compass_turn(steps: StepSummaries, radio: RadioModel | None,
                  heading_offset_deg: float = 0.0) -> CompassCheck | None:
     """:class:`CompassCheck` of a walk's steps and the fixes ``radio`` gives its scans, the
@@ -99,7 +87,7 @@ def compass_turn(steps: StepSummaries, radio: RadioModel | None,
     from north is no turned phone); None without :data:`MIN_FIXES` fixes."""
     if radio is None or steps.scans is None or len(steps) < 2:
         return None
-    fixes = _fixes(steps, radio)
+    fixes = [(t, f) for _, t, f in walk_fixes(radio, steps)]
     if len(fixes) < MIN_FIXES:
         return None
     shape, _, both_ways = steps_shape(steps, AlignParams(), heading_offset_deg)
