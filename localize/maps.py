@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from collections.abc import Collection, Iterable
 from dataclasses import dataclass
+from weakref import WeakKeyDictionary
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -52,16 +53,25 @@ def _floats(a) -> NDArray:
     return a if a.dtype in (np.float32, np.float64) else a.astype(np.float64)
 
 
+#: Per bundle: its :func:`mean_heading_offset_deg`, computed once (the multi-user servers
+#: make an aligner per user, the CLI a filter map, an aligner and a compass check per walk).
+_OFFSET_CACHE: WeakKeyDictionary[MapBundle, float] = WeakKeyDictionary()
+
+
 def mean_heading_offset_deg(bundle: MapBundle) -> float:
     """The floor's heading offset (deg, compass heading minus walking direction): the circular
     mean of its ``heading_offset`` layer over the reachable cells (0 without one). The map's
     turn from magnetic north and the declination, a few degrees on ILC site1 (lon/lat plans)
     and any angle for a plan drawn along its building."""
-    if "heading_offset" not in bundle.layers:
-        return 0.0
-    v = np.asarray(bundle.layers["heading_offset"], dtype=np.float64)
-    v = np.radians(v[np.asarray(bundle.mask, dtype=bool) & np.isfinite(v)])
-    return float(np.degrees(np.arctan2(np.sin(v).sum(), np.cos(v).sum()))) if v.size else 0.0
+    if bundle not in _OFFSET_CACHE:
+        offset = 0.0
+        if "heading_offset" in bundle.layers:
+            v = np.asarray(bundle.layers["heading_offset"], dtype=np.float64)
+            v = np.radians(v[np.asarray(bundle.mask, dtype=bool) & np.isfinite(v)])
+            if v.size:
+                offset = float(np.degrees(np.arctan2(np.sin(v).sum(), np.cos(v).sum())))
+        _OFFSET_CACHE[bundle] = offset
+    return _OFFSET_CACHE[bundle]
 
 
 class FilterMap:
