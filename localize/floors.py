@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Protocol
 
 import numpy as np
+from numpy.typing import NDArray
 
 from localize.bundle import MapBundle
 from localize.errors import LocalizationError
@@ -221,9 +222,10 @@ class SiteMaps:
                 model, header_bundle):
             return ""
         calibration, _ = self._wifi_calibration(heard, device_model)
-        best, n_on, n_known = _walk_floor(model, heard, summed=False, calibration=calibration)
+        classified = _classified(model, heard, calibration)
+        best, n_on, n_known = _walk_floor(model, heard, summed=False, classified=classified)
         other = self.floor_bundle(best) if best is not None else None
-        change = _floor_change(model, heard, calibration)
+        change = _floor_change(model, classified)
         if (other is None or other.floor_id == header_bundle.floor_id
                 or n_known < DOUBT_MIN_SCANS or n_on < DOUBT_SHARE * n_known):
             return change
@@ -306,8 +308,9 @@ class SiteMaps:
                                    if name == "Wi-Fi" else (None, False))
             calibrated = (f"; RSSI calibrated online, k={calibration[0]:.3f}, "
                           f"b={calibration[1]:+.1f} dB") if online else ""
+            classified = _classified(model, heard, calibration)
             best, n_on, n_known = _walk_floor(model, heard, summed=name == "BLE",
-                                              calibration=calibration)
+                                              classified=classified)
             if best is None:
                 missing.append(f"none of its {len(heard)} {what} hears a transmitter the "
                                f"{name} floor model knows")
@@ -318,7 +321,7 @@ class SiteMaps:
                 raise LocalizationError(f"{where}: the {name} floor model says floor {best}, "
                                         "which has no bundle")
             how = f"{name} floor model ({n_on} of {n_known} {what} on it{calibrated})" + (
-                _floor_change(model, heard, calibration) if name == "Wi-Fi" else "")
+                _floor_change(model, classified) if name == "Wi-Fi" else "")
             lacking = self._lacking(model)
             if name == "Wi-Fi" and lacking and self.ble_floor_model is not None:
                 # it puts a walk on a floor it knows even when the walk is on one it lacks:
@@ -365,18 +368,30 @@ FLOOR_CHANGE = "; its Wi-Fi scans change floor"
 CHANGE_MIN_SCANS, CHANGE_SHARE, CHANGE_GAIN_SCANS = 5, 0.8, 5
 
 
-def _floor_change(model: FloorModel, scans: Sequence[RadioScan],
-                  calibration: tuple[float, float] | None) -> str:
-    """``"; its Wi-Fi scans change floor, F1 to F2 at scan 18 of 37 (t ... ms): ..."`` when
-    the floor model's floor per scan splits the walk (in time order) into two parts on two
-    floors (:data:`CHANGE_MIN_SCANS`, :data:`CHANGE_SHARE`, :data:`CHANGE_GAIN_SCANS`): a
-    lift or stairs mid-walk, whose other part is localized on the wrong floor; else ``""``
-    (and for a model without ``log_proba``)."""
+def _classified(model: FloorModel, scans: Sequence[RadioScan],
+                calibration: tuple[float, float] | None
+                ) -> tuple[NDArray[np.float64], list[RadioScan]] | None:
+    """The log-probabilities (k, floors) of the ``scans`` a model with ``scan_matrix`` and
+    ``log_proba`` classifies (those hearing a transmitter it knows; their RSSI first mapped
+    through ``calibration`` ``(k, b)``), and those scans; None for another model."""
     if not (hasattr(model, "log_proba") and hasattr(model, "scan_matrix")):
-        return ""
+        return None
     lp = np.asarray(model.log_proba(model.scan_matrix(scans, calibration)), dtype=np.float64)
     ok = np.isfinite(lp).all(axis=1)
-    each = np.argmax(lp[ok], axis=1)
+    return lp[ok], [scan for scan, good in zip(scans, ok) if good]
+
+
+def _floor_change(model: FloorModel,
+                  classified: tuple[NDArray[np.float64], list[RadioScan]] | None) -> str:
+    """``"; its Wi-Fi scans change floor, F1 to F2 at scan 18 of 37 (t ... ms): ..."`` when
+    the floor model's floor per scan (:func:`_classified`) splits the walk (in time order)
+    into two parts on two floors (:data:`CHANGE_MIN_SCANS`, :data:`CHANGE_SHARE`,
+    :data:`CHANGE_GAIN_SCANS`): a lift or stairs mid-walk, whose other part is localized on
+    the wrong floor; else ``""`` (and for a model without ``log_proba``)."""
+    if classified is None:
+        return ""
+    lp, kept = classified
+    each = np.argmax(lp, axis=1)
     n, m = len(each), lp.shape[1]
     if n < 2 * CHANGE_MIN_SCANS:
         return ""
@@ -390,7 +405,7 @@ def _floor_change(model: FloorModel, scans: Sequence[RadioScan],
     if agree[k] < CHANGE_SHARE * n or agree[k] < before[-1].max() + CHANGE_GAIN_SCANS:
         return ""
     at = split[k]
-    t_ms = [s.t_ms for s, good in zip(scans, ok) if good][at]
+    t_ms = kept[at].t_ms
     return (f"{FLOOR_CHANGE}, {model.floors[a[k]]} to {model.floors[b[k]]} at scan {at + 1} of "
             f"{n} ({t_ms:.0f} ms): a walk is localized on one floor, so one part of it is on the "
             "wrong one (localize the parts apart)")
@@ -482,7 +497,8 @@ def unknown_phone_calibration(model: FloorModel, scans: Sequence[RadioScan],
 
 
 def _walk_floor(model: FloorModel, scans: Sequence[RadioScan], *, summed: bool,
-                calibration: tuple[float, float] | None = None
+                calibration: tuple[float, float] | None = None,
+                classified: tuple[NDArray[np.float64], list[RadioScan]] | None = None
                 ) -> tuple[str | None, int, int]:
     """The floor of a walk's scans under a floor model, the number of scans put on it alone
     and the number of scans it classifies (those hearing a transmitter it knows).
@@ -492,16 +508,14 @@ def _walk_floor(model: FloorModel, scans: Sequence[RadioScan], *, summed: bool,
     ``calibration`` ``(k, b)`` when given: with ``summed`` the floor of the largest summed
     log-probability (as :meth:`mapping.floor_model.FloorModel.predict_walks`), else the floor
     most scans are put on (ties: the first of them in the walk). None when no scan is
-    classified."""
-    if hasattr(model, "log_proba") and hasattr(model, "scan_matrix"):
-        lp = np.asarray(model.log_proba(model.scan_matrix(scans, calibration)),
-                        dtype=np.float64)
-        ok = np.isfinite(lp).all(axis=1)
-        if not ok.any():
+    classified. ``classified``: :func:`_classified` of these scans, when already made."""
+    classified = classified or _classified(model, scans, calibration)
+    if classified is not None:
+        lp = classified[0]
+        if not len(lp):
             return None, 0, 0
-        each = np.argmax(lp[ok], axis=1)
-        best = walk_floor_index(lp[ok], summed=summed)
-        return str(model.floors[best]), int((each == best).sum()), int(ok.sum())
+        best = walk_floor_index(lp, summed=summed)
+        return str(model.floors[best]), int((np.argmax(lp, axis=1) == best).sum()), len(lp)
     votes: dict[str, int] = {}
     for scan in scans:
         f = model.floor_of(scan)
