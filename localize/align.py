@@ -163,13 +163,12 @@ def steps_shape(steps: StepSummaries, p: AlignParams, heading_offset_deg: float 
                   steps.delta_acc_ms2, p, steps.attitude == AttitudeCode.CARRIED)
 
 
-def walk_shape(steps: StepSummaries, params: AlignParams = AlignParams(),
-               heading_offset_deg: float = 0.0) -> NDArray[np.complex128]:
+def walk_shape(steps: StepSummaries, params: AlignParams = AlignParams()
+               ) -> NDArray[np.complex128]:
     """The walk's step track in map orientation, up to the transform :class:`WalkAligner`
     fits: ``(m + 1,)`` complex positions (x east + i y north, m), 0 before the first step
-    and after each step (module docstring: how); the compass less ``heading_offset_deg``
-    (the floor's: :func:`localize.maps.mean_heading_offset_deg`)."""
-    return steps_shape(steps, params, heading_offset_deg)[0]
+    and after each step (module docstring: how)."""
+    return steps_shape(steps, params)[0]
 
 
 def _fix_covariance(t_s: NDArray, start_given: bool, p: AlignParams) -> NDArray[np.float64]:

@@ -35,6 +35,7 @@ from localize.cli_common import (AliasedOption, FloorChoices, SeenWalks, TraceId
                                   trace_files, waypoint_errors_quietly)
 from localize.errors import LocalizationError
 from localize.methods import METHODS, SMOOTHABLE
+from localize.params import MAX_PARTICLES
 from survey.publish import refuse_to_replace
 
 if TYPE_CHECKING:
@@ -43,9 +44,11 @@ if TYPE_CHECKING:
 START_HELP = ("auto (the walk's first Wi-Fi fix; for a walk without one, its first BLE fix; "
               "else its first waypoint), waypoint, radio, or X,Y (m).")
 PARTICLES_HELP = "Particles of the particle filters (default 300)."
-COMPASS_HELP = ("auto: a walk whose step track fits its radio fixes only turned by 60 deg or "
-                "more (a phone held in landscape, a rotation vector in another frame) has its "
-                "compass turned so, with a warning; as-logged: warned, not turned.")
+COMPASS_OPTION = click.option(
+    "--compass", type=click.Choice(["auto", "as-logged"]), default="auto", show_default=True,
+    help="auto: a walk whose step track fits its radio fixes only turned by 60 deg or more "
+         "(a phone held in landscape, a rotation vector in another frame) has its compass "
+         "turned so, with a warning; as-logged: warned, not turned.")
 #: Method names of ``evaluate --method`` (comma-separated, or the option repeated).
 DEFAULT_EVALUATE_METHODS = ("auto", "indoormap", "align", "pf_no_mag", "pdr")
 
@@ -209,11 +212,10 @@ def _params(particles: int | None):
                    "filter on the fixes for bundles that do not record it (the choice is "
                    "printed).")
 @click.option("--start", default="auto", show_default=True, help=START_HELP)
-@click.option("--particles", type=click.IntRange(1, 1_000_000), default=None,
+@click.option("--particles", type=click.IntRange(1, MAX_PARTICLES), default=None,
               help=PARTICLES_HELP)
 @click.option("--seed", type=int, default=0, show_default=True)
-@click.option("--compass", type=click.Choice(["auto", "as-logged"]), default="auto",
-              show_default=True, help=COMPASS_HELP)
+@COMPASS_OPTION
 @click.option("--format", "fmt", type=click.Choice(["parquet", "csv"]), default="parquet",
               show_default=True)
 @click.option("--plot/--no-plot", default=True, show_default=True,
@@ -339,11 +341,10 @@ def localize_command(bundle_path: Path, walks: tuple[str, ...], out: Path, metho
               help=f"Methods to score, comma-separated or the option repeated: "
                    f"{', '.join(METHODS)}.")
 @click.option("--start", default="auto", show_default=True, help=START_HELP)
-@click.option("--particles", type=click.IntRange(1, 1_000_000), default=None,
+@click.option("--particles", type=click.IntRange(1, MAX_PARTICLES), default=None,
               help=PARTICLES_HELP)
 @click.option("--seed", type=int, default=0, show_default=True)
-@click.option("--compass", type=click.Choice(["auto", "as-logged"]), default="auto",
-              show_default=True, help=COMPASS_HELP)
+@COMPASS_OPTION
 @click.option("--plot-file", "--plot", "plot_path", cls=AliasedOption, old_names=("--plot",),
               type=click.Path(dir_okay=False, path_type=Path), default=None, metavar="FILE",
               help="Write the error CDFs as a PNG to FILE (folders are created).")

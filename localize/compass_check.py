@@ -62,7 +62,7 @@ class CompassCheck:
     def turned(self) -> bool:
         """The compass is turned: over :data:`TURN_SAID_DEG` and a fit far better turned."""
         return (abs(self.turn_deg) >= TURN_SAID_DEG and self.residual_share <= RESIDUAL_SHARE
-                and self.n_fixes >= MIN_FIXES and self.spread_m >= MIN_SPREAD_M)
+                and self.spread_m >= MIN_SPREAD_M)  # (compass_turn needs MIN_FIXES)
 
     def mended(self, steps: StepSummaries) -> StepSummaries:
         """``steps`` with their compass turned by :attr:`turn_deg` onto the fixes (headings

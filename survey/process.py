@@ -36,7 +36,8 @@ from .field_features import circular_median_deg, field_features, unwrap_deg, wra
 from .magcal import MagCalResult
 from .positions import PositionParams, clean_waypoints, positions_along_walk
 from .rotation import heading_deg, interpolate_rotation_vector, rotation_matrices, tilt_deg
-from .sensor_units import acceleration_unit_problem, field_unit_problem, gyro_turn_problem
+from .sensor_units import (FIELD_MEDIAN_UT, acceleration_unit_problem, field_unit_problem,
+                           gyro_turn_problem)
 from .steps import detect_steps, fit_weinberg, segment_ids, weinberg_length
 
 if TYPE_CHECKING:  # an annotation only
@@ -64,7 +65,7 @@ class ProcessParams:
     #: When a step's phone counts as carried top edge up or down (its compass the walking axis).
     carried: CarriedHeadingParams = field(default_factory=CarriedHeadingParams)
     #: Plausible range of the calibrated field strength (uT); outside it a stream is not trusted.
-    strength_range_ut: tuple[float, float] = (15.0, 120.0)
+    strength_range_ut: tuple[float, float] = FIELD_MEDIAN_UT
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), sort_keys=True)
@@ -166,7 +167,7 @@ MAGNETOMETER_STREAMS = ("magnetic_field", "magnetic_field_uncalibrated")
 
 
 def calibrated_field(sensors: pd.DataFrame, session_fit: MagCalResult | None = None,
-                     strength_range_ut: tuple[float, float] = (15.0, 120.0)
+                     strength_range_ut: tuple[float, float] = FIELD_MEDIAN_UT
                      ) -> tuple[NDArray, NDArray, str, str]:
     """Choose the magnetometer calibration of a walk.
 

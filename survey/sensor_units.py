@@ -13,17 +13,17 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-#: Standard gravity (m/s^2).
-G_MS2 = 9.80665
+from .steps import STANDARD_GRAVITY
+
 #: Median magnitude (m/s^2) of a carried phone's accelerometer: gravity and the walk's swing
 #: (ILC site1: 7.6-10.1; a simulated phone swinging in the hand, 14.2); in g or mg a walk
 #: reads 1-1.5 or 1000-1500.
 ACCELERATION_MEDIAN_MS2 = (4.0, 50.0)
 #: Median strength (uT) of a calibrated magnetometer indoors (the Earth's 25-65 uT, bent by
-#: the building); :class:`survey.process.ProcessParams` uses the same bounds.
+#: the building); also :class:`survey.process.ProcessParams`' plausible calibrated field.
 FIELD_MEDIAN_UT = (15.0, 120.0)
 #: Other units (name, factor to uT or m/s^2) a log's values may be in, tried in turn.
-ACCELERATION_UNITS = (("g (1 g = 9.81 m/s^2)", G_MS2), ("mg or cm/s^2", 0.01))
+ACCELERATION_UNITS = (("g (1 g = 9.81 m/s^2)", STANDARD_GRAVITY), ("mg or cm/s^2", 0.01))
 FIELD_UNITS = (("gauss (1 G = 100 uT)", 100.0), ("nanotesla (1 nT = 0.001 uT)", 1e-3),
                ("tesla (1 T = 10^6 uT)", 1e6))
 #: A gyroscope turning over this many times as far as the rotation vector (or less than its
