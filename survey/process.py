@@ -238,14 +238,15 @@ def unit_checked_headings(trace_id: str, sensors: pd.DataFrame, acc_xyz: NDArray
     :func:`gyro_heading_deg`), once its sensors are known to be in the units indoormap
     reads: else a :class:`ProcessingError` naming the walk (:mod:`survey.sensor_units`:
     accelerometer ``acc_xyz`` (n, 3) not in m/s^2, magnetometer not in uT, gyroscope not in
-    rad/s by its turns against the rotation vector's). Before step detection, which finds no step in
-    an accelerometer in g."""
+    rad/s by its turns against the rotation vector's). Before step detection, which finds no
+    step in an accelerometer in g."""
     compass = compass_track_deg(trace_id, rot_t, rot)
-    gyro = gyro_heading_deg(sensors, rot_t, rot)
+    turn = rotation_vector_turn_deg(rot_t, rot) if len(rot_t) > 1 else None
+    gyro = gyro_heading_deg(sensors, rot_t, rot, turn)
     problem = (acceleration_unit_problem(acc_xyz)
                or field_unit_problem(field_strengths_ut(sensors))
-               or (gyro_turn_problem(rotation_vector_turn_deg(rot_t, rot), gyro)
-                   if gyro is not None and len(rot_t) > 1 else None))
+               or (gyro_turn_problem(turn, gyro)
+                   if gyro is not None and turn is not None else None))
     if problem:
         raise ProcessingError(f"{trace_id}: {problem}")
     return compass, gyro
@@ -284,7 +285,8 @@ def compass_track_deg(trace_id: str, rot_t: NDArray, rot: NDArray
     return np.asarray(rot_t, dtype=np.float64)[good], unwrapped[good]
 
 
-def gyro_heading_deg(sensors: pd.DataFrame, rot_t: NDArray, rot: NDArray
+def gyro_heading_deg(sensors: pd.DataFrame, rot_t: NDArray, rot: NDArray,
+                     rv_turn: tuple[NDArray, NDArray] | None = None
                      ) -> tuple[NDArray, NDArray] | None:
     """Heading (deg clockwise from north, unwrapped, arbitrary origin) integrated from the
     gyroscope's rate about the vertical axis; None without a gyroscope stream.
@@ -292,8 +294,9 @@ def gyro_heading_deg(sensors: pd.DataFrame, rot_t: NDArray, rot: NDArray
     Over a gap in the stream longer than :data:`GYRO_GAP_S` (or five times its usual
     interval) the heading turns as the rotation vector does about the vertical
     (:func:`rotation_vector_turn_deg` between the gap's two ends; 0 for a clock step, whose
-    two ends are one instant): a logging pause or a clock step of 30 s, integrated as one
-    trapezoid, turned the heading by up to 1,270 deg."""
+    two ends are one instant; ``rv_turn``: that track, when already made): a logging pause
+    or a clock step of 30 s, integrated as one trapezoid, turned the heading by up to 1,270
+    deg."""
     gyro = _stream(sensors, "gyroscope")
     if len(gyro) < 2:
         return None
@@ -306,7 +309,9 @@ def gyro_heading_deg(sensors: pd.DataFrame, rot_t: NDArray, rot: NDArray
     turn = 0.5 * (rate[1:] + rate[:-1]) * dt
     gap = dt > max(GYRO_GAP_S, 5 * float(np.median(dt)))
     if gap.any():
-        rt, rh = rotation_vector_turn_deg(rot_t, rot) if len(rot_t) > 1 else (t[:1], [0.0])
+        if rv_turn is None and len(rot_t) > 1:
+            rv_turn = rotation_vector_turn_deg(rot_t, rot)
+        rt, rh = rv_turn if rv_turn is not None else (t[:1], [0.0])
         turn[gap] = np.interp(t[1:][gap], rt, rh) - np.interp(t[:-1][gap], rt, rh)
     return t, np.concatenate([[0.0], np.cumsum(turn)])
 
