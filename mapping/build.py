@@ -155,6 +155,14 @@ def floor_samples(store: SurveyStore, site: str | None, floor: str) -> pd.DataFr
     return samples
 
 
+def field_left_out(metrics: dict) -> list[str]:
+    """Trace ids of the walks a floor's build kept out of its magnetic layers for a
+    magnetometer not calibrated (its ``metrics.not_calibrated_walks``); empty when there are
+    none, or when no walk was calibrated and they made the layers."""
+    raw = metrics.get("not_calibrated_walks") or {}
+    return [] if raw.get("in_magnetic_layers", True) else list(raw.get("trace_ids", []))
+
+
 def floor_walks(store: SurveyStore, site: str | None, floor: str,
                 exclude_walks: Collection[str] = ()) -> pd.DataFrame:
     """Processed-catalog rows of the floor's walks that processed ``ok``, minus

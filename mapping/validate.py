@@ -64,7 +64,7 @@ from survey.publish import file_sha256
 from survey.trace_format import bad_lines_summary
 
 from . import holdout
-from .build import BuildParams, heading_raster_for
+from .build import BuildParams, field_left_out, heading_raster_for
 from .grid import distance_to_reachable_m
 from .interpolate import INTERPOLATORS, CellStats, RasterParams, cell_stats, walk_cell_means
 from .levelling import LevellingParams, apply_session_residuals
@@ -502,9 +502,8 @@ def load_floor_data(store: SurveyStore | str | Path, bundle: MapBundle) -> Floor
         return table[~table["trace_id"].isin(not_in_bundle)].reset_index(drop=True)
 
     samples = holdout.floor_samples_with_baseline_positions(store, floor, site)
-    raw = m.get("metrics", {}).get("not_calibrated_walks") or {}
-    if raw and not raw.get("in_magnetic_layers", True):  # the build left their field out
-        samples = samples[~samples["trace_id"].isin(raw.get("trace_ids", []))]
+    if left_out := field_left_out(m.get("metrics", {})):  # out of the map it measures too
+        samples = samples[~samples["trace_id"].isin(left_out)]
     steps = processed_table(store, "steps", site=site, floor=floor)
     legs = processed_table(store, "legs", site=site, floor=floor)
     waypoints = store.table("waypoints", site=site, floor=floor)
@@ -1130,8 +1129,7 @@ def calibration_section(bundle: MapBundle, fd: FloorData | None, th: dict,
     out["decisions"] = counts
     bad = [w for w in out["walks"] if w.get("calibration") == "not-calibrated"]
     t = th.get("not_calibrated_walks_max")
-    raw = bundle.manifest.get("metrics", {}).get("not_calibrated_walks") or {}
-    left_out = bool(raw) and not raw.get("in_magnetic_layers", True)
+    left_out = bool(field_left_out(bundle.manifest.get("metrics", {})))
     if t is not None and len(bad) > t:
         for w in bad:  # a fail only where the walk's field is in the magnetic layers
             findings.append(Finding("not_calibrated", "info" if left_out else "fail",
