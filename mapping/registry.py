@@ -197,14 +197,13 @@ class Registry:
                         else:
                             (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
                             shutil.copyfile(src, tmp / rel)
-                if _damaged(target):  # the copy is intact (the version already there was)
-                    load_bundle(target)  # raises what is wrong
+                # the copy is intact, as the bundle given was: load_bundle raises what is not
+                if load_bundle(target).bundle_id != target.name:
                     raise BundleIntegrityError(f"{target}: holds another bundle than "
                                                f"{target.name}")
             crash_point("registry:after-copy")
             entry = next((h for h in history if h["bundle_id"] == bundle.bundle_id), None)
-            if entry is not None and make_current:
-                self._refuse_withdrawn(site, floor, entry, history)
+            published_before = entry is not None
             if entry is None:
                 entry = {"seq": (history[-1]["seq"] + 1) if history else 1,
                          "bundle_id": bundle.bundle_id}
@@ -214,21 +213,8 @@ class Registry:
             crash_point("registry:after-history")
             if make_current:
                 self._point(site, floor, bundle.bundle_id, allow_rollback=False, verify=False,
-                            history=history)
+                            history=history, refuse_withdrawn=published_before)
         return {**entry, "repaired": True} if damaged else entry
-
-    def _refuse_withdrawn(self, site: str, floor: str, entry: dict, history: list[dict]
-                          ) -> None:
-        """A :class:`WithdrawnVersion` when ``entry`` (a version published before) is newer
-        than the current one and a rollback moved the pointer back from it (the pointer's
-        ``rolled_back_from``); a publish that crashed before pointing at it is finished."""
-        try:
-            cur = self._pointer(site, floor, history)
-        except RegistryError:
-            return  # a damaged pointer: _point repairs it, a non-newest target a rollback
-        if cur is not None and cur["seq"] < entry["seq"] <= cur.get("rolled_back_from", 0):
-            raise WithdrawnVersion(f"{site}/{floor}", entry["bundle_id"], seq=entry["seq"],
-                                   current_seq=cur["seq"])
 
     def set_current(self, site: str, floor: str, bundle_id: str, *,
                     allow_rollback: bool = False) -> None:
@@ -240,9 +226,14 @@ class Registry:
             self._point(site, floor, bundle_id, allow_rollback=allow_rollback, verify=True)
 
     def _point(self, site: str, floor: str, bundle_id: str, *, allow_rollback: bool,
-               verify: bool, history: list[dict] | None = None) -> None:
+               verify: bool, history: list[dict] | None = None,
+               refuse_withdrawn: bool = False) -> None:
         """``set_current`` under the writer lock; ``verify=False`` for the version ``publish``
-        has just verified, and its ``history`` as it has just written it (None: read it)."""
+        has just verified, and its ``history`` as it has just written it (None: read it).
+        ``refuse_withdrawn`` (a publish of a version published before): a
+        :class:`WithdrawnVersion` when it is newer than the current one and a rollback moved
+        the pointer back from it (the pointer's ``rolled_back_from``); a publish that crashed
+        before pointing at it is finished, and a damaged pointer repaired."""
         if history is None:
             history = self.writable_history(site, floor)
         entry = next((h for h in history if h["bundle_id"] == bundle_id), None)
@@ -257,6 +248,10 @@ class Registry:
             # was current is unknown, so anything but the newest counts as a rollback
             cur, known = {"seq": max(h["seq"] for h in history)}, False
             withdrawn = self._withdrawn(site, floor)
+        if refuse_withdrawn and known and cur is not None and \
+                cur["seq"] < entry["seq"] <= withdrawn:
+            raise WithdrawnVersion(f"{site}/{floor}", bundle_id, seq=entry["seq"],
+                                   current_seq=cur["seq"])
         if cur is not None and entry["seq"] < cur["seq"] and not allow_rollback:
             raise RollbackRefused(f"{site}/{floor}", bundle_id, seq=entry["seq"],
                                   current_seq=cur["seq"], current_known=known)
