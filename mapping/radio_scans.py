@@ -18,8 +18,9 @@ age_ms     float64  scan time minus the transmitter's last-seen time (ms; 0 for 
 Wi-Fi rows come as scans from the reader. BLE sightings arrive one by one; they are grouped
 into windows of ``window_ms`` per walk, and a window is one "scan" (mean RSSI per key).
 
-RSSI outside ``rssi_range_dbm`` (default -127..0 dBm, the values a phone can report) raises
-:class:`~mapping.errors.FingerprintError` unless ``invalid="drop"``. A transmitter listed twice
+RSSI outside ``rssi_range_dbm`` (default -127..0 dBm, the values a phone can report), or at
+0 dBm (a driver's "no reading"), raises :class:`~mapping.errors.FingerprintError` unless
+``invalid="drop"``. A transmitter listed twice
 in one scan keeps its freshest row (the reader's rule).
 """
 
@@ -50,16 +51,20 @@ def _need(rows: pd.DataFrame, cols: tuple[str, ...], what: str) -> None:
 
 def _check_rssi(rssi: NDArray[np.float64], rssi_range_dbm: tuple[float, float], invalid: str,
                 what: str) -> NDArray[np.bool_]:
-    """Mask of rows to keep; raises on out-of-range values when ``invalid == "raise"``."""
+    """Mask of rows to keep: readings within ``rssi_range_dbm`` and not 0 dBm, a driver's "no
+    reading" (:func:`localize.bundle.rssi_reading`'s rule, which the trace reader applies
+    since session 51: a store ingested before may still hold such rows); raises on the others
+    when ``invalid == "raise"``."""
     if invalid not in ("raise", "drop"):
         raise FingerprintError(f"invalid must be 'raise' or 'drop', not {invalid!r}")
     lo, hi = rssi_range_dbm
-    ok = np.isfinite(rssi) & (rssi >= lo) & (rssi <= hi)
+    ok = np.isfinite(rssi) & (rssi >= lo) & (rssi <= hi) & (rssi != 0)
     if not ok.all() and invalid == "raise":
         bad = rssi[~ok]
         raise FingerprintError(
-            f"{what}: {int((~ok).sum())} RSSI values outside [{lo:g}, {hi:g}] dBm "
-            f"(e.g. {bad[:3].tolist()}); pass invalid='drop' to skip them")
+            f"{what}: {int((~ok).sum())} RSSI values outside [{lo:g}, {hi:g}] dBm or at 0 dBm "
+            f"(a driver's 'no reading'; e.g. {bad[:3].tolist()}); pass invalid='drop' to skip "
+            "them")
     return ok
 
 

@@ -90,6 +90,9 @@ def test_rssi_out_of_range_is_refused_with_a_clear_message():
     assert wifi_observations(rows, invalid="drop")["rssi_dbm"].tolist() == [-60]
     with pytest.raises(IndoormapError):           # one root for every indoormap error
         wifi_observations(rows.drop(columns=["bssid"]))
+    # 0 dBm is no reading (a store ingested before the reader refused it may hold such rows)
+    zero = _rows(rssi_dbm=[-60, 0], bssid=["a1", "a2"])
+    assert wifi_observations(zero, invalid="drop")["rssi_dbm"].tolist() == [-60]
 
 
 def test_floor_without_wifi_gives_a_clear_error(sample_store):
