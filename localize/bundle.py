@@ -62,19 +62,13 @@ MAX_COORD_M = 1e8
 RSSI_RANGE_DBM = (-127.0, 0.0)
 
 
-def rssi_in_range(rssi_dbm: ArrayLike) -> NDArray[np.bool_]:
-    """Where RSSI values (dBm) are within :data:`RSSI_RANGE_DBM` (NaN is not): what a
-    bundle's tables may hold (a calibrated mean may reach 0)."""
-    rssi = np.asarray(rssi_dbm)
-    return (rssi >= RSSI_RANGE_DBM[0]) & (rssi <= RSSI_RANGE_DBM[1])
-
-
 def rssi_reading(rssi_dbm: ArrayLike) -> NDArray[np.bool_]:
     """Where RSSI values (dBm) are a phone's reading: within :data:`RSSI_RANGE_DBM` and not
     exactly 0 dBm, which no phone receives (the ILC traces' strongest Wi-Fi row is -7 dBm)
     and drivers report for "no reading". Read as the strongest signal, a third of a walk's
     rows at 0 dBm took its median error from 1.7 to 6.1 m and put it on another floor."""
-    return rssi_in_range(rssi_dbm) & (np.asarray(rssi_dbm) != 0)
+    rssi = np.asarray(rssi_dbm)
+    return (rssi >= RSSI_RANGE_DBM[0]) & (rssi <= RSSI_RANGE_DBM[1]) & (rssi != 0)
 
 
 #: The layers of a floor bundle by name: (unit, kinds it may have). The polar angle (0 to
